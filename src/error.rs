@@ -1,0 +1,76 @@
+//! One error type for the library. Every variant that concerns a file names the file, and
+//! parse errors also name the field and what was expected, so a user can fix the input.
+
+use std::path::PathBuf;
+
+pub type Result<T> = std::result::Result<T, Error>;
+
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    #[error("{path}: {source}")]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    /// A file whose content does not match its format.
+    #[error("{path}: {field}: expected {expected}, found {found}")]
+    Format {
+        path: PathBuf,
+        field: String,
+        expected: String,
+        found: String,
+    },
+    /// Input that is well formed but cannot be used (empty cloud, mismatched sizes, ...).
+    #[error("invalid input: {0}")]
+    Invalid(String),
+    /// A computation that cannot produce a meaningful result for this input
+    /// (fewer than 3 correspondences, collinear points, ...).
+    #[error("degenerate input: {0}")]
+    Degenerate(String),
+    /// An external program or model that failed.
+    #[error("{what}: {message}")]
+    External { what: String, message: String },
+    #[error("cache: {0}")]
+    Cache(String),
+}
+
+impl Error {
+    pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
+        Error::Io {
+            path: path.into(),
+            source,
+        }
+    }
+
+    pub fn format(
+        path: impl Into<PathBuf>,
+        field: impl Into<String>,
+        expected: impl Into<String>,
+        found: impl Into<String>,
+    ) -> Self {
+        Error::Format {
+            path: path.into(),
+            field: field.into(),
+            expected: expected.into(),
+            found: found.into(),
+        }
+    }
+}
+
+/// Write `bytes` to `path` atomically: a temporary file in the same directory, then rename.
+/// A reader never sees a half-written file, and a crash leaves the old content in place.
+pub fn write_atomic(path: &std::path::Path, bytes: &[u8]) -> Result<()> {
+    use std::io::Write;
+    let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(std::path::Path::new("."));
+    std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let tmp = dir.join(format!(".{name}.{}.tmp", std::process::id()));
+    {
+        let mut f = std::fs::File::create(&tmp).map_err(|e| Error::io(&tmp, e))?;
+        f.write_all(bytes).map_err(|e| Error::io(&tmp, e))?;
+        f.sync_all().map_err(|e| Error::io(&tmp, e))?;
+    }
+    std::fs::rename(&tmp, path).map_err(|e| Error::io(path, e))?;
+    Ok(())
+}

@@ -1,0 +1,42 @@
+//! Geometric-branch features: FPFH (hand-crafted) and precomputed learned features
+//! (GeoTransformer, FCGF, Predator) loaded from files.
+
+/// Dense per-point features, row-major: row i is the feature of point i.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Features {
+    pub dim: usize,
+    pub data: Vec<f32>,
+}
+
+impl Features {
+    pub fn new(dim: usize, data: Vec<f32>) -> Self {
+        debug_assert!(dim == 0 || data.len() % dim == 0);
+        Features { dim, data }
+    }
+    pub fn len(&self) -> usize {
+        if self.dim == 0 {
+            0
+        } else {
+            self.data.len() / self.dim
+        }
+    }
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+    pub fn row(&self, i: usize) -> &[f32] {
+        &self.data[i * self.dim..(i + 1) * self.dim]
+    }
+    /// A copy with every row scaled to unit L2 norm (rows of norm < eps stay zero).
+    pub fn l2_normalized(&self) -> Features {
+        let mut data = self.data.clone();
+        if self.dim > 0 {
+            for row in data.chunks_mut(self.dim) {
+                let n = row.iter().map(|v| v * v).sum::<f32>().sqrt();
+                if n > 1e-12 {
+                    row.iter_mut().for_each(|v| *v /= n);
+                }
+            }
+        }
+        Features { dim: self.dim, data }
+    }
+}

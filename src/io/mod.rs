@@ -1,0 +1,14 @@
+//! Readers and writers, one file per format. Every reader states its conventions in its
+//! module docs and returns `Error::Format` naming the file, the field and what was expected.
+
+pub mod camera_txt;
+pub mod depth_png;
+pub mod gtlog;
+pub mod kitti;
+pub mod npy;
+pub mod pcd;
+pub mod pickle;
+pub mod ply;
+pub mod rgbd_sequence;
+pub mod xyz;
+pub mod cloud;
