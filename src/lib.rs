@@ -25,3 +25,33 @@ pub mod wfm;
 pub mod app;
 
 pub use error::{Error, Result};
+
+/// Where the staged real data lives: `$CGENREG_DATA`, else `<crate>/../shared/data`.
+/// Returns None when neither exists.
+pub fn data_root() -> Option<std::path::PathBuf> {
+    if let Ok(p) = std::env::var("CGENREG_DATA") {
+        let p = std::path::PathBuf::from(p);
+        if p.is_dir() {
+            return Some(p);
+        }
+    }
+    let p = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data");
+    p.is_dir().then_some(p)
+}
+
+/// For tests on real data: the data root, or None to skip. When `CI=true` the data must be
+/// there, so a missing root panics (the test fails instead of silently skipping).
+pub fn test_data_root() -> Option<std::path::PathBuf> {
+    match data_root() {
+        Some(p) => Some(p),
+        None if std::env::var("CI").map(|v| v == "true").unwrap_or(false) => {
+            panic!(
+                "CI=true but the real test data was not found at $CGENREG_DATA or ../shared/data"
+            )
+        }
+        None => {
+            eprintln!("skipping: real data not found (set CGENREG_DATA)");
+            None
+        }
+    }
+}

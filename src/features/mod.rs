@@ -37,6 +37,9 @@ impl Features {
                 }
             }
         }
-        Features { dim: self.dim, data }
+        Features {
+            dim: self.dim,
+            data,
+        }
     }
 }

@@ -42,19 +42,20 @@ impl PointCloud {
     /// Axis-aligned bounds (min, max); None for an empty cloud.
     pub fn bounds(&self) -> Option<(Point3<f32>, Point3<f32>)> {
         let first = *self.points.first()?;
-        Some(self.points.iter().fold((first, first), |(lo, hi), p| {
-            (lo.inf(p), hi.sup(p))
-        }))
+        Some(
+            self.points
+                .iter()
+                .fold((first, first), |(lo, hi), p| (lo.inf(p), hi.sup(p))),
+        )
     }
 
     pub fn centroid(&self) -> Option<Point3<f32>> {
         if self.points.is_empty() {
             return None;
         }
-        let s = self
-            .points
-            .iter()
-            .fold(Vector3::<f64>::zeros(), |acc, p| acc + p.coords.cast::<f64>());
+        let s = self.points.iter().fold(Vector3::<f64>::zeros(), |acc, p| {
+            acc + p.coords.cast::<f64>()
+        });
         Some(Point3::from((s / self.points.len() as f64).cast::<f32>()))
     }
 
@@ -62,9 +63,18 @@ impl PointCloud {
     pub fn select(&self, indices: &[usize]) -> PointCloud {
         PointCloud {
             points: indices.iter().map(|&i| self.points[i]).collect(),
-            colors: self.colors.as_ref().map(|c| indices.iter().map(|&i| c[i]).collect()),
-            normals: self.normals.as_ref().map(|c| indices.iter().map(|&i| c[i]).collect()),
-            intensity: self.intensity.as_ref().map(|c| indices.iter().map(|&i| c[i]).collect()),
+            colors: self
+                .colors
+                .as_ref()
+                .map(|c| indices.iter().map(|&i| c[i]).collect()),
+            normals: self
+                .normals
+                .as_ref()
+                .map(|c| indices.iter().map(|&i| c[i]).collect()),
+            intensity: self
+                .intensity
+                .as_ref()
+                .map(|c| indices.iter().map(|&i| c[i]).collect()),
         }
     }
 }

@@ -24,7 +24,10 @@ pub fn isometry_from_matrix(m: &Matrix4<f64>) -> Option<Isometry3<f64>> {
     }
     let rot = Rotation3::from_matrix_eps(&r, 1e-12, 100, Rotation3::identity());
     let t = Translation3::new(m[(0, 3)], m[(1, 3)], m[(2, 3)]);
-    Some(Isometry3::from_parts(t, UnitQuaternion::from_rotation_matrix(&rot)))
+    Some(Isometry3::from_parts(
+        t,
+        UnitQuaternion::from_rotation_matrix(&rot),
+    ))
 }
 
 pub fn matrix_from_isometry(t: &Isometry3<f64>) -> Matrix4<f64> {

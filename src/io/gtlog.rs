@@ -1,1 +1,204 @@
-//! (in progress)
+//! 3DMatch `gt.log` and `gt.info`.
+//!
+//! gt.log: blocks of 5 lines, a header `i j N` (N = number of fragments of the scene) and a
+//! 4x4 matrix T with **p_i = T * p_j**: fragment j is the source, fragment i the target, and
+//! T is `target_from_source`. gt.info: the same header and a 6x6 information matrix (used by
+//! the RMSE-based recall of Choi et al.; it is not a pose).
+
+use crate::error::{Error, Result};
+use crate::geometry::transform::isometry_from_matrix;
+use nalgebra::{Isometry3, Matrix4, Matrix6};
+use std::path::Path;
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct GtEntry {
+    /// Fragment i of the header (target).
+    pub target: usize,
+    /// Fragment j of the header (source).
+    pub source: usize,
+    /// Third header field: the number of fragments in the scene.
+    pub n_fragments: usize,
+    pub target_from_source: Isometry3<f64>,
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct GtInfo {
+    pub target: usize,
+    pub source: usize,
+    pub n_fragments: usize,
+    pub information: Matrix6<f64>,
+}
+
+struct Block {
+    header: [usize; 3],
+    values: Vec<f64>,
+    line: usize,
+}
+
+fn parse_blocks(path: &Path, text: &str, rows: usize, cols: usize) -> Result<Vec<Block>> {
+    let lines: Vec<(usize, &str)> = text
+        .lines()
+        .enumerate()
+        .filter(|(_, l)| !l.trim().is_empty())
+        .collect();
+    if lines.len() % (rows + 1) != 0 {
+        return Err(Error::format(
+            path,
+            "layout",
+            format!(
+                "blocks of {} non-empty lines (header + {rows} matrix rows)",
+                rows + 1
+            ),
+            format!("{} non-empty lines", lines.len()),
+        ));
+    }
+    let mut out = Vec::new();
+    for chunk in lines.chunks(rows + 1) {
+        let (ln, head) = chunk[0];
+        let h: Vec<&str> = head.split_whitespace().collect();
+        let parsed: Option<Vec<usize>> = h.iter().map(|t| t.parse().ok()).collect();
+        let header = match parsed.as_deref() {
+            Some([a, b, c]) => [*a, *b, *c],
+            _ => {
+                return Err(Error::format(
+                    path,
+                    format!("line {} (header)", ln + 1),
+                    "three integers `i j N`",
+                    format!("{head:?}"),
+                ))
+            }
+        };
+        let mut values = Vec::with_capacity(rows * cols);
+        for &(lr, row) in &chunk[1..] {
+            let nums: Vec<&str> = row.split_whitespace().collect();
+            if nums.len() != cols {
+                return Err(Error::format(
+                    path,
+                    format!("line {}", lr + 1),
+                    format!("{cols} numbers"),
+                    format!("{} fields", nums.len()),
+                ));
+            }
+            for t in nums {
+                let v: f64 = t
+                    .parse()
+                    .ok()
+                    .filter(|v: &f64| v.is_finite())
+                    .ok_or_else(|| {
+                        Error::format(
+                            path,
+                            format!("line {}", lr + 1),
+                            "a finite number",
+                            format!("{t:?}"),
+                        )
+                    })?;
+                values.push(v);
+            }
+        }
+        out.push(Block {
+            header,
+            values,
+            line: ln + 1,
+        });
+    }
+    Ok(out)
+}
+
+pub fn parse_gt_log(path: &Path, text: &str) -> Result<Vec<GtEntry>> {
+    parse_blocks(path, text, 4, 4)?
+        .into_iter()
+        .map(|b| {
+            let m = Matrix4::from_row_slice(&b.values);
+            let t = isometry_from_matrix(&m).ok_or_else(|| {
+                Error::format(
+                    path,
+                    format!("block at line {}", b.line),
+                    "a rigid 4x4 transform",
+                    "a non-rigid matrix",
+                )
+            })?;
+            Ok(GtEntry {
+                target: b.header[0],
+                source: b.header[1],
+                n_fragments: b.header[2],
+                target_from_source: t,
+            })
+        })
+        .collect()
+}
+
+pub fn read_gt_log(path: &Path) -> Result<Vec<GtEntry>> {
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    parse_gt_log(path, &text)
+}
+
+pub fn read_gt_info(path: &Path) -> Result<Vec<GtInfo>> {
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    Ok(parse_blocks(path, &text, 6, 6)?
+        .into_iter()
+        .map(|b| GtInfo {
+            target: b.header[0],
+            source: b.header[1],
+            n_fragments: b.header[2],
+            information: Matrix6::from_row_slice(&b.values),
+        })
+        .collect())
+}
+
+/// Format entries in the gt.log layout (what 3DMatch evaluation scripts read for results).
+pub fn format_gt_log(entries: &[GtEntry]) -> String {
+    let mut s = String::new();
+    for e in entries {
+        s.push_str(&format!(
+            "{}\t {}\t {}\t\n",
+            e.target, e.source, e.n_fragments
+        ));
+        let m = e.target_from_source.to_homogeneous();
+        for r in 0..4 {
+            let row: Vec<String> = (0..4).map(|c| format!("{:.8e}", m[(r, c)])).collect();
+            s.push_str(&row.join("\t "));
+            s.push_str("\t\n");
+        }
+    }
+    s
+}
+
+pub fn write_gt_log(path: &Path, entries: &[GtEntry]) -> Result<()> {
+    crate::error::write_atomic(path, format_gt_log(entries).as_bytes())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Translation3, UnitQuaternion};
+
+    #[test]
+    fn roundtrip() {
+        let t = Isometry3::from_parts(
+            Translation3::new(0.1, -0.2, 0.3),
+            UnitQuaternion::from_euler_angles(0.1, 0.2, -0.3),
+        );
+        let e = vec![GtEntry {
+            target: 0,
+            source: 5,
+            n_fragments: 60,
+            target_from_source: t,
+        }];
+        let text = format_gt_log(&e);
+        let back = parse_gt_log(Path::new("x.log"), &text).unwrap();
+        assert_eq!(back[0].target, 0);
+        assert_eq!(back[0].source, 5);
+        assert!((back[0].target_from_source.to_homogeneous() - t.to_homogeneous()).amax() < 1e-7);
+    }
+
+    #[test]
+    fn errors_name_line() {
+        let bad = "0 1 60\n1 0 0 0\n0 1 0 0\n0 0 1 x\n0 0 0 1\n";
+        let e = parse_gt_log(Path::new("gt.log"), bad)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("gt.log") && e.contains("line 4"), "{e}");
+        let short = "0 1 60\n1 0 0 0\n0 1 0 0\n";
+        assert!(parse_gt_log(Path::new("gt.log"), short).is_err());
+    }
+}

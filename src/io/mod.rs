@@ -2,6 +2,7 @@
 //! module docs and returns `Error::Format` naming the file, the field and what was expected.
 
 pub mod camera_txt;
+pub mod cloud;
 pub mod depth_png;
 pub mod gtlog;
 pub mod kitti;
@@ -11,4 +12,3 @@ pub mod pickle;
 pub mod ply;
 pub mod rgbd_sequence;
 pub mod xyz;
-pub mod cloud;
