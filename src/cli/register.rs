@@ -1,0 +1,90 @@
+use super::args::PipelineArgs;
+use crate::dataset::manifest::Dataset;
+use crate::dataset::ScanPair;
+use crate::error::{Error, Result};
+use crate::pipeline::{register_pair, RegistrationResult};
+use clap::Args;
+use std::path::PathBuf;
+
+#[derive(Args, Debug)]
+pub struct RegisterArgs {
+    /// Source cloud file (.ply .pcd .npy .pth .bin .xyz).
+    #[arg(long, requires = "target", conflicts_with = "manifest")]
+    pub source: Option<PathBuf>,
+    /// Target cloud file.
+    #[arg(long, requires = "source")]
+    pub target: Option<PathBuf>,
+    /// Ground truth target_from_source (4x4 text or .npy) for --source/--target.
+    #[arg(long, requires = "source")]
+    pub gt: Option<PathBuf>,
+    /// Dataset manifest (TOML).
+    #[arg(long, requires = "pair")]
+    pub manifest: Option<PathBuf>,
+    /// Pair id within the manifest (see `cgenreg bench --list`).
+    #[arg(long, requires = "manifest")]
+    pub pair: Option<String>,
+    /// Print the result as JSON.
+    #[arg(long)]
+    pub json: bool,
+    #[command(flatten)]
+    pub pipeline: PipelineArgs,
+}
+
+pub(crate) fn load_pair(a: &RegisterArgs) -> Result<ScanPair> {
+    match (&a.source, &a.target, &a.manifest, &a.pair) {
+        (Some(s), Some(t), _, _) => crate::dataset::pair_from_files(s, t, a.gt.as_deref()),
+        (_, _, Some(m), Some(id)) => Dataset::load(m)?.load_pair(id),
+        _ => Err(Error::Invalid(
+            "give --source and --target, or --manifest and --pair".into(),
+        )),
+    }
+}
+
+pub fn run(a: RegisterArgs) -> Result<()> {
+    let pair = load_pair(&a)?;
+    let params = a.pipeline.to_params();
+    let res = register_pair(&pair, &params)?;
+    if a.json {
+        let s = serde_json::to_string_pretty(&res)
+            .map_err(|e| Error::Invalid(format!("serialising the result: {e}")))?;
+        println!("{s}");
+    } else {
+        print_human(&res);
+    }
+    Ok(())
+}
+
+pub fn print_human(r: &RegistrationResult) {
+    println!("pair {}: source {} -> target {}", r.pair_id, r.source_name, r.target_name);
+    println!(
+        "geometric features: {}; image branch: {}",
+        r.geo_features,
+        r.image_branch.as_deref().unwrap_or("off")
+    );
+    println!(
+        "keypoints: {} source, {} target; {} correspondences, {} inliers ({})",
+        r.n_source_keypoints, r.n_target_keypoints, r.n_correspondences, r.n_inliers, r.estimator
+    );
+    println!("estimated target_from_source (p_target = T * p_source):");
+    for row in &r.target_from_source {
+        println!("  {:>12.8} {:>12.8} {:>12.8} {:>12.8}", row[0], row[1], row[2], row[3]);
+    }
+    match &r.metrics {
+        Some(m) => println!(
+            "vs ground truth: RRE {:.3} deg, RTE {:.3} m, inlier ratio {:.1} %, {}",
+            m.rre_deg,
+            m.rte_m,
+            100.0 * m.inlier_ratio,
+            if m.success { "SUCCESS (RRE <= 15 deg, RTE <= 0.30 m)" } else { "FAILURE" }
+        ),
+        None => println!("no ground truth: metrics not computed"),
+    }
+    for w in &r.warnings {
+        println!("warning: {w}");
+    }
+    println!("stage timings:");
+    for t in &r.timings {
+        println!("  {:<28} {:>9.1} ms  {}", t.stage, t.ms, t.status);
+    }
+    println!("  {:<28} {:>9.1} ms", "total", r.total_ms);
+}
