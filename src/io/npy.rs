@@ -460,6 +460,16 @@ fn npy_header(descr: &str, shape: &[usize]) -> Vec<u8> {
     out
 }
 
+/// Encode a C-order little-endian float32 array as NPY v1 bytes (for files or `.npz` entries).
+pub fn encode_npy_f32(shape: &[usize], data: &[f32]) -> Vec<u8> {
+    let mut out = npy_header("<f4", shape);
+    out.reserve(data.len() * 4);
+    for v in data {
+        out.extend_from_slice(&v.to_le_bytes());
+    }
+    out
+}
+
 /// Write a C-order little-endian float32 array (NPY v1), atomically.
 pub fn write_npy_f32(path: &Path, shape: &[usize], data: &[f32]) -> Result<()> {
     let n: usize = shape.iter().product();
@@ -471,12 +481,7 @@ pub fn write_npy_f32(path: &Path, shape: &[usize], data: &[f32]) -> Result<()> {
             data.len()
         )));
     }
-    let mut out = npy_header("<f4", shape);
-    out.reserve(data.len() * 4);
-    for v in data {
-        out.extend_from_slice(&v.to_le_bytes());
-    }
-    write_atomic(path, &out)
+    write_atomic(path, &encode_npy_f32(shape, data))
 }
 
 /// An (N,3) array as a cloud (validated: non-empty, finite).
