@@ -1,1 +1,144 @@
-//! (in progress)
+//! Load or save a point cloud by file extension, and the checks every cloud reader shares.
+//!
+//! Extensions (case-insensitive): `.ply`, `.pcd`, `.npy` (an (N,3) float array), `.pth`
+//! (legacy PyTorch pickle of an (N,3) NumPy array), `.bin` (KITTI x,y,z,intensity f32),
+//! `.xyz` / `.txt` / `.pts` (whitespace text, x y z per line). Coordinates are taken as stored
+//! (metres for all staged data); no frame change is applied.
+
+use crate::error::{Error, Result};
+use crate::geometry::cloud::PointCloud;
+use std::path::Path;
+
+/// Checks shared by every reader: at least one point, finite coordinates, and attribute
+/// arrays as long as the point array.
+pub fn validate_cloud(path: &Path, cloud: &PointCloud) -> Result<()> {
+    if cloud.points.is_empty() {
+        return Err(Error::format(
+            path,
+            "points",
+            "at least one point",
+            "an empty cloud",
+        ));
+    }
+    if let Some(i) = cloud
+        .points
+        .iter()
+        .position(|p| !(p.x.is_finite() && p.y.is_finite() && p.z.is_finite()))
+    {
+        let p = cloud.points[i];
+        return Err(Error::format(
+            path,
+            format!("point {i}"),
+            "finite x, y, z",
+            format!("({}, {}, {})", p.x, p.y, p.z),
+        ));
+    }
+    let n = cloud.points.len();
+    let check = |name: &str, len: Option<usize>| match len {
+        Some(l) if l != n => Err(Error::format(
+            path,
+            name,
+            format!("{n} entries (one per point)"),
+            format!("{l}"),
+        )),
+        _ => Ok(()),
+    };
+    check("colors", cloud.colors.as_ref().map(Vec::len))?;
+    check("normals", cloud.normals.as_ref().map(Vec::len))?;
+    check("intensity", cloud.intensity.as_ref().map(Vec::len))?;
+    Ok(())
+}
+
+fn extension(path: &Path) -> String {
+    path.extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase())
+        .unwrap_or_default()
+}
+
+const LOAD_EXTS: &str = ".ply, .pcd, .npy, .pth, .bin, .xyz, .txt, .pts";
+
+/// Read a cloud, choosing the reader by extension.
+pub fn load_cloud(path: &Path) -> Result<PointCloud> {
+    match extension(path).as_str() {
+        "ply" => super::ply::read_ply(path),
+        "pcd" => super::pcd::read_pcd(path),
+        "npy" => super::npy::read_npy_points(path),
+        "pth" => super::pickle::read_pth_points(path),
+        "bin" => super::kitti::read_kitti_bin(path),
+        "xyz" | "txt" | "pts" => super::xyz::read_xyz(path),
+        other => Err(Error::format(
+            path,
+            "extension",
+            format!("one of {LOAD_EXTS}"),
+            format!("{other:?}"),
+        )),
+    }
+}
+
+/// Write a cloud, choosing the writer by extension: `.ply` (binary, all attributes),
+/// `.npy` ((N,3) float32, points only), `.xyz`/`.txt`/`.pts` (text, points only).
+pub fn save_cloud(path: &Path, cloud: &PointCloud) -> Result<()> {
+    match extension(path).as_str() {
+        "ply" => super::ply::write_ply(path, cloud),
+        "npy" => {
+            let flat: Vec<f32> = cloud.points.iter().flat_map(|p| [p.x, p.y, p.z]).collect();
+            super::npy::write_npy_f32(path, &[cloud.len(), 3], &flat)
+        }
+        "xyz" | "txt" | "pts" => super::xyz::write_xyz(path, cloud),
+        other => Err(Error::format(
+            path,
+            "extension",
+            "one of .ply, .npy, .xyz, .txt, .pts",
+            format!("{other:?}"),
+        )),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Point3;
+
+    #[test]
+    fn unknown_extension_is_an_error() {
+        let e = load_cloud(Path::new("/tmp/x.obj")).unwrap_err().to_string();
+        assert!(e.contains("x.obj") && e.contains("extension"), "{e}");
+        let c = PointCloud::from_points(vec![Point3::new(0.0, 0.0, 0.0)]);
+        assert!(save_cloud(Path::new("/tmp/x.pcd"), &c).is_err());
+    }
+
+    #[test]
+    fn round_trip_through_every_writer() {
+        let dir = tempfile::tempdir().unwrap();
+        let pts: Vec<Point3<f32>> = (0..50)
+            .map(|i| Point3::new(i as f32 * 0.1, -(i as f32) * 0.25, 1.0 + i as f32 * 1e-3))
+            .collect();
+        let c = PointCloud::from_points(pts.clone());
+        for ext in ["ply", "npy", "xyz", "txt", "pts"] {
+            let p = dir.path().join(format!("c.{ext}"));
+            save_cloud(&p, &c).unwrap();
+            let back = load_cloud(&p).unwrap();
+            assert_eq!(back.len(), 50, "{ext}");
+            for (a, b) in back.points.iter().zip(&pts) {
+                assert!((a - b).norm() < 1e-6, "{ext}: {a} vs {b}");
+            }
+        }
+    }
+
+    #[test]
+    fn validation_names_the_bad_point() {
+        let mut c = PointCloud::from_points(vec![Point3::new(0.0, 0.0, 0.0); 4]);
+        c.points[2].y = f32::NAN;
+        let e = validate_cloud(Path::new("a.ply"), &c)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("a.ply") && e.contains("point 2"), "{e}");
+        let e = validate_cloud(Path::new("a.ply"), &PointCloud::default())
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("empty"), "{e}");
+        let mut c = PointCloud::from_points(vec![Point3::new(0.0, 0.0, 0.0); 4]);
+        c.intensity = Some(vec![0.0; 3]);
+        assert!(validate_cloud(Path::new("a.ply"), &c).is_err());
+    }
+}

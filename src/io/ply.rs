@@ -1,1 +1,843 @@
-//! (in progress)
+//! PLY point clouds (Stanford polygon format): ascii, binary_little_endian, binary_big_endian.
+//!
+//! Read: the `vertex` element gives the points. Recognised vertex properties: `x y z` (any
+//! scalar type), `red green blue` (or `r g b`, `diffuse_red ...`; uchar kept as is, float
+//! types taken in [0,1]), `nx ny nz`, and `intensity` / `scalar_intensity`. Any other
+//! property, and any other element (faces, edges, ...) before or after `vertex`, is skipped by
+//! its size, list properties included. `comment` and `obj_info` lines are ignored.
+//! Coordinates are returned as stored (metres for all staged data).
+//!
+//! Write: binary little-endian, float `x y z`, then float `nx ny nz`, uchar `red green blue`
+//! and float `intensity` for the attributes the cloud has; written atomically.
+
+use super::cloud::validate_cloud;
+use crate::error::{write_atomic, Error, Result};
+use crate::geometry::cloud::PointCloud;
+use nalgebra::{Point3, Vector3};
+use std::path::Path;
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Scalar {
+    I8,
+    U8,
+    I16,
+    U16,
+    I32,
+    U32,
+    F32,
+    F64,
+}
+
+impl Scalar {
+    fn parse(s: &str) -> Option<Scalar> {
+        Some(match s {
+            "char" | "int8" => Scalar::I8,
+            "uchar" | "uint8" => Scalar::U8,
+            "short" | "int16" => Scalar::I16,
+            "ushort" | "uint16" => Scalar::U16,
+            "int" | "int32" => Scalar::I32,
+            "uint" | "uint32" => Scalar::U32,
+            "float" | "float32" => Scalar::F32,
+            "double" | "float64" => Scalar::F64,
+            _ => return None,
+        })
+    }
+
+    fn size(self) -> usize {
+        match self {
+            Scalar::I8 | Scalar::U8 => 1,
+            Scalar::I16 | Scalar::U16 => 2,
+            Scalar::I32 | Scalar::U32 | Scalar::F32 => 4,
+            Scalar::F64 => 8,
+        }
+    }
+
+    fn is_float(self) -> bool {
+        matches!(self, Scalar::F32 | Scalar::F64)
+    }
+
+    /// Decode one value; `b` holds at least `self.size()` bytes.
+    #[inline(always)]
+    fn read(self, b: &[u8], big: bool) -> f64 {
+        macro_rules! num {
+            ($t:ty, $n:expr) => {{
+                let mut a = [0u8; $n];
+                a.copy_from_slice(&b[..$n]);
+                (if big {
+                    <$t>::from_be_bytes(a)
+                } else {
+                    <$t>::from_le_bytes(a)
+                }) as f64
+            }};
+        }
+        match self {
+            Scalar::I8 => b[0] as i8 as f64,
+            Scalar::U8 => b[0] as f64,
+            Scalar::I16 => num!(i16, 2),
+            Scalar::U16 => num!(u16, 2),
+            Scalar::I32 => num!(i32, 4),
+            Scalar::U32 => num!(u32, 4),
+            Scalar::F32 => num!(f32, 4),
+            Scalar::F64 => num!(f64, 8),
+        }
+    }
+}
+
+#[derive(Clone, Copy, Debug)]
+enum Kind {
+    Scalar(Scalar),
+    List { count: Scalar, item: Scalar },
+}
+
+#[derive(Clone, Debug)]
+struct Property {
+    name: String,
+    kind: Kind,
+}
+
+#[derive(Clone, Debug)]
+struct Element {
+    name: String,
+    count: usize,
+    props: Vec<Property>,
+}
+
+impl Element {
+    /// Bytes per instance when it has no list property.
+    fn fixed_stride(&self) -> Option<usize> {
+        self.props
+            .iter()
+            .map(|p| match p.kind {
+                Kind::Scalar(s) => Some(s.size()),
+                Kind::List { .. } => None,
+            })
+            .sum()
+    }
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Format {
+    Ascii,
+    BinaryLe,
+    BinaryBe,
+}
+
+struct Header {
+    format: Format,
+    elements: Vec<Element>,
+    body_start: usize,
+}
+
+fn parse_header(path: &Path, data: &[u8]) -> Result<Header> {
+    let magic_ok = data.starts_with(b"ply\n") || data.starts_with(b"ply\r\n");
+    if !magic_ok {
+        let found = String::from_utf8_lossy(&data[..data.len().min(8)]).into_owned();
+        return Err(Error::format(
+            path,
+            "magic",
+            "a file starting with \"ply\"",
+            format!("{found:?}"),
+        ));
+    }
+    let mut pos = 0usize;
+    let mut format = None;
+    let mut elements: Vec<Element> = Vec::new();
+    let mut line_no = 0usize;
+    loop {
+        let Some(nl) = data[pos..].iter().position(|&c| c == b'\n') else {
+            return Err(Error::format(
+                path,
+                "header",
+                "an \"end_header\" line",
+                "end of file inside the header",
+            ));
+        };
+        let raw = &data[pos..pos + nl];
+        pos += nl + 1;
+        line_no += 1;
+        let line = String::from_utf8_lossy(raw);
+        let toks: Vec<&str> = line.split_whitespace().collect();
+        let field = || format!("header line {line_no}");
+        match toks.first().copied() {
+            None | Some("ply") | Some("comment") | Some("obj_info") => {}
+            Some("format") => {
+                format = Some(match toks.get(1).copied() {
+                    Some("ascii") => Format::Ascii,
+                    Some("binary_little_endian") => Format::BinaryLe,
+                    Some("binary_big_endian") => Format::BinaryBe,
+                    other => {
+                        return Err(Error::format(
+                            path,
+                            field(),
+                            "format ascii | binary_little_endian | binary_big_endian",
+                            format!("{:?}", other.unwrap_or("")),
+                        ))
+                    }
+                });
+            }
+            Some("element") => {
+                let count = toks.get(2).and_then(|c| c.parse::<usize>().ok());
+                match (toks.get(1), count) {
+                    (Some(name), Some(count)) if toks.len() == 3 => elements.push(Element {
+                        name: name.to_string(),
+                        count,
+                        props: Vec::new(),
+                    }),
+                    _ => {
+                        return Err(Error::format(
+                            path,
+                            field(),
+                            "element <name> <count>",
+                            format!("{line:?}"),
+                        ))
+                    }
+                }
+            }
+            Some("property") => {
+                let Some(el) = elements.last_mut() else {
+                    return Err(Error::format(
+                        path,
+                        field(),
+                        "a property after an element line",
+                        format!("{line:?}"),
+                    ));
+                };
+                let prop = if toks.get(1) == Some(&"list") {
+                    let c = toks.get(2).and_then(|t| Scalar::parse(t));
+                    let i = toks.get(3).and_then(|t| Scalar::parse(t));
+                    match (c, i, toks.get(4)) {
+                        (Some(count), Some(item), Some(name)) if !count.is_float() => Property {
+                            name: name.to_string(),
+                            kind: Kind::List { count, item },
+                        },
+                        _ => {
+                            return Err(Error::format(
+                                path,
+                                field(),
+                                "property list <int type> <type> <name>",
+                                format!("{line:?}"),
+                            ))
+                        }
+                    }
+                } else {
+                    match (toks.get(1).and_then(|t| Scalar::parse(t)), toks.get(2)) {
+                        (Some(s), Some(name)) => Property {
+                            name: name.to_string(),
+                            kind: Kind::Scalar(s),
+                        },
+                        _ => {
+                            return Err(Error::format(
+                                path,
+                                field(),
+                                "property <type> <name> with a known type",
+                                format!("{line:?}"),
+                            ))
+                        }
+                    }
+                };
+                el.props.push(prop);
+            }
+            Some("end_header") => break,
+            Some(other) => {
+                return Err(Error::format(
+                    path,
+                    field(),
+                    "format, element, property, comment, obj_info or end_header",
+                    format!("{other:?}"),
+                ))
+            }
+        }
+    }
+    let Some(format) = format else {
+        return Err(Error::format(
+            path,
+            "format",
+            "a format line",
+            "none in the header",
+        ));
+    };
+    Ok(Header {
+        format,
+        elements,
+        body_start: pos,
+    })
+}
+
+/// Where each recognised attribute sits in a vertex: (property index) per role.
+#[derive(Default)]
+struct Roles {
+    xyz: [Option<usize>; 3],
+    rgb: [Option<usize>; 3],
+    normal: [Option<usize>; 3],
+    intensity: Option<usize>,
+}
+
+fn roles(path: &Path, el: &Element) -> Result<Roles> {
+    let mut r = Roles::default();
+    for (i, p) in el.props.iter().enumerate() {
+        let slot = match p.name.as_str() {
+            "x" => &mut r.xyz[0],
+            "y" => &mut r.xyz[1],
+            "z" => &mut r.xyz[2],
+            "red" | "r" | "diffuse_red" => &mut r.rgb[0],
+            "green" | "g" | "diffuse_green" => &mut r.rgb[1],
+            "blue" | "b" | "diffuse_blue" => &mut r.rgb[2],
+            "nx" | "normal_x" => &mut r.normal[0],
+            "ny" | "normal_y" => &mut r.normal[1],
+            "nz" | "normal_z" => &mut r.normal[2],
+            "intensity" | "scalar_intensity" => &mut r.intensity,
+            _ => continue,
+        };
+        if matches!(p.kind, Kind::List { .. }) {
+            return Err(Error::format(
+                path,
+                format!("vertex property {}", p.name),
+                "a scalar property",
+                "a list property",
+            ));
+        }
+        *slot = Some(i);
+    }
+    if r.xyz.iter().any(Option::is_none) {
+        let names: Vec<&str> = el.props.iter().map(|p| p.name.as_str()).collect();
+        return Err(Error::format(
+            path,
+            "vertex properties",
+            "x, y and z",
+            names.join(" "),
+        ));
+    }
+    Ok(r)
+}
+
+/// Collects the decoded vertex values into a cloud.
+struct Sink {
+    cloud: PointCloud,
+    has_rgb: bool,
+    has_normal: bool,
+    rgb_float: [bool; 3],
+}
+
+impl Sink {
+    fn new(n: usize, el: &Element, r: &Roles) -> Sink {
+        let has_rgb = r.rgb.iter().all(Option::is_some);
+        let has_normal = r.normal.iter().all(Option::is_some);
+        let is_float = |i: Option<usize>| matches!(i.map(|i| el.props[i].kind), Some(Kind::Scalar(s)) if s.is_float());
+        Sink {
+            cloud: PointCloud {
+                points: Vec::with_capacity(n),
+                colors: has_rgb.then(|| Vec::with_capacity(n)),
+                normals: has_normal.then(|| Vec::with_capacity(n)),
+                intensity: r.intensity.map(|_| Vec::with_capacity(n)),
+            },
+            has_rgb,
+            has_normal,
+            rgb_float: [is_float(r.rgb[0]), is_float(r.rgb[1]), is_float(r.rgb[2])],
+        }
+    }
+
+    #[inline(always)]
+    fn push(&mut self, get: impl Fn(usize) -> f64, r: &Roles) {
+        // Roles are Some for every attribute the sink collects (checked in `new`).
+        let at = |o: Option<usize>| o.map(&get).unwrap_or(0.0);
+        self.cloud.points.push(Point3::new(
+            at(r.xyz[0]) as f32,
+            at(r.xyz[1]) as f32,
+            at(r.xyz[2]) as f32,
+        ));
+        if self.has_rgb {
+            let c = |k: usize| {
+                let v = at(r.rgb[k]);
+                let v = if self.rgb_float[k] { v * 255.0 } else { v };
+                v.round().clamp(0.0, 255.0) as u8
+            };
+            let rgb = [c(0), c(1), c(2)];
+            if let Some(cs) = self.cloud.colors.as_mut() {
+                cs.push(rgb);
+            }
+        }
+        if self.has_normal {
+            let n = Vector3::new(
+                at(r.normal[0]) as f32,
+                at(r.normal[1]) as f32,
+                at(r.normal[2]) as f32,
+            );
+            if let Some(ns) = self.cloud.normals.as_mut() {
+                ns.push(n);
+            }
+        }
+        if let Some(is) = self.cloud.intensity.as_mut() {
+            is.push(at(r.intensity) as f32);
+        }
+    }
+}
+
+pub fn read_ply(path: &Path) -> Result<PointCloud> {
+    let data = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    parse_ply(path, &data)
+}
+
+/// Parse PLY bytes; `path` is used only in error messages.
+pub fn parse_ply(path: &Path, data: &[u8]) -> Result<PointCloud> {
+    let h = parse_header(path, data)?;
+    let vcount = h.elements.iter().filter(|e| e.name == "vertex").count();
+    if vcount != 1 {
+        return Err(Error::format(
+            path,
+            "element vertex",
+            "exactly one vertex element",
+            format!("{vcount}"),
+        ));
+    }
+    let cloud = match h.format {
+        Format::Ascii => parse_ascii(path, &h, &data[h.body_start..])?,
+        Format::BinaryLe => parse_binary(path, &h, &data[h.body_start..], false)?,
+        Format::BinaryBe => parse_binary(path, &h, &data[h.body_start..], true)?,
+    };
+    validate_cloud(path, &cloud)?;
+    Ok(cloud)
+}
+
+fn truncated(path: &Path, el: &Element, i: usize, need: String, found: usize) -> Error {
+    Error::format(
+        path,
+        format!("element {} (instance {i} of {})", el.name, el.count),
+        format!("{need} (file truncated?)"),
+        format!("{found} bytes left"),
+    )
+}
+
+fn parse_binary(path: &Path, h: &Header, body: &[u8], big: bool) -> Result<PointCloud> {
+    let mut pos = 0usize;
+    let mut out = None;
+    for el in &h.elements {
+        let rest = &body[pos..];
+        if el.name == "vertex" {
+            let r = roles(path, el)?;
+            let Some(stride) = el.fixed_stride() else {
+                return Err(Error::format(
+                    path,
+                    "element vertex",
+                    "scalar properties only",
+                    "a list property",
+                ));
+            };
+            let need = stride.checked_mul(el.count).unwrap_or(usize::MAX);
+            if rest.len() < need {
+                return Err(Error::format(
+                    path,
+                    "vertex data",
+                    format!(
+                        "{} vertices x {stride} bytes = {need} bytes (file truncated?)",
+                        el.count
+                    ),
+                    format!("{} bytes", rest.len()),
+                ));
+            }
+            let mut offs = Vec::with_capacity(el.props.len());
+            let mut o = 0;
+            for p in &el.props {
+                let Kind::Scalar(s) = p.kind else {
+                    unreachable!("fixed_stride excludes lists")
+                };
+                offs.push((o, s));
+                o += s.size();
+            }
+            let mut sink = Sink::new(el.count, el, &r);
+            // Fast path for the common float32 x y z at the start of each vertex.
+            let plain_f32 = !sink.has_rgb
+                && !sink.has_normal
+                && r.intensity.is_none()
+                && r.xyz == [Some(0), Some(1), Some(2)]
+                && offs[..3].iter().all(|&(_, s)| s == Scalar::F32);
+            if plain_f32 {
+                let rd = |b: &[u8]| {
+                    let a = [b[0], b[1], b[2], b[3]];
+                    if big {
+                        f32::from_be_bytes(a)
+                    } else {
+                        f32::from_le_bytes(a)
+                    }
+                };
+                sink.cloud.points.extend(
+                    rest[..need]
+                        .chunks_exact(stride)
+                        .map(|v| Point3::new(rd(&v[0..4]), rd(&v[4..8]), rd(&v[8..12]))),
+                );
+            } else {
+                for v in rest[..need].chunks_exact(stride) {
+                    sink.push(
+                        |k| {
+                            let (o, s) = offs[k];
+                            s.read(&v[o..], big)
+                        },
+                        &r,
+                    );
+                }
+            }
+            out = Some(sink.cloud);
+            pos += need;
+        } else if let Some(stride) = el.fixed_stride() {
+            let need = stride.checked_mul(el.count).unwrap_or(usize::MAX);
+            if rest.len() < need {
+                return Err(truncated(
+                    path,
+                    el,
+                    rest.len() / stride.max(1),
+                    format!("{need} bytes"),
+                    rest.len(),
+                ));
+            }
+            pos += need;
+        } else {
+            // Lists: walk instance by instance.
+            let mut p = 0usize;
+            for i in 0..el.count {
+                for prop in &el.props {
+                    match prop.kind {
+                        Kind::Scalar(s) => p += s.size(),
+                        Kind::List { count, item } => {
+                            if rest.len() < p + count.size() {
+                                return Err(truncated(
+                                    path,
+                                    el,
+                                    i,
+                                    "a list length".into(),
+                                    rest.len().saturating_sub(p),
+                                ));
+                            }
+                            let n = count.read(&rest[p..], big);
+                            if n < 0.0 {
+                                return Err(Error::format(
+                                    path,
+                                    format!("element {} instance {i} list {}", el.name, prop.name),
+                                    "a non-negative length",
+                                    format!("{n}"),
+                                ));
+                            }
+                            p += count.size() + n as usize * item.size();
+                        }
+                    }
+                }
+                if p > rest.len() {
+                    return Err(truncated(path, el, i, format!("{p} bytes"), rest.len()));
+                }
+            }
+            pos += p;
+        }
+    }
+    out.ok_or_else(|| Error::format(path, "element vertex", "vertex data", "none"))
+}
+
+fn parse_ascii(path: &Path, h: &Header, body: &[u8]) -> Result<PointCloud> {
+    let text = std::str::from_utf8(body).map_err(|e| {
+        Error::format(
+            path,
+            "ascii body",
+            "UTF-8 / ASCII text",
+            format!("invalid byte at offset {}", e.valid_up_to()),
+        )
+    })?;
+    let mut toks = text.split_ascii_whitespace();
+    let mut out = None;
+    let mut vals: Vec<f64> = Vec::new();
+    for el in &h.elements {
+        let is_vertex = el.name == "vertex";
+        let r = if is_vertex {
+            Some(roles(path, el)?)
+        } else {
+            None
+        };
+        let mut sink = r.as_ref().map(|r| Sink::new(el.count, el, r));
+        for i in 0..el.count {
+            vals.clear();
+            for prop in &el.props {
+                let mut next = |what: &str| -> Result<f64> {
+                    let t = toks.next().ok_or_else(|| {
+                        Error::format(
+                            path,
+                            format!("element {} instance {i} property {}", el.name, prop.name),
+                            format!("{what} (file truncated?)"),
+                            "end of file",
+                        )
+                    })?;
+                    t.parse::<f64>().map_err(|_| {
+                        Error::format(
+                            path,
+                            format!("element {} instance {i} property {}", el.name, prop.name),
+                            what.to_string(),
+                            format!("{t:?}"),
+                        )
+                    })
+                };
+                match prop.kind {
+                    Kind::Scalar(_) => vals.push(next("a number")?),
+                    Kind::List { .. } => {
+                        let n = next("a list length")?;
+                        if !(0.0..=1e9).contains(&n) {
+                            return Err(Error::format(
+                                path,
+                                format!("element {} instance {i} list {}", el.name, prop.name),
+                                "a non-negative length",
+                                format!("{n}"),
+                            ));
+                        }
+                        for _ in 0..n as usize {
+                            next("a list item")?;
+                        }
+                        vals.push(f64::NAN);
+                    }
+                }
+            }
+            if let (Some(s), Some(r)) = (sink.as_mut(), r.as_ref()) {
+                s.push(|k| vals[k], r);
+            }
+        }
+        if let Some(s) = sink {
+            out = Some(s.cloud);
+        }
+    }
+    out.ok_or_else(|| Error::format(path, "element vertex", "vertex data", "none"))
+}
+
+/// Encode a cloud as binary little-endian PLY bytes.
+pub fn encode_ply(cloud: &PointCloud) -> Vec<u8> {
+    let mut head = String::from("ply\nformat binary_little_endian 1.0\ncomment cgenreg\n");
+    head += &format!("element vertex {}\n", cloud.len());
+    head += "property float x\nproperty float y\nproperty float z\n";
+    let mut stride = 12;
+    if cloud.normals.is_some() {
+        head += "property float nx\nproperty float ny\nproperty float nz\n";
+        stride += 12;
+    }
+    if cloud.colors.is_some() {
+        head += "property uchar red\nproperty uchar green\nproperty uchar blue\n";
+        stride += 3;
+    }
+    if cloud.intensity.is_some() {
+        head += "property float intensity\n";
+        stride += 4;
+    }
+    head += "end_header\n";
+    let mut buf = Vec::with_capacity(head.len() + stride * cloud.len());
+    buf.extend_from_slice(head.as_bytes());
+    for (i, p) in cloud.points.iter().enumerate() {
+        for v in [p.x, p.y, p.z] {
+            buf.extend_from_slice(&v.to_le_bytes());
+        }
+        if let Some(ns) = &cloud.normals {
+            let n = ns.get(i).copied().unwrap_or_else(Vector3::zeros);
+            for v in [n.x, n.y, n.z] {
+                buf.extend_from_slice(&v.to_le_bytes());
+            }
+        }
+        if let Some(cs) = &cloud.colors {
+            buf.extend_from_slice(&cs.get(i).copied().unwrap_or([0; 3]));
+        }
+        if let Some(is) = &cloud.intensity {
+            buf.extend_from_slice(&is.get(i).copied().unwrap_or(0.0).to_le_bytes());
+        }
+    }
+    buf
+}
+
+/// Write a binary little-endian PLY with every attribute the cloud has, atomically.
+/// Attribute arrays whose length differs from the point count are rejected.
+pub fn write_ply(path: &Path, cloud: &PointCloud) -> Result<()> {
+    let n = cloud.len();
+    for (name, len) in [
+        ("colors", cloud.colors.as_ref().map(Vec::len)),
+        ("normals", cloud.normals.as_ref().map(Vec::len)),
+        ("intensity", cloud.intensity.as_ref().map(Vec::len)),
+    ] {
+        if let Some(l) = len.filter(|&l| l != n) {
+            return Err(Error::Invalid(format!(
+                "writing {}: {name} has {l} entries for {n} points",
+                path.display()
+            )));
+        }
+    }
+    write_atomic(path, &encode_ply(cloud))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sample() -> PointCloud {
+        let n = 7;
+        PointCloud {
+            points: (0..n)
+                .map(|i| Point3::new(i as f32 * 0.5, -1.25 * i as f32, 3.0 + i as f32))
+                .collect(),
+            colors: Some(
+                (0..n)
+                    .map(|i| [i as u8, 100 + i as u8, 255 - i as u8])
+                    .collect(),
+            ),
+            normals: Some(
+                (0..n)
+                    .map(|i| Vector3::new(0.0, (i as f32).sin(), (i as f32).cos()))
+                    .collect(),
+            ),
+            intensity: Some((0..n).map(|i| i as f32 * 0.1).collect()),
+        }
+    }
+
+    #[test]
+    fn write_read_round_trip_keeps_all_attributes() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("a.ply");
+        let c = sample();
+        write_ply(&p, &c).unwrap();
+        assert_eq!(read_ply(&p).unwrap(), c);
+        let bare = PointCloud::from_points(c.points.clone());
+        write_ply(&p, &bare).unwrap();
+        assert_eq!(read_ply(&p).unwrap(), bare);
+    }
+
+    /// The same cloud in ascii, little- and big-endian with double coordinates, mixed int
+    /// properties, unknown properties and face elements before and after the vertices.
+    #[test]
+    fn all_encodings_and_skipped_elements() {
+        let pts = [[1.5f64, -2.0, 0.25], [0.0, 1e-3, 7.0], [-3.0, 4.0, 5.5]];
+        let head = |fmt: &str| {
+            format!(
+                "ply\nformat {fmt} 1.0\ncomment made by a test\nobj_info x\n\
+                 element camera 1\nproperty float k\nproperty list uchar int ids\n\
+                 element vertex 3\nproperty double x\nproperty short junk\nproperty double y\n\
+                 property double z\nproperty uchar red\nproperty uchar green\nproperty uchar blue\n\
+                 property float scalar_intensity\n\
+                 element face 2\nproperty list uchar int vertex_indices\nproperty int flags\n\
+                 end_header\n"
+            )
+        };
+        let mut ascii = head("ascii");
+        ascii += "0.5 2 10 20\n";
+        for (i, p) in pts.iter().enumerate() {
+            ascii += &format!("{} -7 {} {} {} 20 30 {}\n", p[0], p[1], p[2], i * 10, i);
+        }
+        ascii += "3 0 1 2 9\n4 0 1 2 0 9\n";
+        let bin = |big: bool| {
+            let mut b = head(if big {
+                "binary_big_endian"
+            } else {
+                "binary_little_endian"
+            })
+            .into_bytes();
+            macro_rules! put {
+                ($v:expr) => {
+                    if big {
+                        b.extend_from_slice(&$v.to_be_bytes())
+                    } else {
+                        b.extend_from_slice(&$v.to_le_bytes())
+                    }
+                };
+            }
+            put!(0.5f32);
+            b.push(2);
+            put!(10i32);
+            put!(20i32);
+            for (i, p) in pts.iter().enumerate() {
+                put!(p[0]);
+                put!(-7i16);
+                put!(p[1]);
+                put!(p[2]);
+                b.extend_from_slice(&[(i * 10) as u8, 20, 30]);
+                put!(i as f32);
+            }
+            for k in [3u8, 4] {
+                b.push(k);
+                for j in 0..k as i32 {
+                    put!(j);
+                }
+                put!(9i32);
+            }
+            b
+        };
+        for (name, bytes) in [
+            ("ascii", ascii.into_bytes()),
+            ("le", bin(false)),
+            ("be", bin(true)),
+        ] {
+            let c = parse_ply(Path::new(name), &bytes).unwrap();
+            assert_eq!(c.len(), 3, "{name}");
+            for (a, p) in c.points.iter().zip(&pts) {
+                assert_eq!([a.x, a.y, a.z], [p[0] as f32, p[1] as f32, p[2] as f32]);
+            }
+            assert_eq!(c.colors.as_ref().unwrap()[2], [20, 20, 30], "{name}");
+            assert_eq!(c.intensity.as_ref().unwrap(), &vec![0.0, 1.0, 2.0]);
+            assert!(c.normals.is_none());
+            // Truncating the binary faces after the vertices is still detected.
+            if name != "ascii" {
+                let e = parse_ply(Path::new(name), &bytes[..bytes.len() - 3]).unwrap_err();
+                assert!(e.to_string().contains("face"), "{e}");
+            }
+        }
+    }
+
+    #[test]
+    fn header_errors() {
+        let p = Path::new("h.ply");
+        let e = parse_ply(p, b"PLY\nformat ascii 1.0\n").unwrap_err();
+        assert!(e.to_string().contains("magic"), "{e}");
+        let e = parse_ply(
+            p,
+            b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\n",
+        )
+        .unwrap_err();
+        assert!(e.to_string().contains("end_header"), "{e}");
+        let e = parse_ply(
+            p,
+            b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nend_header\n1\n",
+        )
+        .unwrap_err();
+        assert!(e.to_string().contains("x, y and z"), "{e}");
+        let e = parse_ply(
+            p,
+            b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float128 x\nend_header\n",
+        )
+        .unwrap_err();
+        assert!(e.to_string().contains("header line 4"), "{e}");
+        let e = parse_ply(
+            p,
+            b"ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\n\
+              property float z\nend_header\n1 2 3\n4 nan 6\n",
+        )
+        .unwrap_err();
+        assert!(e.to_string().contains("point 1"), "{e}");
+    }
+
+    #[test]
+    fn staged_plys_have_manifest_point_counts() {
+        let Some(root) = crate::test_data_root() else {
+            return;
+        };
+        let m = root.join("3dmatch-redkitchen");
+        for (rel, n) in [
+            ("teaser-plusplus/cloud_bin_0.ply", 258_342),
+            ("teaser-plusplus/cloud_bin_4.ply", 313_395),
+            ("3dsmoothnet/cloud_bin_1.ply", 268_977),
+            (
+                "dip/threed_match_7-scenes-redkitchen_cloud_bin_5.ply",
+                313_910,
+            ),
+        ] {
+            let c = read_ply(&m.join(rel)).unwrap();
+            assert_eq!(c.len(), n, "{rel}");
+            let (lo, hi) = c.bounds().unwrap();
+            // Fragments are cropped to a 3 m cube in front of the camera.
+            assert!(
+                lo.z > 0.0 && hi.z < 4.0 && hi.x - lo.x < 3.5,
+                "{rel}: {lo} {hi}"
+            );
+        }
+        let lidar = root.join("small-gicp-lidar-pair");
+        for (rel, n) in [("source.ply", 69_792), ("target.ply", 69_088)] {
+            let c = read_ply(&lidar.join(rel)).unwrap();
+            assert_eq!(c.len(), n, "{rel}");
+            let it = c.intensity.as_ref().unwrap();
+            assert!(it.iter().any(|&v| v != it[0]), "{rel}: constant intensity");
+        }
+    }
+}

@@ -1,1 +1,113 @@
-//! (in progress)
+//! Plain XYZ text (`.xyz`, `.txt`, `.pts`): one point per line, at least 3 whitespace- or
+//! comma-separated numbers `x y z`; further columns are ignored. Blank lines and lines
+//! starting with `#` or `//` are skipped. A first line holding a single integer (the point
+//! count, as in some `.pts` files) is skipped. Coordinates are taken as stored.
+
+use super::cloud::validate_cloud;
+use crate::error::{write_atomic, Error, Result};
+use crate::geometry::cloud::PointCloud;
+use nalgebra::Point3;
+use std::path::Path;
+
+pub fn read_xyz(path: &Path) -> Result<PointCloud> {
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let text = std::str::from_utf8(&bytes).map_err(|e| {
+        Error::format(
+            path,
+            "text",
+            "UTF-8 / ASCII text",
+            format!("invalid byte at offset {}", e.valid_up_to()),
+        )
+    })?;
+    parse_xyz(path, text)
+}
+
+/// Parse XYZ text; `path` is used only in error messages.
+pub fn parse_xyz(path: &Path, text: &str) -> Result<PointCloud> {
+    let mut points = Vec::new();
+    let mut first = true;
+    for (ln, line) in text.lines().enumerate() {
+        let l = line.trim();
+        if l.is_empty() || l.starts_with('#') || l.starts_with("//") {
+            continue;
+        }
+        let mut toks = l
+            .split(|c: char| c.is_ascii_whitespace() || c == ',')
+            .filter(|t| !t.is_empty());
+        let mut xyz = [0f32; 3];
+        let mut k = 0;
+        for t in toks.by_ref().take(3) {
+            xyz[k] = t.parse().map_err(|_| {
+                Error::format(
+                    path,
+                    format!("line {}", ln + 1),
+                    "numbers x y z",
+                    format!("{t:?}"),
+                )
+            })?;
+            k += 1;
+        }
+        if k < 3 {
+            if first && k == 1 && l.parse::<usize>().is_ok() {
+                first = false;
+                continue;
+            }
+            return Err(Error::format(
+                path,
+                format!("line {}", ln + 1),
+                "at least 3 columns x y z",
+                format!("{k} columns"),
+            ));
+        }
+        first = false;
+        points.push(Point3::new(xyz[0], xyz[1], xyz[2]));
+    }
+    let cloud = PointCloud::from_points(points);
+    validate_cloud(path, &cloud)?;
+    Ok(cloud)
+}
+
+/// Write `x y z` lines with full f32 precision, atomically.
+pub fn write_xyz(path: &Path, cloud: &PointCloud) -> Result<()> {
+    use std::fmt::Write;
+    let mut s = String::with_capacity(cloud.len() * 30);
+    for p in &cloud.points {
+        let _ = writeln!(s, "{} {} {}", p.x, p.y, p.z);
+    }
+    write_atomic(path, s.as_bytes())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn parses_comments_extra_columns_and_counts() {
+        let c = parse_xyz(
+            Path::new("a.xyz"),
+            "# header\n3\n1 2 3 255 0 0\n\n4.5,5,6\n  -1e-3\t0 7 0.5\n",
+        )
+        .unwrap();
+        assert_eq!(
+            c.points,
+            vec![
+                Point3::new(1.0, 2.0, 3.0),
+                Point3::new(4.5, 5.0, 6.0),
+                Point3::new(-1e-3, 0.0, 7.0)
+            ]
+        );
+    }
+
+    #[test]
+    fn errors_name_the_line() {
+        let p = Path::new("b.xyz");
+        let e = parse_xyz(p, "1 2 3\n1 2\n").unwrap_err().to_string();
+        assert!(e.contains("b.xyz") && e.contains("line 2"), "{e}");
+        let e = parse_xyz(p, "1 2 3\n1 x 3\n").unwrap_err().to_string();
+        assert!(e.contains("line 2") && e.contains("\"x\""), "{e}");
+        let e = parse_xyz(p, "# nothing\n").unwrap_err().to_string();
+        assert!(e.contains("empty"), "{e}");
+        let e = parse_xyz(p, "1 2 3\nnan 0 0\n").unwrap_err().to_string();
+        assert!(e.contains("point 1"), "{e}");
+    }
+}
