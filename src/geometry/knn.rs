@@ -240,8 +240,16 @@ pub(crate) mod tests {
         max_nn: usize,
     ) {
         let eps = 1e-5;
-        let sure = all.iter().filter(|e| e.1 < radius - eps).count().min(max_nn);
-        let maybe = all.iter().filter(|e| e.1 <= radius + eps).count().min(max_nn);
+        let sure = all
+            .iter()
+            .filter(|e| e.1 < radius - eps)
+            .count()
+            .min(max_nn);
+        let maybe = all
+            .iter()
+            .filter(|e| e.1 <= radius + eps)
+            .count()
+            .min(max_nn);
         assert!(
             got.len() >= sure && got.len() <= maybe,
             "{} not in [{sure}, {maybe}]",
