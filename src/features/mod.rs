@@ -1,6 +1,8 @@
 //! Geometric-branch features: FPFH (hand-crafted) and precomputed learned features
 //! (GeoTransformer, FCGF, Predator) loaded from files.
 
+pub mod fpfh;
+
 /// Dense per-point features, row-major: row i is the feature of point i.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Features {
