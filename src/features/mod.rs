@@ -1,6 +1,7 @@
 //! Geometric-branch features: FPFH (hand-crafted) and precomputed learned features
 //! (GeoTransformer, FCGF, Predator) loaded from files.
 
+pub mod fpfh;
 pub mod learned;
 
 /// Dense per-point features, row-major: row i is the feature of point i.
