@@ -1,6 +1,8 @@
 //! Scan pairs and datasets: two files, 3DMatch-style fragment folders with gt.log, raw RGB-D
 //! sequences split into fragments, and dataset manifests.
 
+pub mod fragment;
+
 use crate::camera::Intrinsics;
 use crate::geometry::PointCloud;
 use nalgebra::Isometry3;
