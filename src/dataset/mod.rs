@@ -1,10 +1,17 @@
 //! Scan pairs and datasets: two files, 3DMatch-style fragment folders with gt.log, raw RGB-D
 //! sequences split into fragments, and dataset manifests.
 
+pub mod fragment;
+pub mod manifest;
+pub mod threedmatch;
+
+pub use manifest::{Dataset, FragmentSource, FragmentSpec, PairSpec};
+
 use crate::camera::Intrinsics;
 use crate::geometry::PointCloud;
 use nalgebra::Isometry3;
-use std::path::PathBuf;
+use crate::error::{Error, Result};
+use std::path::{Path, PathBuf};
 
 /// One RGB-D frame a scan was made from. Images are loaded on demand.
 #[derive(Clone, Debug)]
@@ -41,4 +48,51 @@ pub struct ScanPair {
     pub target: Scan,
     /// Ground truth when known: p_target = T * p_source.
     pub gt_target_from_source: Option<Isometry3<f64>>,
+}
+
+/// Read a 4x4 ground-truth matrix `target_from_source` (p_target = T * p_source) from a text
+/// file (16 whitespace-separated numbers, row-major). `.npy` files are read with
+/// `crate::io::npy` once that reader is in place.
+pub fn read_gt_matrix(path: &Path) -> Result<Isometry3<f64>> {
+    let is_npy = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("npy"));
+    if is_npy {
+        return Err(Error::format(
+            path,
+            "format",
+            "a 4x4 text matrix (.npy ground truth needs the NumPy reader, not built in yet)",
+            ".npy",
+        ));
+    }
+    crate::io::camera_txt::read_pose(path)
+}
+
+/// A pair from two point-cloud files, with optional ground truth `target_from_source`.
+/// The id is `"files/<target stem>-<source stem>"`.
+pub fn pair_from_files(source: &Path, target: &Path, gt: Option<&Path>) -> Result<ScanPair> {
+    let load = |p: &Path| -> Result<Scan> {
+        let cloud = crate::io::cloud::load_cloud(p)?;
+        if cloud.is_empty() {
+            return Err(Error::Invalid(format!("{}: empty point cloud", p.display())));
+        }
+        Ok(Scan {
+            name: p.display().to_string(),
+            cloud,
+            frames: None,
+        })
+    };
+    let (s, t) = rayon::join(|| load(source), || load(target));
+    let gt = gt.map(read_gt_matrix).transpose()?;
+    let stem = |p: &Path| {
+        p.file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default()
+    };
+    Ok(ScanPair {
+        id: format!("files/{}-{}", stem(target), stem(source)),
+        source: s?,
+        target: t?,
+        gt_target_from_source: gt,
+    })
 }

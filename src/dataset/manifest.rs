@@ -1,0 +1,641 @@
+//! Dataset manifests: a small TOML file naming fragments and scan pairs with ground truth.
+//!
+//! ```toml
+//! name = "redkitchen"            # dataset name, the prefix of pair ids
+//! root = "$CGENREG_DATA"         # paths below are relative to this; "." (the default) is the
+//!                                # manifest's folder; $VAR / ${VAR} are expanded
+//!
+//! [fragment_options]             # optional defaults for fragments built from RGB-D frames
+//! voxel = 0.01                   # merge voxel (m)
+//! max_depth = 4.0                # drop depths beyond this (m)
+//! crop = "3dmatch"               # or "none": 3DMatch's box x,y in [-1.5,1.5], z in [0.5,3.5]
+//! color = false                  # sample colours (only when colour and depth are registered)
+//!
+//! [[fragments]]                  # a point-cloud file (.ply .pcd .npy .pth .bin .xyz) ...
+//! id = "0"
+//! cloud = "3dmatch-redkitchen/teaser-plusplus/cloud_bin_0.ply"
+//! sequence = "7scenes-redkitchen-rgbd"   # optional: the frames it was made from
+//! first = 0
+//! count = 50
+//!
+//! [[fragments]]                  # ... or a fragment built from raw RGB-D frames
+//! id = "3"                       # (per-fragment voxel/max_depth/crop/color override)
+//! sequence = "7scenes-redkitchen-rgbd"
+//! first = 150
+//! count = 50
+//!
+//! [[pairs]]
+//! target = "0"                   # gt.log `i j`: i is the target, j the source
+//! source = "3"
+//! split = "3DMatch"              # free text; "3DMatch" / "3DLoMatch" for the benchmark
+//! gt_log = "3dmatch-redkitchen/benchmark/3DMatch/gt.log"
+//! gt_entry = [0, 3]              # optional; default: the numeric target and source ids
+//! # or: gt_matrix = [[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]   (p_target = T p_source)
+//! # or: gt_file = "pair/gt.txt"  (4x4 text, target_from_source)
+//! # or no gt at all
+//! ```
+//!
+//! Pair ids are `"<name>/<target>-<source>"`. Ground truth is always `target_from_source`
+//! (p_target = T * p_source), as in gt.log. Every error names the manifest file and the field.
+
+use super::fragment::{build_fragment_with, fragment_frames, CropBox, FragmentOptions};
+use super::{Scan, ScanPair};
+use crate::error::{Error, Result};
+use crate::geometry::transform::isometry_from_matrix;
+use crate::io::gtlog::{read_gt_log, GtEntry};
+use crate::io::rgbd_sequence::RgbdSequence;
+use nalgebra::{Isometry3, Matrix4};
+use serde::Deserialize;
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawManifest {
+    name: String,
+    root: Option<String>,
+    fragment_options: Option<RawOptions>,
+    #[serde(default)]
+    fragments: Vec<RawFragment>,
+    #[serde(default)]
+    pairs: Vec<RawPair>,
+}
+
+#[derive(Deserialize, Default, Clone)]
+#[serde(deny_unknown_fields)]
+struct RawOptions {
+    voxel: Option<f64>,
+    max_depth: Option<f64>,
+    min_depth: Option<f64>,
+    crop: Option<String>,
+    color: Option<bool>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawFragment {
+    id: String,
+    cloud: Option<String>,
+    sequence: Option<String>,
+    first: Option<usize>,
+    count: Option<usize>,
+    voxel: Option<f64>,
+    max_depth: Option<f64>,
+    min_depth: Option<f64>,
+    crop: Option<String>,
+    color: Option<bool>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawPair {
+    target: String,
+    source: String,
+    split: Option<String>,
+    gt_log: Option<String>,
+    gt_entry: Option<[usize; 2]>,
+    gt_matrix: Option<Vec<Vec<f64>>>,
+    gt_file: Option<String>,
+}
+
+/// The frames a fragment comes from: frames `first .. first+count` of a raw RGB-D sequence.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SequenceRange {
+    pub dir: PathBuf,
+    pub first: usize,
+    pub count: usize,
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub enum FragmentSource {
+    /// A point-cloud file, optionally with the frames it was made from.
+    Cloud {
+        path: PathBuf,
+        frames: Option<SequenceRange>,
+    },
+    /// Built from raw RGB-D frames (see [`super::fragment`]).
+    Rgbd {
+        range: SequenceRange,
+        options: FragmentOptions,
+    },
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct FragmentSpec {
+    pub id: String,
+    pub source: FragmentSource,
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct PairSpec {
+    /// `"<dataset>/<target>-<source>"`.
+    pub id: String,
+    pub target: String,
+    pub source: String,
+    /// "3DMatch", "3DLoMatch", or whatever the manifest says; empty when not given.
+    pub split: String,
+    /// p_target = T * p_source.
+    pub gt_target_from_source: Option<Isometry3<f64>>,
+    /// Where the ground truth came from, e.g. "gt.log entry `0 5`".
+    pub gt_origin: Option<String>,
+}
+
+#[derive(Clone, Debug)]
+pub struct Dataset {
+    pub name: String,
+    /// The manifest file (None for datasets built in code, e.g. from a 3DMatch folder).
+    pub manifest: Option<PathBuf>,
+    /// The folder relative paths were resolved against.
+    pub root: PathBuf,
+    pub(crate) fragments: Vec<FragmentSpec>,
+    pub(crate) pairs: Vec<PairSpec>,
+}
+
+fn bad(path: &Path, field: impl Into<String>, expected: impl Into<String>, found: impl Into<String>) -> Error {
+    Error::format(path, field, expected, found)
+}
+
+/// Expand `$VAR` and `${VAR}`. `CGENREG_DATA` falls back to [`crate::data_root`] when unset.
+fn expand_env(manifest: &Path, s: &str) -> Result<String> {
+    let mut out = String::new();
+    let mut rest = s;
+    while let Some(pos) = rest.find('$') {
+        out.push_str(&rest[..pos]);
+        let after = &rest[pos + 1..];
+        let (var, tail) = if let Some(b) = after.strip_prefix('{') {
+            let end = b
+                .find('}')
+                .ok_or_else(|| bad(manifest, "root", "`${VAR}` with a closing brace", s))?;
+            (&b[..end], &b[end + 1..])
+        } else {
+            let end = after
+                .find(|c: char| !(c.is_ascii_alphanumeric() || c == '_'))
+                .unwrap_or(after.len());
+            (&after[..end], &after[end..])
+        };
+        if var.is_empty() {
+            return Err(bad(manifest, "root", "a variable name after `$`", s));
+        }
+        let val = match std::env::var(var) {
+            Ok(v) => v,
+            Err(_) if var == "CGENREG_DATA" => crate::data_root()
+                .map(|p| p.to_string_lossy().into_owned())
+                .ok_or_else(|| {
+                    bad(
+                        manifest,
+                        "root",
+                        "$CGENREG_DATA set to the data folder (or ../shared/data next to the crate)",
+                        "neither exists",
+                    )
+                })?,
+            Err(_) => {
+                return Err(bad(
+                    manifest,
+                    "root",
+                    format!("environment variable {var} to be set"),
+                    "unset",
+                ))
+            }
+        };
+        out.push_str(&val);
+        rest = tail;
+    }
+    out.push_str(rest);
+    Ok(out)
+}
+
+fn parse_crop(manifest: &Path, field: &str, s: &str) -> Result<Option<CropBox>> {
+    match s.to_ascii_lowercase().as_str() {
+        "3dmatch" => Ok(Some(CropBox::THREEDMATCH)),
+        "none" | "" => Ok(None),
+        _ => Err(bad(manifest, field, "\"3dmatch\" or \"none\"", format!("{s:?}"))),
+    }
+}
+
+fn apply_options(
+    manifest: &Path,
+    field: &str,
+    base: &FragmentOptions,
+    o: &RawOptions,
+) -> Result<FragmentOptions> {
+    let mut r = base.clone();
+    if let Some(v) = o.voxel {
+        if !(v.is_finite() && v >= 0.0) {
+            return Err(bad(manifest, format!("{field}.voxel"), "a voxel size >= 0 (m)", v.to_string()));
+        }
+        r.voxel = v;
+    }
+    if let Some(v) = o.max_depth {
+        r.max_depth = v;
+    }
+    if let Some(v) = o.min_depth {
+        r.min_depth = v;
+    }
+    if !(r.max_depth.is_finite() && r.min_depth.is_finite() && r.max_depth > r.min_depth) {
+        return Err(bad(
+            manifest,
+            format!("{field}.max_depth"),
+            "finite depths with min_depth < max_depth",
+            format!("[{}, {}]", r.min_depth, r.max_depth),
+        ));
+    }
+    if let Some(c) = &o.crop {
+        r.crop = parse_crop(manifest, &format!("{field}.crop"), c)?;
+    }
+    if let Some(c) = o.color {
+        r.with_color = c;
+    }
+    Ok(r)
+}
+
+fn matrix_field(manifest: &Path, field: &str, rows: &[Vec<f64>]) -> Result<Isometry3<f64>> {
+    let flat: Vec<f64> = rows.iter().flatten().copied().collect();
+    if rows.len() != 4 || rows.iter().any(|r| r.len() != 4) {
+        return Err(bad(manifest, field, "4 rows of 4 numbers", format!("{} rows, {} numbers", rows.len(), flat.len())));
+    }
+    isometry_from_matrix(&Matrix4::from_row_slice(&flat)).ok_or_else(|| {
+        bad(manifest, field, "a finite rigid 4x4 transform (last row 0 0 0 1)", "a non-rigid matrix")
+    })
+}
+
+impl Dataset {
+    /// Load a manifest; relative paths resolve against its `root` field.
+    pub fn load(path: &Path) -> Result<Dataset> {
+        Self::load_with_root(path, None)
+    }
+
+    /// Load a manifest, with `root` (when given) replacing the manifest's `root` field.
+    pub fn load_with_root(path: &Path, root: Option<&Path>) -> Result<Dataset> {
+        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        let raw: RawManifest = toml::from_str(&text)
+            .map_err(|e| bad(path, "toml", "a dataset manifest (see dataset::manifest docs)", e.to_string()))?;
+        let base = path
+            .parent()
+            .filter(|p| !p.as_os_str().is_empty())
+            .unwrap_or(Path::new("."))
+            .to_path_buf();
+        let root = match root {
+            Some(r) => r.to_path_buf(),
+            None => {
+                let r = expand_env(path, raw.root.as_deref().unwrap_or("."))?;
+                base.join(r)
+            }
+        };
+        if !root.is_dir() {
+            return Err(bad(path, "root", "an existing folder", root.display().to_string()));
+        }
+        if raw.name.is_empty() || raw.name.contains('/') {
+            return Err(bad(path, "name", "a non-empty dataset name without '/'", format!("{:?}", raw.name)));
+        }
+        let default_opts = apply_options(
+            path,
+            "fragment_options",
+            &FragmentOptions::default(),
+            &raw.fragment_options.clone().unwrap_or_default(),
+        )?;
+
+        let resolve = |field: &str, rel: &str, dir: bool| -> Result<PathBuf> {
+            let p = root.join(expand_env(path, rel)?);
+            let ok = if dir { p.is_dir() } else { p.is_file() };
+            if !ok {
+                return Err(bad(
+                    path,
+                    field,
+                    format!("an existing {} (relative to root {})", if dir { "folder" } else { "file" }, root.display()),
+                    format!("{} (not found)", p.display()),
+                ));
+            }
+            Ok(p)
+        };
+
+        let mut fragments = Vec::with_capacity(raw.fragments.len());
+        let mut seen = HashMap::new();
+        for (i, f) in raw.fragments.iter().enumerate() {
+            let field = format!("fragments[{i}] (id {:?})", f.id);
+            if f.id.is_empty() || f.id.contains('/') || f.id.contains('-') {
+                return Err(bad(path, format!("{field}.id"), "a non-empty id without '/' or '-'", format!("{:?}", f.id)));
+            }
+            if seen.insert(f.id.clone(), i).is_some() {
+                return Err(bad(path, format!("{field}.id"), "a unique fragment id", "a duplicate"));
+            }
+            let range = match &f.sequence {
+                Some(s) => Some(SequenceRange {
+                    dir: resolve(&format!("{field}.sequence"), s, true)?,
+                    first: f.first.ok_or_else(|| {
+                        bad(path, format!("{field}.first"), "the first frame index of the fragment", "missing")
+                    })?,
+                    count: match f.count {
+                        Some(0) => return Err(bad(path, format!("{field}.count"), "at least 1 frame", "0")),
+                        Some(c) => c,
+                        None => super::fragment::FRAGMENT_LEN,
+                    },
+                }),
+                None => None,
+            };
+            let source = match (&f.cloud, range) {
+                (Some(c), frames) => FragmentSource::Cloud {
+                    path: resolve(&format!("{field}.cloud"), c, false)?,
+                    frames,
+                },
+                (None, Some(range)) => {
+                    let o = RawOptions {
+                        voxel: f.voxel,
+                        max_depth: f.max_depth,
+                        min_depth: f.min_depth,
+                        crop: f.crop.clone(),
+                        color: f.color,
+                    };
+                    FragmentSource::Rgbd {
+                        range,
+                        options: apply_options(path, &field, &default_opts, &o)?,
+                    }
+                }
+                (None, None) => {
+                    return Err(bad(path, field, "`cloud = \"file\"` or `sequence = \"dir\"` + `first`", "neither"))
+                }
+            };
+            fragments.push(FragmentSpec {
+                id: f.id.clone(),
+                source,
+            });
+        }
+
+        let mut logs: HashMap<PathBuf, Vec<GtEntry>> = HashMap::new();
+        let mut pairs = Vec::with_capacity(raw.pairs.len());
+        let mut pair_ids = HashMap::new();
+        for (i, p) in raw.pairs.iter().enumerate() {
+            let field = format!("pairs[{i}] ({} <- {})", p.target, p.source);
+            for (which, id) in [("target", &p.target), ("source", &p.source)] {
+                if !seen.contains_key(id) {
+                    return Err(bad(
+                        path,
+                        format!("{field}.{which}"),
+                        "the id of a fragment listed under [[fragments]]",
+                        format!("{id:?} (unknown)"),
+                    ));
+                }
+            }
+            let n_gt = [p.gt_log.is_some(), p.gt_matrix.is_some(), p.gt_file.is_some()]
+                .iter()
+                .filter(|&&b| b)
+                .count();
+            if n_gt > 1 {
+                return Err(bad(path, &field, "at most one of gt_log, gt_matrix, gt_file", "several"));
+            }
+            if p.gt_entry.is_some() && p.gt_log.is_none() {
+                return Err(bad(path, format!("{field}.gt_entry"), "gt_entry only together with gt_log", "gt_entry alone"));
+            }
+            let (gt, origin) = if let Some(log) = &p.gt_log {
+                let lp = resolve(&format!("{field}.gt_log"), log, false)?;
+                let [ei, ej] = match p.gt_entry {
+                    Some(e) => e,
+                    None => match (p.target.parse::<usize>(), p.source.parse::<usize>()) {
+                        (Ok(a), Ok(b)) => [a, b],
+                        _ => {
+                            return Err(bad(
+                                path,
+                                format!("{field}.gt_entry"),
+                                "gt_entry = [i, j] (the ids are not numbers)",
+                                "missing",
+                            ))
+                        }
+                    },
+                };
+                if !logs.contains_key(&lp) {
+                    let entries = read_gt_log(&lp)?;
+                    logs.insert(lp.clone(), entries);
+                }
+                let e = logs[&lp].iter().find(|e| e.target == ei && e.source == ej).ok_or_else(|| {
+                    bad(
+                        path,
+                        format!("{field}.gt_log"),
+                        format!("an entry `{ei} {ej}` in {}", lp.display()),
+                        "no such entry",
+                    )
+                })?;
+                (Some(e.target_from_source), Some(format!("{} entry `{ei} {ej}`", lp.display())))
+            } else if let Some(m) = &p.gt_matrix {
+                (Some(matrix_field(path, &format!("{field}.gt_matrix"), m)?), Some("inline gt_matrix".to_string()))
+            } else if let Some(f) = &p.gt_file {
+                let fp = resolve(&format!("{field}.gt_file"), f, false)?;
+                (Some(super::read_gt_matrix(&fp)?), Some(fp.display().to_string()))
+            } else {
+                (None, None)
+            };
+            let id = format!("{}/{}-{}", raw.name, p.target, p.source);
+            if pair_ids.insert(id.clone(), i).is_some() {
+                return Err(bad(path, field, "each pair listed once", format!("{id} twice")));
+            }
+            pairs.push(PairSpec {
+                id,
+                target: p.target.clone(),
+                source: p.source.clone(),
+                split: p.split.clone().unwrap_or_default(),
+                gt_target_from_source: gt,
+                gt_origin: origin,
+            });
+        }
+        Ok(Dataset {
+            name: raw.name,
+            manifest: Some(path.to_path_buf()),
+            root,
+            fragments,
+            pairs,
+        })
+    }
+
+    pub fn pairs(&self) -> &[PairSpec] {
+        &self.pairs
+    }
+
+    pub fn fragments(&self) -> &[FragmentSpec] {
+        &self.fragments
+    }
+
+    pub fn pair(&self, id: &str) -> Option<&PairSpec> {
+        self.pairs.iter().find(|p| p.id == id)
+    }
+
+    pub fn fragment(&self, id: &str) -> Option<&FragmentSpec> {
+        self.fragments.iter().find(|f| f.id == id)
+    }
+
+    /// Pairs whose split equals `split` (case-insensitive).
+    pub fn pairs_in_split<'a>(&'a self, split: &'a str) -> impl Iterator<Item = &'a PairSpec> + 'a {
+        self.pairs.iter().filter(move |p| p.split.eq_ignore_ascii_case(split))
+    }
+
+    fn origin(&self) -> String {
+        self.manifest
+            .as_ref()
+            .map(|p| p.display().to_string())
+            .unwrap_or_else(|| self.root.display().to_string())
+    }
+
+    /// Load (or build) one fragment. Nothing is cached.
+    pub fn load_fragment(&self, id: &str) -> Result<Scan> {
+        let spec = self.fragment(id).ok_or_else(|| {
+            Error::Invalid(format!("{}: no fragment with id {id:?}", self.origin()))
+        })?;
+        let name = format!("{}/{}", self.name, spec.id);
+        match &spec.source {
+            FragmentSource::Cloud { path, frames } => {
+                let cloud = crate::io::cloud::load_cloud(path)?;
+                if cloud.is_empty() {
+                    return Err(Error::Invalid(format!("{}: empty point cloud", path.display())));
+                }
+                let frames = match frames {
+                    Some(r) => Some(fragment_frames(&RgbdSequence::open(&r.dir)?, r.first, r.count)?),
+                    None => None,
+                };
+                Ok(Scan { name, cloud, frames })
+            }
+            FragmentSource::Rgbd { range, options } => {
+                let seq = RgbdSequence::open(&range.dir)?;
+                build_fragment_with(&seq, range.first, range.count, options, name)
+            }
+        }
+    }
+
+    /// Load a pair by id (`"<dataset>/<target>-<source>"`); both fragments load in parallel.
+    pub fn load_pair(&self, id: &str) -> Result<ScanPair> {
+        let spec = self.pair(id).ok_or_else(|| {
+            Error::Invalid(format!(
+                "{}: no pair with id {id:?} (ids look like \"{}/<target>-<source>\")",
+                self.origin(),
+                self.name
+            ))
+        })?;
+        let (target, source) = rayon::join(
+            || self.load_fragment(&spec.target),
+            || self.load_fragment(&spec.source),
+        );
+        Ok(ScanPair {
+            id: spec.id.clone(),
+            source: source?,
+            target: target?,
+            gt_target_from_source: spec.gt_target_from_source,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn write(dir: &Path, name: &str, text: &str) -> PathBuf {
+        let p = dir.join(name);
+        std::fs::write(&p, text).unwrap();
+        p
+    }
+
+    const GTLOG: &str = "0 1 3\n1 0 0 0.5\n0 1 0 0\n0 0 1 0\n0 0 0 1\n";
+
+    fn setup() -> tempfile::TempDir {
+        let d = tempfile::tempdir().unwrap();
+        write(d.path(), "a.ply", "x");
+        write(d.path(), "b.ply", "x");
+        write(d.path(), "gt.log", GTLOG);
+        d
+    }
+
+    #[test]
+    fn parses_fragments_pairs_and_gt() {
+        let d = setup();
+        let m = write(
+            d.path(),
+            "m.toml",
+            r#"
+name = "t"
+[[fragments]]
+id = "0"
+cloud = "a.ply"
+[[fragments]]
+id = "1"
+cloud = "b.ply"
+[[pairs]]
+target = "0"
+source = "1"
+split = "3DMatch"
+gt_log = "gt.log"
+[[pairs]]
+target = "1"
+source = "0"
+gt_matrix = [[1,0,0,0],[0,1,0,2],[0,0,1,0],[0,0,0,1]]
+"#,
+        );
+        let ds = Dataset::load(&m).unwrap();
+        assert_eq!(ds.pairs().len(), 2);
+        assert_eq!(ds.pairs()[0].id, "t/0-1");
+        assert_eq!(ds.pairs()[0].split, "3DMatch");
+        let t = ds.pairs()[0].gt_target_from_source.unwrap();
+        assert!((t.translation.vector.x - 0.5).abs() < 1e-12);
+        let t = ds.pairs()[1].gt_target_from_source.unwrap();
+        assert!((t.translation.vector.y - 2.0).abs() < 1e-12);
+        assert_eq!(ds.pairs_in_split("3dmatch").count(), 1);
+        assert_eq!(ds.root, d.path());
+    }
+
+    fn err_of(d: &Path, body: &str) -> String {
+        let m = write(d, "bad.toml", body);
+        Dataset::load(&m).unwrap_err().to_string()
+    }
+
+    #[test]
+    fn clear_errors() {
+        let d = setup();
+        let frag = "name = \"t\"\n[[fragments]]\nid = \"0\"\ncloud = \"a.ply\"\n[[fragments]]\nid = \"1\"\ncloud = \"b.ply\"\n";
+        // Missing cloud file.
+        let e = err_of(d.path(), "name = \"t\"\n[[fragments]]\nid = \"0\"\ncloud = \"nope.ply\"\n");
+        assert!(e.contains("bad.toml") && e.contains("fragments[0]") && e.contains("cloud") && e.contains("nope.ply"), "{e}");
+        // Unknown fragment id in a pair.
+        let e = err_of(d.path(), &format!("{frag}[[pairs]]\ntarget = \"0\"\nsource = \"7\"\n"));
+        assert!(e.contains("bad.toml") && e.contains("source") && e.contains("\"7\""), "{e}");
+        // gt.log entry that does not exist.
+        let e = err_of(d.path(), &format!("{frag}[[pairs]]\ntarget = \"1\"\nsource = \"0\"\ngt_log = \"gt.log\"\n"));
+        assert!(e.contains("bad.toml") && e.contains("gt_log") && e.contains("`1 0`"), "{e}");
+        // Non-rigid inline matrix.
+        let e = err_of(d.path(), &format!("{frag}[[pairs]]\ntarget = \"1\"\nsource = \"0\"\ngt_matrix = [[2,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]\n"));
+        assert!(e.contains("gt_matrix") && e.contains("rigid"), "{e}");
+        // Wrong shape.
+        let e = err_of(d.path(), &format!("{frag}[[pairs]]\ntarget = \"1\"\nsource = \"0\"\ngt_matrix = [[1,0,0],[0,1,0]]\n"));
+        assert!(e.contains("4 rows"), "{e}");
+        // Unknown field (typo).
+        let e = err_of(d.path(), &format!("{frag}[[pairs]]\ntarget = \"1\"\nsource = \"0\"\ngt_lg = \"gt.log\"\n"));
+        assert!(e.contains("bad.toml") && e.contains("gt_lg"), "{e}");
+        // Duplicate fragment id.
+        let e = err_of(d.path(), "name = \"t\"\n[[fragments]]\nid = \"0\"\ncloud = \"a.ply\"\n[[fragments]]\nid = \"0\"\ncloud = \"b.ply\"\n");
+        assert!(e.contains("duplicate"), "{e}");
+        // Unset variable in root.
+        let e = err_of(d.path(), "name = \"t\"\nroot = \"$CGENREG_SURELY_UNSET_VAR_42\"\n");
+        assert!(e.contains("root") && e.contains("CGENREG_SURELY_UNSET_VAR_42"), "{e}");
+        // A fragment with neither cloud nor sequence.
+        let e = err_of(d.path(), "name = \"t\"\n[[fragments]]\nid = \"0\"\n");
+        assert!(e.contains("fragments[0]") && e.contains("sequence"), "{e}");
+        // Unknown pair id at load time.
+        let m = write(d.path(), "ok.toml", frag);
+        let ds = Dataset::load(&m).unwrap();
+        let e = ds.load_pair("t/0-9").unwrap_err().to_string();
+        assert!(e.contains("ok.toml") && e.contains("t/0-9"), "{e}");
+    }
+
+    #[test]
+    fn root_override_and_env_expansion() {
+        let d = setup();
+        let sub = d.path().join("manifests");
+        std::fs::create_dir_all(&sub).unwrap();
+        let body = "name = \"t\"\nroot = \"..\"\n[[fragments]]\nid = \"0\"\ncloud = \"a.ply\"\n";
+        let m = write(&sub, "m.toml", body);
+        let ds = Dataset::load(&m).unwrap();
+        assert!(matches!(&ds.fragments()[0].source, FragmentSource::Cloud { path, .. } if path.is_file()));
+        // Override: same manifest, root given explicitly.
+        let ds = Dataset::load_with_root(&m, Some(d.path())).unwrap();
+        assert_eq!(ds.root, d.path());
+        // ${VAR} expansion with a variable set by the test process itself.
+        let var = "CGENREG_TEST_MANIFEST_ROOT_X";
+        std::env::set_var(var, d.path());
+        let m2 = write(&sub, "m2.toml", &format!("name = \"t\"\nroot = \"${{{var}}}\"\n[[fragments]]\nid = \"0\"\ncloud = \"a.ply\"\n"));
+        let ds = Dataset::load(&m2).unwrap();
+        assert_eq!(ds.root, d.path());
+    }
+}
