@@ -156,12 +156,12 @@ pub fn match_then_fuse(
 
     let (fused, correspondences) = match params.mode {
         FusionMode::NoisyAnd if !params.exact_reference => {
-            // Rank by the non-saturating odds key, then overwrite it with the posteriors.
+            // Rank by the non-saturating odds key, then turn the keys into posteriors in place.
             let (a, b) = (p_img.as_ref(), p_geo.as_ref());
             let (a, b) = (a.ok_or_else(missing)?, b.ok_or_else(missing)?);
             let mut fused = fuse::noisy_and_rank_keys(a, b, params.prior)?;
             let mut corr = select(&fused, params.selection);
-            fuse::fuse_into(&mut fused, a, b, FusionMode::NoisyAnd, params.prior, false)?;
+            fuse::rank_keys_to_posteriors(&mut fused);
             for c in &mut corr {
                 c.score = fused.get(c.src as usize, c.tgt as usize);
             }

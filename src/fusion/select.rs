@@ -63,27 +63,27 @@ fn row_argmax(row: &[f32]) -> Option<(usize, f32)> {
 }
 
 fn mutual_nn(data: &[f32], rows: usize, cols: usize) -> Vec<Correspondence> {
-    let best_tgt: Vec<Option<(usize, f32)>> = data
-        .par_chunks(cols)
-        .with_min_len(rows_per_task(rows, cols, 1 << 15))
-        .map(row_argmax)
-        .collect();
-    // Column maxima: each fold scans consecutive rows in order, folds are reduced in order and
-    // only a strictly greater score replaces the current best, so ties go to the lowest row.
+    // One pass: row argmax and running column maxima per band of rows. Each fold scans
+    // consecutive bands in order, folds are reduced in order and only a strictly greater score
+    // replaces the current best, so column ties go to the lowest row (as row ties go to the
+    // lowest column in `row_argmax`).
     let band = rows_per_task(rows, cols, 1 << 16);
+    let mut best_tgt: Vec<Option<(usize, f32)>> = vec![None; rows];
     let (_, cidx) = data
         .par_chunks(band * cols)
+        .zip(best_tgt.par_chunks_mut(band))
         .enumerate()
         .fold(
             || (vec![0.0f32; cols], vec![u32::MAX; cols]),
-            |(mut cb, mut ci), (t, chunk)| {
-                for (k, row) in chunk.chunks(cols).enumerate() {
+            |(mut cb, mut ci), (t, (chunk, bt))| {
+                for (k, (row, b)) in chunk.chunks(cols).zip(bt.iter_mut()).enumerate() {
                     let i = (t * band + k) as u32;
                     for j in 0..cols {
                         let better = row[j] > cb[j];
                         cb[j] = if better { row[j] } else { cb[j] };
                         ci[j] = if better { i } else { ci[j] };
                     }
+                    *b = row_argmax(row);
                 }
                 (cb, ci)
             },

@@ -106,10 +106,10 @@ fn output_is_consistent_with_its_posteriors() {
         *pi_,
         calibrate(&s_img, Some(&rv), Some(&cv), p.calibration_img).unwrap()
     );
-    assert_eq!(
-        out.fused,
-        fuse(Some(pi_), Some(pg), FusionMode::NoisyAnd, None, false).unwrap()
-    );
+    let direct = fuse(Some(pi_), Some(pg), FusionMode::NoisyAnd, None, false).unwrap();
+    for (a, b) in out.fused.data.iter().zip(&direct.data) {
+        assert!((a - b).abs() <= 4e-7 * b, "{a} vs {b}");
+    }
     assert_eq!(out.peak_bytes, 3 * n * n * 4);
     assert!(!out.correspondences.is_empty());
     for c in &out.correspondences {
