@@ -1,5 +1,25 @@
 //! Match-then-Fuse: similarities, calibration into correspondence posteriors, fusion and
-//! correspondence selection.
+//! correspondence selection (paper §3 "Modality Correspondence Posterior" to "Transformation
+//! Estimation"; reference §8).
+//!
+//! Memory: a dense N x M f32 matrix is used only for the two posteriors and the fused scores
+//! (never N x M x K^2: view pairs are reduced by an element-wise max as they are computed).
+//! [`FusionOutput::peak_bytes`] accounts for those matrices.
+
+pub mod calibrate;
+pub mod fuse;
+pub mod matrix;
+pub mod select;
+pub mod similarity;
+
+pub use calibrate::{calibrate, calibrate_in_place, Calibration};
+pub use fuse::{concat_features, concat_similarity, fuse, noisy_and, noisy_or, FusionMode};
+pub use matrix::DenseMatrix;
+pub use select::{select, Selection};
+pub use similarity::{cosine_similarity, max_similarity};
+
+use crate::{Error, Result};
+use serde::{Deserialize, Serialize};
 
 /// One putative correspondence: source point index, target point index, and its score
 /// (the fused posterior, or the single-branch posterior).
@@ -9,3 +29,176 @@ pub struct Correspondence {
     pub tgt: u32,
     pub score: f32,
 }
+
+/// Everything that turns two similarity matrices into correspondences.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct FusionParams {
+    pub calibration_img: Calibration,
+    pub calibration_geo: Calibration,
+    pub mode: FusionMode,
+    /// Prior match probability pi; None = 1 / (N M) (paper and reference).
+    pub prior: Option<f64>,
+    pub selection: Selection,
+    /// Use the reference code's float32 fusion formula instead of the stable one.
+    pub exact_reference: bool,
+    /// Image weight w of the concatenation baseline (cosine = w cos_img + (1 - w) cos_geo).
+    pub concat_w_img: f32,
+}
+
+impl Default for FusionParams {
+    /// The paper: row softmax with tau = 0.1 per branch, Noisy-AND, mutual nearest neighbours.
+    fn default() -> Self {
+        FusionParams {
+            calibration_img: Calibration::RowSoftmax { tau: 0.1 },
+            calibration_geo: Calibration::RowSoftmax { tau: 0.1 },
+            mode: FusionMode::NoisyAnd,
+            prior: None,
+            selection: Selection::MutualNn,
+            exact_reference: false,
+            concat_w_img: 0.5,
+        }
+    }
+}
+
+impl FusionParams {
+    /// The authors' code: dual softmax with T = 0.1, float32 Noisy-AND, global top-8000.
+    pub fn reference() -> Self {
+        FusionParams {
+            calibration_img: Calibration::DualSoftmax { tau: 0.1 },
+            calibration_geo: Calibration::DualSoftmax { tau: 0.1 },
+            mode: FusionMode::NoisyAnd,
+            prior: None,
+            selection: Selection::TopK(select::REFERENCE_TOP_K),
+            exact_reference: true,
+            concat_w_img: 0.5,
+        }
+    }
+}
+
+/// The correspondences with the posteriors they came from (kept for the posterior inspector).
+#[derive(Clone, Debug, PartialEq)]
+pub struct FusionOutput {
+    /// Sorted by (score descending, source, target); scores are fused posteriors.
+    pub correspondences: Vec<Correspondence>,
+    pub p_img: Option<DenseMatrix>,
+    pub p_geo: Option<DenseMatrix>,
+    /// The fused posterior (for `Concat`, the calibrated similarity of the concatenation).
+    pub fused: DenseMatrix,
+    /// Bytes of the dense matrices this call held at once.
+    pub peak_bytes: usize,
+}
+
+/// Calibrates the given branch similarities, fuses them per `params.mode` and selects
+/// correspondences. `sim_img` carries the image branch's row (source) and column (target)
+/// validity: entry (i, j) is valid iff both points have a pixel. The geometric branch is valid
+/// everywhere. `Concat` uses `calibration_geo` for the concatenated similarity.
+pub fn match_then_fuse(
+    sim_img: Option<(&DenseMatrix, Option<&[bool]>, Option<&[bool]>)>,
+    sim_geo: Option<&DenseMatrix>,
+    params: &FusionParams,
+) -> Result<FusionOutput> {
+    let shape = match (sim_img, sim_geo) {
+        (Some((a, _, _)), Some(b)) if a.shape() != b.shape() => {
+            return Err(Error::Invalid(format!(
+                "match-then-fuse: image similarity is {} x {}, geometric similarity is {} x {}",
+                a.rows, a.cols, b.rows, b.cols
+            )))
+        }
+        (Some((a, _, _)), _) => a.shape(),
+        (None, Some(b)) => b.shape(),
+        (None, None) => {
+            return Err(Error::Invalid(
+                "match-then-fuse: no similarity given".into(),
+            ))
+        }
+    };
+    for (what, m) in [("image", sim_img.map(|s| s.0)), ("geometric", sim_geo)] {
+        if let Some(m) = m {
+            if m.data.len() != m.rows * m.cols {
+                return Err(Error::Invalid(format!(
+                    "match-then-fuse: {what} similarity holds {} values, expected {} x {}",
+                    m.data.len(),
+                    m.rows,
+                    m.cols
+                )));
+            }
+        }
+    }
+    if let Some((_, rv, cv)) = sim_img {
+        matrix::check_masks("match-then-fuse image validity", shape.0, shape.1, rv, cv)?;
+    }
+    let needs_img = !matches!(params.mode, FusionMode::GeometryOnly);
+    let needs_geo = !matches!(params.mode, FusionMode::ImageOnly);
+    if needs_img && sim_img.is_none() || needs_geo && sim_geo.is_none() {
+        return Err(Error::Invalid(format!(
+            "match-then-fuse: fusion mode {:?} needs {}",
+            params.mode,
+            match (
+                needs_img && sim_img.is_none(),
+                needs_geo && sim_geo.is_none()
+            ) {
+                (true, true) => "both similarities",
+                (true, false) => "the image similarity",
+                _ => "the geometric similarity",
+            }
+        )));
+    }
+
+    let p_img = sim_img
+        .map(|(s, rv, cv)| calibrate(s, rv, cv, params.calibration_img))
+        .transpose()?;
+    let p_geo = sim_geo
+        .map(|s| calibrate(s, None, None, params.calibration_geo))
+        .transpose()?;
+    let held =
+        p_img.as_ref().map_or(0, DenseMatrix::bytes) + p_geo.as_ref().map_or(0, DenseMatrix::bytes);
+
+    let (fused, correspondences) = match params.mode {
+        FusionMode::NoisyAnd if !params.exact_reference => {
+            // Rank by the non-saturating odds key, then turn the keys into posteriors in place.
+            let (a, b) = (p_img.as_ref(), p_geo.as_ref());
+            let (a, b) = (a.ok_or_else(missing)?, b.ok_or_else(missing)?);
+            let mut fused = fuse::noisy_and_rank_keys(a, b, params.prior)?;
+            let mut corr = select(&fused, params.selection);
+            fuse::rank_keys_to_posteriors(&mut fused);
+            for c in &mut corr {
+                c.score = fused.get(c.src as usize, c.tgt as usize);
+            }
+            (fused, corr)
+        }
+        FusionMode::Concat => {
+            let ((si, rv, cv), sg) = (sim_img.ok_or_else(missing)?, sim_geo.ok_or_else(missing)?);
+            let mut s = concat_similarity(si, rv, cv, sg, params.concat_w_img)?;
+            calibrate_in_place(&mut s, None, None, params.calibration_geo)?;
+            let corr = select(&s, params.selection);
+            (s, corr)
+        }
+        mode => {
+            let fused = fuse(
+                p_img.as_ref(),
+                p_geo.as_ref(),
+                mode,
+                params.prior,
+                params.exact_reference,
+            )?;
+            let corr = select(&fused, params.selection);
+            (fused, corr)
+        }
+    };
+    let peak_bytes = held + fused.bytes();
+    Ok(FusionOutput {
+        correspondences,
+        p_img,
+        p_geo,
+        fused,
+        peak_bytes,
+    })
+}
+
+fn missing() -> Error {
+    Error::Invalid("match-then-fuse: a branch posterior is missing".into())
+}
+
+#[cfg(test)]
+mod tests;

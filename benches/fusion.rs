@@ -1,0 +1,186 @@
+//! Match-then-Fuse benchmark: calibration + fusion + selection at N = M = 5,000 and 20,000,
+//! and cosine similarity at 5k x 5k for D = 33 (FPFH) and D = 256 (GeoTransformer).
+//! Run: `cargo bench --no-default-features --bench fusion` (N_LARGE=0 skips the 20k case).
+//! Prints a markdown table: median wall time over the runs, and the peak heap growth measured
+//! by a counting global allocator (inputs excluded).
+
+use cgenreg::features::Features;
+use cgenreg::fusion::{
+    cosine_similarity, match_then_fuse, Calibration, DenseMatrix, FusionMode, FusionParams,
+    Selection,
+};
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::time::Instant;
+
+struct Counting;
+static CURRENT: AtomicUsize = AtomicUsize::new(0);
+static PEAK: AtomicUsize = AtomicUsize::new(0);
+
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, l: Layout) -> *mut u8 {
+        let p = unsafe { System.alloc(l) };
+        if !p.is_null() {
+            let now = CURRENT.fetch_add(l.size(), Ordering::Relaxed) + l.size();
+            PEAK.fetch_max(now, Ordering::Relaxed);
+        }
+        p
+    }
+    unsafe fn alloc_zeroed(&self, l: Layout) -> *mut u8 {
+        let p = unsafe { System.alloc_zeroed(l) };
+        if !p.is_null() {
+            let now = CURRENT.fetch_add(l.size(), Ordering::Relaxed) + l.size();
+            PEAK.fetch_max(now, Ordering::Relaxed);
+        }
+        p
+    }
+    unsafe fn dealloc(&self, p: *mut u8, l: Layout) {
+        unsafe { System.dealloc(p, l) };
+        CURRENT.fetch_sub(l.size(), Ordering::Relaxed);
+    }
+    unsafe fn realloc(&self, p: *mut u8, l: Layout, new: usize) -> *mut u8 {
+        let q = unsafe { System.realloc(p, l, new) };
+        if !q.is_null() {
+            if new > l.size() {
+                let now = CURRENT.fetch_add(new - l.size(), Ordering::Relaxed) + new - l.size();
+                PEAK.fetch_max(now, Ordering::Relaxed);
+            } else {
+                CURRENT.fetch_sub(l.size() - new, Ordering::Relaxed);
+            }
+        }
+        q
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
+struct Rng(u64);
+impl Rng {
+    fn uniform(&mut self) -> f32 {
+        self.0 = self
+            .0
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (self.0 >> 40) as f32 / (1u64 << 24) as f32
+    }
+}
+
+/// Cosine-like similarities in [-1, 1] with a planted permutation raised above the noise.
+fn planted(n: usize, seed: u64, signal: f32) -> (DenseMatrix, Vec<usize>) {
+    let mut r = Rng(seed);
+    let perm: Vec<usize> = (0..n).map(|i| (i * 7919 + 13) % n).collect();
+    let mut data = vec![0.0f32; n * n];
+    for (i, row) in data.chunks_mut(n).enumerate() {
+        for v in row.iter_mut() {
+            *v = 0.6 * (r.uniform() + r.uniform() - 1.0);
+        }
+        row[perm[i]] = (row[perm[i]] + signal).min(1.0);
+    }
+    (DenseMatrix::from_vec(n, n, data).unwrap(), perm)
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(|a, b| a.total_cmp(b));
+    v[v.len() / 2]
+}
+
+/// Median seconds and peak extra heap bytes of `f` over `runs` runs.
+fn measure<T>(runs: usize, mut f: impl FnMut() -> T) -> (f64, usize, T) {
+    let mut times = vec![];
+    let mut peak = 0;
+    let mut last = None;
+    for _ in 0..runs {
+        drop(last.take());
+        let base = CURRENT.load(Ordering::Relaxed);
+        PEAK.store(base, Ordering::Relaxed);
+        let t = Instant::now();
+        let out = f();
+        times.push(t.elapsed().as_secs_f64());
+        peak = peak.max(PEAK.load(Ordering::Relaxed) - base);
+        last = Some(out);
+    }
+    (median(times), peak, last.unwrap())
+}
+
+fn mib(b: usize) -> f64 {
+    b as f64 / (1024.0 * 1024.0)
+}
+
+fn main() {
+    let large: usize = std::env::var("N_LARGE")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(20_000);
+    println!("threads: {}\n", rayon::current_num_threads());
+    println!("| N = M | configuration | time (ms, median) | peak extra heap (MiB) | N x M f32 (MiB) | correct / found |");
+    println!("|---|---|---|---|---|---|");
+    let configs: Vec<(&str, FusionParams)> = vec![
+        (
+            "paper: row softmax + Noisy-AND + mutual NN",
+            FusionParams::default(),
+        ),
+        (
+            "reference: dual softmax + f32 Noisy-AND + top-8000",
+            FusionParams::reference(),
+        ),
+        (
+            "row softmax + Noisy-OR + mutual NN",
+            FusionParams {
+                mode: FusionMode::NoisyOr,
+                ..FusionParams::default()
+            },
+        ),
+        (
+            "dual softmax + Noisy-AND (stable) + mutual NN",
+            FusionParams {
+                calibration_img: Calibration::DualSoftmax { tau: 0.1 },
+                calibration_geo: Calibration::DualSoftmax { tau: 0.1 },
+                selection: Selection::MutualNn,
+                ..FusionParams::default()
+            },
+        ),
+    ];
+    for &n in [5_000usize, large].iter().filter(|&&n| n > 0) {
+        let (s_img, perm) = planted(n, 1, 0.5);
+        let (s_geo, _) = planted(n, 2, 0.5);
+        let runs = if n <= 5_000 { 7 } else { 3 };
+        for (name, p) in &configs {
+            if n > 5_000 && !name.starts_with("paper") && !name.starts_with("reference") {
+                continue;
+            }
+            let (t, peak, out) = measure(runs, || {
+                match_then_fuse(Some((&s_img, None, None)), Some(&s_geo), p).unwrap()
+            });
+            let ok = out
+                .correspondences
+                .iter()
+                .filter(|c| perm[c.src as usize] == c.tgt as usize)
+                .count();
+            println!(
+                "| {n} | {name} | {:.1} | {:.0} | {:.0} | {ok} / {} |",
+                t * 1e3,
+                mib(peak),
+                mib(n * n * 4),
+                out.correspondences.len()
+            );
+        }
+    }
+
+    println!("\n| cosine similarity | time (ms, median) | peak extra heap (MiB) |");
+    println!("|---|---|---|");
+    for d in [33usize, 256] {
+        let n = 5_000;
+        let mut r = Rng(d as u64);
+        let a = Features::new(d, (0..n * d).map(|_| r.uniform() - 0.5).collect());
+        let b = Features::new(d, (0..n * d).map(|_| r.uniform() - 0.5).collect());
+        let (t, peak, s) = measure(5, || cosine_similarity(&a, &b).unwrap());
+        assert_eq!(s.shape(), (n, n));
+        let gflops = 2.0 * (n * n * d) as f64 / t / 1e9;
+        println!(
+            "| 5000 x 5000, D = {d} | {:.1} ({gflops:.1} GFLOP/s) | {:.0} |",
+            t * 1e3,
+            mib(peak)
+        );
+    }
+}

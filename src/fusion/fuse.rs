@@ -1,0 +1,574 @@
+//! Fusion of the image and geometric correspondence posteriors (paper eq. 6-7, appendix A;
+//! reference §8.4), and the "fuse-then-match" feature-concatenation baseline.
+//!
+//! Noisy-AND (paper eq. 6) under conditional independence of the two similarities given the
+//! match: `o(p_f) = o(p_img) o(p_geo) / o(pi)` with odds `o(x) = x / (1 - x)`, i.e.
+//! `logit(p_f) = logit(p_img) + logit(p_geo) - logit(pi)`. The paper-faithful mode evaluates
+//! exactly this identity as `p_f = a / (a + b)` with `a = p_img p_geo (1 - pi)` and
+//! `b = (1 - p_img)(1 - p_geo) pi` in f64: `ln a - ln b` *is* the log-odds sum above, and f64
+//! holds products of f32 probabilities and priors without under- or overflow, so no log/exp
+//! per entry is needed. p = 0 or 1 and pi = 1e-9 give no NaN/inf; a branch that is certain of a
+//! non-match (p = 0) vetoes the pair, also when the other branch says p = 1.
+//!
+//! `exact_reference` reproduces the reference's float32 formula and operation order instead:
+//! `num = Pr*Pg*(1-pi); den = num + (1-Pr)*(1-Pg)*pi; F = num / (den + 1e-8)`.
+
+use super::matrix::{check_masks, rows_per_task, DenseMatrix};
+use super::similarity::normalize_rows;
+use crate::features::Features;
+use crate::{Error, Result};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+/// How the two modality posteriors become one score matrix.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub enum FusionMode {
+    /// Joint posterior (paper eq. 6): both modalities must support a match.
+    #[default]
+    NoisyAnd,
+    /// Disjunctive posterior (paper eq. 7): `1 - (1 - p_img)(1 - p_geo)`.
+    NoisyOr,
+    /// The image-branch posterior alone.
+    ImageOnly,
+    /// The geometric-branch posterior alone.
+    GeometryOnly,
+    /// Fuse-then-match baseline: concatenate L2-normalised features, then one cosine
+    /// similarity calibrated like a single branch (see [`concat_features`]).
+    Concat,
+}
+
+/// The paper's uniform prior `pi = 1 / (N_src N_tgt)`.
+pub fn default_prior(rows: usize, cols: usize) -> f64 {
+    1.0 / (rows as f64 * cols as f64)
+}
+
+#[inline(always)]
+fn clamp01(p: f32) -> f64 {
+    // NaN fails both comparisons and becomes 0, an invalid entry.
+    if p > 0.0 {
+        if p < 1.0 {
+            p as f64
+        } else {
+            1.0
+        }
+    } else {
+        0.0
+    }
+}
+
+/// The two terms of eq. 6: `a = p_i p_g (1 - pi)`, `b = (1 - p_i)(1 - p_g) pi`, in f64.
+#[inline(always)]
+fn and_terms(p_img: f32, p_geo: f32, prior: f64, one_minus_prior: f64) -> (f64, f64) {
+    let (x, y) = (clamp01(p_img), clamp01(p_geo));
+    (x * y * one_minus_prior, (1.0 - x) * (1.0 - y) * prior)
+}
+
+/// Noisy-AND of two posteriors with prior `pi` (paper eq. 6), evaluated stably (module docs).
+#[inline]
+pub fn noisy_and(p_img: f32, p_geo: f32, prior: f64) -> f32 {
+    let (a, b) = and_terms(p_img, p_geo, prior, 1.0 - prior);
+    if a > 0.0 {
+        (a / (a + b)) as f32
+    } else {
+        0.0
+    }
+}
+
+/// A monotone, non-saturating ranking key for the Noisy-AND posterior: `o(p_f)^(1/4)`.
+/// Near 1 the f32 posterior rounds to exactly 1.0 for many pairs (with pi ~ 1e-8 any pair with
+/// both posteriors above ~0.5), which would turn its ranking into ties; the fourth root of the
+/// odds keeps the order while fitting f32's range. 0 means p_f = 0.
+#[inline]
+pub fn noisy_and_rank_key(p_img: f32, p_geo: f32, prior: f64) -> f32 {
+    let (a, b) = and_terms(p_img, p_geo, prior, 1.0 - prior);
+    if a > 0.0 {
+        (a / b).sqrt().sqrt() as f32
+    } else {
+        0.0
+    }
+}
+
+/// The reference's float32 Noisy-AND, operation for operation (reference §8.4).
+#[inline]
+pub fn noisy_and_reference(p_img: f32, p_geo: f32, prior: f64) -> f32 {
+    // `pi` and `1 - pi` are Python floats; torch rounds them to f32 when multiplying.
+    let pi = prior as f32;
+    let one_minus_pi = (1.0 - prior) as f32;
+    let num = p_img * p_geo * one_minus_pi;
+    let den = num + (1.0 - p_img) * (1.0 - p_geo) * pi;
+    num / (den + 1e-8f32)
+}
+
+/// Noisy-OR (paper eq. 7), as `p_i + p_g (1 - p_i)` in f64 so tiny posteriors are not lost.
+#[inline]
+pub fn noisy_or(p_img: f32, p_geo: f32) -> f32 {
+    let (x, y) = (clamp01(p_img), clamp01(p_geo));
+    (x + y * (1.0 - x)) as f32
+}
+
+/// The reference's float32 Noisy-OR, `1 - (1 - Pr)(1 - Pg)`.
+#[inline]
+pub fn noisy_or_reference(p_img: f32, p_geo: f32) -> f32 {
+    1.0 - (1.0 - p_img) * (1.0 - p_geo)
+}
+
+fn check_prior(prior: f64) -> Result<()> {
+    if prior > 0.0 && prior < 1.0 {
+        Ok(())
+    } else {
+        Err(Error::Invalid(format!(
+            "fusion prior must lie strictly between 0 and 1, found {prior}"
+        )))
+    }
+}
+
+fn same_shape(a: &DenseMatrix, b: &DenseMatrix) -> Result<()> {
+    for (what, m) in [("image", a), ("geometric", b)] {
+        if m.data.len() != m.rows * m.cols {
+            return Err(Error::Invalid(format!(
+                "fusion: {what} posterior holds {} values, expected {} x {}",
+                m.data.len(),
+                m.rows,
+                m.cols
+            )));
+        }
+    }
+    if a.shape() != b.shape() {
+        return Err(Error::Invalid(format!(
+            "fusion: image posterior is {} x {}, geometric posterior is {} x {}",
+            a.rows, a.cols, b.rows, b.cols
+        )));
+    }
+    Ok(())
+}
+
+/// `out[k] = f(a[k], b[k])` in parallel.
+fn zip_into(
+    out: &mut [f32],
+    a: &[f32],
+    b: &[f32],
+    cols: usize,
+    f: impl Fn(f32, f32) -> f32 + Sync,
+) {
+    let chunk = rows_per_task(out.len() / cols.max(1), cols, 1 << 16) * cols.max(1);
+    out.par_chunks_mut(chunk.max(1))
+        .zip(a.par_chunks(chunk.max(1)).zip(b.par_chunks(chunk.max(1))))
+        .for_each(|(o, (x, y))| {
+            for k in 0..o.len() {
+                o[k] = f(x[k], y[k]);
+            }
+        });
+}
+
+/// Writes the fusion of `p_img` and `p_geo` into `out` (which may be a fresh or recycled
+/// buffer of the same shape). Only the two-branch modes are accepted here.
+pub fn fuse_into(
+    out: &mut DenseMatrix,
+    p_img: &DenseMatrix,
+    p_geo: &DenseMatrix,
+    mode: FusionMode,
+    prior: Option<f64>,
+    exact_reference: bool,
+) -> Result<()> {
+    same_shape(p_img, p_geo)?;
+    if out.shape() != p_img.shape() || out.data.len() != p_img.data.len() {
+        return Err(Error::Invalid(format!(
+            "fusion: output is {} x {}, posteriors are {} x {}",
+            out.rows, out.cols, p_img.rows, p_img.cols
+        )));
+    }
+    if p_img.data.is_empty() {
+        return Ok(());
+    }
+    let prior = prior.unwrap_or_else(|| default_prior(p_img.rows, p_img.cols));
+    check_prior(prior)?;
+    let (a, b, cols) = (&p_img.data, &p_geo.data, p_img.cols);
+    let omp = 1.0 - prior;
+    match (mode, exact_reference) {
+        (FusionMode::NoisyAnd, false) => zip_into(&mut out.data, a, b, cols, |x, y| {
+            let (s, t) = and_terms(x, y, prior, omp);
+            if s > 0.0 {
+                (s / (s + t)) as f32
+            } else {
+                0.0
+            }
+        }),
+        (FusionMode::NoisyAnd, true) => zip_into(&mut out.data, a, b, cols, |x, y| {
+            noisy_and_reference(x, y, prior)
+        }),
+        (FusionMode::NoisyOr, false) => zip_into(&mut out.data, a, b, cols, noisy_or),
+        (FusionMode::NoisyOr, true) => zip_into(&mut out.data, a, b, cols, noisy_or_reference),
+        (m, _) => {
+            return Err(Error::Invalid(format!(
+                "fuse_into: {m:?} is not a two-branch posterior fusion"
+            )))
+        }
+    }
+    Ok(())
+}
+
+fn need<'a>(m: Option<&'a DenseMatrix>, mode: FusionMode, what: &str) -> Result<&'a DenseMatrix> {
+    m.ok_or_else(|| Error::Invalid(format!("fusion mode {mode:?} needs the {what} posterior")))
+}
+
+/// Fuses the modality posteriors. `prior` defaults to `1 / (N M)`. `Concat` is rejected here:
+/// it fuses features before matching (see [`concat_features`], [`concat_similarity`]).
+pub fn fuse(
+    p_img: Option<&DenseMatrix>,
+    p_geo: Option<&DenseMatrix>,
+    mode: FusionMode,
+    prior: Option<f64>,
+    exact_reference: bool,
+) -> Result<DenseMatrix> {
+    match mode {
+        FusionMode::ImageOnly => Ok(need(p_img, mode, "image")?.clone()),
+        FusionMode::GeometryOnly => Ok(need(p_geo, mode, "geometric")?.clone()),
+        FusionMode::Concat => Err(Error::Invalid(
+            "fusion mode Concat fuses features before matching: use concat_features or \
+             concat_similarity, then calibrate that one similarity"
+                .into(),
+        )),
+        FusionMode::NoisyAnd | FusionMode::NoisyOr => {
+            let (a, b) = (need(p_img, mode, "image")?, need(p_geo, mode, "geometric")?);
+            same_shape(a, b)?;
+            let mut out = DenseMatrix::zeros(a.rows, a.cols)?;
+            fuse_into(&mut out, a, b, mode, prior, exact_reference)?;
+            Ok(out)
+        }
+    }
+}
+
+/// The matrix of [`noisy_and_rank_key`]s: rank by it, read probabilities from [`fuse`].
+pub fn noisy_and_rank_keys(
+    p_img: &DenseMatrix,
+    p_geo: &DenseMatrix,
+    prior: Option<f64>,
+) -> Result<DenseMatrix> {
+    same_shape(p_img, p_geo)?;
+    let mut out = DenseMatrix::zeros(p_img.rows, p_img.cols)?;
+    if out.data.is_empty() {
+        return Ok(out);
+    }
+    let prior = prior.unwrap_or_else(|| default_prior(p_img.rows, p_img.cols));
+    check_prior(prior)?;
+    let omp = 1.0 - prior;
+    zip_into(
+        &mut out.data,
+        &p_img.data,
+        &p_geo.data,
+        p_img.cols,
+        |x, y| {
+            let (s, t) = and_terms(x, y, prior, omp);
+            if s > 0.0 {
+                (s / t).sqrt().sqrt() as f32
+            } else {
+                0.0
+            }
+        },
+    );
+    Ok(out)
+}
+
+/// Turns a matrix of [`noisy_and_rank_key`]s into the Noisy-AND posteriors in place:
+/// `p = o / (1 + o)` with `o = key^4` (relative error about 3e-7 against [`fuse`]).
+pub fn rank_keys_to_posteriors(keys: &mut DenseMatrix) {
+    let cols = keys.cols.max(1);
+    let chunk = rows_per_task(keys.data.len() / cols, cols, 1 << 16) * cols;
+    keys.data.par_chunks_mut(chunk).for_each(|c| {
+        for v in c.iter_mut() {
+            let k = *v as f64;
+            let o = (k * k) * (k * k);
+            *v = if o.is_finite() {
+                (o / (1.0 + o)) as f32
+            } else {
+                1.0
+            };
+        }
+    });
+}
+
+fn check_weight(w_img: f32) -> Result<()> {
+    if (0.0..=1.0).contains(&w_img) {
+        Ok(())
+    } else {
+        Err(Error::Invalid(format!(
+            "concatenation: image weight must lie in [0, 1], found {w_img}"
+        )))
+    }
+}
+
+/// Fuse-then-match features: row i is `[sqrt(w) img_i / |img_i|, sqrt(1 - w) geo_i / |geo_i|]`,
+/// with the image block zero where point i has no pixel. For two mapped points the cosine
+/// similarity of these rows is `w cos_img + (1 - w) cos_geo`.
+pub fn concat_features(
+    img: &Features,
+    img_valid: &[bool],
+    geo: &Features,
+    w_img: f32,
+) -> Result<Features> {
+    check_weight(w_img)?;
+    let n = geo.len();
+    if img.len() != n || img_valid.len() != n {
+        return Err(Error::Invalid(format!(
+            "concatenation: {} image feature rows, {} validity flags, {} geometric feature rows",
+            img.len(),
+            img_valid.len(),
+            n
+        )));
+    }
+    let (ni, ng) = (normalize_rows(img), normalize_rows(geo));
+    let (di, dg) = (img.dim, geo.dim);
+    let (wi, wg) = (w_img.sqrt(), (1.0 - w_img).sqrt());
+    let mut data = vec![0.0f32; n * (di + dg)];
+    data.par_chunks_mut((di + dg).max(1))
+        .enumerate()
+        .for_each(|(i, row)| {
+            if img_valid[i] {
+                for (o, v) in row[..di].iter_mut().zip(ni.row(i)) {
+                    *o = wi * v;
+                }
+            }
+            for (o, v) in row[di..].iter_mut().zip(ng.row(i)) {
+                *o = wg * v;
+            }
+        });
+    Ok(Features::new(di + dg, data))
+}
+
+/// The cosine similarity of [`concat_features`] computed from the two branch similarities,
+/// without the features: `(w vi vj S_img + (1 - w) S_geo) / (|x_i| |y_j|)` with
+/// `|x_i| = sqrt(w vi + 1 - w)` (vi = row i mapped, vj = column j mapped).
+pub fn concat_similarity(
+    s_img: &DenseMatrix,
+    row_valid: Option<&[bool]>,
+    col_valid: Option<&[bool]>,
+    s_geo: &DenseMatrix,
+    w_img: f32,
+) -> Result<DenseMatrix> {
+    check_weight(w_img)?;
+    same_shape(s_img, s_geo)?;
+    check_masks(
+        "concatenation",
+        s_img.rows,
+        s_img.cols,
+        row_valid,
+        col_valid,
+    )?;
+    let (rows, cols) = s_img.shape();
+    let mut out = DenseMatrix::zeros(rows, cols)?;
+    if out.data.is_empty() {
+        return Ok(out);
+    }
+    let inv_norm = |valid: bool| {
+        let n = (w_img * valid as u8 as f32 + 1.0 - w_img).sqrt();
+        if n > 1e-6 {
+            1.0 / n
+        } else {
+            0.0
+        }
+    };
+    let cv: Vec<f32> = (0..cols)
+        .map(|j| col_valid.is_none_or(|c| c[j]) as u8 as f32)
+        .collect();
+    let cinv: Vec<f32> = cv.iter().map(|&v| inv_norm(v > 0.0)).collect();
+    out.data
+        .par_chunks_mut(cols)
+        .enumerate()
+        .with_min_len(rows_per_task(rows, cols, 1 << 15))
+        .for_each(|(i, o)| {
+            let vi = row_valid.is_none_or(|r| r[i]);
+            let (si, sg) = (s_img.row(i), s_geo.row(i));
+            let ri = inv_norm(vi);
+            let wi = if vi { w_img } else { 0.0 };
+            for j in 0..cols {
+                o[j] = (wi * cv[j] * si[j] + (1.0 - w_img) * sg[j]) * ri * cinv[j];
+            }
+        });
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::fusion::similarity::cosine_similarity;
+
+    fn odds(x: f64) -> f64 {
+        x / (1.0 - x)
+    }
+
+    fn lcg(seed: &mut u64) -> f32 {
+        *seed = seed
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (*seed >> 40) as f32 / (1u64 << 24) as f32
+    }
+
+    #[test]
+    fn noisy_and_is_the_odds_product_of_appendix_a() {
+        let mut s = 3u64;
+        for _ in 0..2000 {
+            let (pi_, pg) = (
+                lcg(&mut s).clamp(1e-6, 0.999),
+                lcg(&mut s).clamp(1e-6, 0.999),
+            );
+            for prior in [1e-8, 4e-5, 0.01, 0.3] {
+                let pf = noisy_and(pi_, pg, prior) as f64;
+                // o(p_f) = o(p_img) o(p_geo) / o(pi)
+                let want_odds = odds(pi_ as f64) * odds(pg as f64) / odds(prior);
+                let want = want_odds / (1.0 + want_odds);
+                assert!(
+                    (pf - want).abs() <= 2e-7 * want.max(1e-30) + 1e-37,
+                    "{pi_} {pg} {prior}"
+                );
+                // Equivalent log-odds statement: logit(p_f) = logit(p_i) + logit(p_g) - logit(pi).
+                if pf < 0.99 && pf > 1e-30 {
+                    let lf = odds(pf).ln();
+                    let lw = odds(pi_ as f64).ln() + odds(pg as f64).ln() - odds(prior).ln();
+                    assert!((lf - lw).abs() < 1e-5 * lw.abs().max(1.0));
+                }
+                // The ranking key is o(p_f)^(1/4).
+                let k = noisy_and_rank_key(pi_, pg, prior);
+                assert!(((k as f64).powi(4) - want_odds).abs() <= 1e-6 * want_odds);
+                let mut km = DenseMatrix::from_vec(1, 1, vec![k]).unwrap();
+                rank_keys_to_posteriors(&mut km);
+                assert!((km.data[0] as f64 - want).abs() <= 4e-7 * want.max(1e-30) + 1e-37);
+            }
+        }
+    }
+
+    #[test]
+    fn uninformative_branch_leaves_the_other_unchanged() {
+        let mut s = 5u64;
+        for prior in [1e-9f64, 1e-4, 0.2] {
+            for _ in 0..500 {
+                let p = lcg(&mut s);
+                let f = noisy_and(p, prior as f32, prior);
+                let g = noisy_and(prior as f32, p, prior);
+                // p_geo = pi is rounded to f32, hence the tolerance.
+                assert!((f - p).abs() <= 1e-6 * p.max(1e-6), "{p} {prior}: {f}");
+                assert_eq!(f, g);
+            }
+        }
+    }
+
+    #[test]
+    fn extreme_probabilities_give_no_nan() {
+        let ps = [0.0f32, 1.0, 1e-30, 1.0 - 1e-7, 1e-45, 0.5, f32::NAN];
+        for &a in &ps {
+            for &b in &ps {
+                for prior in [1e-9, 1e-300, 0.5] {
+                    let f = noisy_and(a, b, prior);
+                    assert!(
+                        f.is_finite() && (0.0..=1.0).contains(&f),
+                        "{a} {b} {prior}: {f}"
+                    );
+                    let k = noisy_and_rank_key(a, b, prior);
+                    assert!(!k.is_nan() && k >= 0.0);
+                    let o = noisy_or(a, b);
+                    assert!(o.is_finite() && (0.0..=1.0).contains(&o));
+                }
+            }
+        }
+        // Certain agreement, certain veto, and the conflict (veto wins).
+        assert_eq!(noisy_and(1.0, 1.0, 1e-9), 1.0);
+        assert_eq!(noisy_and(0.0, 0.9, 1e-9), 0.0);
+        assert_eq!(noisy_and(1.0, 0.0, 1e-9), 0.0);
+        // Tiny but non-zero evidence is kept, not flushed: o = 1e-30 * 1 / 1e-9.
+        let f = noisy_and(1e-30, 0.5, 1e-9) as f64;
+        assert!((f / 1e-21 - 1.0).abs() < 1e-5, "{f}");
+        // Saturation: the f32 posterior is 1.0 but the key still ranks.
+        assert_eq!(noisy_and(0.9, 0.9, 1e-8), 1.0);
+        assert!(noisy_and_rank_key(0.95, 0.9, 1e-8) > noisy_and_rank_key(0.9, 0.9, 1e-8));
+    }
+
+    #[test]
+    fn exact_reference_matches_f32_transcription() {
+        let (n, m) = (17, 23);
+        let mut s = 11u64;
+        let a = DenseMatrix::from_fn(n, m, |_, _| lcg(&mut s)).unwrap();
+        let mut b = DenseMatrix::from_fn(n, m, |_, _| lcg(&mut s)).unwrap();
+        b.data[0] = 0.0;
+        b.data[1] = 1.0;
+        let f = fuse(Some(&a), Some(&b), FusionMode::NoisyAnd, None, true).unwrap();
+        let pi: f64 = 1.0 / ((n * m) as f64);
+        for k in 0..n * m {
+            let (pr, pg) = (a.data[k], b.data[k]);
+            let num: f32 = pr * pg * ((1.0 - pi) as f32);
+            let den: f32 = num + (1.0f32 - pr) * (1.0f32 - pg) * (pi as f32);
+            assert_eq!(f.data[k].to_bits(), (num / (den + 1e-8f32)).to_bits());
+        }
+        let o = fuse(Some(&a), Some(&b), FusionMode::NoisyOr, None, true).unwrap();
+        for k in 0..n * m {
+            assert_eq!(
+                o.data[k],
+                1.0f32 - (1.0f32 - a.data[k]) * (1.0f32 - b.data[k])
+            );
+        }
+        // The paper mode agrees with the closed form of eq. 6 away from the eps.
+        let p = fuse(Some(&a), Some(&b), FusionMode::NoisyAnd, Some(0.01), false).unwrap();
+        for k in 2..n * m {
+            let (x, y) = (a.data[k] as f64, b.data[k] as f64);
+            let want = x * y * 0.99 / (x * y * 0.99 + (1.0 - x) * (1.0 - y) * 0.01);
+            assert!((p.data[k] as f64 - want).abs() < 1e-6);
+        }
+    }
+
+    #[test]
+    fn noisy_or_symmetry_and_bounds() {
+        let mut s = 13u64;
+        for _ in 0..1000 {
+            let (a, b) = (lcg(&mut s), lcg(&mut s));
+            let o = noisy_or(a, b);
+            assert_eq!(o, noisy_or(b, a));
+            assert!(o >= a.max(b) - 1e-7 && o <= 1.0);
+            assert!((o as f64 - (1.0 - (1.0 - a as f64) * (1.0 - b as f64))).abs() < 1e-7);
+        }
+        assert_eq!(noisy_or(0.0, 0.0), 0.0);
+        assert_eq!(noisy_or(1.0, 0.3), 1.0);
+        assert_eq!(noisy_or(1e-30, 0.0), 1e-30);
+    }
+
+    #[test]
+    fn fuse_checks_shapes_and_modes() {
+        let a = DenseMatrix::zeros(3, 4).unwrap();
+        let b = DenseMatrix::zeros(4, 3).unwrap();
+        assert!(fuse(Some(&a), Some(&b), FusionMode::NoisyAnd, None, false).is_err());
+        assert!(fuse(Some(&a), None, FusionMode::NoisyOr, None, false).is_err());
+        assert!(fuse(None, Some(&b), FusionMode::ImageOnly, None, false).is_err());
+        assert!(fuse(Some(&a), Some(&a), FusionMode::Concat, None, false).is_err());
+        assert!(fuse(Some(&a), Some(&a), FusionMode::NoisyAnd, Some(0.0), false).is_err());
+        assert!(fuse(Some(&a), Some(&a), FusionMode::NoisyAnd, Some(1.5), false).is_err());
+        assert_eq!(
+            fuse(None, Some(&b), FusionMode::GeometryOnly, None, false).unwrap(),
+            b
+        );
+    }
+
+    #[test]
+    fn concat_similarity_equals_cosine_of_concatenated_features() {
+        let (n, m, di, dg) = (19, 27, 12, 9);
+        let mut s = 17u64;
+        let mut f = |rows: usize, d: usize| {
+            Features::new(d, (0..rows * d).map(|_| lcg(&mut s) - 0.5).collect())
+        };
+        let (is, it, gs, gt) = (f(n, di), f(m, di), f(n, dg), f(m, dg));
+        let rv: Vec<bool> = (0..n).map(|i| i % 3 != 0).collect();
+        let cv: Vec<bool> = (0..m).map(|j| j % 4 != 1).collect();
+        for w in [0.0f32, 0.3, 0.5, 1.0] {
+            let cs = concat_features(&is, &rv, &gs, w).unwrap();
+            let ct = concat_features(&it, &cv, &gt, w).unwrap();
+            let direct = cosine_similarity(&cs, &ct).unwrap();
+            let si = cosine_similarity(&is, &it).unwrap();
+            let sg = cosine_similarity(&gs, &gt).unwrap();
+            let via = concat_similarity(&si, Some(&rv), Some(&cv), &sg, w).unwrap();
+            for k in 0..n * m {
+                assert!((direct.data[k] - via.data[k]).abs() < 2e-6, "w={w} k={k}");
+            }
+            // Two mapped points: weighted mean of the branch cosines.
+            let (i, j) = (1, 0);
+            assert!((via.get(i, j) - (w * si.get(i, j) + (1.0 - w) * sg.get(i, j))).abs() < 1e-6);
+        }
+        assert!(concat_features(&is, &rv[..3], &gs, 0.5).is_err());
+        assert!(concat_features(&is, &rv, &gs, 1.5).is_err());
+    }
+}

@@ -1,0 +1,292 @@
+//! Correspondence selection from a score matrix: mutual nearest neighbours (paper) or global
+//! top-k (reference §8.5, k = 8000).
+//!
+//! Entries with score <= 0 (invalid, or a vetoed pair) and NaN are never selected. The result
+//! is sorted by (score descending, source, target), so ties have a deterministic order.
+
+use super::matrix::{rows_per_task, DenseMatrix};
+use super::Correspondence;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use std::cmp::Ordering;
+
+/// Which correspondences to keep.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Selection {
+    /// (i, j) where j is the best target of row i and i the best source of column j.
+    MutualNn,
+    /// The k best entries of the whole matrix; a point may appear many times.
+    TopK(usize),
+}
+
+impl Default for Selection {
+    fn default() -> Self {
+        Selection::MutualNn
+    }
+}
+
+/// The reference's number of matches.
+pub const REFERENCE_TOP_K: usize = 8000;
+
+/// Selects correspondences from `scores` (module docs for the rules).
+pub fn select(scores: &DenseMatrix, sel: Selection) -> Vec<Correspondence> {
+    // A matrix whose buffer disagrees with its shape is read only as far as it is consistent.
+    let cols = scores.cols;
+    if cols == 0 || scores.rows == 0 {
+        return Vec::new();
+    }
+    let rows = scores.rows.min(scores.data.len() / cols);
+    let data = &scores.data[..rows * cols];
+    let mut out = match sel {
+        Selection::MutualNn => mutual_nn(data, rows, cols),
+        Selection::TopK(k) => top_k(data, rows, cols, k),
+    };
+    out.sort_unstable_by(order);
+    out
+}
+
+fn order(a: &Correspondence, b: &Correspondence) -> Ordering {
+    b.score
+        .total_cmp(&a.score)
+        .then(a.src.cmp(&b.src))
+        .then(a.tgt.cmp(&b.tgt))
+}
+
+/// First index of the row maximum, if that maximum is > 0.
+fn row_argmax(row: &[f32]) -> Option<(usize, f32)> {
+    let mx = super::calibrate::max_lanes(row);
+    if mx > 0.0 {
+        row.iter().position(|&v| v == mx).map(|j| (j, mx))
+    } else {
+        None
+    }
+}
+
+fn mutual_nn(data: &[f32], rows: usize, cols: usize) -> Vec<Correspondence> {
+    // One pass: row argmax and running column maxima per band of rows. Each fold scans
+    // consecutive bands in order, folds are reduced in order and only a strictly greater score
+    // replaces the current best, so column ties go to the lowest row (as row ties go to the
+    // lowest column in `row_argmax`).
+    let band = rows_per_task(rows, cols, 1 << 16);
+    let mut best_tgt: Vec<Option<(usize, f32)>> = vec![None; rows];
+    let (_, cidx) = data
+        .par_chunks(band * cols)
+        .zip(best_tgt.par_chunks_mut(band))
+        .enumerate()
+        .fold(
+            || (vec![0.0f32; cols], vec![u32::MAX; cols]),
+            |(mut cb, mut ci), (t, (chunk, bt))| {
+                for (k, (row, b)) in chunk.chunks(cols).zip(bt.iter_mut()).enumerate() {
+                    let i = (t * band + k) as u32;
+                    for j in 0..cols {
+                        let better = row[j] > cb[j];
+                        cb[j] = if better { row[j] } else { cb[j] };
+                        ci[j] = if better { i } else { ci[j] };
+                    }
+                    *b = row_argmax(row);
+                }
+                (cb, ci)
+            },
+        )
+        .reduce_with(|(mut cb, mut ci), (cb2, ci2)| {
+            for j in 0..cols {
+                if cb2[j] > cb[j] {
+                    cb[j] = cb2[j];
+                    ci[j] = ci2[j];
+                }
+            }
+            (cb, ci)
+        })
+        .unwrap_or_else(|| (vec![0.0; cols], vec![u32::MAX; cols]));
+    best_tgt
+        .iter()
+        .enumerate()
+        .filter_map(|(i, b)| {
+            let (j, s) = (*b)?;
+            (cidx[j] == i as u32).then_some(Correspondence {
+                src: i as u32,
+                tgt: j as u32,
+                score: s,
+            })
+        })
+        .collect()
+}
+
+/// Candidate order: score descending, then flat index ascending (a strict total order).
+fn cand_order(a: &(f32, u64), b: &(f32, u64)) -> Ordering {
+    b.0.total_cmp(&a.0).then(a.1.cmp(&b.1))
+}
+
+/// Keeps the k best of `buf` under `cand_order`; returns the worst kept score.
+fn prune(buf: &mut Vec<(f32, u64)>, k: usize) -> f32 {
+    if buf.len() > k {
+        buf.select_nth_unstable_by(k - 1, cand_order);
+        buf.truncate(k);
+    }
+    buf.iter().map(|c| c.0).fold(f32::INFINITY, f32::min)
+}
+
+fn top_k(data: &[f32], rows: usize, cols: usize, k: usize) -> Vec<Correspondence> {
+    if k == 0 {
+        return Vec::new();
+    }
+    let band = rows_per_task(rows, cols, 1 << 16);
+    // Each fold scans its entries in ascending flat index, so once it holds k candidates a new
+    // entry with a score equal to the k-th one ranks below it: admitting only `s > thr` is exact.
+    let mut cands = data
+        .par_chunks(band * cols)
+        .enumerate()
+        .fold(
+            || (Vec::<(f32, u64)>::new(), 0.0f32),
+            |(mut buf, mut thr), (t, chunk)| {
+                let base = (t * band * cols) as u64;
+                for (q, block) in chunk.chunks(64).enumerate() {
+                    if super::calibrate::max_lanes(block) <= thr {
+                        continue;
+                    }
+                    for (r, &s) in block.iter().enumerate() {
+                        if s > thr {
+                            buf.push((s, base + (q * 64 + r) as u64));
+                        }
+                    }
+                    if buf.len() >= 2 * k.max(512) {
+                        thr = thr.max(prune(&mut buf, k));
+                    }
+                }
+                (buf, thr)
+            },
+        )
+        .map(|(mut buf, _)| {
+            prune(&mut buf, k);
+            buf
+        })
+        .reduce_with(|mut a, b| {
+            a.extend(b);
+            prune(&mut a, k);
+            a
+        })
+        .unwrap_or_default();
+    prune(&mut cands, k);
+    cands
+        .into_iter()
+        .map(|(s, idx)| Correspondence {
+            src: (idx / cols as u64) as u32,
+            tgt: (idx % cols as u64) as u32,
+            score: s,
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn lcg(seed: &mut u64) -> u32 {
+        *seed = seed
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (*seed >> 33) as u32
+    }
+
+    /// Scores with many exact ties, zeros and a few negatives.
+    fn tied_matrix(rows: usize, cols: usize, seed: u64) -> DenseMatrix {
+        let mut s = seed;
+        DenseMatrix::from_fn(rows, cols, |_, _| match lcg(&mut s) % 10 {
+            0 => 0.0,
+            1 => -0.5,
+            r => (lcg(&mut s) % 7) as f32 * 0.125 + r as f32 * 0.01,
+        })
+        .unwrap()
+    }
+
+    fn brute_mutual(m: &DenseMatrix) -> Vec<Correspondence> {
+        let mut out = vec![];
+        for i in 0..m.rows {
+            let mut bj = None;
+            for j in 0..m.cols {
+                let v = m.get(i, j);
+                if v > 0.0 && bj.is_none_or(|b: usize| v > m.get(i, b)) {
+                    bj = Some(j);
+                }
+            }
+            let Some(j) = bj else { continue };
+            let mut bi = 0;
+            for q in 0..m.rows {
+                if m.get(q, j) > m.get(bi, j) {
+                    bi = q;
+                }
+            }
+            if bi == i {
+                out.push(Correspondence {
+                    src: i as u32,
+                    tgt: j as u32,
+                    score: m.get(i, j),
+                });
+            }
+        }
+        out.sort_by(order);
+        out
+    }
+
+    fn brute_topk(m: &DenseMatrix, k: usize) -> Vec<Correspondence> {
+        let mut all: Vec<Correspondence> = (0..m.rows)
+            .flat_map(|i| (0..m.cols).map(move |j| (i, j)))
+            .filter(|&(i, j)| m.get(i, j) > 0.0)
+            .map(|(i, j)| Correspondence {
+                src: i as u32,
+                tgt: j as u32,
+                score: m.get(i, j),
+            })
+            .collect();
+        all.sort_by(order);
+        all.truncate(k);
+        all
+    }
+
+    #[test]
+    fn mutual_nn_matches_brute_force() {
+        for (rows, cols, seed) in [(50, 70, 1), (300, 40, 2), (7, 900, 3), (1, 1, 4)] {
+            let m = tied_matrix(rows, cols, seed);
+            assert_eq!(
+                select(&m, Selection::MutualNn),
+                brute_mutual(&m),
+                "{rows}x{cols}"
+            );
+        }
+        // A permutation with distinct scores is recovered entirely.
+        let n = 64;
+        let m = DenseMatrix::from_fn(n, n, |i, j| if j == (i * 7 + 3) % n { 0.9 } else { 0.1 })
+            .unwrap();
+        let c = select(&m, Selection::MutualNn);
+        assert_eq!(c.len(), n);
+        assert!(c
+            .iter()
+            .all(|c| c.tgt as usize == (c.src as usize * 7 + 3) % n));
+    }
+
+    #[test]
+    fn top_k_matches_brute_force() {
+        for (rows, cols, seed, k) in [
+            (50, 70, 1, 100),
+            (300, 400, 2, 8000),
+            (300, 400, 5, 3),
+            (20, 20, 3, 10_000),
+        ] {
+            let m = tied_matrix(rows, cols, seed);
+            assert_eq!(
+                select(&m, Selection::TopK(k)),
+                brute_topk(&m, k),
+                "{rows}x{cols} k={k}"
+            );
+        }
+        let m = tied_matrix(10, 10, 9);
+        assert!(select(&m, Selection::TopK(0)).is_empty());
+        let zero = DenseMatrix::zeros(5, 5).unwrap();
+        assert!(select(&zero, Selection::TopK(10)).is_empty());
+        assert!(select(&zero, Selection::MutualNn).is_empty());
+        let mut nan = tied_matrix(5, 5, 1);
+        nan.data.iter_mut().for_each(|v| *v = f32::NAN);
+        assert!(select(&nan, Selection::TopK(10)).is_empty());
+        assert!(select(&DenseMatrix::zeros(0, 3).unwrap(), Selection::MutualNn).is_empty());
+    }
+}

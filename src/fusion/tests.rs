@@ -1,0 +1,168 @@
+//! End-to-end tests of `match_then_fuse` on planted permutations.
+
+use super::*;
+
+struct Rng(u64);
+impl Rng {
+    fn uniform(&mut self) -> f32 {
+        self.0 = self
+            .0
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (self.0 >> 40) as f32 / (1u64 << 24) as f32
+    }
+    /// Roughly normal (sum of 4 uniforms), zero mean, unit variance.
+    fn normal(&mut self) -> f32 {
+        ((0..4).map(|_| self.uniform()).sum::<f32>() - 2.0) * 3f32.sqrt()
+    }
+}
+
+/// A similarity whose entry (i, perm[i]) is raised by `signal` above noise of scale `sigma`.
+fn noisy_similarity(perm: &[usize], signal: f32, sigma: f32, rng: &mut Rng) -> DenseMatrix {
+    let n = perm.len();
+    DenseMatrix::from_fn(n, n, |i, j| {
+        let v = sigma * rng.normal() + if perm[i] == j { signal } else { 0.0 };
+        v.clamp(-1.0, 1.0)
+    })
+    .unwrap()
+}
+
+fn permutation(n: usize, rng: &mut Rng) -> Vec<usize> {
+    let mut p: Vec<usize> = (0..n).collect();
+    for i in (1..n).rev() {
+        let j = (rng.uniform() * (i + 1) as f32) as usize % (i + 1);
+        p.swap(i, j);
+    }
+    p
+}
+
+fn correct(c: &[Correspondence], perm: &[usize]) -> usize {
+    c.iter()
+        .filter(|c| perm[c.src as usize] == c.tgt as usize)
+        .count()
+}
+
+#[test]
+fn noisy_and_recovers_more_than_either_branch() {
+    let n = 600;
+    let mut rng = Rng(42);
+    let perm = permutation(n, &mut rng);
+    let s_img = noisy_similarity(&perm, 0.55, 0.2, &mut rng);
+    let s_geo = noisy_similarity(&perm, 0.55, 0.2, &mut rng);
+    let run = |mode, selection| {
+        let p = FusionParams {
+            mode,
+            selection,
+            ..FusionParams::default()
+        };
+        match_then_fuse(Some((&s_img, None, None)), Some(&s_geo), &p).unwrap()
+    };
+    for sel in [Selection::MutualNn, Selection::TopK(n / 2)] {
+        let img = correct(&run(FusionMode::ImageOnly, sel).correspondences, &perm);
+        let geo = correct(&run(FusionMode::GeometryOnly, sel).correspondences, &perm);
+        let and = correct(&run(FusionMode::NoisyAnd, sel).correspondences, &perm);
+        let or = correct(&run(FusionMode::NoisyOr, sel).correspondences, &perm);
+        eprintln!("{sel:?}: image {img}, geometry {geo}, noisy-and {and}, noisy-or {or}");
+        assert!(
+            img > n / 10 && geo > n / 10,
+            "branches should be informative"
+        );
+        assert!(
+            img < n * 9 / 10 && geo < n * 9 / 10,
+            "branches should be noisy"
+        );
+        assert!(
+            and as f64 > 1.2 * img.max(geo) as f64,
+            "{and} vs {img}/{geo}"
+        );
+    }
+    // The reference configuration also beats each branch alone.
+    let refp = FusionParams {
+        selection: Selection::TopK(n / 2),
+        ..FusionParams::reference()
+    };
+    let fused = match_then_fuse(Some((&s_img, None, None)), Some(&s_geo), &refp).unwrap();
+    let single = FusionParams {
+        mode: FusionMode::ImageOnly,
+        ..refp
+    };
+    let img = match_then_fuse(Some((&s_img, None, None)), None, &single).unwrap();
+    assert!(correct(&fused.correspondences, &perm) > correct(&img.correspondences, &perm));
+}
+
+#[test]
+fn output_is_consistent_with_its_posteriors() {
+    let n = 120;
+    let mut rng = Rng(7);
+    let perm = permutation(n, &mut rng);
+    let s_img = noisy_similarity(&perm, 0.6, 0.15, &mut rng);
+    let s_geo = noisy_similarity(&perm, 0.6, 0.15, &mut rng);
+    let rv: Vec<bool> = (0..n).map(|i| i % 6 != 0).collect();
+    let cv: Vec<bool> = (0..n).map(|j| j % 7 != 0).collect();
+    let p = FusionParams::default();
+    let out = match_then_fuse(Some((&s_img, Some(&rv), Some(&cv))), Some(&s_geo), &p).unwrap();
+    let (pi_, pg) = (out.p_img.as_ref().unwrap(), out.p_geo.as_ref().unwrap());
+    assert_eq!(
+        *pi_,
+        calibrate(&s_img, Some(&rv), Some(&cv), p.calibration_img).unwrap()
+    );
+    let direct = fuse(Some(pi_), Some(pg), FusionMode::NoisyAnd, None, false).unwrap();
+    for (a, b) in out.fused.data.iter().zip(&direct.data) {
+        assert!((a - b).abs() <= 4e-7 * b, "{a} vs {b}");
+    }
+    assert_eq!(out.peak_bytes, 3 * n * n * 4);
+    assert!(!out.correspondences.is_empty());
+    for c in &out.correspondences {
+        // Unmapped points are vetoed by the image branch.
+        assert!(rv[c.src as usize] && cv[c.tgt as usize]);
+        assert_eq!(c.score, out.fused.get(c.src as usize, c.tgt as usize));
+    }
+    assert!(out
+        .correspondences
+        .windows(2)
+        .all(|w| w[0].score >= w[1].score));
+    // Concatenation baseline runs and finds matches too.
+    let cp = FusionParams {
+        mode: FusionMode::Concat,
+        ..p
+    };
+    let cat = match_then_fuse(Some((&s_img, Some(&rv), Some(&cv))), Some(&s_geo), &cp).unwrap();
+    assert!(correct(&cat.correspondences, &perm) > n / 2);
+}
+
+#[test]
+fn bad_input_is_an_error_not_a_panic() {
+    let a = DenseMatrix::zeros(4, 5).unwrap();
+    let b = DenseMatrix::zeros(5, 4).unwrap();
+    let p = FusionParams::default();
+    assert!(match_then_fuse(Some((&a, None, None)), Some(&b), &p).is_err());
+    assert!(match_then_fuse(None, None, &p).is_err());
+    assert!(match_then_fuse(Some((&a, None, None)), None, &p).is_err());
+    assert!(match_then_fuse(Some((&a, Some(&[true; 3]), None)), Some(&a), &p).is_err());
+    let broken = DenseMatrix {
+        rows: 4,
+        cols: 5,
+        data: vec![0.0; 7],
+    };
+    assert!(match_then_fuse(Some((&broken, None, None)), Some(&a), &p).is_err());
+    let geo_only = FusionParams {
+        mode: FusionMode::GeometryOnly,
+        ..p
+    };
+    let g = match_then_fuse(None, Some(&a), &geo_only).unwrap();
+    assert!(g.p_img.is_none());
+    // A constant similarity gives uniform rows; column ties go to the lowest source index.
+    assert_eq!(g.correspondences.len(), 1);
+    assert_eq!((g.correspondences[0].src, g.correspondences[0].tgt), (0, 0));
+}
+
+#[test]
+fn params_round_trip_through_json() {
+    for p in [FusionParams::default(), FusionParams::reference()] {
+        let s = serde_json::to_string(&p).unwrap();
+        assert_eq!(serde_json::from_str::<FusionParams>(&s).unwrap(), p);
+    }
+    let partial: FusionParams = serde_json::from_str(r#"{"mode":"NoisyOr"}"#).unwrap();
+    assert_eq!(partial.mode, FusionMode::NoisyOr);
+    assert_eq!(partial.selection, Selection::MutualNn);
+}
