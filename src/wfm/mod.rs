@@ -1,1 +1,3 @@
 //! (in progress)
+pub mod depth_video;
+pub mod video;
