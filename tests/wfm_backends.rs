@@ -84,13 +84,21 @@ fn args(a: &[&str]) -> Vec<String> {
 fn cosmos_failing_command_is_a_clear_error() {
     let work = tempfile::tempdir().unwrap();
     let cfg = CosmosConfig::new(
-        args(&["sh", "-c", "echo 'CUDA out of memory' >&2; exit 1", "{batch_input_path}"]),
+        args(&[
+            "sh",
+            "-c",
+            "echo 'CUDA out of memory' >&2; exit 1",
+            "{batch_input_path}",
+        ]),
         work.path(),
         Duration::from_secs(20),
     );
     let b = CosmosBackend::new(cfg).unwrap();
     let t = Instant::now();
-    let e = b.generate(&request("p/1", depth_video(4))).unwrap_err().to_string();
+    let e = b
+        .generate(&request("p/1", depth_video(4)))
+        .unwrap_err()
+        .to_string();
     assert!(t.elapsed() < Duration::from_secs(10));
     assert!(e.contains("exit status: 1") || e.contains("exited"), "{e}");
     assert!(e.contains("CUDA out of memory"), "{e}");
@@ -115,7 +123,10 @@ fn cosmos_hanging_command_is_killed_on_timeout() {
     let cfg = CosmosConfig::new(args(&["sleep", "100"]), work.path(), Duration::from_secs(1));
     let b = CosmosBackend::new(cfg).unwrap();
     let t = Instant::now();
-    let e = b.generate(&request("hang", depth_video(2))).unwrap_err().to_string();
+    let e = b
+        .generate(&request("hang", depth_video(2)))
+        .unwrap_err()
+        .to_string();
     let took = t.elapsed();
     assert!(took < Duration::from_secs(5), "took {took:?}");
     assert!(e.contains("timed out"), "{e}");
@@ -207,7 +218,8 @@ fn cosmos_fake_generator_is_ingested() {
     let argv = p.command.as_ref().unwrap();
     assert!(argv.contains(&"7".to_string()), "seed passed: {argv:?}");
     assert!(
-        argv.iter().all(|a| !a.contains("a kitchen") && !a.contains("Scene:")),
+        argv.iter()
+            .all(|a| !a.contains("a kitchen") && !a.contains("Scene:")),
         "prompt leaked onto argv: {argv:?}"
     );
     // The generated frame is the depth frame upscaled (the fake copies it): grey levels kept.
@@ -220,7 +232,12 @@ fn cosmos_fake_generator_is_ingested() {
     assert_eq!(lines.len(), 1);
     assert_eq!(lines[0].control_weight, Some(1.0));
     assert_eq!(lines[0].prompt, req.prompt.text());
-    assert_eq!(read_mp4_frames(Path::new(&lines[0].input_control)).unwrap().len(), 10);
+    assert_eq!(
+        read_mp4_frames(Path::new(&lines[0].input_control))
+            .unwrap()
+            .len(),
+        10
+    );
     let spec: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(job.join("controlnet_spec.json")).unwrap())
             .unwrap();
@@ -270,7 +287,10 @@ fn cached_folder_with_guardrail_and_missing_entries() {
     assert_eq!(r.entries[0].status, EntryStatus::Present);
     assert_eq!(r.entries[1].status, EntryStatus::EmptyGuardrail);
     assert_eq!(r.entries[2].status, EntryStatus::Missing);
-    assert_eq!(r.summary(), "3 lines: 1 present, 1 empty (guardrail), 1 missing");
+    assert_eq!(
+        r.summary(),
+        "3 lines: 1 present, 1 empty (guardrail), 1 missing"
+    );
 
     // Line 0 by number, by video name, and by the depth mp4's file name.
     let mut req = request("0", vec![]);
@@ -279,7 +299,11 @@ fn cached_folder_with_guardrail_and_missing_entries() {
     assert_eq!(g.frames.len(), frames.len());
     assert!(psnr(&frames[2], &g.frames[2]).unwrap() > 35.0);
     assert_eq!(g.provenance.prompt, "A photorealistic kitchen");
-    assert!(g.provenance.warnings.is_empty(), "{:?}", g.provenance.warnings);
+    assert!(
+        g.provenance.warnings.is_empty(),
+        "{:?}",
+        g.provenance.warnings
+    );
     assert_eq!(g.provenance.params["line"], 0);
     req.pair_id = "7-scenes-redkitchen-seq-01_frame-000000@seq-01_frame-000050".into();
     assert_eq!(b.line_for(&req).unwrap(), 0);
@@ -291,15 +315,25 @@ fn cached_folder_with_guardrail_and_missing_entries() {
 
     // A different requested prompt is reported, not hidden.
     let g = b.generate(&request("0", vec![])).unwrap();
-    assert!(g.provenance.warnings.iter().any(|w| w.contains("different prompt")));
+    assert!(g
+        .provenance
+        .warnings
+        .iter()
+        .any(|w| w.contains("different prompt")));
 
     let e = b.generate(&request("1", vec![])).unwrap_err().to_string();
-    assert!(e.contains("video_1") && e.contains("guardrail") && e.contains("line 2"), "{e}");
+    assert!(
+        e.contains("video_1") && e.contains("guardrail") && e.contains("line 2"),
+        "{e}"
+    );
     let e = b.generate(&request("2", vec![])).unwrap_err().to_string();
     assert!(e.contains("video_2") && e.contains("no such folder"), "{e}");
     let e = b.generate(&request("3", vec![])).unwrap_err().to_string();
     assert!(e.contains("3 lines"), "{e}");
-    let e = b.generate(&request("kitchen/0-1", vec![])).unwrap_err().to_string();
+    let e = b
+        .generate(&request("kitchen/0-1", vec![]))
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("not in"), "{e}");
 }
 
@@ -319,7 +353,10 @@ fn cached_spec_with_shifted_positions_is_rejected() {
     )
     .unwrap();
     let e = CachedBackend::open(&out, &spec).err().unwrap().to_string();
-    assert!(e.contains("spec.json") && e.contains("line 2") && e.contains("000002_c.mp4"), "{e}");
+    assert!(
+        e.contains("spec.json") && e.contains("line 2") && e.contains("000002_c.mp4"),
+        "{e}"
+    );
     assert!(CachedBackend::open(&dir.path().join("nope"), &spec).is_err());
 }
 
@@ -345,7 +382,10 @@ fn oracle_returns_real_frames_labelled() {
     assert_eq!(g.frames.len(), 4);
     for (i, f) in g.frames.iter().enumerate() {
         let p = f.get_pixel(10, 10).0;
-        assert!((p[0] as i32 - (40 * i as i32 + 20)).abs() <= 3, "{i}: {p:?}");
+        assert!(
+            (p[0] as i32 - (40 * i as i32 + 20)).abs() <= 3,
+            "{i}: {p:?}"
+        );
     }
     let g = OracleBackend {
         resize_to: Some((96, 72)),
@@ -371,7 +411,10 @@ fn real_redkitchen_depth_video_builtin_and_oracle() {
     let tgt: Vec<PathBuf> = (50..100).map(depth).collect();
     let t = Instant::now();
     let video = pair_video_from_files(&src, &tgt).unwrap();
-    eprintln!("encode 100 depth frames: {:.2} s", t.elapsed().as_secs_f64());
+    eprintln!(
+        "encode 100 depth frames: {:.2} s",
+        t.elapsed().as_secs_f64()
+    );
     assert_eq!(video.len(), 100);
     assert_eq!(video[0].dimensions(), (640, 480));
     // Every frame spans the normalised range: nearest valid pixel 254, invalid pixels 0.
@@ -382,7 +425,9 @@ fn real_redkitchen_depth_video_builtin_and_oracle() {
     }
 
     let dir = tempfile::tempdir().unwrap();
-    let mp4 = dir.path().join("000000_7-scenes-redkitchen-seq-01_frame-000000@seq-01_frame-000050.mp4");
+    let mp4 = dir
+        .path()
+        .join("000000_7-scenes-redkitchen-seq-01_frame-000000@seq-01_frame-000050.mp4");
     let t = Instant::now();
     write_mp4_h264(&mp4, &video, 30).unwrap();
     eprintln!(
@@ -404,7 +449,10 @@ fn real_redkitchen_depth_video_builtin_and_oracle() {
     req.depth_video_path = Some(mp4);
     let t = Instant::now();
     let g = DepthShadeBackend::default().generate(&req).unwrap();
-    eprintln!("builtin-depthshade-v1, 100 frames at 960x704: {:.2} s", t.elapsed().as_secs_f64());
+    eprintln!(
+        "builtin-depthshade-v1, 100 frames at 960x704: {:.2} s",
+        t.elapsed().as_secs_f64()
+    );
     assert_eq!(g.frames.len(), 100);
     assert_eq!(g.frames[0].dimensions(), (960, 704));
     assert!(g.provenance.model.contains("NOT a WFM"));

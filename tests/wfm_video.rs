@@ -74,7 +74,11 @@ fn ffprobe_json(path: &Path) -> serde_json::Value {
         .arg(path)
         .output()
         .unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     v["streams"][0].clone()
 }
@@ -105,7 +109,10 @@ fn decodes_libx264_like_cosmos_writes_it() {
         assert!(q > 30.0, "frame {i}: psnr {q:.2} dB");
         // Display order: each decoded frame matches its own source better than a neighbour.
         if i + 1 < frames.len() {
-            assert!(q > psnr(&frames[i + 1], b).unwrap(), "frame {i} out of order");
+            assert!(
+                q > psnr(&frames[i + 1], b).unwrap(),
+                "frame {i} out of order"
+            );
         }
     }
     eprintln!("libx264 crf 25 -> our decoder: worst psnr {worst:.2} dB");

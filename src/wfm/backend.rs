@@ -147,6 +147,8 @@ mod tests {
         assert_eq!(v, vec![0, 25, 75, 100]);
         // Constant images stay constant at any size.
         let c = RgbImage::from_pixel(64, 48, image::Rgb([7, 8, 9]));
-        assert!(resize_bilinear(&c, 96, 70).pixels().all(|p| p.0 == [7, 8, 9]));
+        assert!(resize_bilinear(&c, 96, 70)
+            .pixels()
+            .all(|p| p.0 == [7, 8, 9]));
     }
 }

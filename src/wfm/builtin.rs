@@ -148,7 +148,10 @@ fn masked_blur(v: &[f32], m: &[f32], w: usize, h: usize, r: usize) -> Vec<f32> {
 fn shade_frame(frame: &RgbImage, w: usize, h: usize, pal: &Palette) -> RgbImage {
     let (sw, sh) = (frame.width() as usize, frame.height() as usize);
     let raw: Vec<f32> = frame.pixels().map(|p| p[0] as f32 / 255.0).collect();
-    let valid_raw: Vec<f32> = raw.iter().map(|&v| if v > 0.0 { 1.0 } else { 0.0 }).collect();
+    let valid_raw: Vec<f32> = raw
+        .iter()
+        .map(|&v| if v > 0.0 { 1.0 } else { 0.0 })
+        .collect();
     let mut s = resize_plane(&raw, sw, sh, w, h);
     let mut m = resize_plane(&valid_raw, sw, sh, w, h);
     // Values blended with invalid pixels are not depth: renormalise them by the blended mask.
@@ -172,16 +175,21 @@ fn shade_frame(frame: &RgbImage, w: usize, h: usize, pal: &Palette) -> RgbImage 
         let n = (l[0] * l[0] + l[1] * l[1] + l[2] * l[2]).sqrt();
         [l[0] / n, l[1] / n, l[2] / n]
     };
-    let at = |x: usize, y: usize| s2[y * w + x];
-    let normal = |x: usize, y: usize| -> [f32; 3] {
-        let (xl, xr) = (x.saturating_sub(1), (x + 1).min(w - 1));
+    // Pseudo-normals once per pixel (central differences of the smoothed inverse depth).
+    let mut normals = vec![[0.0f32, 0.0, 1.0]; w * h];
+    for y in 0..h {
         let (yu, yd) = (y.saturating_sub(1), (y + 1).min(h - 1));
-        let gx = (at(xr, y) - at(xl, y)) / (xr - xl).max(1) as f32;
-        let gy = (at(x, yd) - at(x, yu)) / (yd - yu).max(1) as f32;
-        let n = [-k * gx, -k * gy, 1.0];
-        let l = (n[0] * n[0] + n[1] * n[1] + 1.0).sqrt();
-        [n[0] / l, n[1] / l, n[2] / l]
-    };
+        let dy = (yd - yu).max(1) as f32;
+        for x in 0..w {
+            let (xl, xr) = (x.saturating_sub(1), (x + 1).min(w - 1));
+            let gx = (s2[y * w + xr] - s2[y * w + xl]) / (xr - xl).max(1) as f32;
+            let gy = (s2[yd * w + x] - s2[yu * w + x]) / dy;
+            let (nx, ny) = (-k * gx, -k * gy);
+            let l = (nx * nx + ny * ny + 1.0).sqrt().recip();
+            normals[y * w + x] = [nx * l, ny * l, l];
+        }
+    }
+    let normal = |x: usize, y: usize| normals[y * w + x];
     let mut out = RgbImage::new(w as u32, h as u32);
     let buf: &mut [u8] = out.as_mut();
     for y in 0..h {
@@ -199,17 +207,22 @@ fn shade_frame(frame: &RgbImage, w: usize, h: usize, pal: &Palette) -> RgbImage 
                     .min(1.0);
                 // Occlusion edge: a step in the unsmoothed inverse depth or next to invalid.
                 let (xl, yu) = (x.saturating_sub(1), y.saturating_sub(1));
-                let step = [(xl, y), ((x + 1).min(w - 1), y), (x, yu), (x, (y + 1).min(h - 1))]
-                    .iter()
-                    .map(|&(a, b)| {
-                        let j = b * w + a;
-                        if m[j] == 0.0 {
-                            0.08
-                        } else {
-                            (s[j] - s[i]).abs()
-                        }
-                    })
-                    .fold(0.0f32, f32::max);
+                let step = [
+                    (xl, y),
+                    ((x + 1).min(w - 1), y),
+                    (x, yu),
+                    (x, (y + 1).min(h - 1)),
+                ]
+                .iter()
+                .map(|&(a, b)| {
+                    let j = b * w + a;
+                    if m[j] == 0.0 {
+                        0.08
+                    } else {
+                        (s[j] - s[i]).abs()
+                    }
+                })
+                .fold(0.0f32, f32::max);
                 let edge = ((step - 0.015) / 0.03).clamp(0.0, 1.0);
                 let (wf, ws, wh) = (n[2] * n[2], n[0] * n[0] * 2.0, n[1] * n[1] * 2.0);
                 let sum = wf + ws + wh;
@@ -241,7 +254,9 @@ impl DepthShadeBackend {
     /// Shade a whole depth video (deterministic: same input, same bytes).
     pub fn shade_video(&self, depth_video: &[RgbImage], prompt: &str) -> Result<Vec<RgbImage>> {
         if depth_video.is_empty() {
-            return Err(Error::Invalid(format!("{NAME}: the depth video has no frames")));
+            return Err(Error::Invalid(format!(
+                "{NAME}: the depth video has no frames"
+            )));
         }
         if self.width < 8 || self.height < 8 {
             return Err(Error::Invalid(format!(
@@ -299,7 +314,9 @@ impl WfmBackend for DepthShadeBackend {
             }),
             created_unix: now_unix(),
             frame_count: frames.len(),
-            warnings: vec![format!("{NAME} is not a world foundation model; results with it say nothing about Cosmos")],
+            warnings: vec![format!(
+                "{NAME} is not a world foundation model; results with it say nothing about Cosmos"
+            )],
         };
         Ok(Generation { frames, provenance })
     }
@@ -343,7 +360,10 @@ mod tests {
             width: 320,
             height: 240,
         };
-        let f = b.shade_video(&[ramp_frame(160, 120, 0)], "x").unwrap().remove(0);
+        let f = b
+            .shade_video(&[ramp_frame(160, 120, 0)], "x")
+            .unwrap()
+            .remove(0);
         let lum = |x: u32, y: u32| f.get_pixel(x, y).0.iter().map(|&c| c as u32).sum::<u32>();
         // Void rows (grey 0) are dark; the box's occlusion edge is darker than its inside.
         assert!(lum(160, 2) < 90, "void {}", lum(160, 2));
@@ -351,7 +371,10 @@ mod tests {
         let edge = (76..84).map(|x| lum(x, 100)).min().unwrap();
         assert!(edge + 60 < inside, "edge {edge} inside {inside}");
         // Nearby frames give similar images (consistent appearance under small motion).
-        let g = b.shade_video(&[ramp_frame(160, 120, 1)], "x").unwrap().remove(0);
+        let g = b
+            .shade_video(&[ramp_frame(160, 120, 1)], "x")
+            .unwrap()
+            .remove(0);
         let q = crate::wfm::video::psnr(&f, &g).unwrap();
         assert!(q > 18.0, "psnr between neighbouring frames {q}");
     }

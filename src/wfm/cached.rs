@@ -68,7 +68,10 @@ impl CachedReport {
             s.push_str(&format!(", {n} without output.mp4"));
         }
         if !self.extra_folders.is_empty() {
-            s.push_str(&format!(", {} folders beyond the spec", self.extra_folders.len()));
+            s.push_str(&format!(
+                ", {} folders beyond the spec",
+                self.extra_folders.len()
+            ));
         }
         s
     }
@@ -92,7 +95,12 @@ impl CachedBackend {
         }
         let lines = read_reference_jsonl(spec_path)?;
         if lines.is_empty() {
-            return Err(Error::format(spec_path, "lines", "at least one JSON line", "an empty file"));
+            return Err(Error::format(
+                spec_path,
+                "lines",
+                "at least one JSON line",
+                "an empty file",
+            ));
         }
         for l in &lines {
             if let Some(k) = l.video_index() {
@@ -152,7 +160,10 @@ impl CachedBackend {
         for e in std::fs::read_dir(&self.output_dir).map_err(|e| Error::io(&self.output_dir, e))? {
             let e = e.map_err(|e| Error::io(&self.output_dir, e))?;
             let name = e.file_name().to_string_lossy().into_owned();
-            if let Some(i) = name.strip_prefix("video_").and_then(|s| s.parse::<usize>().ok()) {
+            if let Some(i) = name
+                .strip_prefix("video_")
+                .and_then(|s| s.parse::<usize>().ok())
+            {
                 if i >= self.lines.len() {
                     extra_folders.push(name);
                 }
@@ -240,12 +251,18 @@ impl WfmBackend for CachedBackend {
                 p
             }
             None => {
-                warnings.push(format!("{} has no prompt.txt; using the spec's prompt", dir.display()));
+                warnings.push(format!(
+                    "{} has no prompt.txt; using the spec's prompt",
+                    dir.display()
+                ));
                 line.prompt.clone()
             }
         };
         if prompt.trim() != req.prompt.text().trim() {
-            warnings.push("the cached frames were generated with a different prompt than the one requested".into());
+            warnings.push(
+                "the cached frames were generated with a different prompt than the one requested"
+                    .into(),
+            );
         }
         if !req.depth_video.is_empty() && frames.len() != req.depth_video.len() {
             warnings.push(format!(

@@ -174,7 +174,12 @@ fn abs(p: &Path) -> Result<PathBuf> {
 }
 
 /// Write the controlnet spec JSON (§2.3) for one depth video.
-pub fn write_controlnet_spec(path: &Path, prompt: &str, depth_video: &Path, control_weight: f64) -> Result<()> {
+pub fn write_controlnet_spec(
+    path: &Path,
+    prompt: &str,
+    depth_video: &Path,
+    control_weight: f64,
+) -> Result<()> {
     let v = serde_json::json!({
         "prompt": prompt,
         "depth": {
@@ -219,7 +224,10 @@ pub(crate) fn run_logged(
     stderr_log: &Path,
     timeout: Duration,
 ) -> Result<()> {
-    let what = format!("command `{}`", argv.first().map(String::as_str).unwrap_or(""));
+    let what = format!(
+        "command `{}`",
+        argv.first().map(String::as_str).unwrap_or("")
+    );
     let ext = |message: String| Error::External {
         what: what.clone(),
         message,
@@ -242,9 +250,12 @@ pub(crate) fn run_logged(
         use std::os::unix::process::CommandExt;
         cmd.process_group(0);
     }
-    let mut child = cmd
-        .spawn()
-        .map_err(|e| ext(format!("could not start it: {e} (is `{}` installed and on PATH?)", argv[0])))?;
+    let mut child = cmd.spawn().map_err(|e| {
+        ext(format!(
+            "could not start it: {e} (is `{}` installed and on PATH?)",
+            argv[0]
+        ))
+    })?;
     let start = Instant::now();
     let mut poll = Duration::from_millis(10);
     loop {
@@ -343,7 +354,12 @@ impl WfmBackend for CosmosBackend {
         let depth_mp4 = match &req.depth_video_path {
             Some(p) => {
                 if !p.is_file() {
-                    return Err(Error::format(p, "depth video", "an existing mp4 file", "no such file"));
+                    return Err(Error::format(
+                        p,
+                        "depth video",
+                        "an existing mp4 file",
+                        "no such file",
+                    ));
                 }
                 abs(p)?
             }
@@ -388,11 +404,7 @@ impl WfmBackend for CosmosBackend {
                 other => other.to_string(),
             })
         };
-        let argv: Vec<String> = c
-            .command
-            .iter()
-            .map(|a| value(a))
-            .collect::<Result<_>>()?;
+        let argv: Vec<String> = c.command.iter().map(|a| value(a)).collect::<Result<_>>()?;
         let mut warnings = Vec::new();
         if !c.command.iter().any(|a| a == "{seed}") {
             warnings.push(format!(
@@ -413,7 +425,8 @@ impl WfmBackend for CosmosBackend {
         let (frames, used_prompt) = ingest_output(&output.join("video_0"))?;
         if let Some(p) = &used_prompt {
             if p.trim() != prompt.trim() {
-                warnings.push("prompt.txt differs from the prompt sent (upsampled or edited)".into());
+                warnings
+                    .push("prompt.txt differs from the prompt sent (upsampled or edited)".into());
             }
         }
         if !req.depth_video.is_empty() && frames.len() != req.depth_video.len() {
@@ -459,7 +472,10 @@ mod tests {
             )
         };
         assert!(CosmosBackend::new(cfg(&[])).is_err());
-        let e = CosmosBackend::new(cfg(&["x", "{batch_input}"])).err().unwrap().to_string();
+        let e = CosmosBackend::new(cfg(&["x", "{batch_input}"]))
+            .err()
+            .unwrap()
+            .to_string();
         assert!(e.contains("{batch_input}"), "{e}");
         assert!(CosmosBackend::new(cfg(&["x", "{batch_input_path}", "--a={seed}"])).is_ok());
         let r = CosmosConfig::reference(Path::new("/c"), Path::new("/ck"), 2, "/w");

@@ -82,17 +82,17 @@ pub fn build_pair_video(src: &[DepthImage], tgt: &[DepthImage]) -> Vec<RgbImage>
 
 /// Read the depth PNGs of both fragments and build the pair video. All frames must have the
 /// same size (one video); the first mismatching file is named in the error.
-pub fn pair_video_from_files<P: AsRef<Path> + Sync>(
-    src: &[P],
-    tgt: &[P],
-) -> Result<Vec<RgbImage>> {
+pub fn pair_video_from_files<P: AsRef<Path> + Sync>(src: &[P], tgt: &[P]) -> Result<Vec<RgbImage>> {
     let read = |ps: &[P]| -> Result<Vec<DepthImage>> {
         ps.par_iter().map(|p| read_depth_png(p.as_ref())).collect()
     };
     let s = read(src)?;
     let t = read(tgt)?;
     if let Some(first) = s.first().or(t.first()) {
-        let all = src.iter().map(|p| p.as_ref()).chain(tgt.iter().map(|p| p.as_ref()));
+        let all = src
+            .iter()
+            .map(|p| p.as_ref())
+            .chain(tgt.iter().map(|p| p.as_ref()));
         for (d, p) in s.iter().chain(&t).zip(all) {
             if (d.width, d.height) != (first.width, first.height) {
                 return Err(crate::Error::format(

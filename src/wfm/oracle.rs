@@ -3,7 +3,9 @@
 //! as the depth video. 7-Scenes colour frames are 640x480 JPEG; they are returned at their own
 //! size unless `resize_to` is set (bilinear, half-pixel centres).
 
-use super::backend::{now_unix, resize_bilinear, GenerateRequest, Generation, Provenance, WfmBackend};
+use super::backend::{
+    now_unix, resize_bilinear, GenerateRequest, Generation, Provenance, WfmBackend,
+};
 use crate::error::{Error, Result};
 use rayon::prelude::*;
 
@@ -46,7 +48,14 @@ impl WfmBackend for OracleBackend {
             .map(|p| {
                 let bytes = std::fs::read(p).map_err(|e| Error::io(p, e))?;
                 let img = image::load_from_memory(&bytes)
-                    .map_err(|e| Error::format(p, "image", "a readable colour image (JPEG/PNG)", e.to_string()))?
+                    .map_err(|e| {
+                        Error::format(
+                            p,
+                            "image",
+                            "a readable colour image (JPEG/PNG)",
+                            e.to_string(),
+                        )
+                    })?
                     .to_rgb8();
                 Ok(match self.resize_to {
                     Some((w, h)) => resize_bilinear(&img, w, h),

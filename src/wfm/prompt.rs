@@ -105,9 +105,9 @@ impl PromptPreset {
 
     pub fn parse(s: &str) -> Option<PromptPreset> {
         let k = s.trim().to_ascii_lowercase().replace(['_', ' '], "-");
-        PromptPreset::ALL.into_iter().find(|p| {
-            p.name() == k || (k == "wrong" && *p == PromptPreset::SemanticallyWrong)
-        })
+        PromptPreset::ALL
+            .into_iter()
+            .find(|p| p.name() == k || (k == "wrong" && *p == PromptPreset::SemanticallyWrong))
     }
 }
 
@@ -245,17 +245,27 @@ fn parse_reference_jsonl(path: &Path, text: &str) -> Result<Vec<BatchLine>> {
                 "a blank line",
             ));
         }
-        let v: serde_json::Value = serde_json::from_str(l)
-            .map_err(|e| Error::format(path, field("(whole line)"), "a JSON object", e.to_string()))?;
-        let prompt = v
-            .get("prompt")
-            .and_then(|p| p.as_str())
-            .ok_or_else(|| Error::format(path, field("prompt"), "a string", json_kind(v.get("prompt"))))?;
+        let v: serde_json::Value = serde_json::from_str(l).map_err(|e| {
+            Error::format(path, field("(whole line)"), "a JSON object", e.to_string())
+        })?;
+        let prompt = v.get("prompt").and_then(|p| p.as_str()).ok_or_else(|| {
+            Error::format(
+                path,
+                field("prompt"),
+                "a string",
+                json_kind(v.get("prompt")),
+            )
+        })?;
         let depth = v
             .get("control_overrides")
             .and_then(|c| c.get("depth"))
             .ok_or_else(|| {
-                Error::format(path, field("control_overrides.depth"), "an object", "missing")
+                Error::format(
+                    path,
+                    field("control_overrides.depth"),
+                    "an object",
+                    "missing",
+                )
             })?;
         let input_control = depth
             .get("input_control")
@@ -306,7 +316,11 @@ fn json_kind(v: Option<&serde_json::Value>) -> String {
 }
 
 /// Write a batch JSONL spec (one line per pair, `video_save_name` = "<i>_gen_vid") atomically.
-pub fn write_batch_jsonl(path: &Path, items: &[(String, PathBuf)], control_weight: f64) -> Result<()> {
+pub fn write_batch_jsonl(
+    path: &Path,
+    items: &[(String, PathBuf)],
+    control_weight: f64,
+) -> Result<()> {
     let mut text = String::new();
     for (i, (prompt, video)) in items.iter().enumerate() {
         let line = BatchLine {
@@ -337,7 +351,10 @@ mod tests {
         for preset in PromptPreset::ALL {
             assert_eq!(PromptPreset::parse(preset.name()), Some(preset));
         }
-        assert_eq!(PromptPreset::parse("wrong"), Some(PromptPreset::SemanticallyWrong));
+        assert_eq!(
+            PromptPreset::parse("wrong"),
+            Some(PromptPreset::SemanticallyWrong)
+        );
         assert_eq!(PromptPreset::parse("nope"), None);
     }
 
@@ -384,7 +401,10 @@ mod tests {
         let e = parse_reference_jsonl(p, r#"{"control_overrides": {}}"#)
             .unwrap_err()
             .to_string();
-        assert!(e.contains("spec.json") && e.contains("line 1: prompt"), "{e}");
+        assert!(
+            e.contains("spec.json") && e.contains("line 1: prompt"),
+            "{e}"
+        );
         let e = parse_reference_jsonl(
             p,
             "{\"prompt\": \"a\", \"control_overrides\": {\"depth\": {\"input_control\": 3}}}",
@@ -405,7 +425,10 @@ mod tests {
         let p = dir.path().join("batch.jsonl");
         write_batch_jsonl(
             &p,
-            &[("x".into(), PathBuf::from("/v/a.mp4")), ("y\u{e9}".into(), PathBuf::from("/v/b.mp4"))],
+            &[
+                ("x".into(), PathBuf::from("/v/a.mp4")),
+                ("y\u{e9}".into(), PathBuf::from("/v/b.mp4")),
+            ],
             1.0,
         )
         .unwrap();

@@ -298,7 +298,10 @@ fn video_sample_entries(bytes: &[u8]) -> Vec<String> {
         out
     }
     fn child<'a>(s: &'a [u8], kind: &[u8; 4]) -> Option<&'a [u8]> {
-        boxes(s).into_iter().find(|(k, _)| k == kind).map(|(_, b)| b)
+        boxes(s)
+            .into_iter()
+            .find(|(k, _)| k == kind)
+            .map(|(_, b)| b)
     }
     let mut codecs = Vec::new();
     let Some(moov) = child(bytes, b"moov") else {
@@ -372,7 +375,14 @@ fn open_reader<'a>(path: &Path, bytes: &'a [u8]) -> Result<mp4::Mp4Reader<Cursor
                 "a file the demuxer could not parse",
             )
         })?
-        .map_err(|e| Error::format(path, "mp4 boxes", "a well-formed ISO-BMFF file", e.to_string()))
+        .map_err(|e| {
+            Error::format(
+                path,
+                "mp4 boxes",
+                "a well-formed ISO-BMFF file",
+                e.to_string(),
+            )
+        })
 }
 
 fn h264_track<'r>(
@@ -425,13 +435,16 @@ pub fn read_mp4_frames(path: &Path) -> Result<Vec<RgbImage>> {
     let count = track.sample_count();
     let len_size = (avcc.length_size_minus_one & 3) as usize + 1;
 
-    let dec_err = |what: String| Error::format(path, what, "a decodable H.264 stream", "a decoder error");
-    let mut decoder =
-        Decoder::with_api_config(OpenH264API::from_source(), DecoderConfig::new().flush_after_decode(Flush::NoFlush))
-            .map_err(|e| Error::External {
-                what: "OpenH264 decoder".into(),
-                message: e.to_string(),
-            })?;
+    let dec_err =
+        |what: String| Error::format(path, what, "a decodable H.264 stream", "a decoder error");
+    let mut decoder = Decoder::with_api_config(
+        OpenH264API::from_source(),
+        DecoderConfig::new().flush_after_decode(Flush::NoFlush),
+    )
+    .map_err(|e| Error::External {
+        what: "OpenH264 decoder".into(),
+        message: e.to_string(),
+    })?;
     let opts = || DecodeOptions::new().flush_after_decode(Flush::NoFlush);
     let mut headers = Vec::new();
     for nal in avcc
@@ -455,15 +468,29 @@ pub fn read_mp4_frames(path: &Path) -> Result<Vec<RgbImage>> {
     for sid in 1..=count {
         let sample = reader
             .read_sample(track_id, sid)
-            .map_err(|e| Error::format(path, format!("sample {sid}"), "a readable sample", e.to_string()))?
+            .map_err(|e| {
+                Error::format(
+                    path,
+                    format!("sample {sid}"),
+                    "a readable sample",
+                    e.to_string(),
+                )
+            })?
             .ok_or_else(|| Error::format(path, format!("sample {sid}"), "present", "missing"))?;
         annexb.clear();
         let mut s: &[u8] = &sample.bytes;
         while !s.is_empty() {
             if s.len() < len_size {
-                return Err(Error::format(path, format!("sample {sid}"), "length-prefixed NAL units", "a truncated length"));
+                return Err(Error::format(
+                    path,
+                    format!("sample {sid}"),
+                    "length-prefixed NAL units",
+                    "a truncated length",
+                ));
             }
-            let n = s[..len_size].iter().fold(0usize, |a, &b| (a << 8) | b as usize);
+            let n = s[..len_size]
+                .iter()
+                .fold(0usize, |a, &b| (a << 8) | b as usize);
             s = &s[len_size..];
             if n > s.len() {
                 return Err(Error::format(
@@ -536,14 +563,24 @@ pub fn write_png_frames(dir: &Path, frames: &[RgbImage]) -> Result<Vec<PathBuf>>
 pub fn read_png_frames(dir: &Path) -> Result<Vec<RgbImage>> {
     use rayon::prelude::*;
     if !dir.is_dir() {
-        return Err(Error::format(dir, "folder", "a folder of frame_NNNNNN.png files", "no such folder"));
+        return Err(Error::format(
+            dir,
+            "folder",
+            "a folder of frame_NNNNNN.png files",
+            "no such folder",
+        ));
     }
     let mut paths = Vec::new();
     while dir.join(frame_file_name(paths.len())).is_file() {
         paths.push(dir.join(frame_file_name(paths.len())));
     }
     if paths.is_empty() {
-        return Err(Error::format(dir, frame_file_name(0), "frame_000000.png, frame_000001.png, ...", "no frame files"));
+        return Err(Error::format(
+            dir,
+            frame_file_name(0),
+            "frame_000000.png, frame_000001.png, ...",
+            "no frame files",
+        ));
     }
     let frames: Vec<RgbImage> = paths
         .par_iter()
@@ -647,7 +684,9 @@ mod tests {
 
     #[test]
     fn annexb_split() {
-        let s = [0, 0, 0, 1, 0x67, 1, 2, 0, 0, 1, 0x68, 3, 0, 0, 0, 1, 0x65, 9];
+        let s = [
+            0, 0, 0, 1, 0x67, 1, 2, 0, 0, 1, 0x68, 3, 0, 0, 0, 1, 0x65, 9,
+        ];
         let n = split_annexb(&s);
         assert_eq!(n, vec![&[0x67, 1, 2][..], &[0x68, 3][..], &[0x65, 9][..]]);
     }
@@ -656,10 +695,16 @@ mod tests {
     fn garbage_is_an_error_not_a_panic() {
         let dir = tempfile::tempdir().unwrap();
         let p = dir.path().join("bad.mp4");
-        std::fs::write(&p, b"\x00\x00\x00\x18ftypisom\x00\x00\x02\x00isomiso2garbage").unwrap();
+        std::fs::write(
+            &p,
+            b"\x00\x00\x00\x18ftypisom\x00\x00\x02\x00isomiso2garbage",
+        )
+        .unwrap();
         let e = read_mp4_frames(&p).unwrap_err().to_string();
         assert!(e.contains("bad.mp4"), "{e}");
-        let e = read_mp4_frames(&dir.path().join("none.mp4")).unwrap_err().to_string();
+        let e = read_mp4_frames(&dir.path().join("none.mp4"))
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("none.mp4"), "{e}");
     }
 

@@ -24,9 +24,16 @@ pub struct ViewSelection {
 
 /// Select K views per side. `n_generated` is the number of frames of the generated video,
 /// `l` the frames per fragment, `margin` the safeguard margin, `k` the views per side.
-pub fn select_views(n_generated: usize, l: usize, margin: usize, k: usize) -> Result<ViewSelection> {
+pub fn select_views(
+    n_generated: usize,
+    l: usize,
+    margin: usize,
+    k: usize,
+) -> Result<ViewSelection> {
     if l == 0 {
-        return Err(Error::Invalid("frames per fragment L must be at least 1".into()));
+        return Err(Error::Invalid(
+            "frames per fragment L must be at least 1".into(),
+        ));
     }
     if margin >= l {
         return Err(Error::Invalid(format!(
