@@ -120,15 +120,27 @@ fn box_blur(src: &[f32], w: usize, h: usize, r: usize) -> Vec<f32> {
             tmp[y * w + x] = ((row[b] - row[a]) / (b - a) as f64) as f32;
         }
     }
+    // Vertical pass with a running sum of whole rows (contiguous memory access).
     let mut out = vec![0.0f32; w * h];
-    let mut col = vec![0.0f64; h + 1];
-    for x in 0..w {
-        for y in 0..h {
-            col[y + 1] = col[y] + tmp[y * w + x] as f64;
+    let mut acc = vec![0.0f64; w];
+    let add = |acc: &mut [f64], row: &[f32], sign: f64| {
+        for (a, &v) in acc.iter_mut().zip(row) {
+            *a += sign * v as f64;
         }
-        for y in 0..h {
-            let (a, b) = (y.saturating_sub(r), (y + r + 1).min(h));
-            out[y * w + x] = ((col[b] - col[a]) / (b - a) as f64) as f32;
+    };
+    for yy in 0..=r.min(h - 1) {
+        add(&mut acc, &tmp[yy * w..(yy + 1) * w], 1.0);
+    }
+    for y in 0..h {
+        let count = ((y + r).min(h - 1) - y.saturating_sub(r) + 1) as f64;
+        for (o, a) in out[y * w..(y + 1) * w].iter_mut().zip(&acc) {
+            *o = (a / count) as f32;
+        }
+        if y + r + 1 < h {
+            add(&mut acc, &tmp[(y + r + 1) * w..(y + r + 2) * w], 1.0);
+        }
+        if y >= r {
+            add(&mut acc, &tmp[(y - r) * w..(y - r + 1) * w], -1.0);
         }
     }
     out
@@ -338,6 +350,30 @@ mod tests {
             };
             image::Rgb([v, v, v])
         })
+    }
+
+    #[test]
+    fn box_blur_equals_brute_force() {
+        let (w, h) = (13, 9);
+        let src: Vec<f32> = (0..w * h).map(|i| ((i * 37) % 11) as f32).collect();
+        for r in [1, 2, 4, 12] {
+            let b = box_blur(&src, w, h, r);
+            for y in 0..h {
+                for x in 0..w {
+                    let (mut s, mut n) = (0.0f64, 0.0f64);
+                    for yy in y.saturating_sub(r)..=(y + r).min(h - 1) {
+                        for xx in x.saturating_sub(r)..=(x + r).min(w - 1) {
+                            s += src[yy * w + xx] as f64;
+                            n += 1.0;
+                        }
+                    }
+                    assert!(
+                        (b[y * w + x] as f64 - s / n).abs() < 1e-4,
+                        "r {r} at {x},{y}"
+                    );
+                }
+            }
+        }
     }
 
     #[test]
