@@ -1,6 +1,10 @@
 //! Camera models: pinhole (RGB-D sensors) and f-theta (LiDAR virtual camera), projection,
 //! back-projection and depth rendering from point clouds.
 
+pub mod ftheta;
+pub mod render;
+pub mod trajectory;
+
 use serde::{Deserialize, Serialize};
 
 /// Pinhole intrinsics in pixels for an image of `width` x `height`.

@@ -1,0 +1,498 @@
+//! The `cosmos` backend: writes the Cosmos-Transfer1 batch input exactly as the reference
+//! (§2.3, §2.4), runs a user-configured command, and ingests `video_0/output.mp4`.
+//!
+//! Per request a fresh job folder `<work_dir>/<pair>-<unix>-<pid>-<n>/` holds:
+//! - `input/depth.mp4`: the depth-control video (H.264, 30 fps), unless the request already
+//!   has an mp4 (`depth_video_path`), which is then used where it is;
+//! - `batch_input.jsonl`: one line `{"prompt", "control_overrides": {"depth":
+//!   {"input_control", "control_weight"}}, "video_save_name": "0_gen_vid"}`;
+//! - `controlnet_spec.json`: `{"prompt", "depth": {"input_control", "control_weight"}}`;
+//! - `output/`: the `--video_save_folder`; Cosmos writes `output/video_0/{output.mp4,prompt.txt}`;
+//! - `cosmos_stdout.log`, `cosmos_stderr.log`: everything the command printed.
+//!
+//! The command is an argument vector run without a shell. An argument that is exactly one of
+//! `{batch_input_path}`, `{video_save_folder}`, `{controlnet_specs}`, `{depth_video}`,
+//! `{seed}`, `{job_dir}` or `{checkpoint_dir}` is replaced by its value; other arguments pass
+//! through untouched (so the prompt, which travels in the files, can never be re-parsed as
+//! arguments). An argument that looks like an unknown `{placeholder}` is an error. The child
+//! runs in its own process group; on timeout the whole group is killed.
+
+use super::backend::{now_unix, sanitize, GenerateRequest, Generation, Provenance, WfmBackend};
+use super::prompt::{to_ascii_json, BatchLine};
+use super::video::{read_mp4_frames, write_mp4_h264};
+use crate::error::{write_atomic, Error, Result};
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::time::{Duration, Instant};
+
+/// Placeholders substituted as whole arguments.
+pub const PLACEHOLDERS: [&str; 7] = [
+    "{batch_input_path}",
+    "{video_save_folder}",
+    "{controlnet_specs}",
+    "{depth_video}",
+    "{seed}",
+    "{job_dir}",
+    "{checkpoint_dir}",
+];
+
+#[derive(Clone, Debug)]
+pub struct CosmosConfig {
+    /// Argument vector template; `command[0]` is the program.
+    pub command: Vec<String>,
+    /// Where job folders are created.
+    pub work_dir: PathBuf,
+    /// Working directory of the command (the reference runs from `$COSMOS_ROOT`).
+    pub cwd: Option<PathBuf>,
+    /// Extra environment variables (e.g. `PYTHONPATH=$COSMOS_ROOT`).
+    pub env: Vec<(String, String)>,
+    /// The child (and its process group) is killed after this long.
+    pub timeout: Duration,
+    /// `control_overrides.depth.control_weight` (1.0 in the reference).
+    pub control_weight: f64,
+    /// Value of `{checkpoint_dir}`.
+    pub checkpoint_dir: Option<PathBuf>,
+    /// The model name recorded in the provenance.
+    pub model: String,
+}
+
+impl CosmosConfig {
+    /// A config for an arbitrary command (tests, wrappers, remote submit scripts).
+    pub fn new(command: Vec<String>, work_dir: impl Into<PathBuf>, timeout: Duration) -> Self {
+        CosmosConfig {
+            command,
+            work_dir: work_dir.into(),
+            cwd: None,
+            env: Vec::new(),
+            timeout,
+            control_weight: 1.0,
+            checkpoint_dir: None,
+            model: "Cosmos-Transfer1-7B (depth control)".into(),
+        }
+    }
+
+    /// The reference's invocation (§2.2): `torchrun ... transfer.py --sigma_max 80 --fps 30`,
+    /// run from `cosmos_root` with `PYTHONPATH=cosmos_root`. Every other flag keeps the pinned
+    /// `transfer.py` default, except `--seed`, which carries the request's seed.
+    pub fn reference(
+        cosmos_root: &Path,
+        checkpoint_dir: &Path,
+        num_gpu: usize,
+        work_dir: impl Into<PathBuf>,
+    ) -> Self {
+        let n = num_gpu.max(1).to_string();
+        let command = [
+            "torchrun",
+            &format!("--nproc_per_node={n}"),
+            "--nnodes=1",
+            "--node_rank=0",
+            "cosmos_transfer1/diffusion/inference/transfer.py",
+            "--checkpoint_dir",
+            "{checkpoint_dir}",
+            "--video_save_folder",
+            "{video_save_folder}",
+            "--controlnet_specs",
+            "{controlnet_specs}",
+            "--sigma_max",
+            "80",
+            "--fps",
+            "30",
+            "--num_gpus",
+            &n,
+            "--seed",
+            "{seed}",
+            "--batch_input_path",
+            "{batch_input_path}",
+        ]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+        let mut c = CosmosConfig::new(command, work_dir, Duration::from_secs(3 * 3600));
+        c.cwd = Some(cosmos_root.to_path_buf());
+        c.env = vec![(
+            "PYTHONPATH".into(),
+            cosmos_root.to_string_lossy().into_owned(),
+        )];
+        c.checkpoint_dir = Some(checkpoint_dir.to_path_buf());
+        c
+    }
+}
+
+pub struct CosmosBackend {
+    pub config: CosmosConfig,
+}
+
+static JOB_COUNTER: AtomicUsize = AtomicUsize::new(0);
+
+impl CosmosBackend {
+    pub fn new(config: CosmosConfig) -> Result<Self> {
+        if config.command.is_empty() {
+            return Err(Error::Invalid(
+                "cosmos backend: the command is empty; give the program and its arguments".into(),
+            ));
+        }
+        for a in &config.command {
+            if looks_like_placeholder(a) && !PLACEHOLDERS.contains(&a.as_str()) {
+                return Err(Error::Invalid(format!(
+                    "cosmos backend: unknown placeholder argument `{a}`; known: {}",
+                    PLACEHOLDERS.join(" ")
+                )));
+            }
+        }
+        if !(config.control_weight.is_finite() && config.control_weight >= 0.0) {
+            return Err(Error::Invalid(format!(
+                "cosmos backend: control_weight must be a non-negative number, found {}",
+                config.control_weight
+            )));
+        }
+        Ok(CosmosBackend { config })
+    }
+
+    fn job_dir(&self, pair_id: &str) -> PathBuf {
+        let n = JOB_COUNTER.fetch_add(1, Ordering::Relaxed);
+        self.config.work_dir.join(format!(
+            "{}-{}-{}-{n}",
+            sanitize(pair_id),
+            now_unix(),
+            std::process::id()
+        ))
+    }
+}
+
+fn looks_like_placeholder(a: &str) -> bool {
+    a.len() > 2
+        && a.starts_with('{')
+        && a.ends_with('}')
+        && a[1..a.len() - 1]
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || c == '_')
+}
+
+fn abs(p: &Path) -> Result<PathBuf> {
+    std::path::absolute(p).map_err(|e| Error::io(p, e))
+}
+
+/// Write the controlnet spec JSON (§2.3) for one depth video.
+pub fn write_controlnet_spec(
+    path: &Path,
+    prompt: &str,
+    depth_video: &Path,
+    control_weight: f64,
+) -> Result<()> {
+    let v = serde_json::json!({
+        "prompt": prompt,
+        "depth": {
+            "input_control": depth_video.to_string_lossy(),
+            "control_weight": control_weight,
+        }
+    });
+    write_atomic(path, to_ascii_json(&v).as_bytes())
+}
+
+/// The last `n` lines of a log file, for error messages.
+fn tail(path: &Path, n: usize) -> String {
+    let text = std::fs::read(path)
+        .map(|b| String::from_utf8_lossy(&b).into_owned())
+        .unwrap_or_default();
+    let lines: Vec<&str> = text.lines().collect();
+    lines[lines.len().saturating_sub(n)..].join("\n")
+}
+
+#[cfg(unix)]
+fn kill_group(child: &mut std::process::Child) {
+    // The child leads its own process group (process_group(0)); kill every process in it,
+    // e.g. torchrun's workers, then the child itself in case the group call failed.
+    let pid = child.id() as i32;
+    unsafe {
+        libc::kill(-pid, libc::SIGKILL);
+    }
+    let _ = child.kill();
+}
+
+#[cfg(not(unix))]
+fn kill_group(child: &mut std::process::Child) {
+    let _ = child.kill();
+}
+
+/// Run `argv` with the given working dir/env, logging to the two files, with a timeout.
+pub(crate) fn run_logged(
+    argv: &[String],
+    cwd: Option<&Path>,
+    env: &[(String, String)],
+    stdout_log: &Path,
+    stderr_log: &Path,
+    timeout: Duration,
+) -> Result<()> {
+    let what = format!(
+        "command `{}`",
+        argv.first().map(String::as_str).unwrap_or("")
+    );
+    let ext = |message: String| Error::External {
+        what: what.clone(),
+        message,
+    };
+    let out = std::fs::File::create(stdout_log).map_err(|e| Error::io(stdout_log, e))?;
+    let err = std::fs::File::create(stderr_log).map_err(|e| Error::io(stderr_log, e))?;
+    let mut cmd = Command::new(&argv[0]);
+    cmd.args(&argv[1..])
+        .stdin(Stdio::null())
+        .stdout(Stdio::from(out))
+        .stderr(Stdio::from(err));
+    if let Some(d) = cwd {
+        cmd.current_dir(d);
+    }
+    for (k, v) in env {
+        cmd.env(k, v);
+    }
+    #[cfg(unix)]
+    {
+        use std::os::unix::process::CommandExt;
+        cmd.process_group(0);
+    }
+    let mut child = cmd.spawn().map_err(|e| {
+        ext(format!(
+            "could not start it: {e} (is `{}` installed and on PATH?)",
+            argv[0]
+        ))
+    })?;
+    let start = Instant::now();
+    let mut poll = Duration::from_millis(10);
+    loop {
+        match child.try_wait() {
+            Ok(Some(status)) if status.success() => return Ok(()),
+            Ok(Some(status)) => {
+                return Err(ext(format!(
+                    "exited with {status} after {:.1} s; stderr log {}:\n{}",
+                    start.elapsed().as_secs_f64(),
+                    stderr_log.display(),
+                    tail(stderr_log, 20)
+                )))
+            }
+            Ok(None) => {}
+            Err(e) => {
+                kill_group(&mut child);
+                let _ = child.wait();
+                return Err(ext(format!("could not wait for it: {e}")));
+            }
+        }
+        if start.elapsed() >= timeout {
+            kill_group(&mut child);
+            let _ = child.wait();
+            return Err(ext(format!(
+                "timed out after {:.1} s and was killed; logs: {} and {}",
+                timeout.as_secs_f64(),
+                stdout_log.display(),
+                stderr_log.display()
+            )));
+        }
+        std::thread::sleep(poll.min(timeout.saturating_sub(start.elapsed())));
+        poll = (poll * 2).min(Duration::from_millis(200));
+    }
+}
+
+/// Read `video_<i>/output.mp4` and `prompt.txt` of a Cosmos output folder. An empty folder
+/// (the guardrail blocked the pair) and a missing one are distinct, clear errors.
+pub fn ingest_output(video_dir: &Path) -> Result<(Vec<image::RgbImage>, Option<String>)> {
+    if !video_dir.is_dir() {
+        return Err(Error::format(
+            video_dir,
+            "folder",
+            "a Cosmos output folder video_<i>/ with output.mp4",
+            "no such folder (generation did not run for this line)",
+        ));
+    }
+    let mp4 = video_dir.join("output.mp4");
+    let empty = std::fs::read_dir(video_dir)
+        .map_err(|e| Error::io(video_dir, e))?
+        .next()
+        .is_none();
+    if empty {
+        return Err(Error::format(
+            video_dir,
+            "output.mp4",
+            "the generated video",
+            "an empty folder: Cosmos' guardrail blocked this pair (prompt or video)",
+        ));
+    }
+    if !mp4.is_file() {
+        return Err(Error::format(
+            video_dir,
+            "output.mp4",
+            "the generated video",
+            "no output.mp4 in the folder",
+        ));
+    }
+    let frames = read_mp4_frames(&mp4)?;
+    let prompt_path = video_dir.join("prompt.txt");
+    let prompt = if prompt_path.is_file() {
+        Some(
+            std::fs::read_to_string(&prompt_path)
+                .map_err(|e| Error::io(&prompt_path, e))?
+                .trim_end()
+                .to_string(),
+        )
+    } else {
+        None
+    };
+    Ok((frames, prompt))
+}
+
+impl WfmBackend for CosmosBackend {
+    fn id(&self) -> String {
+        format!("cosmos:{}", self.config.command.join(" "))
+    }
+
+    fn generate(&self, req: &GenerateRequest) -> Result<Generation> {
+        let c = &self.config;
+        let job = abs(&self.job_dir(&req.pair_id))?;
+        let input = job.join("input");
+        let output = job.join("output");
+        std::fs::create_dir_all(&input).map_err(|e| Error::io(&input, e))?;
+        std::fs::create_dir_all(&output).map_err(|e| Error::io(&output, e))?;
+
+        let depth_mp4 = match &req.depth_video_path {
+            Some(p) => {
+                if !p.is_file() {
+                    return Err(Error::format(
+                        p,
+                        "depth video",
+                        "an existing mp4 file",
+                        "no such file",
+                    ));
+                }
+                abs(p)?
+            }
+            None => {
+                let p = input.join("depth.mp4");
+                write_mp4_h264(&p, &req.depth_video, super::depth_video::FPS)?;
+                p
+            }
+        };
+        let prompt = req.prompt.text();
+        let batch = job.join("batch_input.jsonl");
+        let line = BatchLine {
+            line: 0,
+            prompt: prompt.clone(),
+            input_control: depth_mp4.to_string_lossy().into_owned(),
+            control_weight: Some(c.control_weight),
+            video_save_name: Some("0_gen_vid".into()),
+        };
+        write_atomic(&batch, format!("{}\n", line.to_json_line()).as_bytes())?;
+        let spec = job.join("controlnet_spec.json");
+        write_controlnet_spec(&spec, &prompt, &depth_mp4, c.control_weight)?;
+
+        let value = |ph: &str| -> Result<String> {
+            Ok(match ph {
+                "{batch_input_path}" => batch.to_string_lossy().into_owned(),
+                "{video_save_folder}" => output.to_string_lossy().into_owned(),
+                "{controlnet_specs}" => spec.to_string_lossy().into_owned(),
+                "{depth_video}" => depth_mp4.to_string_lossy().into_owned(),
+                "{seed}" => req.seed.to_string(),
+                "{job_dir}" => job.to_string_lossy().into_owned(),
+                "{checkpoint_dir}" => c
+                    .checkpoint_dir
+                    .as_ref()
+                    .map(|p| p.to_string_lossy().into_owned())
+                    .ok_or_else(|| {
+                        Error::Invalid(
+                            "cosmos backend: the command uses {checkpoint_dir} but no \
+                             checkpoint directory is configured"
+                                .into(),
+                        )
+                    })?,
+                other => other.to_string(),
+            })
+        };
+        let argv: Vec<String> = c.command.iter().map(|a| value(a)).collect::<Result<_>>()?;
+        let mut warnings = Vec::new();
+        if !c.command.iter().any(|a| a == "{seed}") {
+            warnings.push(format!(
+                "the command has no {{seed}} argument: seed {} was not passed to the generator",
+                req.seed
+            ));
+        }
+        let started = Instant::now();
+        run_logged(
+            &argv,
+            c.cwd.as_deref(),
+            &c.env,
+            &job.join("cosmos_stdout.log"),
+            &job.join("cosmos_stderr.log"),
+            c.timeout,
+        )?;
+        let elapsed = started.elapsed().as_secs_f64();
+        let (frames, used_prompt) = ingest_output(&output.join("video_0"))?;
+        if let Some(p) = &used_prompt {
+            if p.trim() != prompt.trim() {
+                warnings
+                    .push("prompt.txt differs from the prompt sent (upsampled or edited)".into());
+            }
+        }
+        if !req.depth_video.is_empty() && frames.len() != req.depth_video.len() {
+            warnings.push(format!(
+                "generated {} frames for a {}-frame depth video",
+                frames.len(),
+                req.depth_video.len()
+            ));
+        }
+        let provenance = Provenance {
+            backend: self.id(),
+            model: c.model.clone(),
+            command: Some(argv),
+            prompt: used_prompt.unwrap_or(prompt),
+            seed: req.seed,
+            params: serde_json::json!({
+                "control_weight": c.control_weight,
+                "timeout_s": c.timeout.as_secs_f64(),
+                "job_dir": job.to_string_lossy(),
+                "depth_video": depth_mp4.to_string_lossy(),
+                "cwd": c.cwd.as_ref().map(|p| p.to_string_lossy().into_owned()),
+                "elapsed_s": elapsed,
+            }),
+            created_unix: now_unix(),
+            frame_count: frames.len(),
+            warnings,
+        };
+        Ok(Generation { frames, provenance })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn config_validation() {
+        let cfg = |cmd: &[&str]| {
+            CosmosConfig::new(
+                cmd.iter().map(|s| s.to_string()).collect(),
+                "/tmp",
+                Duration::from_secs(1),
+            )
+        };
+        assert!(CosmosBackend::new(cfg(&[])).is_err());
+        let e = CosmosBackend::new(cfg(&["x", "{batch_input}"]))
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(e.contains("{batch_input}"), "{e}");
+        assert!(CosmosBackend::new(cfg(&["x", "{batch_input_path}", "--a={seed}"])).is_ok());
+        let r = CosmosConfig::reference(Path::new("/c"), Path::new("/ck"), 2, "/w");
+        assert!(r.command.contains(&"--sigma_max".to_string()));
+        assert!(CosmosBackend::new(r).is_ok());
+    }
+
+    #[test]
+    fn spec_json_shape() {
+        let d = tempfile::tempdir().unwrap();
+        let p = d.path().join("spec.json");
+        write_controlnet_spec(&p, "caf\u{e9}", Path::new("/v/d.mp4"), 1.0).unwrap();
+        let text = std::fs::read_to_string(&p).unwrap();
+        assert!(text.is_ascii());
+        let v: serde_json::Value = serde_json::from_str(&text).unwrap();
+        assert_eq!(v["depth"]["input_control"], "/v/d.mp4");
+        assert_eq!(v["depth"]["control_weight"], 1.0);
+        assert_eq!(v["prompt"], "caf\u{e9}");
+    }
+}
