@@ -70,7 +70,7 @@ pub fn matrix_rows(t: &Isometry3<f64>) -> [[f64; 4]; 4] {
     out
 }
 
-struct Timer {
+pub(crate) struct Timer {
     timings: Vec<StageTiming>,
     t0: Instant,
 }
@@ -151,9 +151,12 @@ pub fn register_pair(pair: &ScanPair, params: &RegisterParams) -> Result<Registr
         )));
     }
     let sim = timer.stage("similarity", || {
-        Ok(crate::fusion::similarity::cosine_similarity(&src.features, &tgt.features))
+        crate::fusion::similarity::cosine_similarity(&src.features, &tgt.features)
     })?;
-    let fused = timer.stage("calibrate+fuse+select", || match_then_fuse(None, Some(&sim), &params.fusion))?;
+    // Without the image branch there is nothing to fuse: the geometric posterior is used alone.
+    let mut fusion = params.fusion;
+    fusion.mode = crate::fusion::FusionMode::GeometryOnly;
+    let fused = timer.stage("calibrate+select", || match_then_fuse(None, Some(&sim), &fusion))?;
     drop(sim);
     let corr = fused.correspondences;
     finish(pair, params, timer, src, tgt, corr, None)
@@ -172,9 +175,14 @@ pub(crate) fn finish(
     let tp: Vec<Point3<f32>> = corr.iter().map(|c| tgt.keypoints.points[c.tgt as usize]).collect();
     let w: Vec<f32> = corr.iter().map(|c| c.score).collect();
     let est: Estimate = timer.stage("estimate", || estimate_pose(&sp, &tp, &w, &params.estimator))?;
-    let metrics = pair.gt_target_from_source.as_ref().map(|gt| {
-        PairMetrics::compute(&est.target_from_source, gt, &sp, &tp, params.inlier_threshold)
-    });
+    let metrics = match pair.gt_target_from_source.as_ref() {
+        Some(gt) => Some(PairMetrics::new(
+            &est.target_from_source,
+            gt,
+            crate::metrics::inlier_ratio(&sp, &tp, gt, params.inlier_threshold)?,
+        )),
+        None => None,
+    };
     let total_ms = timer.t0.elapsed().as_secs_f64() * 1e3;
     Ok(RegistrationResult {
         pair_id: pair.id.clone(),
