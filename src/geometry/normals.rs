@@ -22,7 +22,7 @@ pub fn estimate_normals(
     points
         .par_iter()
         .map_init(Vec::new, |nb, p| {
-            index.hybrid_into(p, radius, max_nn, nb);
+            index.hybrid_sq_unsorted_into(p, radius, max_nn, nb);
             normal_of(points, p, nb.iter().map(|e| e.0))
         })
         .collect()
