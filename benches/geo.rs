@@ -34,7 +34,20 @@ fn read_xyz_ply(path: &std::path::Path) -> Option<Vec<Point3<f32>>> {
     )
 }
 
-fn median_ms<T>(runs: usize, mut f: impl FnMut() -> T) -> f64 {
+/// CPU time of this process (all threads), in ms, from /proc (10 ms ticks); None elsewhere.
+fn cpu_ms() -> Option<f64> {
+    let s = std::fs::read_to_string("/proc/self/stat").ok()?;
+    // Fields after the parenthesised command name; utime and stime are fields 14 and 15.
+    let rest = s.rsplit_once(')')?.1;
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let ticks: f64 = f.get(11)?.parse::<f64>().ok()? + f.get(12)?.parse::<f64>().ok()?;
+    Some(ticks * 10.0)
+}
+
+/// Median wall time (ms) over `runs`, and the mean CPU time per run (ms): on a shared,
+/// loaded machine the CPU time shows the work done when wall time is inflated by waiting.
+fn median_ms<T>(runs: usize, mut f: impl FnMut() -> T) -> (f64, f64) {
+    let c0 = cpu_ms();
     let mut t: Vec<f64> = (0..runs)
         .map(|_| {
             let s = Instant::now();
@@ -42,8 +55,12 @@ fn median_ms<T>(runs: usize, mut f: impl FnMut() -> T) -> f64 {
             s.elapsed().as_secs_f64() * 1e3
         })
         .collect();
+    let cpu = match (c0, cpu_ms()) {
+        (Some(a), Some(b)) => (b - a) / runs as f64,
+        _ => f64::NAN,
+    };
     t.sort_by(|a, b| a.total_cmp(b));
-    t[runs / 2]
+    (t[runs / 2], cpu)
 }
 
 fn main() {
@@ -91,7 +108,11 @@ fn main() {
         });
         let n: usize = pts.iter().map(|p| index.hybrid(p, params.feature_radius, 100).len()).sum();
         let t_spfh = median_ms(runs, || cgenreg::features::fpfh::compute_spfh(pts, &normals, &index, &params));
-        println!("search {t_search:.1} within-all {t_within:.1} spfh(incl search) {t_spfh:.1} mean nn {}", n as f64 / pts.len() as f64);
+        println!(
+            "breakdown (wall, cpu ms): hybrid search {t_search:.1?}, sorted radius search {t_within:.1?}, \
+             search + SPFH {t_spfh:.1?}; mean neighbours {:.1}",
+            n as f64 / pts.len() as f64
+        );
     }
     let t_all = median_ms(runs, || cgenreg::features::fpfh::fpfh_for_cloud(&cloud, voxel));
 
@@ -103,12 +124,19 @@ fn main() {
         voxel,
         rayon::current_num_threads()
     );
-    println!("| stage | time (ms) |");
-    println!("|---|---:|");
-    println!("| voxel downsample | {t_voxel:.1} |");
-    println!("| k-d tree build | {t_tree:.1} |");
-    println!("| normals (r 5 cm, 30 nn) + orientation | {t_normals:.1} |");
-    println!("| FPFH (r 12.5 cm, 100 nn) | {t_fpfh:.1} |");
-    println!("| **normals + FPFH** | **{:.1}** |", t_normals + t_fpfh);
-    println!("| fpfh_for_cloud (all of the above) | {t_all:.1} |");
+    println!("| stage | wall ms (median) | CPU ms (mean) |");
+    println!("|---|---:|---:|");
+    let row = |name: &str, t: (f64, f64)| println!("| {name} | {:.1} | {:.1} |", t.0, t.1);
+    row("voxel downsample", t_voxel);
+    row("k-d tree build", t_tree);
+    row("normals (r 5 cm, 30 nn) + orientation", t_normals);
+    row("FPFH (r 12.5 cm, 100 nn)", t_fpfh);
+    row(
+        "**normals + FPFH**",
+        (t_normals.0 + t_fpfh.0, t_normals.1 + t_fpfh.1),
+    );
+    row("fpfh_for_cloud (all of the above)", t_all);
+    if let Ok(l) = std::fs::read_to_string("/proc/loadavg") {
+        println!("\nload average during the run: {}", l.trim());
+    }
 }
