@@ -106,15 +106,22 @@ fn main() {
                 .map(|p| index.within(p, params.feature_radius).len())
                 .sum::<usize>()
         });
-        let n: usize = pts.iter().map(|p| index.hybrid(p, params.feature_radius, 100).len()).sum();
-        let t_spfh = median_ms(runs, || cgenreg::features::fpfh::compute_spfh(pts, &normals, &index, &params));
+        let n: usize = pts
+            .iter()
+            .map(|p| index.hybrid(p, params.feature_radius, 100).len())
+            .sum();
+        let t_spfh = median_ms(runs, || {
+            cgenreg::features::fpfh::compute_spfh(pts, &normals, &index, &params)
+        });
         println!(
             "breakdown (wall, cpu ms): hybrid search {t_search:.1?}, sorted radius search {t_within:.1?}, \
              search + SPFH {t_spfh:.1?}; mean neighbours {:.1}",
             n as f64 / pts.len() as f64
         );
     }
-    let t_all = median_ms(runs, || cgenreg::features::fpfh::fpfh_for_cloud(&cloud, voxel));
+    let t_all = median_ms(runs, || {
+        cgenreg::features::fpfh::fpfh_for_cloud(&cloud, voxel)
+    });
 
     println!(
         "\nFPFH on {} ({} points -> {} at voxel {} m), {} threads, median of {runs} runs\n",

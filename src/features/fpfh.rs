@@ -259,8 +259,7 @@ fn spfh_from(points: &[Point3<f32>], normals: &[Vector3<f32>], nbh: &Neighbourho
         let mut acc = [0.0f64; FPFH_DIM];
         for &j in nb {
             let j = j as usize;
-            let f = pair_features(&points[i], &normals[i], &points[j], &normals[j]);
-            for b in pair_bins(&f) {
+            for b in pair_bins_fast(&points[i], &normals[i], &points[j], &normals[j]) {
                 acc[b] += incr;
             }
         }
@@ -418,8 +417,17 @@ mod tests {
         }
         assert!(max_err < 1e-7, "{max_err}");
         // Exact edges (signed zeros included) go through libm.
-        for (y, x) in [(0.0, -1.0), (-0.0, -1.0), (0.0, 0.0), (-0.0, -0.0), (0.0, 1.0)] {
-            assert_eq!(bin(f0_position(y, x)), bin(BINS as f64 * (f64::atan2(y, x) + PI) / (2.0 * PI)));
+        for (y, x) in [
+            (0.0, -1.0),
+            (-0.0, -1.0),
+            (0.0, 0.0),
+            (-0.0, -0.0),
+            (0.0, 1.0),
+        ] {
+            assert_eq!(
+                bin(f0_position(y, x)),
+                bin(BINS as f64 * (f64::atan2(y, x) + PI) / (2.0 * PI))
+            );
         }
         // Full pair features on random oriented pairs, including near-degenerate ones.
         let mut rng = Lcg(9);
@@ -530,7 +538,12 @@ mod tests {
         let f2 = compute_fpfh(&pts2, &ns2, &KdIndex::new(&pts2), &params);
         assert!(f2.row(pts.len()).iter().all(|&v| v == 0.0));
         // The other points are unaffected (up to summation order).
-        let d = f.data.iter().zip(&f2.data).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
+        let d = f
+            .data
+            .iter()
+            .zip(&f2.data)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0f32, f32::max);
         assert!(d < 1e-3, "{d}");
     }
 

@@ -150,7 +150,8 @@ impl KdIndex {
         let Some(tree) = self.tree.as_ref() else {
             return;
         };
-        if !(radius >= 0.0) {
+        // Also rejects NaN.
+        if radius.is_nan() || radius < 0.0 {
             return;
         }
         let r2 = (radius * radius) as f32;

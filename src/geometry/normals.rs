@@ -77,7 +77,7 @@ pub(crate) fn normal_of(
 /// ill-conditioned (two smallest eigenvalues close). None for a (near) zero matrix.
 pub(crate) fn smallest_eigenvector(a: &Matrix3<f64>) -> Option<Vector3<f64>> {
     let scale = a.amax();
-    if !(scale > 1e-30) || !scale.is_finite() {
+    if scale.is_nan() || scale <= 1e-30 || !scale.is_finite() {
         return None;
     }
     let a = a / scale;
