@@ -118,6 +118,26 @@ impl KdIndex {
         out.iter_mut().for_each(|e| e.1 = e.1.sqrt());
     }
 
+    /// [`hybrid_into`](Self::hybrid_into) without the final sort and with **squared**
+    /// distances: the same set of points, for callers that need neither order nor metres.
+    pub fn hybrid_sq_unsorted_into(
+        &self,
+        q: &Point3<f32>,
+        radius: f64,
+        max_nn: usize,
+        out: &mut Vec<(usize, f32)>,
+    ) {
+        out.clear();
+        if max_nn == 0 {
+            return;
+        }
+        self.within_sq_into(q, radius, out);
+        if out.len() > max_nn {
+            out.select_nth_unstable_by(max_nn - 1, |a, b| a.1.total_cmp(&b.1));
+            out.truncate(max_nn);
+        }
+    }
+
     /// Unsorted radius search into `out` (cleared first), distances in metres.
     fn within_into(&self, q: &Point3<f32>, radius: f64, out: &mut Vec<(usize, f32)>) {
         out.clear();
@@ -130,7 +150,8 @@ impl KdIndex {
         let Some(tree) = self.tree.as_ref() else {
             return;
         };
-        if !(radius >= 0.0) {
+        // Also rejects NaN.
+        if radius.is_nan() || radius < 0.0 {
             return;
         }
         let r2 = (radius * radius) as f32;
@@ -276,9 +297,14 @@ pub(crate) mod tests {
             }
             let got = index.within(q, radius as f64);
             check_radius(points, q, &got, &all, radius, usize::MAX);
+            let mut buf = Vec::new();
             for max_nn in [1, 5, 30, 100] {
                 let got = index.hybrid(q, radius as f64, max_nn);
                 check_radius(points, q, &got, &all, radius, max_nn);
+                index.hybrid_sq_unsorted_into(q, radius as f64, max_nn, &mut buf);
+                let mut got2: Vec<(usize, f32)> = buf.iter().map(|e| (e.0, e.1.sqrt())).collect();
+                got2.sort_by(|a, b| a.1.total_cmp(&b.1));
+                check_radius(points, q, &got2, &all, radius, max_nn);
             }
         }
     }

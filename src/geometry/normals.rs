@@ -22,7 +22,7 @@ pub fn estimate_normals(
     points
         .par_iter()
         .map_init(Vec::new, |nb, p| {
-            index.hybrid_into(p, radius, max_nn, nb);
+            index.hybrid_sq_unsorted_into(p, radius, max_nn, nb);
             normal_of(points, p, nb.iter().map(|e| e.0))
         })
         .collect()
@@ -77,7 +77,7 @@ pub(crate) fn normal_of(
 /// ill-conditioned (two smallest eigenvalues close). None for a (near) zero matrix.
 pub(crate) fn smallest_eigenvector(a: &Matrix3<f64>) -> Option<Vector3<f64>> {
     let scale = a.amax();
-    if !(scale > 1e-30) || !scale.is_finite() {
+    if scale.is_nan() || scale <= 1e-30 || !scale.is_finite() {
         return None;
     }
     let a = a / scale;

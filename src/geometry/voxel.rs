@@ -4,6 +4,28 @@
 use super::PointCloud;
 use nalgebra::{Point3, Vector3};
 use std::collections::HashMap;
+use std::hash::{BuildHasherDefault, Hasher};
+
+/// Multiplicative hash for the voxel keys: SipHash dominated the run time, and the keys
+/// are not attacker-controlled.
+#[derive(Default)]
+struct KeyHasher(u64);
+
+impl Hasher for KeyHasher {
+    fn finish(&self) -> u64 {
+        self.0
+    }
+    fn write(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.0 = (self.0.rotate_left(8) ^ b as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+        }
+    }
+    fn write_u128(&mut self, v: u128) {
+        let m = (v as u64) ^ ((v >> 64) as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F);
+        self.0 = (self.0 ^ m).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+        self.0 ^= self.0 >> 29;
+    }
+}
 
 #[derive(Default, Clone)]
 struct Acc {
@@ -15,7 +37,8 @@ struct Acc {
     first: usize,
 }
 
-/// Downsample `cloud` on a grid of `voxel` metres anchored at the cloud's minimum bound.
+/// Downsample `cloud` on a grid of `voxel` metres anchored, as in Open3D, half a voxel
+/// below the cloud's minimum bound (so the same grid, and the same output up to rounding).
 /// Output order follows the first point of each voxel in input order, so the result is
 /// deterministic. A non-positive voxel size returns a copy.
 pub fn voxel_downsample(cloud: &PointCloud, voxel: f64) -> PointCloud {
@@ -26,15 +49,15 @@ pub fn voxel_downsample(cloud: &PointCloud, voxel: f64) -> PointCloud {
         Some(b) => b,
         None => return cloud.clone(),
     };
-    let lo = lo.cast::<f64>();
-    let mut cells: HashMap<(i32, i32, i32), Acc> = HashMap::with_capacity(cloud.len() / 4);
+    let lo = lo.cast::<f64>() - Vector3::repeat(voxel * 0.5);
+    let mut cells: HashMap<u128, Acc, BuildHasherDefault<KeyHasher>> =
+        HashMap::with_capacity_and_hasher(cloud.len() / 4, Default::default());
     for (idx, p) in cloud.points.iter().enumerate() {
         let q = p.cast::<f64>();
-        let key = (
-            ((q.x - lo.x) / voxel).floor() as i32,
-            ((q.y - lo.y) / voxel).floor() as i32,
-            ((q.z - lo.z) / voxel).floor() as i32,
-        );
+        // Cell indices are >= 0 from the anchor; 42 bits per axis (4e12 voxels) is
+        // more than any finite cloud at a sane voxel size needs (`as` saturates beyond).
+        let c = |v: f64, l: f64| (((v - l) / voxel).floor() as u128).min((1 << 42) - 1);
+        let key = c(q.x, lo.x) | (c(q.y, lo.y) << 42) | (c(q.z, lo.z) << 84);
         let a = cells.entry(key).or_insert_with(|| Acc {
             first: idx,
             ..Default::default()
@@ -42,8 +65,8 @@ pub fn voxel_downsample(cloud: &PointCloud, voxel: f64) -> PointCloud {
         a.n += 1;
         a.p += q.coords;
         if let Some(c) = &cloud.colors {
-            for k in 0..3 {
-                a.c[k] += c[idx][k] as f64;
+            for (acc, &v) in a.c.iter_mut().zip(&c[idx]) {
+                *acc += v as f64;
             }
         }
         if let Some(ns) = &cloud.normals {
@@ -107,7 +130,7 @@ mod tests {
         let v = 0.1;
         let out = voxel_downsample(&cloud, v);
         // Brute force: group by voxel key with the same anchor.
-        let lo = cloud.bounds().unwrap().0.cast::<f64>();
+        let lo = cloud.bounds().unwrap().0.cast::<f64>() - Vector3::repeat(v / 2.0);
         let key = |p: &Point3<f32>| {
             let q = p.cast::<f64>();
             (
