@@ -4,7 +4,11 @@ fn main() -> cgenreg::Result<()> {
     let dir = std::path::PathBuf::from(args.first().map(String::as_str).unwrap_or("assets/demo"));
     let mut p = cgenreg::synth::DemoParams::default();
     if args.len() >= 4 {
-        let num = |i: usize| args[i].parse::<u32>().map_err(|e| cgenreg::Error::Invalid(format!("argument {i}: {e}")));
+        let num = |i: usize| {
+            args[i]
+                .parse::<u32>()
+                .map_err(|e| cgenreg::Error::Invalid(format!("argument {i}: {e}")))
+        };
         p.width = num(1)?;
         p.height = num(2)?;
         p.frames = num(3)? as usize;

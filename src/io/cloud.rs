@@ -14,7 +14,9 @@ pub fn load_cloud(path: &Path) -> Result<PointCloud> {
     let end = bytes
         .windows(11)
         .position(|w| w == b"end_header\n")
-        .ok_or_else(|| Error::format(path, "header", "a PLY header ending in end_header", "none"))?;
+        .ok_or_else(|| {
+            Error::format(path, "header", "a PLY header ending in end_header", "none")
+        })?;
     let header = std::str::from_utf8(&bytes[..end])
         .map_err(|_| Error::format(path, "header", "ASCII text", "non-UTF-8 bytes"))?;
     if !header.starts_with("ply") || !header.contains("format binary_little_endian 1.0") {

@@ -70,7 +70,12 @@ pub fn camera_path(t: f64) -> Isometry3<f64> {
     let phi = (200.0 + 120.0 * t).to_radians();
     let (c, s) = (phi.cos(), phi.sin());
     let centre = Vector3::new(2.5, 2.0, 0.0);
-    let eye = centre + Vector3::new(1.8 * c, 1.3 * s, 1.5 + 0.1 * (std::f64::consts::PI * 2.0 * t).sin());
+    let eye = centre
+        + Vector3::new(
+            1.8 * c,
+            1.3 * s,
+            1.5 + 0.1 * (std::f64::consts::PI * 2.0 * t).sin(),
+        );
     let look = centre + Vector3::new(-0.7 * c + 0.3 * (5.0 * t).sin(), -0.7 * s, 0.7);
     let fwd = (look - eye).normalize();
     let right = fwd.cross(&Vector3::z()).normalize();
@@ -124,11 +129,12 @@ pub fn render_frame(
                         continue;
                     }
                     // Approximately Gaussian (sum of 4 uniforms), sigma = 0.5 mm * z^2.
-                    let g: f64 = (1..=4).map(|s| unit(hash64(pix ^ s)) - 0.5).sum::<f64>() * 3f64.sqrt();
+                    let g: f64 =
+                        (1..=4).map(|s| unit(hash64(pix ^ s)) - 0.5).sum::<f64>() * 3f64.sqrt();
                     z += g * 0.0005 * z * z;
                 }
                 let mm = (z * 1000.0).round();
-                if mm >= 1.0 && mm < 65535.0 {
+                if (1.0..65535.0).contains(&mm) {
                     depth[u] = mm as u16;
                 }
             }
@@ -152,8 +158,9 @@ pub fn render_frame(
 }
 
 fn write_color_png(path: &Path, w: u32, h: u32, rgb: Vec<u8>) -> Result<()> {
-    let img = image::RgbImage::from_raw(w, h, rgb)
-        .ok_or_else(|| Error::Invalid(format!("colour image size mismatch for {}", path.display())))?;
+    let img = image::RgbImage::from_raw(w, h, rgb).ok_or_else(|| {
+        Error::Invalid(format!("colour image size mismatch for {}", path.display()))
+    })?;
     let mut out = Vec::new();
     image::DynamicImage::ImageRgb8(img)
         .write_to(&mut std::io::Cursor::new(&mut out), image::ImageFormat::Png)
@@ -184,14 +191,14 @@ pub fn write_demo(dir: &Path, params: &DemoParams) -> Result<PathBuf> {
         )));
     }
     if params.frames < 2 {
-        return Err(Error::Invalid(format!("demo needs at least 2 frames per sequence, got {}", params.frames)));
+        return Err(Error::Invalid(format!(
+            "demo needs at least 2 frames per sequence, got {}",
+            params.frames
+        )));
     }
     let scene = Scene::demo_room();
     let k = params.intrinsics();
-    let kfile = format!(
-        "{:?} 0 {:?}\n0 {:?} {:?}\n0 0 1\n",
-        k.fx, k.cx, k.fy, k.cy
-    );
+    let kfile = format!("{:?} 0 {:?}\n0 {:?} {:?}\n0 0 1\n", k.fx, k.cx, k.fy, k.cy);
     let names = ["target", "source"];
     for (s, name) in names.iter().enumerate() {
         let sd = dir.join(name);
@@ -200,9 +207,9 @@ pub fn write_demo(dir: &Path, params: &DemoParams) -> Result<PathBuf> {
         // Frames in sequence; each render is parallel over rows.
         for i in 0..params.frames {
             let pose = camera_path(frame_param(s, i, params.frames));
-            let noise = params.sensor_noise.then(|| {
-                hash64(params.seed ^ hash64((s as u64) << 32 | i as u64))
-            });
+            let noise = params
+                .sensor_noise
+                .then(|| hash64(params.seed ^ hash64((s as u64) << 32 | i as u64)));
             let (depth, rgb) = render_frame(&scene, &k, &pose, noise);
             let stem = sd.join(format!("frame-{i:06}"));
             write_depth_png(&stem.with_extension("depth.png"), &depth)?;
@@ -299,7 +306,9 @@ mod tests {
         write_demo(c.path(), &DemoParams { seed: 2, ..small() }).unwrap();
         let fc = files(c.path());
         let differs = |ext: &str| {
-            fa.iter().zip(&fc).any(|((p, x), (_, y))| p.to_string_lossy().ends_with(ext) && x != y)
+            fa.iter()
+                .zip(&fc)
+                .any(|((p, x), (_, y))| p.to_string_lossy().ends_with(ext) && x != y)
         };
         assert!(differs("depth.png") && !differs("color.png"));
     }
@@ -311,14 +320,21 @@ mod tests {
         write_demo(fresh.path(), &DemoParams::default()).unwrap();
         for (rel, bytes) in files(fresh.path()) {
             let b = std::fs::read(bundled.join(&rel)).unwrap();
-            assert!(b == bytes, "assets/demo/{} differs from a fresh render", rel.display());
+            assert!(
+                b == bytes,
+                "assets/demo/{} differs from a fresh render",
+                rel.display()
+            );
         }
     }
 
     #[test]
     fn depth_and_pose_conventions_are_exact() {
         // Without noise, every floor-tile pixel back-projects onto the plane z = 0.01 (world).
-        let p = DemoParams { sensor_noise: false, ..small() };
+        let p = DemoParams {
+            sensor_noise: false,
+            ..small()
+        };
         let k = p.intrinsics();
         let scene = Scene::demo_room();
         let pose = camera_path(0.1);
@@ -329,8 +345,11 @@ mod tests {
                 let z = depth.meters(u, v).unwrap() as f64;
                 let pw = pose * k.backproject(u as f64, v as f64, z);
                 // Which object does the exact ray hit?
-                let d = pose.rotation * Vector3::new((u as f64 - k.cx) / k.fx, (v as f64 - k.cy) / k.fy, 1.0);
-                let hit = scene.cast(&Point3::from(pose.translation.vector), &d).unwrap();
+                let d = pose.rotation
+                    * Vector3::new((u as f64 - k.cx) / k.fx, (v as f64 - k.cy) / k.fy, 1.0);
+                let hit = scene
+                    .cast(&Point3::from(pose.translation.vector), &d)
+                    .unwrap();
                 if hit.object == 1 && hit.normal.z > 0.5 {
                     // Depth is rounded to 1 mm along z: at most ~0.5 mm * |dz/dz| off the plane.
                     assert!((pw.z - 0.01).abs() < 2e-3, "({u},{v}) z_world {}", pw.z);
@@ -350,7 +369,13 @@ mod tests {
         assert!(pair.source.cloud.colors.is_some());
         assert_eq!(pair.source.frames.as_ref().unwrap().frames.len(), 8);
         let gt = pair.gt_target_from_source.unwrap();
-        let tgt: Vec<[f32; 3]> = pair.target.cloud.points.iter().map(|p| [p.x, p.y, p.z]).collect();
+        let tgt: Vec<[f32; 3]> = pair
+            .target
+            .cloud
+            .points
+            .iter()
+            .map(|p| [p.x, p.y, p.z])
+            .collect();
         let tree = kiddo::ImmutableKdTree::new_from_slice(&tgt).unwrap();
         let frac = |t: &Isometry3<f64>, r: f32| {
             let tf: Isometry3<f32> = t.cast();
@@ -371,9 +396,14 @@ mod tests {
             hits as f64 / pair.source.cloud.len() as f64
         };
         let (near, overlap) = (frac(&gt, 0.01), frac(&gt, 0.05));
-        let off = Isometry3::from_parts(Translation3::new(0.015, 0.015, 0.015), UnitQuaternion::identity()) * gt;
+        let off = Isometry3::from_parts(
+            Translation3::new(0.015, 0.015, 0.015),
+            UnitQuaternion::identity(),
+        ) * gt;
         let near_off = frac(&off, 0.01);
-        eprintln!("demo pair: within 1 cm {near:.3}, within 5 cm {overlap:.3}, 2.6 cm off {near_off:.3}");
+        eprintln!(
+            "demo pair: within 1 cm {near:.3}, within 5 cm {overlap:.3}, 2.6 cm off {near_off:.3}"
+        );
         // The overlapping part aligns to 1 cm, and a 2.6 cm error is clearly visible.
         assert!(overlap > 0.4 && near / overlap > 0.9, "{near} / {overlap}");
         assert!(near_off < 0.5 * near, "{near_off} vs {near}");

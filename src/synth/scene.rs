@@ -11,9 +11,18 @@ pub enum Texture {
     /// 3D checkerboard of cell size `cell` metres.
     Checker { cell: f64, a: [f64; 3], b: [f64; 3] },
     /// Stripes of width `width` along the world axis `axis` (0 = x, 1 = y, 2 = z).
-    Stripes { width: f64, axis: usize, a: [f64; 3], b: [f64; 3] },
+    Stripes {
+        width: f64,
+        axis: usize,
+        a: [f64; 3],
+        b: [f64; 3],
+    },
     /// Smooth value noise (two octaves) of feature size `scale`, blending `a` and `b`.
-    Noise { scale: f64, a: [f64; 3], b: [f64; 3] },
+    Noise {
+        scale: f64,
+        a: [f64; 3],
+        b: [f64; 3],
+    },
     /// Random rectangles ("posters", "books") on a grid of `cell` metres, from a palette.
     Patches { cell: f64, base: [f64; 3] },
 }
@@ -21,12 +30,26 @@ pub enum Texture {
 #[derive(Clone, Copy, Debug)]
 pub enum Shape {
     /// The room: the inside of an axis-aligned box.
-    Room { min: Point3<f64>, max: Point3<f64> },
+    Room {
+        min: Point3<f64>,
+        max: Point3<f64>,
+    },
     /// A box of half-extents `half`, centred at `center`, rotated by `yaw` about +z.
-    Box { center: Point3<f64>, half: Vector3<f64>, yaw: f64 },
+    Box {
+        center: Point3<f64>,
+        half: Vector3<f64>,
+        yaw: f64,
+    },
     /// A vertical cylinder with its base centre at `base`.
-    Cylinder { base: Point3<f64>, radius: f64, height: f64 },
-    Sphere { center: Point3<f64>, radius: f64 },
+    Cylinder {
+        base: Point3<f64>,
+        radius: f64,
+        height: f64,
+    },
+    Sphere {
+        center: Point3<f64>,
+        radius: f64,
+    },
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -56,7 +79,10 @@ pub(crate) fn unit(h: u64) -> f64 {
 
 fn lattice(i: i64, j: i64, k: i64, seed: u64) -> f64 {
     let h = hash64(seed ^ (i as u64).wrapping_mul(0x8CB92BA72F3D8DD7))
-        ^ hash64((j as u64).wrapping_mul(0x9E6C63D0676A9A99) ^ (k as u64).wrapping_mul(0xD6E8FEB86659FD93));
+        ^ hash64(
+            (j as u64).wrapping_mul(0x9E6C63D0676A9A99)
+                ^ (k as u64).wrapping_mul(0xD6E8FEB86659FD93),
+        );
     unit(hash64(h))
 }
 
@@ -153,7 +179,13 @@ impl Texture {
 
 /// Ray (origin `o`, direction `d`, not necessarily unit) against an axis-aligned slab box;
 /// returns (t, normal) of the nearest hit with t > eps, from outside or inside.
-fn slab(o: &Vector3<f64>, d: &Vector3<f64>, lo: &Vector3<f64>, hi: &Vector3<f64>, inside: bool) -> Option<(f64, Vector3<f64>)> {
+fn slab(
+    o: &Vector3<f64>,
+    d: &Vector3<f64>,
+    lo: &Vector3<f64>,
+    hi: &Vector3<f64>,
+    inside: bool,
+) -> Option<(f64, Vector3<f64>)> {
     let mut tmin = f64::NEG_INFINITY;
     let mut tmax = f64::INFINITY;
     let (mut amin, mut amax) = (0usize, 0usize);
@@ -208,14 +240,19 @@ impl Shape {
             Shape::Box { center, half, yaw } => {
                 let (s, c) = yaw.sin_cos();
                 // World -> box frame is a rotation by -yaw about z.
-                let to_local = |v: Vector3<f64>| Vector3::new(c * v.x + s * v.y, -s * v.x + c * v.y, v.z);
+                let to_local =
+                    |v: Vector3<f64>| Vector3::new(c * v.x + s * v.y, -s * v.x + c * v.y, v.z);
                 let ol = to_local(o - center);
                 let dl = to_local(*d);
                 let (t, nl) = slab(&ol, &dl, &(-half), &half, false)?;
                 let n = Vector3::new(c * nl.x - s * nl.y, s * nl.x + c * nl.y, nl.z);
                 Some((t, n))
             }
-            Shape::Cylinder { base, radius, height } => {
+            Shape::Cylinder {
+                base,
+                radius,
+                height,
+            } => {
                 let mut best: Option<(f64, Vector3<f64>)> = None;
                 let (ox, oy) = (o.x - base.x, o.y - base.y);
                 let a = d.x * d.x + d.y * d.y;
@@ -238,7 +275,11 @@ impl Shape {
                     }
                     let t = (zc - o.z) / d.z;
                     let (x, y) = (ox + t * d.x, oy + t * d.y);
-                    if t > 1e-9 && x * x + y * y <= radius * radius && best.is_none_or(|(bt, _)| t < bt) && d.z * nz < 0.0 {
+                    if t > 1e-9
+                        && x * x + y * y <= radius * radius
+                        && best.is_none_or(|(bt, _)| t < bt)
+                        && d.z * nz < 0.0
+                    {
                         best = Some((t, Vector3::new(0.0, 0.0, nz)));
                     }
                 }
@@ -277,67 +318,178 @@ impl Scene {
         let objects = vec![
             // 0: room (floor/walls/ceiling share one textured box; faces differ by pattern).
             Object {
-                shape: Room { min: p(0.0, 0.0, 0.0), max: p(5.0, 4.0, 2.7) },
-                texture: Noise { scale: 0.2, a: [0.85, 0.80, 0.70], b: [0.40, 0.36, 0.30] },
+                shape: Room {
+                    min: p(0.0, 0.0, 0.0),
+                    max: p(5.0, 4.0, 2.7),
+                },
+                texture: Noise {
+                    scale: 0.2,
+                    a: [0.85, 0.80, 0.70],
+                    b: [0.40, 0.36, 0.30],
+                },
             },
             // 1: floor tiles (a thin slab on the floor).
             Object {
-                shape: Box { center: p(2.5, 2.0, 0.005), half: v(2.5, 2.0, 0.005), yaw: 0.0 },
-                texture: Checker { cell: 0.4, a: [0.62, 0.58, 0.55], b: [0.30, 0.27, 0.25] },
+                shape: Box {
+                    center: p(2.5, 2.0, 0.005),
+                    half: v(2.5, 2.0, 0.005),
+                    yaw: 0.0,
+                },
+                texture: Checker {
+                    cell: 0.4,
+                    a: [0.62, 0.58, 0.55],
+                    b: [0.30, 0.27, 0.25],
+                },
             },
             // 2: table top + 3: table leg (cylinder).
             Object {
-                shape: Box { center: p(3.6, 2.9, 0.74), half: v(0.6, 0.4, 0.03), yaw: 0.25 },
-                texture: Stripes { width: 0.05, axis: 0, a: [0.55, 0.33, 0.17], b: [0.45, 0.26, 0.12] },
+                shape: Box {
+                    center: p(3.6, 2.9, 0.74),
+                    half: v(0.6, 0.4, 0.03),
+                    yaw: 0.25,
+                },
+                texture: Stripes {
+                    width: 0.05,
+                    axis: 0,
+                    a: [0.55, 0.33, 0.17],
+                    b: [0.45, 0.26, 0.12],
+                },
             },
             Object {
-                shape: Cylinder { base: p(3.6, 2.9, 0.0), radius: 0.07, height: 0.71 },
-                texture: Stripes { width: 0.06, axis: 2, a: [0.2, 0.2, 0.22], b: [0.7, 0.7, 0.72] },
+                shape: Cylinder {
+                    base: p(3.6, 2.9, 0.0),
+                    radius: 0.07,
+                    height: 0.71,
+                },
+                texture: Stripes {
+                    width: 0.06,
+                    axis: 2,
+                    a: [0.2, 0.2, 0.22],
+                    b: [0.7, 0.7, 0.72],
+                },
             },
             // 4: cabinet against the x = 5 wall.
             Object {
-                shape: Box { center: p(4.7, 1.2, 0.55), half: v(0.3, 0.6, 0.55), yaw: 0.0 },
-                texture: Checker { cell: 0.18, a: [0.20, 0.40, 0.70], b: [0.85, 0.85, 0.90] },
+                shape: Box {
+                    center: p(4.7, 1.2, 0.55),
+                    half: v(0.3, 0.6, 0.55),
+                    yaw: 0.0,
+                },
+                texture: Checker {
+                    cell: 0.18,
+                    a: [0.20, 0.40, 0.70],
+                    b: [0.85, 0.85, 0.90],
+                },
             },
             // 5: shelf with books along the y = 4 wall.
             Object {
-                shape: Box { center: p(1.8, 3.8, 0.9), half: v(0.9, 0.2, 0.9), yaw: 0.0 },
-                texture: Patches { cell: 0.12, base: [0.35, 0.22, 0.12] },
+                shape: Box {
+                    center: p(1.8, 3.8, 0.9),
+                    half: v(0.9, 0.2, 0.9),
+                    yaw: 0.0,
+                },
+                texture: Patches {
+                    cell: 0.12,
+                    base: [0.35, 0.22, 0.12],
+                },
             },
             // 6: sofa block near the y = 0 wall.
             Object {
-                shape: Box { center: p(2.2, 0.45, 0.3), half: v(1.0, 0.4, 0.3), yaw: 0.0 },
-                texture: Noise { scale: 0.08, a: [0.70, 0.15, 0.20], b: [0.35, 0.05, 0.10] },
+                shape: Box {
+                    center: p(2.2, 0.45, 0.3),
+                    half: v(1.0, 0.4, 0.3),
+                    yaw: 0.0,
+                },
+                texture: Noise {
+                    scale: 0.08,
+                    a: [0.70, 0.15, 0.20],
+                    b: [0.35, 0.05, 0.10],
+                },
             },
             // 7: poster on the x = 5 wall, 8: poster on the y = 4 wall, 9: poster on x = 0.
             Object {
-                shape: Box { center: p(4.99, 2.6, 1.6), half: v(0.01, 0.6, 0.45), yaw: 0.0 },
-                texture: Patches { cell: 0.2, base: [0.95, 0.95, 0.92] },
+                shape: Box {
+                    center: p(4.99, 2.6, 1.6),
+                    half: v(0.01, 0.6, 0.45),
+                    yaw: 0.0,
+                },
+                texture: Patches {
+                    cell: 0.2,
+                    base: [0.95, 0.95, 0.92],
+                },
             },
             Object {
-                shape: Box { center: p(3.6, 3.99, 1.7), half: v(0.5, 0.01, 0.4), yaw: 0.0 },
-                texture: Noise { scale: 0.05, a: [0.1, 0.3, 0.6], b: [0.95, 0.85, 0.3] },
+                shape: Box {
+                    center: p(3.6, 3.99, 1.7),
+                    half: v(0.5, 0.01, 0.4),
+                    yaw: 0.0,
+                },
+                texture: Noise {
+                    scale: 0.05,
+                    a: [0.1, 0.3, 0.6],
+                    b: [0.95, 0.85, 0.3],
+                },
             },
             Object {
-                shape: Box { center: p(0.01, 2.0, 1.5), half: v(0.01, 0.7, 0.5), yaw: 0.0 },
-                texture: Checker { cell: 0.1, a: [0.1, 0.5, 0.2], b: [0.9, 0.9, 0.3] },
+                shape: Box {
+                    center: p(0.01, 2.0, 1.5),
+                    half: v(0.01, 0.7, 0.5),
+                    yaw: 0.0,
+                },
+                texture: Checker {
+                    cell: 0.1,
+                    a: [0.1, 0.5, 0.2],
+                    b: [0.9, 0.9, 0.3],
+                },
             },
             // 10: bin, 11: lamp pole, 12: ball, 13: low box (crate) on the floor.
             Object {
-                shape: Cylinder { base: p(4.5, 3.5, 0.0), radius: 0.18, height: 0.45 },
-                texture: Stripes { width: 0.04, axis: 2, a: [0.9, 0.5, 0.1], b: [0.2, 0.2, 0.2] },
+                shape: Cylinder {
+                    base: p(4.5, 3.5, 0.0),
+                    radius: 0.18,
+                    height: 0.45,
+                },
+                texture: Stripes {
+                    width: 0.04,
+                    axis: 2,
+                    a: [0.9, 0.5, 0.1],
+                    b: [0.2, 0.2, 0.2],
+                },
             },
             Object {
-                shape: Cylinder { base: p(0.5, 0.5, 0.0), radius: 0.03, height: 1.7 },
-                texture: Stripes { width: 0.1, axis: 2, a: [0.8, 0.8, 0.8], b: [0.3, 0.3, 0.3] },
+                shape: Cylinder {
+                    base: p(0.5, 0.5, 0.0),
+                    radius: 0.03,
+                    height: 1.7,
+                },
+                texture: Stripes {
+                    width: 0.1,
+                    axis: 2,
+                    a: [0.8, 0.8, 0.8],
+                    b: [0.3, 0.3, 0.3],
+                },
             },
             Object {
-                shape: Sphere { center: p(1.2, 1.5, 0.25), radius: 0.25 },
-                texture: Checker { cell: 0.08, a: [0.9, 0.1, 0.1], b: [0.95, 0.95, 0.95] },
+                shape: Sphere {
+                    center: p(1.2, 1.5, 0.25),
+                    radius: 0.25,
+                },
+                texture: Checker {
+                    cell: 0.08,
+                    a: [0.9, 0.1, 0.1],
+                    b: [0.95, 0.95, 0.95],
+                },
             },
             Object {
-                shape: Box { center: p(0.6, 3.0, 0.25), half: v(0.3, 0.35, 0.25), yaw: -0.4 },
-                texture: Patches { cell: 0.1, base: [0.6, 0.5, 0.3] },
+                shape: Box {
+                    center: p(0.6, 3.0, 0.25),
+                    half: v(0.3, 0.35, 0.25),
+                    yaw: -0.4,
+                },
+                texture: Patches {
+                    cell: 0.1,
+                    base: [0.6, 0.5, 0.3],
+                },
             },
         ];
         Scene {
@@ -352,7 +504,11 @@ impl Scene {
         for (i, ob) in self.objects.iter().enumerate() {
             if let Some((t, n)) = ob.shape.intersect(o, d) {
                 if best.as_ref().is_none_or(|b| t < b.t) {
-                    best = Some(Hit { t, normal: n, object: i });
+                    best = Some(Hit {
+                        t,
+                        normal: n,
+                        object: i,
+                    });
                 }
             }
         }
@@ -377,25 +533,45 @@ mod tests {
     fn primitives_hit_where_expected() {
         let o = Point3::new(2.5, 2.0, 1.0);
         // Room: straight down hits the floor at t = 1 with an upward normal.
-        let room = Shape::Room { min: Point3::new(0.0, 0.0, 0.0), max: Point3::new(5.0, 4.0, 2.7) };
+        let room = Shape::Room {
+            min: Point3::new(0.0, 0.0, 0.0),
+            max: Point3::new(5.0, 4.0, 2.7),
+        };
         let (t, n) = room.intersect(&o, &Vector3::new(0.0, 0.0, -1.0)).unwrap();
         assert!((t - 1.0).abs() < 1e-12 && n.z == 1.0);
         let (t, n) = room.intersect(&o, &Vector3::new(2.0, 0.0, 0.0)).unwrap();
         assert!((t - 1.25).abs() < 1e-12 && n.x == -1.0);
         // Rotated box: a ray along -x towards a box at x = 4 rotated 90 deg hits at its
         // y half-extent (which now lies along x).
-        let b = Shape::Box { center: Point3::new(4.0, 2.0, 1.0), half: Vector3::new(0.5, 0.2, 0.3), yaw: std::f64::consts::FRAC_PI_2 };
+        let b = Shape::Box {
+            center: Point3::new(4.0, 2.0, 1.0),
+            half: Vector3::new(0.5, 0.2, 0.3),
+            yaw: std::f64::consts::FRAC_PI_2,
+        };
         let (t, n) = b.intersect(&o, &Vector3::new(1.0, 0.0, 0.0)).unwrap();
         assert!((t - (1.5 - 0.2)).abs() < 1e-9, "{t}");
         assert!((n - Vector3::new(-1.0, 0.0, 0.0)).norm() < 1e-9);
         // Cylinder side and cap.
-        let c = Shape::Cylinder { base: Point3::new(4.0, 2.0, 0.0), radius: 0.5, height: 0.8 };
-        let (t, n) = c.intersect(&Point3::new(2.0, 2.0, 0.5), &Vector3::new(1.0, 0.0, 0.0)).unwrap();
+        let c = Shape::Cylinder {
+            base: Point3::new(4.0, 2.0, 0.0),
+            radius: 0.5,
+            height: 0.8,
+        };
+        let (t, n) = c
+            .intersect(&Point3::new(2.0, 2.0, 0.5), &Vector3::new(1.0, 0.0, 0.0))
+            .unwrap();
         assert!((t - 1.5).abs() < 1e-9 && (n.x + 1.0).abs() < 1e-9);
-        let (t, n) = c.intersect(&Point3::new(4.1, 2.0, 2.0), &Vector3::new(0.0, 0.0, -1.0)).unwrap();
+        let (t, n) = c
+            .intersect(&Point3::new(4.1, 2.0, 2.0), &Vector3::new(0.0, 0.0, -1.0))
+            .unwrap();
         assert!((t - 1.2).abs() < 1e-9 && n.z == 1.0);
-        assert!(c.intersect(&Point3::new(2.0, 2.0, 1.0), &Vector3::new(1.0, 0.0, 0.0)).is_none());
-        let s = Shape::Sphere { center: Point3::new(4.0, 2.0, 1.0), radius: 0.5 };
+        assert!(c
+            .intersect(&Point3::new(2.0, 2.0, 1.0), &Vector3::new(1.0, 0.0, 0.0))
+            .is_none());
+        let s = Shape::Sphere {
+            center: Point3::new(4.0, 2.0, 1.0),
+            radius: 0.5,
+        };
         let (t, _) = s.intersect(&o, &Vector3::new(1.0, 0.0, 0.0)).unwrap();
         assert!((t - 1.0).abs() < 1e-9);
     }
