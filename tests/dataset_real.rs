@@ -2,9 +2,9 @@
 
 use cgenreg::dataset::fragment::{build_fragment, CropBox, FRAGMENT_LEN};
 use cgenreg::dataset::{pair_from_files, Dataset};
+use cgenreg::io::camera_txt::read_numbers;
 use cgenreg::io::rgbd_sequence::RgbdSequence;
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
-use cgenreg::io::camera_txt::read_numbers;
 use nalgebra::{Matrix4, Point3};
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
@@ -30,7 +30,9 @@ fn fraction_within(query: &[Point3<f32>], reference: &[Point3<f32>], radius: f32
 fn fraction_within_matches_brute_force() {
     let mut s = 7u64;
     let mut rnd = || {
-        s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        s = s
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
         (s >> 40) as f32 / (1u64 << 24) as f32
     };
     let a: Vec<Point3<f32>> = (0..800).map(|_| Point3::new(rnd(), rnd(), rnd())).collect();
@@ -46,20 +48,28 @@ fn fraction_within_matches_brute_force() {
 }
 
 fn manifest(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/manifests").join(name)
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("assets/manifests")
+        .join(name)
 }
 
 #[test]
 fn rebuilt_fragments_agree_with_staged_3dmatch() {
-    let Some(root) = cgenreg::test_data_root() else { return };
+    let Some(root) = cgenreg::test_data_root() else {
+        return;
+    };
     let seq = RgbdSequence::open(&root.join("7scenes-redkitchen-rgbd")).unwrap();
     let staged = [
         (0, "3dmatch-redkitchen/teaser-plusplus/cloud_bin_0.ply"),
-        (5, "3dmatch-redkitchen/dip/threed_match_7-scenes-redkitchen_cloud_bin_5.ply"),
+        (
+            5,
+            "3dmatch-redkitchen/dip/threed_match_7-scenes-redkitchen_cloud_bin_5.ply",
+        ),
     ];
     for (k, file) in staged {
         let t = std::time::Instant::now();
-        let frag = build_fragment(&seq, FRAGMENT_LEN * k, FRAGMENT_LEN, 0.01, format!("{k}")).unwrap();
+        let frag =
+            build_fragment(&seq, FRAGMENT_LEN * k, FRAGMENT_LEN, 0.01, format!("{k}")).unwrap();
         let dt = t.elapsed();
         let fs = frag.frames.as_ref().unwrap();
         assert_eq!(fs.frames.len(), 50);
@@ -88,14 +98,17 @@ fn rebuilt_fragments_agree_with_staged_3dmatch() {
         assert!(staged_to_rebuilt >= 0.95, "{staged_to_rebuilt}");
         assert!(rebuilt_to_staged >= 0.85, "{rebuilt_to_staged}");
         // A wrong pose convention (P_f * inv(P_first)) or a wrong fragment would not agree.
-        let other = cgenreg::io::cloud::load_cloud(&root.join(staged[(k == 0) as usize].1)).unwrap();
+        let other =
+            cgenreg::io::cloud::load_cloud(&root.join(staged[(k == 0) as usize].1)).unwrap();
         assert!(fraction_within(&other.points, &frag.cloud.points, 0.02) < 0.5);
     }
 }
 
 #[test]
 fn shipped_manifests_pairs_and_gt() {
-    let Some(root) = cgenreg::test_data_root() else { return };
+    let Some(root) = cgenreg::test_data_root() else {
+        return;
+    };
     let staged = Dataset::load(&manifest("redkitchen-staged.toml")).unwrap();
     assert_eq!(staged.pairs_in_split("3DMatch").count(), 12);
     assert_eq!(staged.pairs_in_split("3DLoMatch").count(), 4);
@@ -110,16 +123,27 @@ fn shipped_manifests_pairs_and_gt() {
     // these 8-digit matrices by up to ~3e-5) agree with the re-orthonormalised poses to 1e-4.
     let seq = RgbdSequence::open(&root.join("7scenes-redkitchen-rgbd")).unwrap();
     let raw_pose = |k: usize| {
-        let v = read_numbers(&root.join(format!("7scenes-redkitchen-rgbd/frame-{k:06}.pose.txt"))).unwrap();
+        let v = read_numbers(&root.join(format!("7scenes-redkitchen-rgbd/frame-{k:06}.pose.txt")))
+            .unwrap();
         Matrix4::from_row_slice(&v)
     };
     let raw_log = |split: &str| -> Vec<(usize, usize, Matrix4<f64>)> {
-        let v = read_numbers(&root.join(format!("3dmatch-redkitchen/benchmark/{split}/gt.log"))).unwrap();
+        let v = read_numbers(&root.join(format!("3dmatch-redkitchen/benchmark/{split}/gt.log")))
+            .unwrap();
         v.chunks(19)
-            .map(|c| (c[0] as usize, c[1] as usize, Matrix4::from_row_slice(&c[3..])))
+            .map(|c| {
+                (
+                    c[0] as usize,
+                    c[1] as usize,
+                    Matrix4::from_row_slice(&c[3..]),
+                )
+            })
             .collect()
     };
-    let logs = [("3DMatch", raw_log("3DMatch")), ("3DLoMatch", raw_log("3DLoMatch"))];
+    let logs = [
+        ("3DMatch", raw_log("3DMatch")),
+        ("3DLoMatch", raw_log("3DLoMatch")),
+    ];
     let mut checked = 0;
     for ds in [&staged, &rgbd] {
         for p in ds.pairs() {
@@ -131,7 +155,11 @@ fn shipped_manifests_pairs_and_gt() {
             let (_, _, m) = log.iter().find(|(a, b, _)| (*a, *b) == (i, j)).unwrap();
             let from_raw = raw_pose(50 * i).try_inverse().unwrap() * raw_pose(50 * j);
             let d_raw = (m - from_raw).amax();
-            assert!(d_raw < 1e-6, "{}: raw gt.log differs from raw poses by {d_raw}", p.id);
+            assert!(
+                d_raw < 1e-6,
+                "{}: raw gt.log differs from raw poses by {d_raw}",
+                p.id
+            );
             let from_poses = seq.world_from_camera(50 * i).unwrap().inverse()
                 * seq.world_from_camera(50 * j).unwrap();
             let gt = p.gt_target_from_source.unwrap();
@@ -145,40 +173,74 @@ fn shipped_manifests_pairs_and_gt() {
 
 #[test]
 fn staged_pair_loads_with_frames_and_gt_aligns() {
-    let Some(_root) = cgenreg::test_data_root() else { return };
+    let Some(_root) = cgenreg::test_data_root() else {
+        return;
+    };
     let ds = Dataset::load(&manifest("redkitchen-staged.toml")).unwrap();
     let pair = ds.load_pair("redkitchen/0-4").unwrap();
     assert_eq!(pair.target.cloud.len(), 258_342);
     assert_eq!(pair.source.cloud.len(), 313_395);
     assert_eq!(pair.source.frames.as_ref().unwrap().frames[0].index, 200);
     let gt = pair.gt_target_from_source.unwrap();
-    let src_sub: Vec<_> = pair.source.cloud.points.iter().step_by(10).copied().collect();
+    let src_sub: Vec<_> = pair
+        .source
+        .cloud
+        .points
+        .iter()
+        .step_by(10)
+        .copied()
+        .collect();
     let moved: Vec<_> = src_sub.iter().map(|p| gt.cast::<f32>() * p).collect();
     let with_gt = fraction_within(&moved, &pair.target.cloud.points, 0.0375);
     let without = fraction_within(&src_sub, &pair.target.cloud.points, 0.0375);
     println!("0-4: overlap at 3.75 cm: GT {with_gt:.3}, identity {without:.3}");
-    assert!(with_gt > 0.3 && with_gt > 2.0 * without, "{with_gt} vs {without}");
+    assert!(
+        with_gt > 0.3 && with_gt > 2.0 * without,
+        "{with_gt} vs {without}"
+    );
 }
 
 #[test]
 fn rgbd_manifest_fragment_is_cropped_and_has_frames() {
-    let Some(_root) = cgenreg::test_data_root() else { return };
+    let Some(_root) = cgenreg::test_data_root() else {
+        return;
+    };
     let ds = Dataset::load(&manifest("redkitchen-rgbd.toml")).unwrap();
     let s = ds.load_fragment("3").unwrap();
     assert!(s.cloud.len() > 100_000);
-    assert!(s.cloud.points.iter().all(|p| CropBox::THREEDMATCH.contains(p)));
+    assert!(s
+        .cloud
+        .points
+        .iter()
+        .all(|p| CropBox::THREEDMATCH.contains(p)));
     assert_eq!(s.frames.unwrap().frames.len(), 50);
 }
 
 #[test]
 fn lidar_pair_from_files() {
-    let Some(root) = cgenreg::test_data_root() else { return };
+    let Some(root) = cgenreg::test_data_root() else {
+        return;
+    };
     let d = root.join("small-gicp-lidar-pair");
-    let pair = pair_from_files(&d.join("source.ply"), &d.join("target.ply"), Some(&d.join("T_target_source.txt"))).unwrap();
+    let pair = pair_from_files(
+        &d.join("source.ply"),
+        &d.join("target.ply"),
+        Some(&d.join("T_target_source.txt")),
+    )
+    .unwrap();
     assert_eq!(pair.source.cloud.len(), 69_792);
     assert_eq!(pair.target.cloud.len(), 69_088);
     assert_eq!(pair.id, "files/target-source");
-    assert!(pair.gt_target_from_source.unwrap().translation.vector.norm() > 0.1);
-    let e = pair_from_files(&d.join("nope.ply"), &d.join("target.ply"), None).unwrap_err().to_string();
+    assert!(
+        pair.gt_target_from_source
+            .unwrap()
+            .translation
+            .vector
+            .norm()
+            > 0.1
+    );
+    let e = pair_from_files(&d.join("nope.ply"), &d.join("target.ply"), None)
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("nope.ply"), "{e}");
 }

@@ -16,6 +16,9 @@ use crate::io::rgbd_sequence::RgbdSequence;
 use nalgebra::{Isometry3, Point3};
 use rayon::prelude::*;
 
+/// Back-projected points of one frame and their colours (empty without colour).
+type FramePoints = (Vec<Point3<f32>>, Vec<[u8; 3]>);
+
 /// Frames per fragment in 3DMatch.
 pub const FRAGMENT_LEN: usize = 50;
 
@@ -113,7 +116,7 @@ fn backproject_frame(
     fs: &FrameSet,
     frame: &RgbdFrame,
     opts: &FragmentOptions,
-) -> Result<(Vec<Point3<f32>>, Vec<[u8; 3]>)> {
+) -> Result<FramePoints> {
     let k = &fs.intrinsics;
     let depth = read_depth_png(&frame.depth_path)?;
     if depth.width != k.width || depth.height != k.height {
@@ -194,7 +197,8 @@ pub fn build_fragment_with(
     opts: &FragmentOptions,
     name: impl Into<String>,
 ) -> Result<Scan> {
-    if !(opts.max_depth > opts.min_depth) {
+    // Also rejects NaN bounds.
+    if opts.max_depth.partial_cmp(&opts.min_depth) != Some(std::cmp::Ordering::Greater) {
         return Err(Error::Invalid(format!(
             "fragment depth range [{}, {}] is empty",
             opts.min_depth, opts.max_depth
@@ -269,7 +273,7 @@ struct Acc {
 /// [`crate::geometry::voxel::voxel_downsample`] on their concatenation (grid anchored at the
 /// minimum bound, centroid per voxel, output ordered by each voxel's first point), computed
 /// per frame in parallel and then reduced.
-fn merge_voxel(parts: &[(Vec<Point3<f32>>, Vec<[u8; 3]>)], voxel: f64, with_color: bool) -> PointCloud {
+fn merge_voxel(parts: &[FramePoints], voxel: f64, with_color: bool) -> PointCloud {
     let lo = parts
         .par_iter()
         .flat_map_iter(|(p, _)| p.iter())
@@ -307,8 +311,8 @@ fn merge_voxel(parts: &[(Vec<Point3<f32>>, Vec<[u8; 3]>)], voxel: f64, with_colo
                     a.p[k] += q[k];
                 }
                 if with_color {
-                    for k in 0..3 {
-                        a.c[k] += cols[i][k] as u32;
+                    for (acc, &c) in a.c.iter_mut().zip(&cols[i]) {
+                        *acc += c as u32;
                     }
                 }
             }
@@ -341,7 +345,11 @@ fn merge_voxel(parts: &[(Vec<Point3<f32>>, Vec<[u8; 3]>)], voxel: f64, with_colo
         .iter()
         .map(|a| {
             let n = a.n as f64;
-            Point3::new((a.p[0] / n) as f32, (a.p[1] / n) as f32, (a.p[2] / n) as f32)
+            Point3::new(
+                (a.p[0] / n) as f32,
+                (a.p[1] / n) as f32,
+                (a.p[2] / n) as f32,
+            )
         })
         .collect();
     let colors = with_color.then(|| {
@@ -373,7 +381,7 @@ mod tests {
                 .wrapping_add(1442695040888963407);
             (s >> 33) as f32 / (1u64 << 31) as f32
         };
-        let parts: Vec<(Vec<Point3<f32>>, Vec<[u8; 3]>)> = (0..7)
+        let parts: Vec<FramePoints> = (0..7)
             .map(|f| {
                 let n = 500 + 300 * f;
                 let p: Vec<_> = (0..n)

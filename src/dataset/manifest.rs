@@ -151,7 +151,12 @@ pub struct Dataset {
     pub(crate) pairs: Vec<PairSpec>,
 }
 
-fn bad(path: &Path, field: impl Into<String>, expected: impl Into<String>, found: impl Into<String>) -> Error {
+fn bad(
+    path: &Path,
+    field: impl Into<String>,
+    expected: impl Into<String>,
+    found: impl Into<String>,
+) -> Error {
     Error::format(path, field, expected, found)
 }
 
@@ -208,7 +213,12 @@ fn parse_crop(manifest: &Path, field: &str, s: &str) -> Result<Option<CropBox>> 
     match s.to_ascii_lowercase().as_str() {
         "3dmatch" => Ok(Some(CropBox::THREEDMATCH)),
         "none" | "" => Ok(None),
-        _ => Err(bad(manifest, field, "\"3dmatch\" or \"none\"", format!("{s:?}"))),
+        _ => Err(bad(
+            manifest,
+            field,
+            "\"3dmatch\" or \"none\"",
+            format!("{s:?}"),
+        )),
     }
 }
 
@@ -221,7 +231,12 @@ fn apply_options(
     let mut r = base.clone();
     if let Some(v) = o.voxel {
         if !(v.is_finite() && v >= 0.0) {
-            return Err(bad(manifest, format!("{field}.voxel"), "a voxel size >= 0 (m)", v.to_string()));
+            return Err(bad(
+                manifest,
+                format!("{field}.voxel"),
+                "a voxel size >= 0 (m)",
+                v.to_string(),
+            ));
         }
         r.voxel = v;
     }
@@ -251,10 +266,20 @@ fn apply_options(
 fn matrix_field(manifest: &Path, field: &str, rows: &[Vec<f64>]) -> Result<Isometry3<f64>> {
     let flat: Vec<f64> = rows.iter().flatten().copied().collect();
     if rows.len() != 4 || rows.iter().any(|r| r.len() != 4) {
-        return Err(bad(manifest, field, "4 rows of 4 numbers", format!("{} rows, {} numbers", rows.len(), flat.len())));
+        return Err(bad(
+            manifest,
+            field,
+            "4 rows of 4 numbers",
+            format!("{} rows, {} numbers", rows.len(), flat.len()),
+        ));
     }
     isometry_from_matrix(&Matrix4::from_row_slice(&flat)).ok_or_else(|| {
-        bad(manifest, field, "a finite rigid 4x4 transform (last row 0 0 0 1)", "a non-rigid matrix")
+        bad(
+            manifest,
+            field,
+            "a finite rigid 4x4 transform (last row 0 0 0 1)",
+            "a non-rigid matrix",
+        )
     })
 }
 
@@ -267,8 +292,14 @@ impl Dataset {
     /// Load a manifest, with `root` (when given) replacing the manifest's `root` field.
     pub fn load_with_root(path: &Path, root: Option<&Path>) -> Result<Dataset> {
         let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-        let raw: RawManifest = toml::from_str(&text)
-            .map_err(|e| bad(path, "toml", "a dataset manifest (see dataset::manifest docs)", e.to_string()))?;
+        let raw: RawManifest = toml::from_str(&text).map_err(|e| {
+            bad(
+                path,
+                "toml",
+                "a dataset manifest (see dataset::manifest docs)",
+                e.to_string(),
+            )
+        })?;
         let base = path
             .parent()
             .filter(|p| !p.as_os_str().is_empty())
@@ -282,10 +313,20 @@ impl Dataset {
             }
         };
         if !root.is_dir() {
-            return Err(bad(path, "root", "an existing folder", root.display().to_string()));
+            return Err(bad(
+                path,
+                "root",
+                "an existing folder",
+                root.display().to_string(),
+            ));
         }
         if raw.name.is_empty() || raw.name.contains('/') {
-            return Err(bad(path, "name", "a non-empty dataset name without '/'", format!("{:?}", raw.name)));
+            return Err(bad(
+                path,
+                "name",
+                "a non-empty dataset name without '/'",
+                format!("{:?}", raw.name),
+            ));
         }
         let default_opts = apply_options(
             path,
@@ -301,7 +342,11 @@ impl Dataset {
                 return Err(bad(
                     path,
                     field,
-                    format!("an existing {} (relative to root {})", if dir { "folder" } else { "file" }, root.display()),
+                    format!(
+                        "an existing {} (relative to root {})",
+                        if dir { "folder" } else { "file" },
+                        root.display()
+                    ),
                     format!("{} (not found)", p.display()),
                 ));
             }
@@ -313,19 +358,41 @@ impl Dataset {
         for (i, f) in raw.fragments.iter().enumerate() {
             let field = format!("fragments[{i}] (id {:?})", f.id);
             if f.id.is_empty() || f.id.contains('/') || f.id.contains('-') {
-                return Err(bad(path, format!("{field}.id"), "a non-empty id without '/' or '-'", format!("{:?}", f.id)));
+                return Err(bad(
+                    path,
+                    format!("{field}.id"),
+                    "a non-empty id without '/' or '-'",
+                    format!("{:?}", f.id),
+                ));
             }
             if seen.insert(f.id.clone(), i).is_some() {
-                return Err(bad(path, format!("{field}.id"), "a unique fragment id", "a duplicate"));
+                return Err(bad(
+                    path,
+                    format!("{field}.id"),
+                    "a unique fragment id",
+                    "a duplicate",
+                ));
             }
             let range = match &f.sequence {
                 Some(s) => Some(SequenceRange {
                     dir: resolve(&format!("{field}.sequence"), s, true)?,
                     first: f.first.ok_or_else(|| {
-                        bad(path, format!("{field}.first"), "the first frame index of the fragment", "missing")
+                        bad(
+                            path,
+                            format!("{field}.first"),
+                            "the first frame index of the fragment",
+                            "missing",
+                        )
                     })?,
                     count: match f.count {
-                        Some(0) => return Err(bad(path, format!("{field}.count"), "at least 1 frame", "0")),
+                        Some(0) => {
+                            return Err(bad(
+                                path,
+                                format!("{field}.count"),
+                                "at least 1 frame",
+                                "0",
+                            ))
+                        }
                         Some(c) => c,
                         None => super::fragment::FRAGMENT_LEN,
                     },
@@ -351,7 +418,12 @@ impl Dataset {
                     }
                 }
                 (None, None) => {
-                    return Err(bad(path, field, "`cloud = \"file\"` or `sequence = \"dir\"` + `first`", "neither"))
+                    return Err(bad(
+                        path,
+                        field,
+                        "`cloud = \"file\"` or `sequence = \"dir\"` + `first`",
+                        "neither",
+                    ))
                 }
             };
             fragments.push(FragmentSpec {
@@ -375,15 +447,29 @@ impl Dataset {
                     ));
                 }
             }
-            let n_gt = [p.gt_log.is_some(), p.gt_matrix.is_some(), p.gt_file.is_some()]
-                .iter()
-                .filter(|&&b| b)
-                .count();
+            let n_gt = [
+                p.gt_log.is_some(),
+                p.gt_matrix.is_some(),
+                p.gt_file.is_some(),
+            ]
+            .iter()
+            .filter(|&&b| b)
+            .count();
             if n_gt > 1 {
-                return Err(bad(path, &field, "at most one of gt_log, gt_matrix, gt_file", "several"));
+                return Err(bad(
+                    path,
+                    &field,
+                    "at most one of gt_log, gt_matrix, gt_file",
+                    "several",
+                ));
             }
             if p.gt_entry.is_some() && p.gt_log.is_none() {
-                return Err(bad(path, format!("{field}.gt_entry"), "gt_entry only together with gt_log", "gt_entry alone"));
+                return Err(bad(
+                    path,
+                    format!("{field}.gt_entry"),
+                    "gt_entry only together with gt_log",
+                    "gt_entry alone",
+                ));
             }
             let (gt, origin) = if let Some(log) = &p.gt_log {
                 let lp = resolve(&format!("{field}.gt_log"), log, false)?;
@@ -405,26 +491,43 @@ impl Dataset {
                     let entries = read_gt_log(&lp)?;
                     logs.insert(lp.clone(), entries);
                 }
-                let e = logs[&lp].iter().find(|e| e.target == ei && e.source == ej).ok_or_else(|| {
-                    bad(
-                        path,
-                        format!("{field}.gt_log"),
-                        format!("an entry `{ei} {ej}` in {}", lp.display()),
-                        "no such entry",
-                    )
-                })?;
-                (Some(e.target_from_source), Some(format!("{} entry `{ei} {ej}`", lp.display())))
+                let e = logs[&lp]
+                    .iter()
+                    .find(|e| e.target == ei && e.source == ej)
+                    .ok_or_else(|| {
+                        bad(
+                            path,
+                            format!("{field}.gt_log"),
+                            format!("an entry `{ei} {ej}` in {}", lp.display()),
+                            "no such entry",
+                        )
+                    })?;
+                (
+                    Some(e.target_from_source),
+                    Some(format!("{} entry `{ei} {ej}`", lp.display())),
+                )
             } else if let Some(m) = &p.gt_matrix {
-                (Some(matrix_field(path, &format!("{field}.gt_matrix"), m)?), Some("inline gt_matrix".to_string()))
+                (
+                    Some(matrix_field(path, &format!("{field}.gt_matrix"), m)?),
+                    Some("inline gt_matrix".to_string()),
+                )
             } else if let Some(f) = &p.gt_file {
                 let fp = resolve(&format!("{field}.gt_file"), f, false)?;
-                (Some(super::read_gt_matrix(&fp)?), Some(fp.display().to_string()))
+                (
+                    Some(super::read_gt_matrix(&fp)?),
+                    Some(fp.display().to_string()),
+                )
             } else {
                 (None, None)
             };
             let id = format!("{}/{}-{}", raw.name, p.target, p.source);
             if pair_ids.insert(id.clone(), i).is_some() {
-                return Err(bad(path, field, "each pair listed once", format!("{id} twice")));
+                return Err(bad(
+                    path,
+                    field,
+                    "each pair listed once",
+                    format!("{id} twice"),
+                ));
             }
             pairs.push(PairSpec {
                 id,
@@ -462,7 +565,9 @@ impl Dataset {
 
     /// Pairs whose split equals `split` (case-insensitive).
     pub fn pairs_in_split<'a>(&'a self, split: &'a str) -> impl Iterator<Item = &'a PairSpec> + 'a {
-        self.pairs.iter().filter(move |p| p.split.eq_ignore_ascii_case(split))
+        self.pairs
+            .iter()
+            .filter(move |p| p.split.eq_ignore_ascii_case(split))
     }
 
     fn origin(&self) -> String {
@@ -482,13 +587,24 @@ impl Dataset {
             FragmentSource::Cloud { path, frames } => {
                 let cloud = crate::io::cloud::load_cloud(path)?;
                 if cloud.is_empty() {
-                    return Err(Error::Invalid(format!("{}: empty point cloud", path.display())));
+                    return Err(Error::Invalid(format!(
+                        "{}: empty point cloud",
+                        path.display()
+                    )));
                 }
                 let frames = match frames {
-                    Some(r) => Some(fragment_frames(&RgbdSequence::open(&r.dir)?, r.first, r.count)?),
+                    Some(r) => Some(fragment_frames(
+                        &RgbdSequence::open(&r.dir)?,
+                        r.first,
+                        r.count,
+                    )?),
                     None => None,
                 };
-                Ok(Scan { name, cloud, frames })
+                Ok(Scan {
+                    name,
+                    cloud,
+                    frames,
+                })
             }
             FragmentSource::Rgbd { range, options } => {
                 let seq = RgbdSequence::open(&range.dir)?;
@@ -586,29 +702,64 @@ gt_matrix = [[1,0,0,0],[0,1,0,2],[0,0,1,0],[0,0,0,1]]
         let d = setup();
         let frag = "name = \"t\"\n[[fragments]]\nid = \"0\"\ncloud = \"a.ply\"\n[[fragments]]\nid = \"1\"\ncloud = \"b.ply\"\n";
         // Missing cloud file.
-        let e = err_of(d.path(), "name = \"t\"\n[[fragments]]\nid = \"0\"\ncloud = \"nope.ply\"\n");
-        assert!(e.contains("bad.toml") && e.contains("fragments[0]") && e.contains("cloud") && e.contains("nope.ply"), "{e}");
+        let e = err_of(
+            d.path(),
+            "name = \"t\"\n[[fragments]]\nid = \"0\"\ncloud = \"nope.ply\"\n",
+        );
+        assert!(
+            e.contains("bad.toml")
+                && e.contains("fragments[0]")
+                && e.contains("cloud")
+                && e.contains("nope.ply"),
+            "{e}"
+        );
         // Unknown fragment id in a pair.
-        let e = err_of(d.path(), &format!("{frag}[[pairs]]\ntarget = \"0\"\nsource = \"7\"\n"));
-        assert!(e.contains("bad.toml") && e.contains("source") && e.contains("\"7\""), "{e}");
+        let e = err_of(
+            d.path(),
+            &format!("{frag}[[pairs]]\ntarget = \"0\"\nsource = \"7\"\n"),
+        );
+        assert!(
+            e.contains("bad.toml") && e.contains("source") && e.contains("\"7\""),
+            "{e}"
+        );
         // gt.log entry that does not exist.
-        let e = err_of(d.path(), &format!("{frag}[[pairs]]\ntarget = \"1\"\nsource = \"0\"\ngt_log = \"gt.log\"\n"));
-        assert!(e.contains("bad.toml") && e.contains("gt_log") && e.contains("`1 0`"), "{e}");
+        let e = err_of(
+            d.path(),
+            &format!("{frag}[[pairs]]\ntarget = \"1\"\nsource = \"0\"\ngt_log = \"gt.log\"\n"),
+        );
+        assert!(
+            e.contains("bad.toml") && e.contains("gt_log") && e.contains("`1 0`"),
+            "{e}"
+        );
         // Non-rigid inline matrix.
         let e = err_of(d.path(), &format!("{frag}[[pairs]]\ntarget = \"1\"\nsource = \"0\"\ngt_matrix = [[2,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]\n"));
         assert!(e.contains("gt_matrix") && e.contains("rigid"), "{e}");
         // Wrong shape.
-        let e = err_of(d.path(), &format!("{frag}[[pairs]]\ntarget = \"1\"\nsource = \"0\"\ngt_matrix = [[1,0,0],[0,1,0]]\n"));
+        let e = err_of(
+            d.path(),
+            &format!(
+                "{frag}[[pairs]]\ntarget = \"1\"\nsource = \"0\"\ngt_matrix = [[1,0,0],[0,1,0]]\n"
+            ),
+        );
         assert!(e.contains("4 rows"), "{e}");
         // Unknown field (typo).
-        let e = err_of(d.path(), &format!("{frag}[[pairs]]\ntarget = \"1\"\nsource = \"0\"\ngt_lg = \"gt.log\"\n"));
+        let e = err_of(
+            d.path(),
+            &format!("{frag}[[pairs]]\ntarget = \"1\"\nsource = \"0\"\ngt_lg = \"gt.log\"\n"),
+        );
         assert!(e.contains("bad.toml") && e.contains("gt_lg"), "{e}");
         // Duplicate fragment id.
         let e = err_of(d.path(), "name = \"t\"\n[[fragments]]\nid = \"0\"\ncloud = \"a.ply\"\n[[fragments]]\nid = \"0\"\ncloud = \"b.ply\"\n");
         assert!(e.contains("duplicate"), "{e}");
         // Unset variable in root.
-        let e = err_of(d.path(), "name = \"t\"\nroot = \"$CGENREG_SURELY_UNSET_VAR_42\"\n");
-        assert!(e.contains("root") && e.contains("CGENREG_SURELY_UNSET_VAR_42"), "{e}");
+        let e = err_of(
+            d.path(),
+            "name = \"t\"\nroot = \"$CGENREG_SURELY_UNSET_VAR_42\"\n",
+        );
+        assert!(
+            e.contains("root") && e.contains("CGENREG_SURELY_UNSET_VAR_42"),
+            "{e}"
+        );
         // A fragment with neither cloud nor sequence.
         let e = err_of(d.path(), "name = \"t\"\n[[fragments]]\nid = \"0\"\n");
         assert!(e.contains("fragments[0]") && e.contains("sequence"), "{e}");
@@ -627,7 +778,9 @@ gt_matrix = [[1,0,0,0],[0,1,0,2],[0,0,1,0],[0,0,0,1]]
         let body = "name = \"t\"\nroot = \"..\"\n[[fragments]]\nid = \"0\"\ncloud = \"a.ply\"\n";
         let m = write(&sub, "m.toml", body);
         let ds = Dataset::load(&m).unwrap();
-        assert!(matches!(&ds.fragments()[0].source, FragmentSource::Cloud { path, .. } if path.is_file()));
+        assert!(
+            matches!(&ds.fragments()[0].source, FragmentSource::Cloud { path, .. } if path.is_file())
+        );
         // Override: same manifest, root given explicitly.
         let ds = Dataset::load_with_root(&m, Some(d.path())).unwrap();
         assert_eq!(ds.root, d.path());

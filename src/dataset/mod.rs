@@ -8,9 +8,9 @@ pub mod threedmatch;
 pub use manifest::{Dataset, FragmentSource, FragmentSpec, PairSpec};
 
 use crate::camera::Intrinsics;
+use crate::error::{Error, Result};
 use crate::geometry::PointCloud;
 use nalgebra::Isometry3;
-use crate::error::{Error, Result};
 use std::path::{Path, PathBuf};
 
 /// One RGB-D frame a scan was made from. Images are loaded on demand.
@@ -74,7 +74,10 @@ pub fn pair_from_files(source: &Path, target: &Path, gt: Option<&Path>) -> Resul
     let load = |p: &Path| -> Result<Scan> {
         let cloud = crate::io::cloud::load_cloud(p)?;
         if cloud.is_empty() {
-            return Err(Error::Invalid(format!("{}: empty point cloud", p.display())));
+            return Err(Error::Invalid(format!(
+                "{}: empty point cloud",
+                p.display()
+            )));
         }
         Ok(Scan {
             name: p.display().to_string(),
@@ -95,4 +98,46 @@ pub fn pair_from_files(source: &Path, target: &Path, gt: Option<&Path>) -> Resul
         target: t?,
         gt_target_from_source: gt,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn write_ply(path: &Path, n: usize) {
+        let mut b = format!(
+            "ply\nformat binary_little_endian 1.0\nelement vertex {n}\nproperty float x\nproperty float y\nproperty float z\nend_header\n"
+        )
+        .into_bytes();
+        for i in 0..n {
+            for v in [i as f32 * 0.1, 1.0, 2.0] {
+                b.extend_from_slice(&v.to_le_bytes());
+            }
+        }
+        std::fs::write(path, b).unwrap();
+    }
+
+    #[test]
+    fn pair_from_two_files_with_text_gt() {
+        let d = tempfile::tempdir().unwrap();
+        let (s, t, g) = (
+            d.path().join("s.ply"),
+            d.path().join("t.ply"),
+            d.path().join("gt.txt"),
+        );
+        write_ply(&s, 5);
+        write_ply(&t, 7);
+        std::fs::write(&g, "1 0 0 0.25\n0 1 0 0\n0 0 1 0\n0 0 0 1\n").unwrap();
+        let p = pair_from_files(&s, &t, Some(&g)).unwrap();
+        assert_eq!((p.source.cloud.len(), p.target.cloud.len()), (5, 7));
+        assert_eq!(p.id, "files/t-s");
+        assert_eq!(p.gt_target_from_source.unwrap().translation.vector.x, 0.25);
+        std::fs::write(&g, "1 0 0\n").unwrap();
+        let e = pair_from_files(&s, &t, Some(&g)).unwrap_err().to_string();
+        assert!(e.contains("gt.txt") && e.contains("16 numbers"), "{e}");
+        let e = pair_from_files(&s, &t, Some(&d.path().join("gt.npy")))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("gt.npy"), "{e}");
+    }
 }

@@ -100,7 +100,12 @@ pub fn open_folder(dir: &Path) -> Result<Dataset> {
                 source: e.source.to_string(),
                 split: split.to_string(),
                 gt_target_from_source: Some(e.target_from_source),
-                gt_origin: Some(format!("{} entry `{} {}`", log.display(), e.target, e.source)),
+                gt_origin: Some(format!(
+                    "{} entry `{} {}`",
+                    log.display(),
+                    e.target,
+                    e.source
+                )),
             });
         }
     }
@@ -145,7 +150,9 @@ mod tests {
         let scene = d.path().join("3DMatch/kitchen");
         std::fs::create_dir_all(&scene).unwrap();
         std::fs::create_dir_all(d.path().join("3DLoMatch/kitchen")).unwrap();
-        let pts: Vec<[f32; 3]> = (0..100).map(|i| [i as f32 * 0.01, (i % 7) as f32, 1.0]).collect();
+        let pts: Vec<[f32; 3]> = (0..100)
+            .map(|i| [i as f32 * 0.01, (i % 7) as f32, 1.0])
+            .collect();
         for k in [0, 1, 3] {
             write_ply(&scene.join(format!("cloud_bin_{k}.ply")), &pts);
         }
@@ -153,17 +160,36 @@ mod tests {
             Translation3::new(0.3, 0.0, -0.1),
             UnitQuaternion::from_euler_angles(0.0, 0.3, 0.0),
         );
-        let e = |i, j| GtEntry { target: i, source: j, n_fragments: 4, target_from_source: t };
+        let e = |i, j| GtEntry {
+            target: i,
+            source: j,
+            n_fragments: 4,
+            target_from_source: t,
+        };
         // (0,2) references a fragment that is not in the folder and must be skipped.
         write_gt_log(&scene.join("gt.log"), &[e(0, 1), e(0, 2), e(1, 3)]).unwrap();
         write_gt_log(&d.path().join("3DLoMatch/kitchen/gt.log"), &[e(0, 3)]).unwrap();
         let ds = open_folder(&scene).unwrap();
-        let ids: Vec<_> = ds.pairs().iter().map(|p| (p.id.as_str(), p.split.as_str())).collect();
-        assert_eq!(ids, [("kitchen/0-1", "3DMatch"), ("kitchen/1-3", "3DMatch"), ("kitchen/0-3", "3DLoMatch")]);
+        let ids: Vec<_> = ds
+            .pairs()
+            .iter()
+            .map(|p| (p.id.as_str(), p.split.as_str()))
+            .collect();
+        assert_eq!(
+            ids,
+            [
+                ("kitchen/0-1", "3DMatch"),
+                ("kitchen/1-3", "3DMatch"),
+                ("kitchen/0-3", "3DLoMatch")
+            ]
+        );
         let pair = ds.load_pair("kitchen/1-3").unwrap();
         assert_eq!(pair.source.cloud.len(), 100);
         let g = pair.gt_target_from_source.unwrap();
         assert!((g.to_homogeneous() - t.to_homogeneous()).amax() < 1e-7);
-        assert!(open_folder(d.path()).unwrap_err().to_string().contains("cloud_bin_"));
+        assert!(open_folder(d.path())
+            .unwrap_err()
+            .to_string()
+            .contains("cloud_bin_"));
     }
 }
