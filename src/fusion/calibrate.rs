@@ -51,7 +51,7 @@ pub fn calibrate(
     cal: Calibration,
 ) -> Result<DenseMatrix> {
     check_masks("calibrate", sim.rows, sim.cols, row_valid, col_valid)?;
-    let mut out = sim.clone();
+    let mut out = sim.duplicate();
     calibrate_in_place(&mut out, row_valid, col_valid, cal)?;
     Ok(out)
 }
@@ -150,9 +150,9 @@ fn dual_softmax(
                 if !row_ok(t * band + k) {
                     continue;
                 }
-                for j in 0..cols {
-                    let v = row[j] + bias[j];
-                    cm[j] = if v > cm[j] { v } else { cm[j] };
+                for ((s, b), c) in row.iter().zip(bias).zip(cm.iter_mut()) {
+                    let v = s + b;
+                    *c = if v > *c { v } else { *c };
                 }
                 *r = max_plus(row, bias);
             }
@@ -200,10 +200,15 @@ fn dual_softmax(
                     continue;
                 }
                 let a = rm[k];
-                for j in 0..cols {
-                    let v = row[j] + bias[j];
-                    scratch[j] = fast_exp((v - a) * it);
-                    cs[j] += fast_exp((v - cmax_f[j]) * it);
+                for (((s, b), (e, c)), m) in row
+                    .iter()
+                    .zip(bias)
+                    .zip(scratch.iter_mut().zip(cs.iter_mut()))
+                    .zip(&cmax_f)
+                {
+                    let v = s + b;
+                    *e = fast_exp((v - a) * it);
+                    *c += fast_exp((v - m) * it);
                 }
                 rl[k] = sum_lanes(&scratch).ln();
             }
@@ -232,10 +237,10 @@ fn dual_softmax(
                 return;
             }
             let (a, la) = (rmax[i], rlse[i]);
-            for j in 0..cols {
-                let s = row[j];
-                let z = (s - a) * it - la + ((s - cmax_f[j]) * it - clse_f[j]);
-                row[j] = (fast_exp(z) + DUAL_SOFTMAX_EPS).sqrt() * cgate[j];
+            for (v, ((m, l), g)) in row.iter_mut().zip(cmax_f.iter().zip(&clse_f).zip(&cgate)) {
+                let s = *v;
+                let z = (s - a) * it - la + ((s - m) * it - l);
+                *v = (fast_exp(z) + DUAL_SOFTMAX_EPS).sqrt() * g;
             }
         });
 }

@@ -159,9 +159,9 @@ pub fn match_then_fuse(
             // Rank by the non-saturating odds key, then turn the keys into posteriors in place.
             let (a, b) = (p_img.as_ref(), p_geo.as_ref());
             let (a, b) = (a.ok_or_else(missing)?, b.ok_or_else(missing)?);
-            let mut fused = fuse::noisy_and_rank_keys(a, b, params.prior)?;
+            let mut fused = fuse::noisy_and_rank_keys(a, b)?;
             let mut corr = select(&fused, params.selection);
-            fuse::rank_keys_to_posteriors(&mut fused);
+            fuse::rank_keys_to_posteriors(&mut fused, params.prior)?;
             for c in &mut corr {
                 c.score = fused.get(c.src as usize, c.tgt as usize);
             }

@@ -78,10 +78,10 @@ fn mutual_nn(data: &[f32], rows: usize, cols: usize) -> Vec<Correspondence> {
             |(mut cb, mut ci), (t, (chunk, bt))| {
                 for (k, (row, b)) in chunk.chunks(cols).zip(bt.iter_mut()).enumerate() {
                     let i = (t * band + k) as u32;
-                    for j in 0..cols {
-                        let better = row[j] > cb[j];
-                        cb[j] = if better { row[j] } else { cb[j] };
-                        ci[j] = if better { i } else { ci[j] };
+                    for ((v, b), c) in row.iter().zip(cb.iter_mut()).zip(ci.iter_mut()) {
+                        let better = *v > *b;
+                        *b = if better { *v } else { *b };
+                        *c = if better { i } else { *c };
                     }
                     *b = row_argmax(row);
                 }
