@@ -220,6 +220,10 @@ fn main() {
             t,
             p,
         );
+        let (t, p, _) = measure(7, || s_img.duplicate());
+        stage("duplicate one N x M matrix (huge pages)", t, p);
+        let (t, p, _) = measure(7, || calibrate(&s_img, None, None, row).unwrap());
+        stage("row softmax into a new matrix", t, p);
         let (t, p, _) = measure(7, || calibrate_in_place(&mut buf, None, None, row).unwrap());
         stage("row softmax, in place", t, p);
         let (t, p, _) = measure(7, || {

@@ -247,6 +247,7 @@ fn dual_softmax(
 
 /// Sum with 8 independent accumulators so the loop vectorises.
 #[inline]
+#[allow(clippy::needless_range_loop)]
 pub(crate) fn sum_lanes(x: &[f32]) -> f32 {
     let mut acc = [0.0f32; 8];
     let chunks = x.chunks_exact(8);
@@ -261,6 +262,7 @@ pub(crate) fn sum_lanes(x: &[f32]) -> f32 {
 
 /// max_j (row[j] + bias[j]) with 8 independent lanes.
 #[inline]
+#[allow(clippy::needless_range_loop)]
 fn max_plus(row: &[f32], bias: &[f32]) -> f32 {
     let mut acc = [f32::NEG_INFINITY; 8];
     let mut m = f32::NEG_INFINITY;
@@ -283,6 +285,7 @@ fn max_plus(row: &[f32], bias: &[f32]) -> f32 {
 
 /// Maximum with 8 independent lanes (NaN entries are ignored).
 #[inline]
+#[allow(clippy::needless_range_loop)]
 pub(crate) fn max_lanes(x: &[f32]) -> f32 {
     let mut acc = [f32::NEG_INFINITY; 8];
     let chunks = x.chunks_exact(8);
@@ -315,7 +318,7 @@ pub(crate) fn fast_exp(x: f32) -> f32 {
     let p = ((((1.987_569_1e-4 * r + 1.398_199_9e-3) * r + 8.333_452e-3) * r + 4.166_579_6e-2) * r
         + 1.666_666_5e-1)
         * r
-        + 5.000_000_1e-1;
+        + 0.5;
     let y = p * (r * r) + r + 1.0;
     let ni = (t.to_bits() as i32).wrapping_sub(MAGIC.to_bits() as i32);
     let scale = f32::from_bits(((ni + 127) << 23) as u32);
@@ -327,6 +330,7 @@ pub(crate) fn fast_exp(x: f32) -> f32 {
 }
 
 #[cfg(test)]
+#[allow(clippy::needless_range_loop)]
 mod tests {
     use super::*;
 

@@ -89,12 +89,15 @@ pub struct FusionOutput {
     pub peak_bytes: usize,
 }
 
+/// The image-branch similarity with its source (row) and target (column) validity.
+pub type ImageSimilarity<'a> = (&'a DenseMatrix, Option<&'a [bool]>, Option<&'a [bool]>);
+
 /// Calibrates the given branch similarities, fuses them per `params.mode` and selects
 /// correspondences. `sim_img` carries the image branch's row (source) and column (target)
 /// validity: entry (i, j) is valid iff both points have a pixel. The geometric branch is valid
 /// everywhere. `Concat` uses `calibration_geo` for the concatenated similarity.
 pub fn match_then_fuse(
-    sim_img: Option<(&DenseMatrix, Option<&[bool]>, Option<&[bool]>)>,
+    sim_img: Option<ImageSimilarity<'_>>,
     sim_geo: Option<&DenseMatrix>,
     params: &FusionParams,
 ) -> Result<FusionOutput> {

@@ -11,18 +11,13 @@ use serde::{Deserialize, Serialize};
 use std::cmp::Ordering;
 
 /// Which correspondences to keep.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 pub enum Selection {
+    #[default]
     /// (i, j) where j is the best target of row i and i the best source of column j.
     MutualNn,
     /// The k best entries of the whole matrix; a point may appear many times.
     TopK(usize),
-}
-
-impl Default for Selection {
-    fn default() -> Self {
-        Selection::MutualNn
-    }
 }
 
 /// The reference's number of matches.
