@@ -5,9 +5,10 @@
 //! by a counting global allocator (inputs excluded).
 
 use cgenreg::features::Features;
+use cgenreg::fusion::fuse::noisy_and_rank_keys;
 use cgenreg::fusion::{
-    cosine_similarity, match_then_fuse, Calibration, DenseMatrix, FusionMode, FusionParams,
-    Selection,
+    calibrate, calibrate_in_place, cosine_similarity, fuse, match_then_fuse, select, Calibration,
+    DenseMatrix, FusionMode, FusionParams, Selection,
 };
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -80,6 +81,15 @@ fn planted(n: usize, seed: u64, signal: f32) -> (DenseMatrix, Vec<usize>) {
     (DenseMatrix::from_vec(n, n, data).unwrap(), perm)
 }
 
+/// CPU seconds (user + system, all threads) of this process so far, from /proc/self/stat.
+fn cpu_seconds() -> f64 {
+    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
+    let after = stat.rsplit(')').next().unwrap_or("");
+    let f: Vec<&str> = after.split_whitespace().collect();
+    let ticks = |k: usize| f.get(k).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
+    (ticks(11) + ticks(12)) / 100.0
+}
+
 fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(|a, b| a.total_cmp(b));
     v[v.len() / 2]
@@ -90,6 +100,7 @@ fn measure<T>(runs: usize, mut f: impl FnMut() -> T) -> (f64, usize, T) {
     let mut times = vec![];
     let mut peak = 0;
     let mut last = None;
+    let c0 = cpu_seconds();
     for _ in 0..runs {
         drop(last.take());
         let base = CURRENT.load(Ordering::Relaxed);
@@ -100,7 +111,16 @@ fn measure<T>(runs: usize, mut f: impl FnMut() -> T) -> (f64, usize, T) {
         peak = peak.max(PEAK.load(Ordering::Relaxed) - base);
         last = Some(out);
     }
+    let cpu = (cpu_seconds() - c0) / runs as f64;
+    LAST_CPU_MS.store((cpu * 1e3) as usize, Ordering::Relaxed);
     (median(times), peak, last.unwrap())
+}
+
+/// Mean CPU milliseconds per run of the last `measure` (10 ms tick resolution, all threads).
+static LAST_CPU_MS: AtomicUsize = AtomicUsize::new(0);
+
+fn cpu_ms() -> usize {
+    LAST_CPU_MS.load(Ordering::Relaxed)
 }
 
 fn mib(b: usize) -> f64 {
@@ -113,8 +133,8 @@ fn main() {
         .and_then(|v| v.parse().ok())
         .unwrap_or(20_000);
     println!("threads: {}\n", rayon::current_num_threads());
-    println!("| N = M | configuration | time (ms, median) | peak extra heap (MiB) | N x M f32 (MiB) | correct / found |");
-    println!("|---|---|---|---|---|---|");
+    println!("| N = M | configuration | wall ms (median) | CPU ms / run | peak extra heap (MiB) | N x M f32 (MiB) | correct / found |");
+    println!("|---|---|---|---|---|---|---|");
     let configs: Vec<(&str, FusionParams)> = vec![
         (
             "paper: row softmax + Noisy-AND + mutual NN",
@@ -158,8 +178,9 @@ fn main() {
                 .filter(|c| perm[c.src as usize] == c.tgt as usize)
                 .count();
             println!(
-                "| {n} | {name} | {:.1} | {:.0} | {:.0} | {ok} / {} |",
+                "| {n} | {name} | {:.1} | {} | {:.0} | {:.0} | {ok} / {} |",
                 t * 1e3,
+                cpu_ms(),
                 mib(peak),
                 mib(n * n * 4),
                 out.correspondences.len()
@@ -167,8 +188,72 @@ fn main() {
         }
     }
 
-    println!("\n| cosine similarity | time (ms, median) | peak extra heap (MiB) |");
-    println!("|---|---|---|");
+    // Stage breakdown at 5k (one branch calibrated; fusion and selection on the results).
+    {
+        let n = 5_000;
+        let (s_img, _) = planted(n, 1, 0.5);
+        let (s_geo, _) = planted(n, 2, 0.5);
+        println!(
+            "\n| stage at 5000 x 5000 | wall ms (median) | CPU ms / run | peak extra heap (MiB) |"
+        );
+        println!("|---|---|---|---|");
+        let stage = |name: &str, t: f64, peak: usize| {
+            println!(
+                "| {name} | {:.1} | {} | {:.0} |",
+                t * 1e3,
+                cpu_ms(),
+                mib(peak)
+            );
+        };
+        let row = Calibration::RowSoftmax { tau: 0.1 };
+        let dual = Calibration::DualSoftmax { tau: 0.1 };
+        let mut buf = s_img.clone();
+        let (t, p, _) = measure(7, || buf.data.copy_from_slice(&s_img.data));
+        stage(
+            "copy 100 MB into an existing matrix (reference point)",
+            t,
+            p,
+        );
+        let (t, p, _) = measure(7, || s_img.clone());
+        stage(
+            "clone one N x M matrix (fresh pages; reference point)",
+            t,
+            p,
+        );
+        let (t, p, _) = measure(7, || s_img.duplicate());
+        stage("duplicate one N x M matrix (huge pages)", t, p);
+        let (t, p, _) = measure(7, || calibrate(&s_img, None, None, row).unwrap());
+        stage("row softmax into a new matrix", t, p);
+        let (t, p, _) = measure(7, || calibrate_in_place(&mut buf, None, None, row).unwrap());
+        stage("row softmax, in place", t, p);
+        let (t, p, _) = measure(7, || {
+            buf.data.copy_from_slice(&s_img.data);
+            calibrate_in_place(&mut buf, None, None, dual).unwrap()
+        });
+        stage("dual softmax, in place (incl. copy-in)", t, p);
+        let p_img = calibrate(&s_img, None, None, row).unwrap();
+        let p_geo = calibrate(&s_geo, None, None, row).unwrap();
+        let (t, p, _) = measure(7, || {
+            fuse(
+                Some(&p_img),
+                Some(&p_geo),
+                FusionMode::NoisyAnd,
+                None,
+                false,
+            )
+            .unwrap()
+        });
+        stage("Noisy-AND posteriors (new matrix)", t, p);
+        let (t, p, keys) = measure(7, || noisy_and_rank_keys(&p_img, &p_geo).unwrap());
+        stage("Noisy-AND rank keys (new matrix)", t, p);
+        let (t, p, _) = measure(7, || select(&keys, Selection::MutualNn));
+        stage("mutual NN", t, p);
+        let (t, p, _) = measure(7, || select(&keys, Selection::TopK(8000)));
+        stage("top-8000", t, p);
+    }
+
+    println!("\n| cosine similarity | wall ms (median) | CPU ms / run | peak extra heap (MiB) |");
+    println!("|---|---|---|---|");
     for d in [33usize, 256] {
         let n = 5_000;
         let mut r = Rng(d as u64);
@@ -178,8 +263,9 @@ fn main() {
         assert_eq!(s.shape(), (n, n));
         let gflops = 2.0 * (n * n * d) as f64 / t / 1e9;
         println!(
-            "| 5000 x 5000, D = {d} | {:.1} ({gflops:.1} GFLOP/s) | {:.0} |",
+            "| 5000 x 5000, D = {d} | {:.1} ({gflops:.1} GFLOP/s) | {} | {:.0} |",
             t * 1e3,
+            cpu_ms(),
             mib(peak)
         );
     }

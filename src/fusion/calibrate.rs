@@ -51,7 +51,7 @@ pub fn calibrate(
     cal: Calibration,
 ) -> Result<DenseMatrix> {
     check_masks("calibrate", sim.rows, sim.cols, row_valid, col_valid)?;
-    let mut out = sim.clone();
+    let mut out = sim.duplicate();
     calibrate_in_place(&mut out, row_valid, col_valid, cal)?;
     Ok(out)
 }
@@ -150,9 +150,9 @@ fn dual_softmax(
                 if !row_ok(t * band + k) {
                     continue;
                 }
-                for j in 0..cols {
-                    let v = row[j] + bias[j];
-                    cm[j] = if v > cm[j] { v } else { cm[j] };
+                for ((s, b), c) in row.iter().zip(bias).zip(cm.iter_mut()) {
+                    let v = s + b;
+                    *c = if v > *c { v } else { *c };
                 }
                 *r = max_plus(row, bias);
             }
@@ -200,10 +200,15 @@ fn dual_softmax(
                     continue;
                 }
                 let a = rm[k];
-                for j in 0..cols {
-                    let v = row[j] + bias[j];
-                    scratch[j] = fast_exp((v - a) * it);
-                    cs[j] += fast_exp((v - cmax_f[j]) * it);
+                for (((s, b), (e, c)), m) in row
+                    .iter()
+                    .zip(bias)
+                    .zip(scratch.iter_mut().zip(cs.iter_mut()))
+                    .zip(&cmax_f)
+                {
+                    let v = s + b;
+                    *e = fast_exp((v - a) * it);
+                    *c += fast_exp((v - m) * it);
                 }
                 rl[k] = sum_lanes(&scratch).ln();
             }
@@ -232,16 +237,17 @@ fn dual_softmax(
                 return;
             }
             let (a, la) = (rmax[i], rlse[i]);
-            for j in 0..cols {
-                let s = row[j];
-                let z = (s - a) * it - la + ((s - cmax_f[j]) * it - clse_f[j]);
-                row[j] = (fast_exp(z) + DUAL_SOFTMAX_EPS).sqrt() * cgate[j];
+            for (v, ((m, l), g)) in row.iter_mut().zip(cmax_f.iter().zip(&clse_f).zip(&cgate)) {
+                let s = *v;
+                let z = (s - a) * it - la + ((s - m) * it - l);
+                *v = (fast_exp(z) + DUAL_SOFTMAX_EPS).sqrt() * g;
             }
         });
 }
 
 /// Sum with 8 independent accumulators so the loop vectorises.
 #[inline]
+#[allow(clippy::needless_range_loop)]
 pub(crate) fn sum_lanes(x: &[f32]) -> f32 {
     let mut acc = [0.0f32; 8];
     let chunks = x.chunks_exact(8);
@@ -256,6 +262,7 @@ pub(crate) fn sum_lanes(x: &[f32]) -> f32 {
 
 /// max_j (row[j] + bias[j]) with 8 independent lanes.
 #[inline]
+#[allow(clippy::needless_range_loop)]
 fn max_plus(row: &[f32], bias: &[f32]) -> f32 {
     let mut acc = [f32::NEG_INFINITY; 8];
     let mut m = f32::NEG_INFINITY;
@@ -278,6 +285,7 @@ fn max_plus(row: &[f32], bias: &[f32]) -> f32 {
 
 /// Maximum with 8 independent lanes (NaN entries are ignored).
 #[inline]
+#[allow(clippy::needless_range_loop)]
 pub(crate) fn max_lanes(x: &[f32]) -> f32 {
     let mut acc = [f32::NEG_INFINITY; 8];
     let chunks = x.chunks_exact(8);
@@ -310,7 +318,7 @@ pub(crate) fn fast_exp(x: f32) -> f32 {
     let p = ((((1.987_569_1e-4 * r + 1.398_199_9e-3) * r + 8.333_452e-3) * r + 4.166_579_6e-2) * r
         + 1.666_666_5e-1)
         * r
-        + 5.000_000_1e-1;
+        + 0.5;
     let y = p * (r * r) + r + 1.0;
     let ni = (t.to_bits() as i32).wrapping_sub(MAGIC.to_bits() as i32);
     let scale = f32::from_bits(((ni + 127) << 23) as u32);
@@ -322,6 +330,7 @@ pub(crate) fn fast_exp(x: f32) -> f32 {
 }
 
 #[cfg(test)]
+#[allow(clippy::needless_range_loop)]
 mod tests {
     use super::*;
 

@@ -44,16 +44,9 @@ pub fn default_prior(rows: usize, cols: usize) -> f64 {
 
 #[inline(always)]
 fn clamp01(p: f32) -> f64 {
-    // NaN fails both comparisons and becomes 0, an invalid entry.
-    if p > 0.0 {
-        if p < 1.0 {
-            p as f64
-        } else {
-            1.0
-        }
-    } else {
-        0.0
-    }
+    // Branch-free; NaN fails `p > 0` and becomes 0, an invalid entry.
+    let x = if p > 0.0 { p } else { 0.0 };
+    (if x < 1.0 { x } else { 1.0 }) as f64
 }
 
 /// The two terms of eq. 6: `a = p_i p_g (1 - pi)`, `b = (1 - p_i)(1 - p_g) pi`, in f64.
@@ -61,6 +54,24 @@ fn clamp01(p: f32) -> f64 {
 fn and_terms(p_img: f32, p_geo: f32, prior: f64, one_minus_prior: f64) -> (f64, f64) {
     let (x, y) = (clamp01(p_img), clamp01(p_geo));
     (x * y * one_minus_prior, (1.0 - x) * (1.0 - y) * prior)
+}
+
+/// `o(p_img) o(p_geo)` in f32: the product of the two branch odds. Noisy-AND's odds are this
+/// divided by the constant `o(pi)`, so it ranks pairs exactly as the fused posterior does, but
+/// it does not saturate: near 1 the f32 posterior rounds to 1.0 for many pairs (with pi ~ 1e-8,
+/// any pair whose branch posteriors are both above ~0.5), which would turn ranking into ties.
+/// It stays below 3e14 for f32 inputs below 1; `inf` when a posterior is exactly 1; 0 = p_f = 0.
+#[inline(always)]
+fn odds_product(p_img: f32, p_geo: f32) -> f32 {
+    let x = if p_img > 1.0 { 1.0 } else { p_img };
+    let y = if p_geo > 1.0 { 1.0 } else { p_geo };
+    let a = x * y;
+    // NaN fails `a > 0` and becomes 0.
+    if a > 0.0 {
+        a / ((1.0 - x) * (1.0 - y))
+    } else {
+        0.0
+    }
 }
 
 /// Noisy-AND of two posteriors with prior `pi` (paper eq. 6), evaluated stably (module docs).
@@ -74,18 +85,11 @@ pub fn noisy_and(p_img: f32, p_geo: f32, prior: f64) -> f32 {
     }
 }
 
-/// A monotone, non-saturating ranking key for the Noisy-AND posterior: `o(p_f)^(1/4)`.
-/// Near 1 the f32 posterior rounds to exactly 1.0 for many pairs (with pi ~ 1e-8 any pair with
-/// both posteriors above ~0.5), which would turn its ranking into ties; the fourth root of the
-/// odds keeps the order while fitting f32's range. 0 means p_f = 0.
+/// A monotone, non-saturating ranking key for the Noisy-AND posterior, `o(p_img) o(p_geo)`
+/// (see `odds_product`); [`rank_keys_to_posteriors`] turns it into `p_f`. 0 means p_f = 0.
 #[inline]
-pub fn noisy_and_rank_key(p_img: f32, p_geo: f32, prior: f64) -> f32 {
-    let (a, b) = and_terms(p_img, p_geo, prior, 1.0 - prior);
-    if a > 0.0 {
-        (a / b).sqrt().sqrt() as f32
-    } else {
-        0.0
-    }
+pub fn noisy_and_rank_key(p_img: f32, p_geo: f32) -> f32 {
+    odds_product(p_img, p_geo)
 }
 
 /// The reference's float32 Noisy-AND, operation for operation (reference §8.4).
@@ -154,8 +158,8 @@ fn zip_into(
     out.par_chunks_mut(chunk.max(1))
         .zip(a.par_chunks(chunk.max(1)).zip(b.par_chunks(chunk.max(1))))
         .for_each(|(o, (x, y))| {
-            for k in 0..o.len() {
-                o[k] = f(x[k], y[k]);
+            for (o, (x, y)) in o.iter_mut().zip(x.iter().zip(y)) {
+                *o = f(*x, *y);
             }
         });
 }
@@ -238,53 +242,42 @@ pub fn fuse(
     }
 }
 
-/// The matrix of [`noisy_and_rank_key`]s: rank by it, read probabilities from [`fuse`].
-pub fn noisy_and_rank_keys(
-    p_img: &DenseMatrix,
-    p_geo: &DenseMatrix,
-    prior: Option<f64>,
-) -> Result<DenseMatrix> {
+/// The matrix of [`noisy_and_rank_key`]s: rank by it, then [`rank_keys_to_posteriors`].
+pub fn noisy_and_rank_keys(p_img: &DenseMatrix, p_geo: &DenseMatrix) -> Result<DenseMatrix> {
     same_shape(p_img, p_geo)?;
     let mut out = DenseMatrix::zeros(p_img.rows, p_img.cols)?;
-    if out.data.is_empty() {
-        return Ok(out);
-    }
-    let prior = prior.unwrap_or_else(|| default_prior(p_img.rows, p_img.cols));
-    check_prior(prior)?;
-    let omp = 1.0 - prior;
     zip_into(
         &mut out.data,
         &p_img.data,
         &p_geo.data,
         p_img.cols,
-        |x, y| {
-            let (s, t) = and_terms(x, y, prior, omp);
-            if s > 0.0 {
-                (s / t).sqrt().sqrt() as f32
-            } else {
-                0.0
-            }
-        },
+        odds_product,
     );
     Ok(out)
 }
 
 /// Turns a matrix of [`noisy_and_rank_key`]s into the Noisy-AND posteriors in place:
-/// `p = o / (1 + o)` with `o = key^4` (relative error about 3e-7 against [`fuse`]).
-pub fn rank_keys_to_posteriors(keys: &mut DenseMatrix) {
+/// `p = o / (1 + o)` with `o = key / o(pi)` (relative error about 2e-7 against [`fuse`]).
+pub fn rank_keys_to_posteriors(keys: &mut DenseMatrix, prior: Option<f64>) -> Result<()> {
+    if keys.data.is_empty() {
+        return Ok(());
+    }
+    let prior = prior.unwrap_or_else(|| default_prior(keys.rows, keys.cols));
+    check_prior(prior)?;
+    let c = (1.0 - prior) / prior;
     let cols = keys.cols.max(1);
     let chunk = rows_per_task(keys.data.len() / cols, cols, 1 << 16) * cols;
-    keys.data.par_chunks_mut(chunk).for_each(|c| {
-        for v in c.iter_mut() {
-            let k = *v as f64;
-            let o = (k * k) * (k * k);
-            *v = if o.is_finite() {
+    keys.data.par_chunks_mut(chunk).for_each(|ch| {
+        for v in ch.iter_mut() {
+            let o = *v as f64 * c;
+            *v = if o < f64::INFINITY {
                 (o / (1.0 + o)) as f32
             } else {
                 1.0
             };
         }
     });
+    Ok(())
 }
 
 fn check_weight(w_img: f32) -> Result<()> {
@@ -380,8 +373,11 @@ pub fn concat_similarity(
             let (si, sg) = (s_img.row(i), s_geo.row(i));
             let ri = inv_norm(vi);
             let wi = if vi { w_img } else { 0.0 };
-            for j in 0..cols {
-                o[j] = (wi * cv[j] * si[j] + (1.0 - w_img) * sg[j]) * ri * cinv[j];
+            for (o, ((c, s), (g, r))) in o
+                .iter_mut()
+                .zip(cv.iter().zip(si).zip(sg.iter().zip(&cinv)))
+            {
+                *o = (wi * c * s + (1.0 - w_img) * g) * ri * r;
             }
         });
     Ok(out)
@@ -427,11 +423,12 @@ mod tests {
                     assert!((lf - lw).abs() < 1e-5 * lw.abs().max(1.0));
                 }
                 // The ranking key is o(p_f)^(1/4).
-                let k = noisy_and_rank_key(pi_, pg, prior);
-                assert!(((k as f64).powi(4) - want_odds).abs() <= 1e-6 * want_odds);
-                let mut km = DenseMatrix::from_vec(1, 1, vec![k]).unwrap();
-                rank_keys_to_posteriors(&mut km);
-                assert!((km.data[0] as f64 - want).abs() <= 4e-7 * want.max(1e-30) + 1e-37);
+                // The ranking key is o(p_img) o(p_geo) = o(p_f) o(pi).
+                let k = noisy_and_rank_key(pi_, pg) as f64;
+                assert!((k / odds(prior) - want_odds).abs() <= 1e-6 * want_odds);
+                let mut km = DenseMatrix::from_vec(1, 1, vec![k as f32]).unwrap();
+                rank_keys_to_posteriors(&mut km, Some(prior)).unwrap();
+                assert!((km.data[0] as f64 - want).abs() <= 1e-6 * want.max(1e-30) + 1e-37);
             }
         }
     }
@@ -462,7 +459,7 @@ mod tests {
                         f.is_finite() && (0.0..=1.0).contains(&f),
                         "{a} {b} {prior}: {f}"
                     );
-                    let k = noisy_and_rank_key(a, b, prior);
+                    let k = noisy_and_rank_key(a, b);
                     assert!(!k.is_nan() && k >= 0.0);
                     let o = noisy_or(a, b);
                     assert!(o.is_finite() && (0.0..=1.0).contains(&o));
@@ -478,7 +475,9 @@ mod tests {
         assert!((f / 1e-21 - 1.0).abs() < 1e-5, "{f}");
         // Saturation: the f32 posterior is 1.0 but the key still ranks.
         assert_eq!(noisy_and(0.9, 0.9, 1e-8), 1.0);
-        assert!(noisy_and_rank_key(0.95, 0.9, 1e-8) > noisy_and_rank_key(0.9, 0.9, 1e-8));
+        assert!(noisy_and_rank_key(0.95, 0.9) > noisy_and_rank_key(0.9, 0.9));
+        assert_eq!(noisy_and_rank_key(1.0, 0.5), f32::INFINITY);
+        assert_eq!(noisy_and_rank_key(1.0, 0.0), 0.0);
     }
 
     #[test]

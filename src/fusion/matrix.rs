@@ -19,11 +19,20 @@ impl DenseMatrix {
     /// A zero matrix; errors when `rows * cols` overflows.
     pub fn zeros(rows: usize, cols: usize) -> Result<Self> {
         let n = checked_len(rows, cols)?;
-        Ok(DenseMatrix {
-            rows,
-            cols,
-            data: vec![0.0; n],
-        })
+        let mut data = big_vec(n);
+        data.resize(n, 0.0);
+        Ok(DenseMatrix { rows, cols, data })
+    }
+
+    /// A copy whose buffer may use huge pages (see [`big_vec`]); `clone` does not.
+    pub fn duplicate(&self) -> Self {
+        let mut data = big_vec(self.data.len());
+        data.extend_from_slice(&self.data);
+        DenseMatrix {
+            rows: self.rows,
+            cols: self.cols,
+            data,
+        }
     }
 
     /// Wraps `data` (row-major); errors when its length is not `rows * cols`.
@@ -102,6 +111,27 @@ impl DenseMatrix {
     pub fn rows_iter(&self) -> impl Iterator<Item = &[f32]> {
         self.data.chunks(self.cols.max(1)).take(self.rows)
     }
+}
+
+/// An empty Vec with room for `n` values. On Linux a large buffer is advised to use
+/// transparent huge pages: first-touch page faults on 4 KiB pages cost about as much as the
+/// softmax itself on a 100 MB matrix.
+pub(crate) fn big_vec(n: usize) -> Vec<f32> {
+    let v = Vec::with_capacity(n);
+    #[cfg(target_os = "linux")]
+    {
+        let (addr, len) = (v.as_ptr() as usize, n * std::mem::size_of::<f32>());
+        let start = (addr + 4095) & !4095;
+        let end = (addr + len) & !4095;
+        if len >= 4 << 20 && end > start {
+            // SAFETY: advice on pages inside our own fresh allocation; it changes no contents
+            // and a failure is harmless.
+            unsafe {
+                libc::madvise(start as *mut libc::c_void, end - start, libc::MADV_HUGEPAGE);
+            }
+        }
+    }
+    v
 }
 
 fn checked_len(rows: usize, cols: usize) -> Result<usize> {

@@ -89,12 +89,15 @@ pub struct FusionOutput {
     pub peak_bytes: usize,
 }
 
+/// The image-branch similarity with its source (row) and target (column) validity.
+pub type ImageSimilarity<'a> = (&'a DenseMatrix, Option<&'a [bool]>, Option<&'a [bool]>);
+
 /// Calibrates the given branch similarities, fuses them per `params.mode` and selects
 /// correspondences. `sim_img` carries the image branch's row (source) and column (target)
 /// validity: entry (i, j) is valid iff both points have a pixel. The geometric branch is valid
 /// everywhere. `Concat` uses `calibration_geo` for the concatenated similarity.
 pub fn match_then_fuse(
-    sim_img: Option<(&DenseMatrix, Option<&[bool]>, Option<&[bool]>)>,
+    sim_img: Option<ImageSimilarity<'_>>,
     sim_geo: Option<&DenseMatrix>,
     params: &FusionParams,
 ) -> Result<FusionOutput> {
@@ -159,9 +162,9 @@ pub fn match_then_fuse(
             // Rank by the non-saturating odds key, then turn the keys into posteriors in place.
             let (a, b) = (p_img.as_ref(), p_geo.as_ref());
             let (a, b) = (a.ok_or_else(missing)?, b.ok_or_else(missing)?);
-            let mut fused = fuse::noisy_and_rank_keys(a, b, params.prior)?;
+            let mut fused = fuse::noisy_and_rank_keys(a, b)?;
             let mut corr = select(&fused, params.selection);
-            fuse::rank_keys_to_posteriors(&mut fused);
+            fuse::rank_keys_to_posteriors(&mut fused, params.prior)?;
             for c in &mut corr {
                 c.score = fused.get(c.src as usize, c.tgt as usize);
             }

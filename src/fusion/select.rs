@@ -11,18 +11,13 @@ use serde::{Deserialize, Serialize};
 use std::cmp::Ordering;
 
 /// Which correspondences to keep.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 pub enum Selection {
+    #[default]
     /// (i, j) where j is the best target of row i and i the best source of column j.
     MutualNn,
     /// The k best entries of the whole matrix; a point may appear many times.
     TopK(usize),
-}
-
-impl Default for Selection {
-    fn default() -> Self {
-        Selection::MutualNn
-    }
 }
 
 /// The reference's number of matches.
@@ -78,10 +73,10 @@ fn mutual_nn(data: &[f32], rows: usize, cols: usize) -> Vec<Correspondence> {
             |(mut cb, mut ci), (t, (chunk, bt))| {
                 for (k, (row, b)) in chunk.chunks(cols).zip(bt.iter_mut()).enumerate() {
                     let i = (t * band + k) as u32;
-                    for j in 0..cols {
-                        let better = row[j] > cb[j];
-                        cb[j] = if better { row[j] } else { cb[j] };
-                        ci[j] = if better { i } else { ci[j] };
+                    for ((v, b), c) in row.iter().zip(cb.iter_mut()).zip(ci.iter_mut()) {
+                        let better = *v > *b;
+                        *b = if better { *v } else { *b };
+                        *c = if better { i } else { *c };
                     }
                     *b = row_argmax(row);
                 }
