@@ -115,10 +115,23 @@ impl Value {
     }
 }
 
+/// Encode a str as latin-1 (every char must be <= U+00FF). Works on the UTF-8 bytes
+/// directly: such chars are 1 byte, or 2 bytes led by 0xC2/0xC3.
 fn latin1(s: &str) -> Option<Vec<u8>> {
-    let mut out = Vec::with_capacity(s.len());
-    for c in s.chars() {
-        out.push(u8::try_from(c as u32).ok()?);
+    let b = s.as_bytes();
+    let mut out = Vec::with_capacity(b.len());
+    let mut i = 0;
+    while i < b.len() {
+        let c = b[i];
+        if c < 0x80 {
+            out.push(c);
+            i += 1;
+        } else if (c == 0xC2 || c == 0xC3) && i + 1 < b.len() {
+            out.push(((c & 0x03) << 6) | (b[i + 1] & 0x3f));
+            i += 2;
+        } else {
+            return None;
+        }
     }
     Some(out)
 }
@@ -704,7 +717,12 @@ impl<'a> Vm<'a> {
 fn to_npy(path: &Path, field: &str, a: &PyArray) -> Result<NpyArray> {
     match (&a.dtype, &a.data) {
         (Some(dt), Some(data)) => decode_array(
-            path, field, dt.kind, dt.size, dt.big, &a.shape, a.fortran, data,
+            path,
+            field,
+            (dt.kind, dt.size, dt.big),
+            &a.shape,
+            a.fortran,
+            data,
         ),
         _ => Err(Error::format(
             path,
@@ -854,6 +872,15 @@ pub(crate) mod tests {
         assert_eq!(m["ref_feats_f"].to_f32()[5], -2.0);
         assert_eq!(m["src_points_f"].to_f32(), vec![0.25, 0.5, 0.75]);
         assert_eq!(m["src_feats_f"].to_f32(), vec![0.0, 0.0, 3.5, 0.0]);
+    }
+
+    #[test]
+    fn latin1_matches_char_by_char() {
+        let s: String = (0u32..256).filter_map(char::from_u32).collect();
+        let want: Vec<u8> = s.chars().map(|c| c as u32 as u8).collect();
+        assert_eq!(latin1(&s).unwrap(), want);
+        assert!(latin1("\u{100}").is_none());
+        assert!(latin1("\u{20ac}").is_none());
     }
 
     #[test]
