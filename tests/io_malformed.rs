@@ -104,6 +104,31 @@ fn ply() {
 }
 
 #[test]
+fn huge_declared_counts_fail_without_allocating() {
+    let d = tempfile::tempdir().unwrap();
+    let text = b"ply\nformat ascii 1.0\nelement vertex 1000000000000000\nproperty float x\n\
+                 property float y\nproperty float z\nend_header\n1 2 3\n";
+    expect_err(d.path(), "huge.ply", text, ply::read_ply, &["truncated"]);
+    let text = b"ply\nformat binary_little_endian 1.0\nelement vertex 1000000000000000\n\
+                 property float x\nproperty float y\nproperty float z\nend_header\n";
+    expect_err(
+        d.path(),
+        "huge_bin.ply",
+        text,
+        ply::read_ply,
+        &["vertex data"],
+    );
+    for data in ["ascii", "binary", "binary_compressed"] {
+        let text = format!(
+            "VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nWIDTH 1000000000000\n\
+             HEIGHT 1\nPOINTS 1000000000000\nDATA {data}\n0 0 0 0 0 0 0 0 0 0 0 0\n"
+        );
+        let name = format!("huge_{data}.pcd");
+        expect_err(d.path(), &name, text.as_bytes(), pcd::read_pcd, &["POINTS"]);
+    }
+}
+
+#[test]
 fn pcd() {
     let d = tempfile::tempdir().unwrap();
     let c = sample(50);
@@ -224,13 +249,7 @@ fn npy_and_npz() {
         &["dtype", "float32 or float64"],
     );
     let s = replace(&good, b"'shape'", b"'shope'");
-    expect_err(
-        d.path(),
-        "dict.npy",
-        &s,
-        npy::read_npy,
-        &["header"],
-    );
+    expect_err(d.path(), "dict.npy", &s, npy::read_npy, &["header"]);
     let four = npy::encode_npy_f32(&[10, 4], &[0.5; 40]);
     expect_err(
         d.path(),

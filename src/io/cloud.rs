@@ -141,4 +141,63 @@ mod tests {
         c.intensity = Some(vec![0.0; 3]);
         assert!(validate_cloud(Path::new("a.ply"), &c).is_err());
     }
+
+    /// Every staged cloud file, through the dispatcher, with the MANIFEST point counts.
+    const STAGED: [(&str, usize); 13] = [
+        (
+            "3dmatch-redkitchen/teaser-plusplus/cloud_bin_0.ply",
+            258_342,
+        ),
+        (
+            "3dmatch-redkitchen/teaser-plusplus/cloud_bin_4.ply",
+            313_395,
+        ),
+        ("3dmatch-redkitchen/3dsmoothnet/cloud_bin_1.ply", 268_977),
+        (
+            "3dmatch-redkitchen/dip/threed_match_7-scenes-redkitchen_cloud_bin_5.ply",
+            313_910,
+        ),
+        ("3dmatch-redkitchen/mac/src.pcd", 246_311),
+        ("3dmatch-redkitchen/regtr/cloud_bin_0.pth", 18_977),
+        ("3dmatch-redkitchen/regtr/cloud_bin_5.pth", 19_084),
+        ("3dmatch-redkitchen/predator-demo/cloud_bin_21.pth", 25_337),
+        ("3dmatch-redkitchen/predator-demo/cloud_bin_34.pth", 14_602),
+        ("3dmatch-redkitchen/geotransformer-demo/ref.npy", 18_977),
+        ("3dmatch-redkitchen/geotransformer-demo/src.npy", 15_953),
+        ("small-gicp-lidar-pair/source.ply", 69_792),
+        ("small-gicp-lidar-pair/target.ply", 69_088),
+    ];
+
+    #[test]
+    fn staged_clouds_load_with_manifest_counts() {
+        let Some(root) = crate::test_data_root() else {
+            return;
+        };
+        for (rel, n) in STAGED {
+            let c = load_cloud(&root.join(rel)).unwrap();
+            assert_eq!(c.len(), n, "{rel}");
+        }
+    }
+
+    /// Load times in release: `cargo test --release --no-default-features --lib
+    /// io::cloud::tests::timing -- --ignored --nocapture`.
+    #[test]
+    #[ignore]
+    fn timing() {
+        let Some(root) = crate::test_data_root() else {
+            return;
+        };
+        for (rel, n) in STAGED {
+            let p = root.join(rel);
+            let _ = std::fs::read(&p).unwrap(); // warm the page cache
+            let reps = 10;
+            let t = std::time::Instant::now();
+            for _ in 0..reps {
+                assert_eq!(load_cloud(&p).unwrap().len(), n);
+            }
+            let ms = t.elapsed().as_secs_f64() * 1e3 / reps as f64;
+            let mb = std::fs::metadata(&p).unwrap().len() as f64 / 1e6;
+            println!("{rel}: {n} points, {mb:.2} MB, {ms:.2} ms");
+        }
+    }
 }

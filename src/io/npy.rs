@@ -78,18 +78,17 @@ pub(crate) fn shape_str(shape: &[usize]) -> String {
     }
 }
 
-/// Decode raw array bytes (shared with the pickle reader). `kind`/`size` as in a NumPy
-/// dtype string (`'f'`, 4 or 8); `field` names the array in errors.
+/// Decode raw array bytes (shared with the pickle reader). `dtype` is (kind, size,
+/// big_endian) as in a NumPy dtype string (`'f'`, 4 or 8); `field` names the array in errors.
 pub(crate) fn decode_array(
     path: &Path,
     field: &str,
-    kind: char,
-    size: usize,
-    big_endian: bool,
+    dtype: (char, usize, bool),
     shape: &[usize],
     fortran: bool,
     bytes: &[u8],
 ) -> Result<NpyArray> {
+    let (kind, size, big_endian) = dtype;
     if kind != 'f' || !(size == 4 || size == 8) {
         return Err(Error::format(
             path,
@@ -393,9 +392,7 @@ pub fn parse_npy(path: &Path, bytes: &[u8]) -> Result<NpyArray> {
     decode_array(
         path,
         "array",
-        kind,
-        size,
-        big,
+        (kind, size, big),
         &shape,
         *fortran,
         &bytes[end..],
@@ -422,7 +419,7 @@ pub fn read_npz(path: &Path) -> Result<BTreeMap<String, NpyArray>> {
         let Some(key) = name.strip_suffix(".npy") else {
             continue;
         };
-        let mut buf = Vec::with_capacity(entry.size() as usize);
+        let mut buf = Vec::with_capacity((entry.size() as usize).min(1 << 28));
         entry.read_to_end(&mut buf).map_err(|e| {
             Error::format(
                 path,

@@ -174,6 +174,14 @@ fn parse_header(path: &Path, bytes: &[u8]) -> Result<Header> {
     }
     let mut out = Vec::with_capacity(n);
     for i in 0..n {
+        if counts[i] == 0 {
+            return Err(Error::format(
+                path,
+                format!("field {} COUNT", fields[i]),
+                "at least 1",
+                "0",
+            ));
+        }
         let ok = match types[i] {
             b'F' => matches!(sizes[i], 4 | 8),
             _ => matches!(sizes[i], 1 | 2 | 4 | 8),
@@ -194,7 +202,7 @@ fn parse_header(path: &Path, bytes: &[u8]) -> Result<Header> {
         });
     }
     let wh = match (width, height) {
-        (Some(w), Some(h)) => Some(w.checked_mul(h).unwrap_or(usize::MAX)),
+        (Some(w), Some(h)) => Some(w.saturating_mul(h)),
         _ => None,
     };
     let points = match (points, wh) {
@@ -228,7 +236,8 @@ fn parse_header(path: &Path, bytes: &[u8]) -> Result<Header> {
 /// LZF decompression (liblzf format, as PCL writes it). Fails on any out-of-range reference
 /// or when the output is not exactly `out_len` bytes.
 pub fn lzf_decompress(input: &[u8], out_len: usize) -> std::result::Result<Vec<u8>, String> {
-    let mut out = Vec::with_capacity(out_len);
+    // LZF expands at most ~88x (3 bytes -> 264), which bounds a lying size field.
+    let mut out = Vec::with_capacity(out_len.min(input.len().saturating_mul(90)));
     let mut ip = 0;
     while ip < input.len() {
         let ctrl = input[ip] as usize;
@@ -352,14 +361,16 @@ pub fn parse_pcd(path: &Path, bytes: &[u8]) -> Result<PointCloud> {
     let n = h.points;
     let body = &bytes[h.body_start..];
     let point_size: usize = h.fields.iter().map(|f| f.size * f.count).sum();
-    let need = n.checked_mul(point_size).unwrap_or(usize::MAX);
+    let need = n.saturating_mul(point_size);
 
     // Per point, the bytes of each wanted field: `base + i * stride`.
+    // Capacity is capped by the data size so a lying header cannot force a huge allocation.
+    let cap = n.min(body.len());
     let mut cloud = PointCloud {
-        points: Vec::with_capacity(n),
-        colors: rgb.map(|_| Vec::with_capacity(n)),
-        normals: normal.map(|_| Vec::with_capacity(n)),
-        intensity: intensity.map(|_| Vec::with_capacity(n)),
+        points: Vec::with_capacity(cap),
+        colors: rgb.map(|_| Vec::with_capacity(cap)),
+        normals: normal.map(|_| Vec::with_capacity(cap)),
+        intensity: intensity.map(|_| Vec::with_capacity(cap)),
     };
     let mut fill = |buf: &[u8], base: &dyn Fn(usize) -> usize, stride: &dyn Fn(usize) -> usize| {
         let at = |f: usize, i: usize| &buf[base(f) + i * stride(f)..];

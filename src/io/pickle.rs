@@ -58,6 +58,9 @@ enum Value {
     Int(i128),
     Float(#[allow(dead_code)] f64),
     Str(Rc<str>),
+    /// A long str whose chars are all <= U+00FF, kept as its latin-1 bytes (protocol-2
+    /// array data); decoding it this way skips a slow general UTF-8 pass.
+    Latin1(Rc<Vec<u8>>),
     Bytes(Rc<Vec<u8>>),
     Tuple(Vec<Value>),
     // Mutable objects carry an identity so the memo can follow later mutations.
@@ -83,7 +86,7 @@ impl Value {
             Value::Bool(_) => "bool",
             Value::Int(_) => "int",
             Value::Float(_) => "float",
-            Value::Str(_) => "str",
+            Value::Str(_) | Value::Latin1(_) => "str",
             Value::Bytes(_) => "bytes",
             Value::Tuple(_) => "tuple",
             Value::List(..) => "list",
@@ -108,17 +111,29 @@ impl Value {
     /// Raw bytes of a bytes value, or of a str that holds bytes as latin-1 (Python 2 data).
     fn as_raw_bytes(&self) -> Option<Rc<Vec<u8>>> {
         match self {
-            Value::Bytes(b) => Some(b.clone()),
-            Value::Str(s) => latin1(s).map(Rc::new),
+            Value::Bytes(b) | Value::Latin1(b) => Some(b.clone()),
+            Value::Str(s) => latin1(s.as_bytes()).map(Rc::new),
             _ => None,
         }
     }
 }
 
-fn latin1(s: &str) -> Option<Vec<u8>> {
-    let mut out = Vec::with_capacity(s.len());
-    for c in s.chars() {
-        out.push(u8::try_from(c as u32).ok()?);
+/// Encode UTF-8 text as latin-1, or None if it is not valid UTF-8 made only of chars
+/// <= U+00FF (1 byte, or 0xC2/0xC3 followed by a continuation byte).
+fn latin1(b: &[u8]) -> Option<Vec<u8>> {
+    let mut out = Vec::with_capacity(b.len());
+    let mut i = 0;
+    while i < b.len() {
+        let c = b[i];
+        if c < 0x80 {
+            out.push(c);
+            i += 1;
+        } else if (c == 0xC2 || c == 0xC3) && i + 1 < b.len() && b[i + 1] & 0xC0 == 0x80 {
+            out.push(((c & 0x03) << 6) | (b[i + 1] & 0x3f));
+            i += 2;
+        } else {
+            return None;
+        }
     }
     Some(out)
 }
@@ -330,13 +345,21 @@ impl<'a> Vm<'a> {
                 _ => Err(bad(self, "_reconstruct(numpy.ndarray, shape, dtype)")),
             },
             Global::CodecsEncode => match &args[..] {
+                [Value::Latin1(b), Value::Str(enc)]
+                    if matches!(
+                        enc.to_ascii_lowercase().as_str(),
+                        "latin1" | "latin-1" | "iso-8859-1"
+                    ) =>
+                {
+                    Ok(Value::Bytes(b.clone()))
+                }
                 [Value::Str(s), Value::Str(enc)]
                     if matches!(
                         enc.to_ascii_lowercase().as_str(),
                         "latin1" | "latin-1" | "iso-8859-1"
                     ) =>
                 {
-                    let b = latin1(s)
+                    let b = latin1(s.as_bytes())
                         .ok_or_else(|| self.err("latin-1 text", "a character above U+00FF"))?;
                     Ok(Value::Bytes(Rc::new(b)))
                 }
@@ -520,7 +543,10 @@ impl<'a> Vm<'a> {
                         _ => self.u64()?,
                     };
                     let b = self.take(n)?;
-                    let v = self.str(b)?;
+                    let v = match (n > 4096).then(|| latin1(b)).flatten() {
+                        Some(l) => Value::Latin1(Rc::new(l)),
+                        None => self.str(b)?,
+                    };
                     self.stack.push(v);
                 }
                 // Python 2 str: bytes that Python 3 decodes as latin-1.
@@ -704,7 +730,12 @@ impl<'a> Vm<'a> {
 fn to_npy(path: &Path, field: &str, a: &PyArray) -> Result<NpyArray> {
     match (&a.dtype, &a.data) {
         (Some(dt), Some(data)) => decode_array(
-            path, field, dt.kind, dt.size, dt.big, &a.shape, a.fortran, data,
+            path,
+            field,
+            (dt.kind, dt.size, dt.big),
+            &a.shape,
+            a.fortran,
+            data,
         ),
         _ => Err(Error::format(
             path,
@@ -854,6 +885,17 @@ pub(crate) mod tests {
         assert_eq!(m["ref_feats_f"].to_f32()[5], -2.0);
         assert_eq!(m["src_points_f"].to_f32(), vec![0.25, 0.5, 0.75]);
         assert_eq!(m["src_feats_f"].to_f32(), vec![0.0, 0.0, 3.5, 0.0]);
+    }
+
+    #[test]
+    fn latin1_matches_char_by_char() {
+        let s: String = (0u32..256).filter_map(char::from_u32).collect();
+        let want: Vec<u8> = s.chars().map(|c| c as u32 as u8).collect();
+        assert_eq!(latin1(s.as_bytes()).unwrap(), want);
+        assert!(latin1("\u{100}".as_bytes()).is_none());
+        assert!(latin1("\u{20ac}".as_bytes()).is_none());
+        assert!(latin1(&[0xC3]).is_none());
+        assert!(latin1(&[0xC3, 0x41]).is_none());
     }
 
     #[test]

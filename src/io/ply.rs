@@ -422,7 +422,7 @@ fn parse_binary(path: &Path, h: &Header, body: &[u8], big: bool) -> Result<Point
                     "a list property",
                 ));
             };
-            let need = stride.checked_mul(el.count).unwrap_or(usize::MAX);
+            let need = stride.saturating_mul(el.count);
             if rest.len() < need {
                 return Err(Error::format(
                     path,
@@ -478,7 +478,7 @@ fn parse_binary(path: &Path, h: &Header, body: &[u8], big: bool) -> Result<Point
             out = Some(sink.cloud);
             pos += need;
         } else if let Some(stride) = el.fixed_stride() {
-            let need = stride.checked_mul(el.count).unwrap_or(usize::MAX);
+            let need = stride.saturating_mul(el.count);
             if rest.len() < need {
                 return Err(truncated(
                     path,
@@ -548,7 +548,9 @@ fn parse_ascii(path: &Path, h: &Header, body: &[u8]) -> Result<PointCloud> {
         } else {
             None
         };
-        let mut sink = r.as_ref().map(|r| Sink::new(el.count, el, r));
+        // Each ascii vertex takes at least 2 bytes: cap the capacity a header can ask for.
+        let cap = el.count.min(body.len() / 2);
+        let mut sink = r.as_ref().map(|r| Sink::new(cap, el, r));
         for i in 0..el.count {
             vals.clear();
             for prop in &el.props {
