@@ -39,7 +39,16 @@ fn main() {
         ("ransac (early stop, confidence 0.999)", 5000, 0.1),
         ("ransac (100k iterations, no early stop)", 5000, 0.1),
     ];
+    // Optional filter: `cargo bench --bench estimate -- sc2pcr` runs only matching rows.
+    let filter: Vec<String> = std::env::args()
+        .skip(1)
+        .filter(|a| !a.starts_with('-'))
+        .collect();
     for (name, n, ratio) in cases {
+        let label = format!("{name} {n}");
+        if !filter.is_empty() && !filter.iter().any(|f| label.contains(f.as_str())) {
+            continue;
+        }
         let data = synthetic_correspondences(20_000, n, ratio, 0.01, 1000 + n as u64);
         let (ms, est) = if name == "sc2pcr" {
             let p = Sc2PcrParams::default();

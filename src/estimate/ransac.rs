@@ -2,8 +2,8 @@
 //! the checkers of its global-registration example: 3-point hypotheses, an edge-length checker
 //! (ratio 0.9) before the fit, a distance checker after it, fitness = inlier fraction, ties broken
 //! by the lower inlier RMSE, and the confidence-based early stop
-//! `k = log(1 − confidence) / log(1 − fitness³)`. The best hypothesis is finally refitted on its
-//! inliers.
+//! `k = log(1 − confidence) / log(1 − fitness³)`. The best hypothesis is finally refitted
+//! (least squares, twice) on its inliers.
 //!
 //! Hypothesis k draws its sample from its own PCG32 stream (seed, k), and hypotheses run in
 //! chunks whose best is reduced by a total order, so the result does not depend on the number
@@ -121,15 +121,17 @@ pub fn ransac(src: &[Point3<f32>], tgt: &[Point3<f32>], params: &RansacParams) -
             "ransac: none of {done} hypotheses passed the edge-length and distance checks"
         )));
     };
-    // Final refit on the inliers of the best hypothesis, kept only if it does not lose inliers.
+    // Final least-squares refit on the inliers of the best hypothesis (twice, re-selecting the
+    // inliers in between): a 3-point fit carries the full noise of its sample.
     let mut t = b.t;
-    let (_, inl) = score(&p, &t, thr, true);
-    if inl.len() >= 3 {
-        if let Some(r) = kabsch::solve(inl.len(), |k| (p.src64(inl[k]), p.tgt64(inl[k]), 1.0), 0.0)
-        {
-            if score(&p, &r, thr, false).0 .0 >= b.inliers {
-                t = r;
-            }
+    for _ in 0..2 {
+        let (_, inl) = score(&p, &t, thr, true);
+        if inl.len() < 3 {
+            break;
+        }
+        match kabsch::solve(inl.len(), |k| (p.src64(inl[k]), p.tgt64(inl[k]), 1.0), 0.0) {
+            Some(r) => t = r,
+            None => break,
         }
     }
     let (_, inliers) = score(&p, &t, thr, true);

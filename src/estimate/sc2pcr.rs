@@ -7,9 +7,10 @@
 //! The reference builds several dense N x N f32 matrices (N = 8000: 256 MB each). Here:
 //! - `hard = C < d`, `tight = C < d/2` and `near = Ds < nms_radius` are bitsets (u64 words);
 //! - `SC = clamp(1 − C²/d², 0)` is non-zero exactly where `hard` is set, so it is stored as one
-//!   f32 per set bit of `hard`, in bit order (the bitset is the sparse index);
+//!   (column, value) pair per set bit of `hard` (a sparse row);
 //! - `SC2[s, j] = popcount(tight[s] & tight[j])` for `hard[s, j]`, 0 otherwise, is evaluated only
-//!   for the set bits of `hard[s]`, and only the top-k1 are kept.
+//!   for the set bits of `hard[s]`, visited by decreasing upper bound `|tight[j]|` so the scan
+//!   stops once nothing left can enter the top-k1; only the top-k1 are kept.
 //!
 //! Ties are broken deterministically by the lower correspondence index (stable sorts); torch's
 //! unstable argsort may order ties differently.
@@ -260,13 +261,18 @@ fn residual(r: &[f32; 9], t: &[f32; 3], p: &Soa, i: usize) -> f32 {
     (dx * dx + dy * dy + dz * dz).sqrt()
 }
 
-/// The compatibility graph: per row `[hard | tight | near]` bitsets and SC values.
+/// The compatibility graph: `hard`, `tight` and `near` bitsets (n rows of `words` u64 each,
+/// so that the tight rows scanned by SC2 are contiguous) and SC values.
 pub(crate) struct Graph {
     pub n: usize,
     words: usize,
-    bits: Vec<u64>,
-    /// `sc[i]`: SC values of row i, one per set bit of `hard[i]`, in bit order.
-    sc: Vec<Vec<f32>>,
+    hard: Vec<u64>,
+    tight: Vec<u64>,
+    near: Vec<u64>,
+    /// `sc[i]`: (column, SC value) of row i, one per set bit of `hard[i]`, ascending.
+    sc: Vec<Vec<(u32, f32)>>,
+    /// `|tight[i]|`, an upper bound of every SC2 value in row or column i.
+    tight_count: Vec<u32>,
 }
 
 #[inline(always)]
@@ -276,20 +282,29 @@ fn build_row(
     d: f32,
     nms: f32,
     words: usize,
-    row: &mut [u64],
-    vals: &mut Vec<f32>,
+    (hard, tight, near): (&mut [u64], &mut [u64], &mut [u64]),
+    vals: &mut Vec<(u32, f32)>,
 ) {
-    let (hard, rest) = row.split_at_mut(words);
-    let (tight, near) = rest.split_at_mut(words);
     let half = d / 2.0;
     let d2 = d * d;
     let mut c = [0f32; 64];
     let mut ds = [0f32; 64];
+    let (xi, yi, zi) = (p.sx[i], p.sy[i], p.sz[i]);
+    let (ui, vi, wi) = (p.tx[i], p.ty[i], p.tz[i]);
     for w in 0..words {
         let base = w * 64;
         let len = (p.n - base).min(64);
+        // Same arithmetic as `Soa::cross`, over slices so that it vectorises.
+        let r = base..base + len;
+        let (sx, sy, sz) = (&p.sx[r.clone()], &p.sy[r.clone()], &p.sz[r.clone()]);
+        let (tx, ty, tz) = (&p.tx[r.clone()], &p.ty[r.clone()], &p.tz[r]);
         for k in 0..len {
-            (ds[k], c[k]) = p.cross(i, base + k);
+            let (dx, dy, dz) = (xi - sx[k], yi - sy[k], zi - sz[k]);
+            let a = (dx * dx + dy * dy + dz * dz).sqrt();
+            let (ex, ey, ez) = (ui - tx[k], vi - ty[k], wi - tz[k]);
+            let b = (ex * ex + ey * ey + ez * ez).sqrt();
+            ds[k] = a;
+            c[k] = (a - b).abs();
         }
         let (mut h, mut t, mut r) = (0u64, 0u64, 0u64);
         for k in 0..len {
@@ -303,7 +318,7 @@ fn build_row(
         let mut m = h;
         while m != 0 {
             let k = m.trailing_zeros() as usize;
-            vals.push((1.0 - c[k] * c[k] / d2).max(0.0));
+            vals.push(((base + k) as u32, (1.0 - c[k] * c[k] / d2).max(0.0)));
             m &= m - 1;
         }
     }
@@ -317,10 +332,10 @@ unsafe fn build_row_avx2(
     d: f32,
     nms: f32,
     words: usize,
-    row: &mut [u64],
-    vals: &mut Vec<f32>,
+    rows: (&mut [u64], &mut [u64], &mut [u64]),
+    vals: &mut Vec<(u32, f32)>,
 ) {
-    build_row(p, i, d, nms, words, row, vals)
+    build_row(p, i, d, nms, words, rows, vals)
 }
 
 #[inline(always)]
@@ -386,12 +401,17 @@ impl Graph {
     pub fn build(p: &Soa, d: f32, nms: f32) -> Graph {
         let n = p.n;
         let words = n.div_ceil(64);
-        let mut bits = vec![0u64; n * 3 * words];
+        let mut hard = vec![0u64; n * words];
+        let mut tight = vec![0u64; n * words];
+        let mut near = vec![0u64; n * words];
         let avx2 = has_avx2();
-        let sc: Vec<Vec<f32>> = bits
-            .par_chunks_mut(3 * words)
+        let sc: Vec<Vec<(u32, f32)>> = hard
+            .par_chunks_mut(words)
+            .zip(tight.par_chunks_mut(words))
+            .zip(near.par_chunks_mut(words))
             .enumerate()
-            .map(|(i, row)| {
+            .map(|(i, ((h, t), r))| {
+                let row = (h, t, r);
                 let mut vals = Vec::with_capacity(n / 8 + 16);
                 #[cfg(target_arch = "x86_64")]
                 if avx2 {
@@ -404,49 +424,45 @@ impl Graph {
                 vals
             })
             .collect();
-        Graph { n, words, bits, sc }
+        let tight_count = tight
+            .chunks(words)
+            .map(|r| r.iter().map(|w| w.count_ones()).sum())
+            .collect();
+        Graph {
+            n,
+            words,
+            hard,
+            tight,
+            near,
+            sc,
+            tight_count,
+        }
     }
 
     pub fn hard(&self, i: usize) -> &[u64] {
-        let o = i * 3 * self.words;
-        &self.bits[o..o + self.words]
+        &self.hard[i * self.words..(i + 1) * self.words]
     }
     pub fn tight(&self, i: usize) -> &[u64] {
-        let o = i * 3 * self.words + self.words;
-        &self.bits[o..o + self.words]
+        &self.tight[i * self.words..(i + 1) * self.words]
     }
     pub fn near(&self, i: usize) -> &[u64] {
-        let o = i * 3 * self.words + 2 * self.words;
-        &self.bits[o..o + self.words]
+        &self.near[i * self.words..(i + 1) * self.words]
     }
 
     /// `y = SC x`, sparse by the hard bitset.
     fn matvec(&self, x: &[f32], y: &mut [f32]) {
         y.par_iter_mut().enumerate().for_each(|(i, yi)| {
-            let vals = &self.sc[i];
-            let mut idx = [0u32; 64];
+            let row = &self.sc[i];
             let mut acc = [0f32; 4];
-            let mut p = 0usize;
-            for (w, &word) in self.hard(i).iter().enumerate() {
-                let mut m = word;
-                let mut cnt = 0;
-                while m != 0 {
-                    idx[cnt] = (w * 64) as u32 + m.trailing_zeros();
-                    cnt += 1;
-                    m &= m - 1;
+            let chunks = row.chunks_exact(4);
+            let rest = chunks.remainder();
+            for c in chunks {
+                for l in 0..4 {
+                    acc[l] += c[l].1 * x[c[l].0 as usize];
                 }
-                let v = &vals[p..p + cnt];
-                let ix = &idx[..cnt];
-                let chunks = cnt / 4;
-                for c in 0..chunks {
-                    for l in 0..4 {
-                        acc[l] += v[c * 4 + l] * x[ix[c * 4 + l] as usize];
-                    }
-                }
-                for k in chunks * 4..cnt {
-                    acc[0] += v[k] * x[ix[k] as usize];
-                }
-                p += cnt;
+            }
+            for &(j, v) in rest {
+                acc[0] += v * x[j as usize];
             }
             *yi = (acc[0] + acc[1]) + (acc[2] + acc[3]);
         });
@@ -496,9 +512,23 @@ impl Graph {
     pub fn sc2_top_k(&self, s: usize, k1: usize) -> Vec<usize> {
         let ts = self.tight(s);
         let avx2 = has_avx2();
-        // (value, index) sorted by value desc then index asc; scanning j ascending keeps it stable.
-        let mut top: Vec<(u32, usize)> = Vec::with_capacity(k1 + 1);
+        // Candidates j with hard[s, j], visited by decreasing bound |tight[j]| so that the scan
+        // stops once no remaining j can enter the top-k1.
+        let mut cand: Vec<(u32, u32)> = Vec::with_capacity(self.sc[s].len());
         for_each_bit(self.hard(s), |j| {
+            let b = self.tight_count[j].min(self.tight_count[s]);
+            if b > 0 {
+                cand.push((b, j as u32));
+            }
+        });
+        cand.sort_unstable_by(|a, b| b.0.cmp(&a.0).then(a.1.cmp(&b.1)));
+        // (value, index) ordered by value desc, then index asc.
+        let mut top: Vec<(u32, usize)> = Vec::with_capacity(k1 + 1);
+        for &(bound, j) in &cand {
+            let j = j as usize;
+            if top.len() == k1 && bound < top[k1 - 1].0 {
+                break;
+            }
             #[cfg(target_arch = "x86_64")]
             let v = if avx2 {
                 // SAFETY: the CPU supports AVX2 and POPCNT (checked at run time).
@@ -511,13 +541,15 @@ impl Graph {
                 let _ = avx2;
                 and_popcount(ts, self.tight(j))
             };
-            if v == 0 || (top.len() == k1 && v <= top[k1 - 1].0) {
-                return;
+            if v == 0 {
+                continue;
             }
-            let pos = top.partition_point(|&(tv, _)| tv >= v);
-            top.insert(pos, (v, j));
-            top.truncate(k1);
-        });
+            let pos = top.partition_point(|&(tv, tj)| tv > v || (tv == v && tj < j));
+            if pos < k1 {
+                top.insert(pos, (v, j));
+                top.truncate(k1);
+            }
+        }
         let mut knn: Vec<usize> = top.iter().map(|&(_, j)| j).collect();
         if knn.len() < k1 {
             let mut chosen = knn.clone();
