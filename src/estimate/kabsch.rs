@@ -88,7 +88,7 @@ where
         c += w * p;
         sw += w;
     }
-    if !(sw > 0.0) {
+    if sw.is_nan() || sw <= 0.0 {
         return Some("without weight");
     }
     c /= sw;

@@ -75,8 +75,9 @@ pub fn ransac(src: &[Point3<f32>], tgt: &[Point3<f32>], params: &RansacParams) -
             "ransac: need at least 3 correspondences, got {n}"
         )));
     }
-    if !(params.distance_threshold > 0.0) || !(params.confidence > 0.0 && params.confidence <= 1.0)
-    {
+    let valid =
+        params.distance_threshold > 0.0 && params.confidence > 0.0 && params.confidence <= 1.0;
+    if !valid {
         return Err(Error::Invalid(format!(
             "ransac: invalid parameters {params:?}"
         )));
