@@ -33,6 +33,8 @@ pub enum SelectionArg {
     Mutual,
     /// Global top-k entries (reference code, k = 8000).
     Topk,
+    /// Each source point's best target, no mutual check (SC2-PCR's FPFH protocol).
+    Nn,
 }
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
@@ -96,6 +98,7 @@ impl PipelineArgs {
                 match self.selection {
                     SelectionArg::Mutual => Selection::MutualNn,
                     SelectionArg::Topk => Selection::TopK(self.topk),
+                    SelectionArg::Nn => Selection::RowNn,
                 },
             )
         };

@@ -1,5 +1,6 @@
-//! Correspondence selection from a score matrix: mutual nearest neighbours (paper) or global
-//! top-k (reference §8.5, k = 8000).
+//! Correspondence selection from a score matrix: mutual nearest neighbours (paper), global
+//! top-k (reference §8.5, k = 8000), or each source point's nearest target (SC2-PCR's FPFH
+//! protocol).
 //!
 //! Entries with score <= 0 (invalid, or a vetoed pair) and NaN are never selected. The result
 //! is sorted by (score descending, source, target), so ties have a deterministic order.
@@ -18,6 +19,9 @@ pub enum Selection {
     MutualNn,
     /// The k best entries of the whole matrix; a point may appear many times.
     TopK(usize),
+    /// Every source point with its best target (no mutual check): the feature-matching
+    /// protocol of PointDSC / SC2-PCR for FPFH, where the robust estimator removes outliers.
+    RowNn,
 }
 
 /// The reference's number of matches.
@@ -35,6 +39,13 @@ pub fn select(scores: &DenseMatrix, sel: Selection) -> Vec<Correspondence> {
     let mut out = match sel {
         Selection::MutualNn => mutual_nn(data, rows, cols),
         Selection::TopK(k) => top_k(data, rows, cols, k),
+        Selection::RowNn => data
+            .par_chunks(cols)
+            .enumerate()
+            .filter_map(|(i, row)| {
+                row_argmax(row).map(|(j, s)| Correspondence { src: i as u32, tgt: j as u32, score: s })
+            })
+            .collect(),
     };
     out.sort_unstable_by(order);
     out
@@ -283,5 +294,27 @@ mod tests {
         nan.data.iter_mut().for_each(|v| *v = f32::NAN);
         assert!(select(&nan, Selection::TopK(10)).is_empty());
         assert!(select(&DenseMatrix::zeros(0, 3).unwrap(), Selection::MutualNn).is_empty());
+    }
+
+    #[test]
+    fn row_nn_matches_brute_force() {
+        for (rows, cols, seed) in [(50, 70, 1), (300, 40, 2), (7, 900, 3)] {
+            let m = tied_matrix(rows, cols, seed);
+            let mut brute = vec![];
+            for i in 0..m.rows {
+                let mut bj: Option<usize> = None;
+                for j in 0..m.cols {
+                    let v = m.get(i, j);
+                    if v > 0.0 && bj.is_none_or(|b| v > m.get(i, b)) {
+                        bj = Some(j);
+                    }
+                }
+                if let Some(j) = bj {
+                    brute.push(Correspondence { src: i as u32, tgt: j as u32, score: m.get(i, j) });
+                }
+            }
+            brute.sort_by(order);
+            assert_eq!(select(&m, Selection::RowNn), brute, "{rows}x{cols}");
+        }
     }
 }
