@@ -1,0 +1,857 @@
+//! Content-addressed stage cache with provenance.
+//!
+//! Layout: `<root>/<stage>/<hash>/` holds the payload files and `manifest.json`. The hash is the
+//! blake3 of the canonical JSON of (stage, stage version, input keys, parameters), so a change
+//! to any input or parameter gives a new entry and re-runs exactly the stages that depend on it.
+//!
+//! `manifest.json` (format 1): `{format, stage, version, key, inputs, params, provenance,
+//! created_unix, files: [{name, size, blake3}]}`. `provenance` is free JSON (backend, model,
+//! command, prompt, seed, ...).
+//!
+//! Writes are atomic: an entry is built in `<root>/.tmp/`, then renamed into place, so readers
+//! see either nothing or a complete entry. [`Cache::get`] re-hashes every file against the
+//! manifest; a corrupt or partial entry is an error, never returned as data. Payload helpers:
+//! f32 matrices and [`Features`] as `.npy` (little-endian f32, C order, 2-D), images as PNG,
+//! JSON as pretty-printed UTF-8.
+
+use crate::error::{Error, Result};
+use crate::features::Features;
+use serde::{Deserialize, Serialize};
+use serde_json::Value;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+
+pub const MANIFEST: &str = "manifest.json";
+const FORMAT: u32 = 1;
+
+/// Identifies one stage output: the stage, its version, the keys of its inputs and its
+/// parameters. `hash` is derived from all of them.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct CacheKey {
+    pub stage: String,
+    pub version: u32,
+    /// Hashes of the inputs (other entries' keys, or content hashes of input files).
+    pub inputs: Vec<String>,
+    pub params: Value,
+    /// 64 hex digits.
+    pub hash: String,
+}
+
+impl CacheKey {
+    pub fn new(stage: &str, version: u32, inputs: &[&str], params: &Value) -> Result<CacheKey> {
+        if stage.is_empty()
+            || !stage
+                .chars()
+                .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-')
+        {
+            return Err(Error::Invalid(format!(
+                "cache stage name {stage:?}: use letters, digits, '_' and '-'"
+            )));
+        }
+        let params = canonical(params);
+        let doc = serde_json::json!({
+            "stage": stage, "version": version, "inputs": inputs, "params": params,
+        });
+        let hash = blake3::hash(canonical_string(&doc).as_bytes())
+            .to_hex()
+            .to_string();
+        Ok(CacheKey {
+            stage: stage.to_string(),
+            version,
+            inputs: inputs.iter().map(|s| s.to_string()).collect(),
+            params,
+            hash,
+        })
+    }
+
+    /// Short form for display: `stage/0123456789ab`.
+    pub fn short(&self) -> String {
+        format!("{}/{}", self.stage, &self.hash[..12.min(self.hash.len())])
+    }
+}
+
+/// blake3 of bytes, hex (for content-hashing raw inputs such as a depth video).
+pub fn hash_bytes(bytes: &[u8]) -> String {
+    blake3::hash(bytes).to_hex().to_string()
+}
+
+/// blake3 of a file's content, hex.
+pub fn hash_file(path: &Path) -> Result<String> {
+    let mut h = blake3::Hasher::new();
+    let f = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+    h.update_reader(f).map_err(|e| Error::io(path, e))?;
+    Ok(h.finalize().to_hex().to_string())
+}
+
+/// JSON with object keys sorted at every level (independent of serde_json's map order).
+pub fn canonical(v: &Value) -> Value {
+    match v {
+        Value::Object(m) => {
+            let mut keys: Vec<&String> = m.keys().collect();
+            keys.sort();
+            let mut out = serde_json::Map::new();
+            for k in keys {
+                out.insert(k.clone(), canonical(&m[k]));
+            }
+            Value::Object(out)
+        }
+        Value::Array(a) => Value::Array(a.iter().map(canonical).collect()),
+        other => other.clone(),
+    }
+}
+
+/// Compact serialisation with sorted keys, written by hand so the map type cannot reorder it.
+fn canonical_string(v: &Value) -> String {
+    let mut s = String::new();
+    write_canonical(v, &mut s);
+    s
+}
+
+fn write_canonical(v: &Value, s: &mut String) {
+    match v {
+        Value::Object(m) => {
+            let mut keys: Vec<&String> = m.keys().collect();
+            keys.sort();
+            s.push('{');
+            for (i, k) in keys.into_iter().enumerate() {
+                if i > 0 {
+                    s.push(',');
+                }
+                s.push_str(&Value::String(k.clone()).to_string());
+                s.push(':');
+                write_canonical(&m[k], s);
+            }
+            s.push('}');
+        }
+        Value::Array(a) => {
+            s.push('[');
+            for (i, x) in a.iter().enumerate() {
+                if i > 0 {
+                    s.push(',');
+                }
+                write_canonical(x, s);
+            }
+            s.push(']');
+        }
+        other => s.push_str(&other.to_string()),
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct FileRecord {
+    pub name: String,
+    pub size: u64,
+    pub blake3: String,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Manifest {
+    pub format: u32,
+    pub stage: String,
+    pub version: u32,
+    pub key: String,
+    pub inputs: Vec<String>,
+    pub params: Value,
+    pub provenance: Value,
+    pub created_unix: u64,
+    pub files: Vec<FileRecord>,
+}
+
+/// A verified entry.
+#[derive(Clone, Debug)]
+pub struct Entry {
+    pub dir: PathBuf,
+    pub manifest: Manifest,
+}
+
+/// What `list` knows without re-hashing payloads.
+#[derive(Clone, Debug)]
+pub struct EntrySummary {
+    pub stage: String,
+    pub hash: String,
+    pub dir: PathBuf,
+    /// None when the manifest could not be read (partial or foreign entry); see `problem`.
+    pub manifest: Option<Manifest>,
+    pub total_bytes: u64,
+    pub problem: Option<String>,
+}
+
+#[derive(Clone, Debug)]
+pub struct VerifyReport {
+    pub stage: String,
+    pub hash: String,
+    pub dir: PathBuf,
+    /// Ok, or what is wrong with the entry.
+    pub result: std::result::Result<(), String>,
+}
+
+#[derive(Clone, Debug)]
+pub struct Cache {
+    root: PathBuf,
+}
+
+static TMP_COUNTER: AtomicU64 = AtomicU64::new(0);
+
+fn check_name(name: &str) -> Result<()> {
+    let ok = !name.is_empty()
+        && name != MANIFEST
+        && !name.starts_with('/')
+        && name
+            .split('/')
+            .all(|c| !c.is_empty() && c != "." && c != ".." && !c.contains('\\'));
+    if ok {
+        Ok(())
+    } else {
+        Err(Error::Invalid(format!(
+            "cache file name {name:?}: must be a relative path without '..' and not {MANIFEST}"
+        )))
+    }
+}
+
+impl Cache {
+    /// Open (creating if needed) a cache rooted at `dir`.
+    pub fn open(dir: impl Into<PathBuf>) -> Result<Cache> {
+        let root = dir.into();
+        std::fs::create_dir_all(&root).map_err(|e| Error::io(&root, e))?;
+        Ok(Cache { root })
+    }
+
+    pub fn root(&self) -> &Path {
+        &self.root
+    }
+
+    fn entry_dir(&self, stage: &str, hash: &str) -> PathBuf {
+        self.root.join(stage).join(hash)
+    }
+
+    /// The verified entry for `key`, None when absent, an error when present but corrupt or
+    /// partial (the entry is left in place for inspection; `remove` clears it).
+    pub fn get(&self, key: &CacheKey) -> Result<Option<Entry>> {
+        let dir = self.entry_dir(&key.stage, &key.hash);
+        if !dir.exists() {
+            return Ok(None);
+        }
+        let manifest = verify_dir(&dir).map_err(Error::Cache)?;
+        if manifest.key != key.hash || manifest.stage != key.stage {
+            return Err(Error::Cache(format!(
+                "{}: manifest is for {}/{}, expected {}",
+                dir.display(),
+                manifest.stage,
+                manifest.key,
+                key.short()
+            )));
+        }
+        Ok(Some(Entry { dir, manifest }))
+    }
+
+    /// Start a new entry for `key`; nothing is visible until [`NewEntry::commit`].
+    pub fn put(&self, key: &CacheKey, provenance: Value) -> Result<NewEntry> {
+        let tmp_root = self.root.join(".tmp");
+        let n = TMP_COUNTER.fetch_add(1, Ordering::Relaxed);
+        let tmp = tmp_root.join(format!(
+            "{}-{}-{}-{n}",
+            key.stage,
+            &key.hash[..16],
+            std::process::id()
+        ));
+        std::fs::create_dir_all(&tmp).map_err(|e| Error::io(&tmp, e))?;
+        Ok(NewEntry {
+            cache: self.clone(),
+            key: key.clone(),
+            provenance,
+            tmp,
+            files: Vec::new(),
+            committed: false,
+        })
+    }
+
+    /// Every entry directory with its manifest (payloads not re-hashed; see `verify_all`).
+    pub fn list(&self) -> Result<Vec<EntrySummary>> {
+        let mut out = Vec::new();
+        for (stage, hash, dir) in self.entry_dirs()? {
+            let mp = dir.join(MANIFEST);
+            let (manifest, problem) = match std::fs::read(&mp) {
+                Err(e) => (None, Some(format!("partial entry: {MANIFEST}: {e}"))),
+                Ok(b) => match serde_json::from_slice::<Manifest>(&b) {
+                    Ok(m) => (Some(m), None),
+                    Err(e) => (None, Some(format!("{MANIFEST} unreadable: {e}"))),
+                },
+            };
+            let total_bytes = manifest
+                .as_ref()
+                .map(|m| m.files.iter().map(|f| f.size).sum())
+                .unwrap_or(0);
+            out.push(EntrySummary {
+                stage,
+                hash,
+                dir,
+                manifest,
+                total_bytes,
+                problem,
+            });
+        }
+        Ok(out)
+    }
+
+    /// Re-hash every entry.
+    pub fn verify_all(&self) -> Result<Vec<VerifyReport>> {
+        use rayon::prelude::*;
+        let dirs = self.entry_dirs()?;
+        Ok(dirs
+            .into_par_iter()
+            .map(|(stage, hash, dir)| {
+                let result = verify_dir(&dir).and_then(|m| {
+                    if m.key == hash && m.stage == stage {
+                        Ok(())
+                    } else {
+                        Err(format!("manifest names {}/{}", m.stage, m.key))
+                    }
+                });
+                VerifyReport {
+                    stage,
+                    hash,
+                    dir,
+                    result,
+                }
+            })
+            .collect())
+    }
+
+    /// Remove one entry (a no-op when absent). Returns whether something was removed.
+    pub fn remove(&self, key: &CacheKey) -> Result<bool> {
+        self.remove_entry(&key.stage, &key.hash)
+    }
+
+    /// Remove the entry `<stage>/<hash>`; `hash` may be a unique prefix (as `list` prints it).
+    pub fn remove_entry(&self, stage: &str, hash: &str) -> Result<bool> {
+        let stage_dir = self.root.join(stage);
+        if stage.is_empty() || stage.starts_with('.') || stage.contains('/') || !stage_dir.is_dir()
+        {
+            return Ok(false);
+        }
+        let matches: Vec<PathBuf> = std::fs::read_dir(&stage_dir)
+            .map_err(|e| Error::io(&stage_dir, e))?
+            .flatten()
+            .filter(|e| !hash.is_empty() && e.file_name().to_string_lossy().starts_with(hash))
+            .map(|e| e.path())
+            .collect();
+        match matches.len() {
+            0 => Ok(false),
+            1 => {
+                self.discard(&matches[0])?;
+                Ok(true)
+            }
+            n => Err(Error::Invalid(format!(
+                "{n} entries of stage {stage} start with {hash}; give more digits"
+            ))),
+        }
+    }
+
+    /// Remove every entry of a stage. Returns how many were removed.
+    pub fn remove_stage(&self, stage: &str) -> Result<usize> {
+        let mut n = 0;
+        for (s, _, dir) in self.entry_dirs()? {
+            if s == stage {
+                self.discard(&dir)?;
+                n += 1;
+            }
+        }
+        let d = self.root.join(stage);
+        if d.is_dir() {
+            let _ = std::fs::remove_dir(&d);
+        }
+        Ok(n)
+    }
+
+    /// Move aside atomically, then delete: readers never see a half-deleted entry.
+    fn discard(&self, dir: &Path) -> Result<()> {
+        let trash = self.root.join(".tmp").join(format!(
+            "trash-{}-{}",
+            std::process::id(),
+            TMP_COUNTER.fetch_add(1, Ordering::Relaxed)
+        ));
+        std::fs::create_dir_all(self.root.join(".tmp"))
+            .map_err(|e| Error::io(self.root.join(".tmp"), e))?;
+        std::fs::rename(dir, &trash).map_err(|e| Error::io(dir, e))?;
+        std::fs::remove_dir_all(&trash).map_err(|e| Error::io(&trash, e))
+    }
+
+    fn entry_dirs(&self) -> Result<Vec<(String, String, PathBuf)>> {
+        let mut out = Vec::new();
+        let rd = std::fs::read_dir(&self.root).map_err(|e| Error::io(&self.root, e))?;
+        for s in rd.flatten() {
+            let stage = s.file_name().to_string_lossy().into_owned();
+            if stage.starts_with('.') || !s.path().is_dir() {
+                continue;
+            }
+            let sd = s.path();
+            let rd2 = std::fs::read_dir(&sd).map_err(|e| Error::io(&sd, e))?;
+            for h in rd2.flatten() {
+                if h.path().is_dir() {
+                    out.push((
+                        stage.clone(),
+                        h.file_name().to_string_lossy().into_owned(),
+                        h.path(),
+                    ));
+                }
+            }
+        }
+        out.sort();
+        Ok(out)
+    }
+}
+
+/// Read the manifest and re-hash every listed file.
+fn verify_dir(dir: &Path) -> std::result::Result<Manifest, String> {
+    let mp = dir.join(MANIFEST);
+    let bytes = std::fs::read(&mp)
+        .map_err(|e| format!("partial entry {}: {MANIFEST}: {e}", dir.display()))?;
+    let m: Manifest = serde_json::from_slice(&bytes)
+        .map_err(|e| format!("corrupt entry {}: {MANIFEST}: {e}", dir.display()))?;
+    if m.format != FORMAT {
+        return Err(format!(
+            "{}: manifest format {}, this build reads {FORMAT}",
+            dir.display(),
+            m.format
+        ));
+    }
+    for f in &m.files {
+        check_name(&f.name).map_err(|e| format!("{}: {e}", dir.display()))?;
+        let p = dir.join(&f.name);
+        let meta = std::fs::metadata(&p)
+            .map_err(|e| format!("partial entry {}: {}: {e}", dir.display(), f.name))?;
+        if meta.len() != f.size {
+            return Err(format!(
+                "corrupt entry {}: {}: {} bytes, manifest says {}",
+                dir.display(),
+                f.name,
+                meta.len(),
+                f.size
+            ));
+        }
+        let h = hash_file(&p).map_err(|e| e.to_string())?;
+        if h != f.blake3 {
+            return Err(format!(
+                "corrupt entry {}: {}: content hash differs from the manifest",
+                dir.display(),
+                f.name
+            ));
+        }
+    }
+    Ok(m)
+}
+
+/// An entry being written (in a private temporary directory).
+pub struct NewEntry {
+    cache: Cache,
+    key: CacheKey,
+    provenance: Value,
+    tmp: PathBuf,
+    files: Vec<FileRecord>,
+    committed: bool,
+}
+
+impl NewEntry {
+    /// Add a payload file (name may contain '/' for sub-folders).
+    pub fn add_bytes(&mut self, name: &str, bytes: &[u8]) -> Result<()> {
+        check_name(name)?;
+        if self.files.iter().any(|f| f.name == name) {
+            return Err(Error::Invalid(format!("cache file {name} added twice")));
+        }
+        let p = self.tmp.join(name);
+        if let Some(parent) = p.parent() {
+            std::fs::create_dir_all(parent).map_err(|e| Error::io(parent, e))?;
+        }
+        std::fs::write(&p, bytes).map_err(|e| Error::io(&p, e))?;
+        self.files.push(FileRecord {
+            name: name.to_string(),
+            size: bytes.len() as u64,
+            blake3: hash_bytes(bytes),
+        });
+        Ok(())
+    }
+
+    pub fn add_json<T: Serialize>(&mut self, name: &str, value: &T) -> Result<()> {
+        let b = serde_json::to_vec_pretty(value)
+            .map_err(|e| Error::Invalid(format!("serialising {name}: {e}")))?;
+        self.add_bytes(name, &b)
+    }
+
+    pub fn add_f32_matrix(
+        &mut self,
+        name: &str,
+        rows: usize,
+        cols: usize,
+        data: &[f32],
+    ) -> Result<()> {
+        self.add_bytes(name, &encode_npy_f32(rows, cols, data)?)
+    }
+
+    pub fn add_features(&mut self, name: &str, f: &Features) -> Result<()> {
+        self.add_f32_matrix(name, f.len(), f.dim, &f.data)
+    }
+
+    pub fn add_png(&mut self, name: &str, img: &image::RgbImage) -> Result<()> {
+        let mut buf = std::io::Cursor::new(Vec::new());
+        img.write_to(&mut buf, image::ImageFormat::Png)
+            .map_err(|e| Error::Invalid(format!("encoding {name} as PNG: {e}")))?;
+        self.add_bytes(name, buf.get_ref())
+    }
+
+    /// Write the manifest and move the entry into place. When another writer committed the
+    /// same key first, its (verified) entry is kept and returned; a corrupt one is replaced.
+    pub fn commit(mut self) -> Result<Entry> {
+        let manifest = Manifest {
+            format: FORMAT,
+            stage: self.key.stage.clone(),
+            version: self.key.version,
+            key: self.key.hash.clone(),
+            inputs: self.key.inputs.clone(),
+            params: self.key.params.clone(),
+            provenance: self.provenance.clone(),
+            created_unix: std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map(|d| d.as_secs())
+                .unwrap_or(0),
+            files: self.files.clone(),
+        };
+        let mp = self.tmp.join(MANIFEST);
+        let b = serde_json::to_vec_pretty(&manifest)
+            .map_err(|e| Error::Invalid(format!("serialising the manifest: {e}")))?;
+        std::fs::write(&mp, b).map_err(|e| Error::io(&mp, e))?;
+        let dest = self.cache.entry_dir(&self.key.stage, &self.key.hash);
+        let stage_dir = self.cache.root.join(&self.key.stage);
+        std::fs::create_dir_all(&stage_dir).map_err(|e| Error::io(&stage_dir, e))?;
+        for attempt in 0..2 {
+            match std::fs::rename(&self.tmp, &dest) {
+                Ok(()) => {
+                    self.committed = true;
+                    return Ok(Entry {
+                        dir: dest,
+                        manifest,
+                    });
+                }
+                Err(e) if dest.exists() => match self.cache.get(&self.key) {
+                    Ok(Some(existing)) => {
+                        // Same key, same inputs: the other writer's result is as good as ours.
+                        let _ = std::fs::remove_dir_all(&self.tmp);
+                        self.committed = true;
+                        return Ok(existing);
+                    }
+                    _ if attempt == 0 => {
+                        let _ = self.cache.discard(&dest);
+                    }
+                    _ => return Err(Error::io(&dest, e)),
+                },
+                Err(e) => return Err(Error::io(&dest, e)),
+            }
+        }
+        Err(Error::Cache(format!("could not place {}", dest.display())))
+    }
+}
+
+impl Drop for NewEntry {
+    fn drop(&mut self) {
+        if !self.committed {
+            let _ = std::fs::remove_dir_all(&self.tmp);
+        }
+    }
+}
+
+impl Entry {
+    pub fn path(&self, name: &str) -> PathBuf {
+        self.dir.join(name)
+    }
+
+    pub fn provenance(&self) -> &Value {
+        &self.manifest.provenance
+    }
+
+    pub fn read_bytes(&self, name: &str) -> Result<Vec<u8>> {
+        check_name(name)?;
+        if !self.manifest.files.iter().any(|f| f.name == name) {
+            return Err(Error::Cache(format!(
+                "{}: no file {name} in this entry",
+                self.dir.display()
+            )));
+        }
+        let p = self.path(name);
+        std::fs::read(&p).map_err(|e| Error::io(&p, e))
+    }
+
+    pub fn read_json<T: serde::de::DeserializeOwned>(&self, name: &str) -> Result<T> {
+        let b = self.read_bytes(name)?;
+        serde_json::from_slice(&b)
+            .map_err(|e| Error::format(self.path(name), "json", "the stage's JSON", e.to_string()))
+    }
+
+    /// (rows, cols, data).
+    pub fn read_f32_matrix(&self, name: &str) -> Result<(usize, usize, Vec<f32>)> {
+        decode_npy_f32(&self.read_bytes(name)?, &self.path(name))
+    }
+
+    pub fn read_features(&self, name: &str) -> Result<Features> {
+        let (_, cols, data) = self.read_f32_matrix(name)?;
+        Ok(Features::new(cols, data))
+    }
+
+    pub fn read_png(&self, name: &str) -> Result<image::RgbImage> {
+        let b = self.read_bytes(name)?;
+        image::load_from_memory_with_format(&b, image::ImageFormat::Png)
+            .map(|i| i.to_rgb8())
+            .map_err(|e| Error::format(self.path(name), "png", "an RGB PNG", e.to_string()))
+    }
+}
+
+/// NumPy `.npy` v1.0, `<f4`, C order, shape (rows, cols).
+pub fn encode_npy_f32(rows: usize, cols: usize, data: &[f32]) -> Result<Vec<u8>> {
+    if rows * cols != data.len() {
+        return Err(Error::Invalid(format!(
+            "matrix {rows}x{cols} needs {} values, got {}",
+            rows * cols,
+            data.len()
+        )));
+    }
+    let dict = format!("{{'descr': '<f4', 'fortran_order': False, 'shape': ({rows}, {cols}), }}");
+    let unpadded = 10 + dict.len() + 1;
+    let pad = (64 - unpadded % 64) % 64;
+    let hlen = dict.len() + pad + 1;
+    let mut out = Vec::with_capacity(10 + hlen + data.len() * 4);
+    out.extend_from_slice(b"\x93NUMPY\x01\x00");
+    out.extend_from_slice(&(hlen as u16).to_le_bytes());
+    out.extend_from_slice(dict.as_bytes());
+    out.extend(std::iter::repeat_n(b' ', pad));
+    out.push(b'\n');
+    for v in data {
+        out.extend_from_slice(&v.to_le_bytes());
+    }
+    Ok(out)
+}
+
+/// Read what [`encode_npy_f32`] writes (also 1-D arrays, as (n, 1)).
+pub fn decode_npy_f32(b: &[u8], path: &Path) -> Result<(usize, usize, Vec<f32>)> {
+    let bad = |field: &str, exp: &str, found: String| Error::format(path, field, exp, found);
+    if b.len() < 10 || &b[..6] != b"\x93NUMPY" || b[6] != 1 {
+        return Err(bad("magic", "NumPy .npy v1", format!("{} bytes", b.len())));
+    }
+    let hlen = u16::from_le_bytes([b[8], b[9]]) as usize;
+    let header = b
+        .get(10..10 + hlen)
+        .and_then(|h| std::str::from_utf8(h).ok())
+        .ok_or_else(|| bad("header", "a UTF-8 header", "truncated".into()))?;
+    if !header.contains("'descr': '<f4'") || !header.contains("'fortran_order': False") {
+        return Err(bad("header", "'<f4' in C order", header.trim().to_string()));
+    }
+    let shape_str = header
+        .split("'shape': (")
+        .nth(1)
+        .and_then(|s| s.split(')').next())
+        .ok_or_else(|| bad("shape", "a shape tuple", header.trim().to_string()))?;
+    let dims: Vec<usize> = shape_str
+        .split(',')
+        .map(|s| s.trim())
+        .filter(|s| !s.is_empty())
+        .map(|s| s.parse::<usize>())
+        .collect::<std::result::Result<_, _>>()
+        .map_err(|_| bad("shape", "integers", shape_str.to_string()))?;
+    let (rows, cols) = match dims.as_slice() {
+        [n] => (*n, 1),
+        [r, c] => (*r, *c),
+        _ => return Err(bad("shape", "1-D or 2-D", shape_str.to_string())),
+    };
+    let body = &b[10 + hlen..];
+    if body.len() != rows * cols * 4 {
+        return Err(bad(
+            "data",
+            &format!("{} bytes", rows * cols * 4),
+            format!("{} bytes", body.len()),
+        ));
+    }
+    let data = body
+        .chunks_exact(4)
+        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect();
+    Ok((rows, cols, data))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use serde_json::json;
+
+    fn key(stage: &str, p: i64) -> CacheKey {
+        CacheKey::new(
+            stage,
+            1,
+            &["abc", "def"],
+            &json!({"k": p, "t": 0.1, "mode": "noisy_and"}),
+        )
+        .unwrap()
+    }
+
+    fn put_sample(c: &Cache, k: &CacheKey) -> Entry {
+        let mut e = c.put(k, json!({"backend": "test", "seed": 1})).unwrap();
+        e.add_f32_matrix("m.npy", 2, 3, &[1.0, 2.0, 3.0, 4.0, 5.0, 6.5])
+            .unwrap();
+        e.add_json("info.json", &json!({"n": 2})).unwrap();
+        let img =
+            image::RgbImage::from_fn(5, 4, |x, y| image::Rgb([x as u8 * 40, y as u8 * 50, 7]));
+        e.add_png("frames/000.png", &img).unwrap();
+        e.commit().unwrap()
+    }
+
+    #[test]
+    fn key_is_canonical_and_sensitive() {
+        let a = CacheKey::new("s", 1, &["x"], &json!({"a": 1, "b": [1, 2]})).unwrap();
+        let b = CacheKey::new("s", 1, &["x"], &json!({"b": [1, 2], "a": 1})).unwrap();
+        assert_eq!(a.hash, b.hash);
+        assert_eq!(a.hash.len(), 64);
+        for other in [
+            CacheKey::new("s", 2, &["x"], &json!({"a": 1, "b": [1, 2]})).unwrap(),
+            CacheKey::new("t", 1, &["x"], &json!({"a": 1, "b": [1, 2]})).unwrap(),
+            CacheKey::new("s", 1, &["y"], &json!({"a": 1, "b": [1, 2]})).unwrap(),
+            CacheKey::new("s", 1, &["x"], &json!({"a": 1, "b": [2, 1]})).unwrap(),
+            CacheKey::new("s", 1, &["x"], &json!({"a": 1.0, "b": [1, 2]})).unwrap(),
+        ] {
+            assert_ne!(a.hash, other.hash);
+        }
+        assert!(CacheKey::new("../x", 1, &[], &json!({})).is_err());
+    }
+
+    #[test]
+    fn roundtrip_and_listing() {
+        let dir = tempfile::tempdir().unwrap();
+        let c = Cache::open(dir.path()).unwrap();
+        let k = key("vfm", 4);
+        assert!(c.get(&k).unwrap().is_none());
+        put_sample(&c, &k);
+        let e = c.get(&k).unwrap().unwrap();
+        assert_eq!(
+            e.read_f32_matrix("m.npy").unwrap(),
+            (2, 3, vec![1.0, 2.0, 3.0, 4.0, 5.0, 6.5])
+        );
+        assert_eq!(e.read_json::<Value>("info.json").unwrap(), json!({"n": 2}));
+        let img = e.read_png("frames/000.png").unwrap();
+        assert_eq!(img.get_pixel(3, 2).0, [120, 100, 7]);
+        assert_eq!(e.provenance()["backend"], "test");
+        assert_eq!(e.manifest.params["k"], 4);
+        assert!(e.read_bytes("nope").is_err());
+        let f = e.read_features("m.npy").unwrap();
+        assert_eq!((f.len(), f.dim), (2, 3));
+
+        put_sample(&c, &key("vfm", 5));
+        put_sample(&c, &key("lift", 1));
+        let l = c.list().unwrap();
+        assert_eq!(l.len(), 3);
+        assert!(l.iter().all(|s| s.problem.is_none() && s.total_bytes > 0));
+        assert!(c.verify_all().unwrap().iter().all(|r| r.result.is_ok()));
+        assert!(c.remove(&k).unwrap());
+        assert!(!c.remove(&k).unwrap());
+        assert!(c.get(&k).unwrap().is_none());
+        assert_eq!(c.remove_stage("vfm").unwrap(), 1);
+        let l = c.list().unwrap();
+        assert_eq!(l.len(), 1);
+        assert!(c.remove_entry("lift", &l[0].hash[..10]).unwrap());
+        assert!(c.list().unwrap().is_empty());
+    }
+
+    #[test]
+    fn corrupted_payload_is_detected() {
+        let dir = tempfile::tempdir().unwrap();
+        let c = Cache::open(dir.path()).unwrap();
+        let k = key("vfm", 4);
+        let e = put_sample(&c, &k);
+        let p = e.path("m.npy");
+        let mut b = std::fs::read(&p).unwrap();
+        let last = b.len() - 1;
+        b[last] ^= 0x01;
+        std::fs::write(&p, &b).unwrap();
+        let err = c.get(&k).unwrap_err().to_string();
+        assert!(err.contains("corrupt") && err.contains("m.npy"), "{err}");
+        let bad: Vec<_> = c
+            .verify_all()
+            .unwrap()
+            .into_iter()
+            .filter(|r| r.result.is_err())
+            .collect();
+        assert_eq!(bad.len(), 1);
+        // truncated file: size mismatch
+        std::fs::write(&p, &b[..10]).unwrap();
+        assert!(c.get(&k).unwrap_err().to_string().contains("bytes"));
+        // a fresh put replaces the corrupt entry
+        put_sample(&c, &k);
+        assert!(c.get(&k).unwrap().is_some());
+    }
+
+    #[test]
+    fn partial_entries_are_detected() {
+        let dir = tempfile::tempdir().unwrap();
+        let c = Cache::open(dir.path()).unwrap();
+        let k = key("wfm", 1);
+        let e = put_sample(&c, &k);
+        std::fs::remove_file(e.path("frames/000.png")).unwrap();
+        let err = c.get(&k).unwrap_err().to_string();
+        assert!(
+            err.contains("partial") && err.contains("frames/000.png"),
+            "{err}"
+        );
+
+        let k2 = key("wfm", 2);
+        let e2 = put_sample(&c, &k2);
+        std::fs::remove_file(e2.path(MANIFEST)).unwrap();
+        assert!(c.get(&k2).unwrap_err().to_string().contains("partial"));
+        let l = c.list().unwrap();
+        assert_eq!(l.iter().filter(|s| s.problem.is_some()).count(), 1);
+
+        let k3 = key("wfm", 3);
+        let e3 = put_sample(&c, &k3);
+        std::fs::write(e3.path(MANIFEST), b"{\"format\": 1, \"stage\"").unwrap();
+        assert!(c.get(&k3).unwrap_err().to_string().contains("corrupt"));
+
+        // an uncommitted writer leaves nothing visible
+        let k4 = key("wfm", 4);
+        {
+            let mut w = c.put(&k4, json!({})).unwrap();
+            w.add_bytes("a.bin", b"abc").unwrap();
+        }
+        assert!(c.get(&k4).unwrap().is_none());
+        assert_eq!(
+            std::fs::read_dir(dir.path().join(".tmp")).unwrap().count(),
+            0
+        );
+    }
+
+    #[test]
+    fn concurrent_put_of_the_same_key_is_safe() {
+        let dir = tempfile::tempdir().unwrap();
+        let c = Cache::open(dir.path()).unwrap();
+        let k = key("vfm", 9);
+        std::thread::scope(|s| {
+            for _ in 0..8 {
+                s.spawn(|| {
+                    for _ in 0..5 {
+                        let e = put_sample(&c, &k);
+                        assert_eq!(e.manifest.key, k.hash);
+                        assert!(c.get(&k).unwrap().is_some());
+                    }
+                });
+            }
+        });
+        assert_eq!(c.list().unwrap().len(), 1);
+        assert!(c.verify_all().unwrap().iter().all(|r| r.result.is_ok()));
+        assert_eq!(
+            std::fs::read_dir(dir.path().join(".tmp")).unwrap().count(),
+            0
+        );
+    }
+
+    #[test]
+    fn npy_is_numpy_compatible_header() {
+        let b = encode_npy_f32(3, 2, &[0.0; 6]).unwrap();
+        let hlen = u16::from_le_bytes([b[8], b[9]]) as usize;
+        assert_eq!((10 + hlen) % 64, 0);
+        assert_eq!(b[10 + hlen - 1], b'\n');
+        assert!(decode_npy_f32(&b[..b.len() - 1], Path::new("x")).is_err());
+        assert!(encode_npy_f32(3, 2, &[0.0; 5]).is_err());
+    }
+}

@@ -1,0 +1,380 @@
+//! ONNX Runtime backend selection and session loading.
+//!
+//! One `ort` build (2.0.0-rc.14, `alternative-backend`) serves two backends, chosen once per
+//! process on first use:
+//! 1. native ONNX Runtime (>= 1.24, C API 24), from `ORT_DYLIB_PATH`, else the shared library of
+//!    a pip-installed `onnxruntime` wheel (`onnxruntime/capi/libonnxruntime.so.*`), found through
+//!    `python3 -c 'import onnxruntime'` and by globbing the usual site-packages folders;
+//! 2. tract (pure Rust), when no native library loads.
+//!
+//! `CGENREG_ORT_BACKEND=tract` forces tract and `=native` makes a missing native library an error
+//! (used by the benchmark). Loading is checked step by step (file, symbol, API version), so a
+//! missing or broken library never panics; the reason is kept in [`backend_info`].
+
+use crate::error::{Error, Result};
+use ort::session::Session;
+use std::path::{Path, PathBuf};
+use std::sync::{Mutex, OnceLock};
+
+/// The backend chosen for this process.
+#[derive(Clone, Debug)]
+pub struct BackendInfo {
+    /// "onnxruntime" or "tract".
+    pub kind: &'static str,
+    /// Native library version, when native.
+    pub version: Option<String>,
+    pub library: Option<PathBuf>,
+    /// Why the native library was not used (when tract was chosen), or None.
+    pub note: Option<String>,
+}
+
+impl BackendInfo {
+    pub fn describe(&self) -> String {
+        match (self.kind, &self.version, &self.library) {
+            ("onnxruntime", Some(v), Some(p)) => format!("onnxruntime {v} ({})", p.display()),
+            _ => match &self.note {
+                Some(n) => format!("tract (pure Rust; {n})"),
+                None => "tract (pure Rust)".to_string(),
+            },
+        }
+    }
+}
+
+struct Runtime {
+    info: BackendInfo,
+    env: ort::environment::Environment,
+}
+
+static RUNTIME: OnceLock<std::result::Result<Runtime, String>> = OnceLock::new();
+
+fn runtime() -> Result<&'static Runtime> {
+    RUNTIME
+        .get_or_init(init)
+        .as_ref()
+        .map_err(|e| Error::External {
+            what: "ONNX runtime".into(),
+            message: e.clone(),
+        })
+}
+
+/// The backend in use (initialising it on first call).
+pub fn backend_info() -> Result<BackendInfo> {
+    runtime().map(|r| r.info.clone())
+}
+
+/// One-line description of the backend in use, or why none could be set up.
+pub fn backend_name() -> String {
+    match runtime() {
+        Ok(r) => r.info.describe(),
+        Err(e) => format!("none ({e})"),
+    }
+}
+
+fn init() -> std::result::Result<Runtime, String> {
+    let forced = std::env::var("CGENREG_ORT_BACKEND").unwrap_or_default();
+    let native = if forced == "tract" {
+        Err("forced by CGENREG_ORT_BACKEND=tract".to_string())
+    } else {
+        load_native()
+    };
+    let info = match native {
+        Ok((api, version, library)) => {
+            ort::set_api(api);
+            BackendInfo {
+                kind: "onnxruntime",
+                version: Some(version),
+                library: Some(library),
+                note: None,
+            }
+        }
+        Err(why) => {
+            if forced == "native" {
+                return Err(format!(
+                    "CGENREG_ORT_BACKEND=native but no native ONNX Runtime: {why}"
+                ));
+            }
+            ort::set_api(ort_tract::api());
+            BackendInfo {
+                kind: "tract",
+                version: None,
+                library: None,
+                note: Some(why),
+            }
+        }
+    };
+    let env = ort::init()
+        .with_name("cgenreg")
+        .build()
+        .map_err(|e| format!("creating the {} environment: {e}", info.kind))?;
+    Ok(Runtime { info, env })
+}
+
+/// Candidate native libraries, best first.
+pub fn native_library_candidates() -> Vec<PathBuf> {
+    let mut out = Vec::new();
+    if let Ok(p) = std::env::var("ORT_DYLIB_PATH") {
+        if !p.is_empty() {
+            out.push(PathBuf::from(p));
+            // An explicit path is the user's choice: do not silently try others.
+            return out;
+        }
+    }
+    let mut dirs: Vec<PathBuf> = Vec::new();
+    if let Ok(o) = std::process::Command::new("python3")
+        .args([
+            "-c",
+            "import onnxruntime, os; print(os.path.dirname(onnxruntime.__file__))",
+        ])
+        .stderr(std::process::Stdio::null())
+        .output()
+    {
+        if o.status.success() {
+            let s = String::from_utf8_lossy(&o.stdout).trim().to_string();
+            if !s.is_empty() {
+                dirs.push(PathBuf::from(s));
+            }
+        }
+    }
+    let mut roots: Vec<PathBuf> = Vec::new();
+    if let Ok(v) = std::env::var("VIRTUAL_ENV") {
+        roots.push(PathBuf::from(v).join("lib"));
+    }
+    if let Ok(h) = std::env::var("HOME") {
+        roots.push(PathBuf::from(h).join(".local/lib"));
+    }
+    roots.extend(["/usr/local/lib", "/usr/lib"].map(PathBuf::from));
+    for root in roots {
+        let Ok(rd) = std::fs::read_dir(&root) else {
+            continue;
+        };
+        for e in rd.flatten() {
+            let name = e.file_name().to_string_lossy().into_owned();
+            if name.starts_with("python3") {
+                for sp in ["site-packages", "dist-packages"] {
+                    dirs.push(e.path().join(sp).join("onnxruntime"));
+                }
+            }
+        }
+    }
+    for d in dirs {
+        let capi = d.join("capi");
+        let Ok(rd) = std::fs::read_dir(&capi) else {
+            continue;
+        };
+        let mut libs: Vec<PathBuf> = rd
+            .flatten()
+            .map(|e| e.path())
+            .filter(|p| {
+                p.file_name()
+                    .map(|n| n.to_string_lossy().starts_with("libonnxruntime.so"))
+                    .unwrap_or(false)
+            })
+            .collect();
+        libs.sort();
+        for l in libs.into_iter().rev() {
+            if !out.contains(&l) {
+                out.push(l);
+            }
+        }
+    }
+    out
+}
+
+/// dlopen a native ONNX Runtime and fetch its C API at the version this build uses.
+fn load_native() -> std::result::Result<(ort::sys::OrtApi, String, PathBuf), String> {
+    let cands = native_library_candidates();
+    if cands.is_empty() {
+        return Err(
+            "no native ONNX Runtime found (set ORT_DYLIB_PATH or `pip install onnxruntime`)".into(),
+        );
+    }
+    let mut errors = Vec::new();
+    for path in cands {
+        match load_one(&path) {
+            Ok((api, v)) => return Ok((api, v, path)),
+            Err(e) => errors.push(format!("{}: {e}", path.display())),
+        }
+    }
+    Err(errors.join("; "))
+}
+
+fn load_one(path: &Path) -> std::result::Result<(ort::sys::OrtApi, String), String> {
+    if !path.is_file() {
+        return Err("no such file".into());
+    }
+    // SAFETY: loading a shared library runs its initialisers; ONNX Runtime's are benign. The
+    // library is leaked below so the API pointers stay valid for the process lifetime.
+    let lib = unsafe { libloading::Library::new(path) }.map_err(|e| e.to_string())?;
+    let get_base: libloading::Symbol<unsafe extern "C" fn() -> *const ort::sys::OrtApiBase> =
+        unsafe { lib.get(b"OrtGetApiBase") }
+            .map_err(|e| format!("not an ONNX Runtime library ({e})"))?;
+    let base = unsafe { get_base() };
+    if base.is_null() {
+        return Err("OrtGetApiBase returned null".into());
+    }
+    let version = unsafe {
+        let s = ((*base).GetVersionString)();
+        if s.is_null() {
+            String::from("?")
+        } else {
+            std::ffi::CStr::from_ptr(s).to_string_lossy().into_owned()
+        }
+    };
+    let api = unsafe { ((*base).GetApi)(ort::sys::ORT_API_VERSION) };
+    if api.is_null() {
+        return Err(format!(
+            "version {version} does not provide C API {} (need ONNX Runtime >= 1.{})",
+            ort::sys::ORT_API_VERSION,
+            ort::sys::ORT_API_VERSION
+        ));
+    }
+    let api = unsafe { std::ptr::read(api) };
+    std::mem::forget(lib);
+    Ok((api, version))
+}
+
+/// A loaded model: a session behind a mutex (`ort` runs take `&mut`), with its I/O names.
+pub struct OnnxModel {
+    pub path: PathBuf,
+    pub inputs: Vec<String>,
+    pub outputs: Vec<String>,
+    session: Mutex<Session>,
+}
+
+impl std::fmt::Debug for OnnxModel {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("OnnxModel")
+            .field("path", &self.path)
+            .field("inputs", &self.inputs)
+            .field("outputs", &self.outputs)
+            .finish()
+    }
+}
+
+/// Intra-op threads: `CGENREG_ORT_THREADS`, else all cores.
+fn threads() -> usize {
+    std::env::var("CGENREG_ORT_THREADS")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .filter(|&n| n > 0)
+        .unwrap_or_else(|| {
+            std::thread::available_parallelism()
+                .map(|n| n.get())
+                .unwrap_or(1)
+        })
+}
+
+impl OnnxModel {
+    /// Load `path`, checking that it exists, parses as ONNX, and has the named inputs and
+    /// outputs (`expected` describes the model for error messages).
+    pub fn load(
+        path: &Path,
+        want_inputs: &[&str],
+        want_outputs: &[&str],
+        expected: &str,
+    ) -> Result<OnnxModel> {
+        let meta = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
+        if meta.len() < 16 {
+            return Err(Error::format(
+                path,
+                "model",
+                expected,
+                format!("a {}-byte file", meta.len()),
+            ));
+        }
+        let rt = runtime()?;
+        let mut builder = Session::builder(&rt.env).map_err(|e| Error::External {
+            what: rt.info.describe(),
+            message: e.to_string(),
+        })?;
+        if rt.info.kind == "onnxruntime" {
+            builder = builder
+                .with_intra_threads(threads())
+                .map_err(|e| Error::External {
+                    what: rt.info.describe(),
+                    message: e.to_string(),
+                })?;
+        }
+        let session = builder.commit_from_file(path).map_err(|e| {
+            Error::format(
+                path,
+                "model",
+                format!("{expected} loadable by {}", rt.info.describe()),
+                e.to_string(),
+            )
+        })?;
+        let inputs: Vec<String> = session
+            .inputs()
+            .iter()
+            .map(|o| o.name().to_string())
+            .collect();
+        let outputs: Vec<String> = session
+            .outputs()
+            .iter()
+            .map(|o| o.name().to_string())
+            .collect();
+        for (kind, want, have) in [
+            ("inputs", want_inputs, &inputs),
+            ("outputs", want_outputs, &outputs),
+        ] {
+            for w in want {
+                if !have.iter().any(|h| h == w) {
+                    return Err(Error::format(
+                        path,
+                        kind,
+                        format!("{expected} with {kind} named {want:?}"),
+                        format!("{have:?}"),
+                    ));
+                }
+            }
+        }
+        Ok(OnnxModel {
+            path: path.to_path_buf(),
+            inputs,
+            outputs,
+            session: Mutex::new(session),
+        })
+    }
+
+    /// Run on f32 inputs given as (name, shape, data); returns the named f32 outputs as
+    /// (shape, data) in the order of `outputs`.
+    pub fn run(
+        &self,
+        inputs: Vec<(&str, Vec<i64>, Vec<f32>)>,
+        outputs: &[&str],
+    ) -> Result<Vec<(Vec<i64>, Vec<f32>)>> {
+        let err = |e: ort::Error| Error::External {
+            what: format!("{} ({})", self.path.display(), backend_name()),
+            message: e.to_string(),
+        };
+        let mut values: Vec<(
+            std::borrow::Cow<'_, str>,
+            ort::session::SessionInputValue<'_>,
+        )> = Vec::new();
+        for (name, shape, data) in inputs {
+            let t = ort::value::Tensor::from_array((shape, data)).map_err(err)?;
+            values.push((name.to_string().into(), t.into()));
+        }
+        let mut session = self
+            .session
+            .lock()
+            .map_err(|_| Error::Invalid("ONNX session poisoned by an earlier panic".into()))?;
+        let out = session.run(values).map_err(err)?;
+        let mut res = Vec::with_capacity(outputs.len());
+        for name in outputs {
+            let v = out.get(*name).ok_or_else(|| Error::External {
+                what: self.path.display().to_string(),
+                message: format!("no output named {name}"),
+            })?;
+            let (shape, data) = v.try_extract_tensor::<f32>().map_err(err)?;
+            res.push((shape.iter().copied().collect(), data.to_vec()));
+        }
+        Ok(res)
+    }
+}
+
+/// sha256-free short content id of a model file (blake3, first 16 hex digits), for cache keys.
+pub fn file_id(path: &Path) -> Result<String> {
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    Ok(blake3::hash(&bytes).to_hex()[..16].to_string())
+}
