@@ -14,7 +14,13 @@ fn stats(mut v: Vec<f64>) -> (f64, f64, f64) {
     (v[v.len() / 2], mean, v[(v.len() * 9) / 10])
 }
 
-fn run(label: &str, model: InspectorModel, panel: Panel, size: (u32, u32), frames: usize) -> Result<(), String> {
+fn run(
+    label: &str,
+    model: InspectorModel,
+    panel: Panel,
+    size: (u32, u32),
+    frames: usize,
+) -> Result<(), String> {
     let mut r = HeadlessRenderer::new(model, size)?;
     r.app.ui_state.tab = panel;
     for _ in 0..5 {
@@ -38,15 +44,39 @@ fn run(label: &str, model: InspectorModel, panel: Panel, size: (u32, u32), frame
 
 fn main() {
     let size = (1280, 800);
-    let frames = std::env::var("GUI_BENCH_FRAMES").ok().and_then(|s| s.parse().ok()).unwrap_or(40);
+    let frames = std::env::var("GUI_BENCH_FRAMES")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(40);
     let result = (|| -> Result<(), String> {
-        run("stages panel (no 3D)", InspectorModel::demo(), Panel::Stages, size, frames)?;
+        run(
+            "stages panel (no 3D)",
+            InspectorModel::demo(),
+            Panel::Stages,
+            size,
+            frames,
+        )?;
         for n in [100_000usize, 300_000] {
             let t = Instant::now();
             let model = InspectorModel::demo_sized(n);
-            eprintln!("built demo with {n} points per cloud in {:.0} ms", t.elapsed().as_secs_f64() * 1e3);
-            run(&format!("3D panel, {}k points/cloud", n / 1000), model.clone(), Panel::View3d, size, frames)?;
-            run(&format!("views + 3D, {}k points/cloud", n / 1000), model, Panel::Views, size, frames)?;
+            eprintln!(
+                "built demo with {n} points per cloud in {:.0} ms",
+                t.elapsed().as_secs_f64() * 1e3
+            );
+            run(
+                &format!("3D panel, {}k points/cloud", n / 1000),
+                model.clone(),
+                Panel::View3d,
+                size,
+                frames,
+            )?;
+            run(
+                &format!("views + 3D, {}k points/cloud", n / 1000),
+                model,
+                Panel::Views,
+                size,
+                frames,
+            )?;
         }
         Ok(())
     })();

@@ -19,12 +19,21 @@ impl TestRenderer for GlRenderer {
     fn handle_delta(&mut self, delta: &mut egui::TexturesDelta) {
         self.0.update_textures(delta);
     }
-    fn render(&mut self, ctx: &egui::Context, output: &egui::FullOutput) -> Result<image::RgbaImage, String> {
+    fn render(
+        &mut self,
+        ctx: &egui::Context,
+        output: &egui::FullOutput,
+    ) -> Result<image::RgbaImage, String> {
         let ppp = output.pixels_per_point;
         let r = ctx.content_rect();
-        let size = ((r.width() * ppp).round() as u32, (r.height() * ppp).round() as u32);
+        let size = (
+            (r.width() * ppp).round() as u32,
+            (r.height() * ppp).round() as u32,
+        );
         self.0.resize(size)?;
-        self.0.paint(ctx, output.shapes.clone(), ppp, true)?.ok_or_else(|| "no image".into())
+        self.0
+            .paint(ctx, output.shapes.clone(), ppp, true)?
+            .ok_or_else(|| "no image".into())
     }
 }
 
@@ -125,12 +134,20 @@ fn tabs_and_controls_drive_the_ui_and_the_worker() {
         if got {
             break;
         }
-        assert!(t0.elapsed().as_secs() < 5, "worker never got the settings: {:?}", seen.lock().unwrap());
+        assert!(
+            t0.elapsed().as_secs() < 5,
+            "worker never got the settings: {:?}",
+            seen.lock().unwrap()
+        );
         std::thread::sleep(std::time::Duration::from_millis(10));
     }
     // other controls are reachable by label
-    h.get_by_label("K views");
+    assert!(h.query_all_by_label("K views").next().is_some());
     h.get_by_label("Match colours");
+    assert!(h
+        .query_all_by_label("Safeguard margin (m)")
+        .next()
+        .is_some());
 }
 
 fn count_near(img: &image::RgbaImage, c: [u8; 3], tol: i32) -> usize {

@@ -24,8 +24,12 @@ pub enum PromptPreset {
 }
 
 impl PromptPreset {
-    pub const ALL: [PromptPreset; 4] =
-        [Self::SceneSpecific, Self::General, Self::Minimal, Self::Wrong];
+    pub const ALL: [PromptPreset; 4] = [
+        Self::SceneSpecific,
+        Self::General,
+        Self::Minimal,
+        Self::Wrong,
+    ];
     pub fn label(self) -> &'static str {
         match self {
             Self::SceneSpecific => "Scene-specific",
@@ -38,9 +42,11 @@ impl PromptPreset {
     pub fn scene_text(self, scene_specific: &str) -> String {
         match self {
             Self::SceneSpecific => scene_specific.to_owned(),
-            Self::General => "An indoor room with furniture, walls and floor, lit by soft daylight. \
+            Self::General => {
+                "An indoor room with furniture, walls and floor, lit by soft daylight. \
                 Complete the unseen parts with consistent materials and lighting."
-                .into(),
+                    .into()
+            }
             Self::Minimal => "An indoor scene.".into(),
             Self::Wrong => "A sunny beach with palm trees and waves under a blue sky.".into(),
         }
@@ -57,8 +63,13 @@ pub enum FusionMode {
 }
 
 impl FusionMode {
-    pub const ALL: [FusionMode; 5] =
-        [Self::NoisyAnd, Self::NoisyOr, Self::Concatenation, Self::ImageOnly, Self::GeometryOnly];
+    pub const ALL: [FusionMode; 5] = [
+        Self::NoisyAnd,
+        Self::NoisyOr,
+        Self::Concatenation,
+        Self::ImageOnly,
+        Self::GeometryOnly,
+    ];
     pub fn label(self) -> &'static str {
         match self {
             Self::NoisyAnd => "Noisy-AND",
@@ -158,7 +169,10 @@ impl Default for PipelineSettings {
             k: 2,
             margin_m: 0.05,
             vfm: "xfeat".into(),
-            image_calibration: BranchCalibration { method: Calibration::Softmax, temperature: 0.1 },
+            image_calibration: BranchCalibration {
+                method: Calibration::Softmax,
+                temperature: 0.1,
+            },
             geometry_calibration: BranchCalibration {
                 method: Calibration::Softmax,
                 temperature: 0.1,
@@ -206,19 +220,27 @@ impl OpenKind {
         }
     }
     pub fn wants_folder(self) -> bool {
-        matches!(self, Self::ThreeDMatchFolder | Self::RgbdSequence | Self::CosmosOutput)
+        matches!(
+            self,
+            Self::ThreeDMatchFolder | Self::RgbdSequence | Self::CosmosOutput
+        )
     }
 }
 
 /// A request from the UI to the worker.
 #[derive(Clone, Debug, PartialEq)]
 pub enum Command {
-    Open { kind: OpenKind, paths: Vec<PathBuf> },
+    Open {
+        kind: OpenKind,
+        paths: Vec<PathBuf>,
+    },
     SelectPair(String),
     /// New settings snapshot; re-run the stages that depend on what changed, from the cache.
     ApplySettings(PipelineSettings),
     /// Run the configured generator for a prompt whose generation is not cached.
-    RunGenerator { prompt: String },
+    RunGenerator {
+        prompt: String,
+    },
     /// Compute branch posteriors for a source point (posterior inspector).
     InspectSourcePoint(usize),
     Cancel,
@@ -230,7 +252,10 @@ impl Command {
         matches!(
             (self, other),
             (Command::ApplySettings(_), Command::ApplySettings(_))
-                | (Command::InspectSourcePoint(_), Command::InspectSourcePoint(_))
+                | (
+                    Command::InspectSourcePoint(_),
+                    Command::InspectSourcePoint(_)
+                )
                 | (Command::SelectPair(_), Command::SelectPair(_))
         )
     }
@@ -286,7 +311,10 @@ pub struct LogOnlyWorker;
 
 impl Worker for LogOnlyWorker {
     fn handle(&mut self, command: Command, events: &EventSink) {
-        events.log(LogLevel::Info, format!("no pipeline connected; ignored {command:?}"));
+        events.log(
+            LogLevel::Info,
+            format!("no pipeline connected; ignored {command:?}"),
+        );
     }
 }
 
@@ -309,7 +337,10 @@ impl WorkerHandle {
                 Ok(e) => out.push(e),
                 Err(TryRecvError::Empty) => break,
                 Err(TryRecvError::Disconnected) => {
-                    out.push(WorkerEvent::Log(LogLevel::Error, "worker thread ended".into()));
+                    out.push(WorkerEvent::Log(
+                        LogLevel::Error,
+                        "worker thread ended".into(),
+                    ));
                     break;
                 }
             }
@@ -339,13 +370,20 @@ pub fn spawn_worker(mut worker: Box<dyn Worker>, ctx: Option<egui::Context>) -> 
                         worker.handle(c, &sink)
                     }));
                     if r.is_err() {
-                        sink.log(LogLevel::Error, format!("worker panicked while handling {desc}"));
+                        sink.log(
+                            LogLevel::Error,
+                            format!("worker panicked while handling {desc}"),
+                        );
                     }
                 }
             }
         })
         .ok();
-    WorkerHandle { tx, rx, _thread: thread }
+    WorkerHandle {
+        tx,
+        rx,
+        _thread: thread,
+    }
 }
 
 /// The side-panel controls. Returns the commands the user's changes produced.
@@ -356,83 +394,95 @@ pub fn controls_ui(
     out: &mut Vec<Command>,
 ) {
     let before = settings.clone();
-    egui::CollapsingHeader::new("Prompt").default_open(true).show(ui, |ui| {
-        ui.horizontal_wrapped(|ui| {
-            for p in PromptPreset::ALL {
-                if ui.selectable_label(settings.preset == p, p.label()).clicked() {
-                    settings.preset = p;
-                    settings.prompt_scene = p.scene_text(scene_specific);
-                }
-            }
-        });
-        let l = ui.label("Shared prefix");
-        ui.add(egui::TextEdit::singleline(&mut settings.prompt_prefix).desired_width(f32::INFINITY))
-            .labelled_by(l.id);
-        let l = ui.label("Scene description");
-        ui.add(
-            egui::TextEdit::multiline(&mut settings.prompt_scene)
-                .desired_rows(3)
-                .desired_width(f32::INFINITY),
-        )
-        .labelled_by(l.id);
-    });
-    egui::CollapsingHeader::new("Views").default_open(true).show(ui, |ui| {
-        ui.add(egui::Slider::new(&mut settings.k, 1..=8).text("K views"));
-        ui.add(
-            egui::Slider::new(&mut settings.margin_m, 0.0..=0.5)
-                .text("Safeguard margin (m)")
-                .fixed_decimals(2),
-        );
-        egui::ComboBox::from_label("VFM")
-            .selected_text(settings.vfm.clone())
-            .show_ui(ui, |ui| {
-                for v in ["xfeat", "disk", "dift"] {
-                    ui.selectable_value(&mut settings.vfm, v.to_owned(), v);
+    egui::CollapsingHeader::new("Prompt")
+        .default_open(true)
+        .show(ui, |ui| {
+            ui.horizontal_wrapped(|ui| {
+                for p in PromptPreset::ALL {
+                    if ui
+                        .selectable_label(settings.preset == p, p.label())
+                        .clicked()
+                    {
+                        settings.preset = p;
+                        settings.prompt_scene = p.scene_text(scene_specific);
+                    }
                 }
             });
-    });
-    egui::CollapsingHeader::new("Calibration & fusion").default_open(true).show(ui, |ui| {
-        for (name, cal) in [
-            ("Image", &mut settings.image_calibration),
-            ("Geometry", &mut settings.geometry_calibration),
-        ] {
-            ui.horizontal(|ui| {
-                egui::ComboBox::from_label(format!("{name} calibration"))
-                    .selected_text(cal.method.label())
-                    .show_ui(ui, |ui| {
-                        for c in Calibration::ALL {
-                            ui.selectable_value(&mut cal.method, c, c.label());
-                        }
-                    });
-            });
+            let l = ui.label("Shared prefix");
             ui.add(
-                egui::Slider::new(&mut cal.temperature, 0.005..=1.0)
-                    .logarithmic(true)
-                    .text(format!("{name} temperature")),
+                egui::TextEdit::singleline(&mut settings.prompt_prefix)
+                    .desired_width(f32::INFINITY),
+            )
+            .labelled_by(l.id);
+            let l = ui.label("Scene description");
+            ui.add(
+                egui::TextEdit::multiline(&mut settings.prompt_scene)
+                    .desired_rows(3)
+                    .desired_width(f32::INFINITY),
+            )
+            .labelled_by(l.id);
+        });
+    egui::CollapsingHeader::new("Views")
+        .default_open(true)
+        .show(ui, |ui| {
+            ui.add(egui::Slider::new(&mut settings.k, 1..=8).text("K views"));
+            ui.add(
+                egui::Slider::new(&mut settings.margin_m, 0.0..=0.5)
+                    .text("Safeguard margin (m)")
+                    .fixed_decimals(2),
             );
-        }
-        egui::ComboBox::from_label("Fusion")
-            .selected_text(settings.fusion.label())
-            .show_ui(ui, |ui| {
-                for f in FusionMode::ALL {
-                    ui.selectable_value(&mut settings.fusion, f, f.label());
-                }
-            });
-        egui::ComboBox::from_label("Selection")
-            .selected_text(settings.selection.label())
-            .show_ui(ui, |ui| {
-                for s in SelectionRule::ALL {
-                    ui.selectable_value(&mut settings.selection, s, s.label());
-                }
-            });
-        egui::ComboBox::from_label("Estimator")
-            .selected_text(settings.estimator.label())
-            .show_ui(ui, |ui| {
-                for e in Estimator::ALL {
-                    ui.selectable_value(&mut settings.estimator, e, e.label());
-                }
-            });
-    });
+            egui::ComboBox::from_label("VFM")
+                .selected_text(settings.vfm.clone())
+                .show_ui(ui, |ui| {
+                    for v in ["xfeat", "disk", "dift"] {
+                        ui.selectable_value(&mut settings.vfm, v.to_owned(), v);
+                    }
+                });
+        });
+    egui::CollapsingHeader::new("Calibration & fusion")
+        .default_open(true)
+        .show(ui, |ui| {
+            for (name, cal) in [
+                ("Image", &mut settings.image_calibration),
+                ("Geometry", &mut settings.geometry_calibration),
+            ] {
+                ui.horizontal(|ui| {
+                    egui::ComboBox::from_label(format!("{name} calibration"))
+                        .selected_text(cal.method.label())
+                        .show_ui(ui, |ui| {
+                            for c in Calibration::ALL {
+                                ui.selectable_value(&mut cal.method, c, c.label());
+                            }
+                        });
+                });
+                ui.add(
+                    egui::Slider::new(&mut cal.temperature, 0.005..=1.0)
+                        .logarithmic(true)
+                        .text(format!("{name} temperature")),
+                );
+            }
+            egui::ComboBox::from_label("Fusion")
+                .selected_text(settings.fusion.label())
+                .show_ui(ui, |ui| {
+                    for f in FusionMode::ALL {
+                        ui.selectable_value(&mut settings.fusion, f, f.label());
+                    }
+                });
+            egui::ComboBox::from_label("Selection")
+                .selected_text(settings.selection.label())
+                .show_ui(ui, |ui| {
+                    for s in SelectionRule::ALL {
+                        ui.selectable_value(&mut settings.selection, s, s.label());
+                    }
+                });
+            egui::ComboBox::from_label("Estimator")
+                .selected_text(settings.estimator.label())
+                .show_ui(ui, |ui| {
+                    for e in Estimator::ALL {
+                        ui.selectable_value(&mut settings.estimator, e, e.label());
+                    }
+                });
+        });
     if *settings != before {
         out.push(Command::ApplySettings(settings.clone()));
     }
@@ -460,7 +510,10 @@ mod tests {
         h.send(Command::Cancel);
         std::thread::sleep(std::time::Duration::from_millis(5));
         for k in 1..=5 {
-            h.send(Command::ApplySettings(PipelineSettings { k, ..Default::default() }));
+            h.send(Command::ApplySettings(PipelineSettings {
+                k,
+                ..Default::default()
+            }));
         }
         h.send(Command::RunGenerator { prompt: "p".into() });
         let t0 = std::time::Instant::now();
@@ -477,7 +530,11 @@ mod tests {
                 _ => None,
             })
             .collect();
-        assert_eq!(applied, vec![5], "only the last settings snapshot runs: {seen:?}");
+        assert_eq!(
+            applied,
+            vec![5],
+            "only the last settings snapshot runs: {seen:?}"
+        );
         assert!(seen.contains(&Command::RunGenerator { prompt: "p".into() }));
         let logs = h.poll();
         assert_eq!(logs.len(), seen.len());

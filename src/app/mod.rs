@@ -45,7 +45,13 @@ pub enum Panel {
 }
 
 impl Panel {
-    pub const ALL: [Panel; 5] = [Self::Views, Self::View3d, Self::Posterior, Self::Plots, Self::Stages];
+    pub const ALL: [Panel; 5] = [
+        Self::Views,
+        Self::View3d,
+        Self::Posterior,
+        Self::Plots,
+        Self::Stages,
+    ];
     pub fn label(self) -> &'static str {
         match self {
             Self::Views => "Views",
@@ -136,13 +142,20 @@ impl Shared<'_> {
     /// Indices of the matches drawn, highest fused score first.
     pub fn shown_matches(&self) -> Vec<usize> {
         let mut idx: Vec<usize> = (0..self.model.matches.len()).collect();
-        idx.sort_by(|&a, &b| self.model.matches[b].score.total_cmp(&self.model.matches[a].score));
+        idx.sort_by(|&a, &b| {
+            self.model.matches[b]
+                .score
+                .total_cmp(&self.model.matches[a].score)
+        });
         idx.truncate(self.ui.match_count);
         idx
     }
     /// The match to highlight: hovered now, hovered last frame, else selected.
     pub fn highlight(&self) -> Option<usize> {
-        self.ui.hovered_match.or(self.ui.prev_hovered).or(self.ui.selected_match)
+        self.ui
+            .hovered_match
+            .or(self.ui.prev_hovered)
+            .or(self.ui.selected_match)
     }
     pub fn select_match(&mut self, mi: usize) {
         self.ui.selected_match = Some(mi);
@@ -202,10 +215,19 @@ pub fn load_persisted(path: &Path) -> (Persisted, Option<String>) {
     match std::fs::read(path) {
         Ok(b) => match serde_json::from_slice(&b) {
             Ok(p) => (p, None),
-            Err(e) => (Persisted::default(), Some(format!("{}: ignored unreadable settings ({e})", path.display()))),
+            Err(e) => (
+                Persisted::default(),
+                Some(format!(
+                    "{}: ignored unreadable settings ({e})",
+                    path.display()
+                )),
+            ),
         },
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => (Persisted::default(), None),
-        Err(e) => (Persisted::default(), Some(format!("{}: {e}", path.display()))),
+        Err(e) => (
+            Persisted::default(),
+            Some(format!("{}: {e}", path.display())),
+        ),
     }
 }
 
@@ -216,8 +238,18 @@ pub fn save_persisted(path: &Path, p: &Persisted) -> Result<(), String> {
 
 /// Guesses what dropped files are, from their names.
 pub fn classify_drop(paths: &[PathBuf]) -> OpenKind {
-    let ext = |p: &PathBuf| p.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
-    let cloud = |p: &PathBuf| matches!(ext(p).as_str(), "ply" | "pcd" | "xyz" | "npy" | "bin" | "pth");
+    let ext = |p: &PathBuf| {
+        p.extension()
+            .and_then(|e| e.to_str())
+            .unwrap_or("")
+            .to_ascii_lowercase()
+    };
+    let cloud = |p: &PathBuf| {
+        matches!(
+            ext(p).as_str(),
+            "ply" | "pcd" | "xyz" | "npy" | "bin" | "pth"
+        )
+    };
     if paths.len() == 2 && paths.iter().all(cloud) {
         return OpenKind::TwoClouds;
     }
@@ -230,7 +262,13 @@ pub fn classify_drop(paths: &[PathBuf]) -> OpenKind {
             if p.join("seq-01").is_dir() || p.join("camera-intrinsics.txt").is_file() {
                 return OpenKind::RgbdSequence;
             }
-            if std::fs::read_dir(p).map(|d| d.flatten().any(|e| e.file_name().to_string_lossy().starts_with("video_"))).unwrap_or(false) {
+            if std::fs::read_dir(p)
+                .map(|d| {
+                    d.flatten()
+                        .any(|e| e.file_name().to_string_lossy().starts_with("video_"))
+                })
+                .unwrap_or(false)
+            {
                 return OpenKind::CosmosOutput;
             }
             return OpenKind::ThreeDMatchFolder;
@@ -267,7 +305,11 @@ pub struct App {
 
 impl App {
     /// `settings_path`: where settings persist (None: nothing is read or written).
-    pub fn new(model: InspectorModel, worker: Option<WorkerHandle>, settings_path: Option<PathBuf>) -> Self {
+    pub fn new(
+        model: InspectorModel,
+        worker: Option<WorkerHandle>,
+        settings_path: Option<PathBuf>,
+    ) -> Self {
         let mut app = Self {
             model,
             model_gen: view3d::next_id(),
@@ -329,7 +371,11 @@ impl App {
     pub fn set_model(&mut self, model: InspectorModel) {
         self.model = model;
         self.model_gen = view3d::next_id();
-        if self.ui_state.selected_match.is_some_and(|m| m >= self.model.matches.len()) {
+        if self
+            .ui_state
+            .selected_match
+            .is_some_and(|m| m >= self.model.matches.len())
+        {
             self.ui_state.selected_match = None;
         }
     }
@@ -344,7 +390,11 @@ impl App {
     }
 
     fn scene_specific_prompt(&self) -> String {
-        self.model.source_views.first().map(|v| v.label.prompt.clone()).unwrap_or_default()
+        self.model
+            .source_views
+            .first()
+            .map(|v| v.label.prompt.clone())
+            .unwrap_or_default()
     }
 
     pub fn push_log(&mut self, level: LogLevel, text: impl Into<String>) {
@@ -365,8 +415,11 @@ impl App {
         }
         let ok = self.worker.as_ref().map(|w| w.send(c.clone()));
         match ok {
-            Some(true) => self.push_log(LogLevel::Info, format!("→ {}", short(&c))),
-            Some(false) => self.push_log(LogLevel::Error, "the worker thread has stopped; command dropped"),
+            Some(true) => self.push_log(LogLevel::Info, format!("-> {}", short(&c))),
+            Some(false) => self.push_log(
+                LogLevel::Error,
+                "the worker thread has stopped; command dropped",
+            ),
             None => self.push_log(LogLevel::Info, format!("(no worker) {}", short(&c))),
         }
     }
@@ -391,7 +444,10 @@ impl App {
                 self.dialog = None;
                 match paths {
                     Some(paths) if !paths.is_empty() => self.send(Command::Open { kind, paths }),
-                    _ => self.push_log(LogLevel::Info, "open cancelled (or no file dialog available)"),
+                    _ => self.push_log(
+                        LogLevel::Info,
+                        "open cancelled (or no file dialog available)",
+                    ),
                 }
             }
         }
@@ -405,24 +461,29 @@ impl App {
         let (tx, rx) = channel();
         self.dialog = Some(rx);
         let ctx = ctx.clone();
-        let spawned = std::thread::Builder::new().name("cgenreg-dialog".into()).spawn(move || {
-            let fut = async move {
-                let d = rfd::AsyncFileDialog::new();
-                if kind.wants_folder() {
-                    d.pick_folder().await.map(|h| vec![h.path().to_path_buf()])
-                } else if kind == OpenKind::TwoClouds {
-                    d.add_filter("point clouds", &["ply", "pcd", "xyz", "npy", "bin"])
-                        .pick_files()
-                        .await
-                        .map(|v| v.iter().map(|h| h.path().to_path_buf()).collect())
-                } else {
-                    d.add_filter("manifest", &["json", "toml", "txt"]).pick_file().await.map(|h| vec![h.path().to_path_buf()])
-                }
-            };
-            let r = block_on(fut);
-            let _ = tx.send((kind, r));
-            ctx.request_repaint();
-        });
+        let spawned = std::thread::Builder::new()
+            .name("cgenreg-dialog".into())
+            .spawn(move || {
+                let fut = async move {
+                    let d = rfd::AsyncFileDialog::new();
+                    if kind.wants_folder() {
+                        d.pick_folder().await.map(|h| vec![h.path().to_path_buf()])
+                    } else if kind == OpenKind::TwoClouds {
+                        d.add_filter("point clouds", &["ply", "pcd", "xyz", "npy", "bin"])
+                            .pick_files()
+                            .await
+                            .map(|v| v.iter().map(|h| h.path().to_path_buf()).collect())
+                    } else {
+                        d.add_filter("manifest", &["json", "toml", "txt"])
+                            .pick_file()
+                            .await
+                            .map(|h| vec![h.path().to_path_buf()])
+                    }
+                };
+                let r = block_on(fut);
+                let _ = tx.send((kind, r));
+                ctx.request_repaint();
+            });
         if spawned.is_err() {
             self.dialog = None;
             self.push_log(LogLevel::Error, "could not start the file dialog thread");
@@ -430,15 +491,27 @@ impl App {
     }
 
     fn handle_drops(&mut self, ctx: &egui::Context) {
-        let dropped: Vec<PathBuf> = ctx.input(|i| i.raw.dropped_files.iter().filter_map(|f| f.path.clone()).collect());
+        let dropped: Vec<PathBuf> = ctx.input(|i| {
+            i.raw
+                .dropped_files
+                .iter()
+                .map(|f| f.path().to_path_buf())
+                .filter(|p| !p.as_os_str().is_empty())
+                .collect()
+        });
         if !dropped.is_empty() {
             let kind = classify_drop(&dropped);
-            self.send(Command::Open { kind, paths: dropped });
+            self.send(Command::Open {
+                kind,
+                paths: dropped,
+            });
         }
     }
 
     fn save_if_changed(&mut self) {
-        let Some(path) = self.settings_path.clone() else { return };
+        let Some(path) = self.settings_path.clone() else {
+            return;
+        };
         let p = self.persisted();
         if self.last_saved.as_ref() != Some(&p) {
             if let Err(e) = save_persisted(&path, &p) {
@@ -457,67 +530,99 @@ impl App {
         self.ui_state.prev_hovered = self.ui_state.hovered_match.take();
         let mut commands: Vec<Command> = Vec::new();
         let mut open_request: Option<OpenKind> = None;
+        let scene = self.scene_specific_prompt();
 
         egui::Panel::bottom("log_bar").show(ui, |ui| self.log_bar(ui));
 
-        egui::Panel::left("controls").default_size(300.0).resizable(true).show(ui, |ui| {
-            egui::ScrollArea::vertical().id_salt("controls_scroll").show(ui, |ui| {
-                ui.horizontal(|ui| {
-                    ui.heading("C-GenReg inspector");
-                });
-                ui.menu_button("Open…", |ui| {
-                    for k in [OpenKind::Manifest, OpenKind::ThreeDMatchFolder, OpenKind::RgbdSequence, OpenKind::TwoClouds, OpenKind::CosmosOutput] {
-                        if ui.button(k.label()).clicked() {
-                            open_request = Some(k);
-                            ui.close();
-                        }
-                    }
-                });
-                if let Some((k, paths)) = self.last_opened.clone() {
-                    if ui.small_button("Reopen last").on_hover_text(format!("{paths:?}")).clicked() {
-                        commands.push(Command::Open { kind: k, paths });
-                    }
-                }
-                ui.separator();
-                ui.strong("Pairs");
-                pairs_panel::pairs_panel(ui, &self.model, &mut self.ui_state.pair_sort, &mut commands);
-                ui.separator();
-                ui.strong("Correspondences");
-                egui::ComboBox::from_label("Match colours").selected_text(self.ui_state.match_mode.label()).show_ui(ui, |ui| {
-                    for m in MatchColorMode::ALL {
-                        ui.selectable_value(&mut self.ui_state.match_mode, m, m.label());
-                    }
-                });
-                let n = self.model.matches.len().max(1);
-                ui.add(egui::Slider::new(&mut self.ui_state.match_count, 0..=n).text("matches shown"));
-                if let Some(mi) = self.ui_state.selected_match {
-                    if let Some(m) = self.model.matches.get(mi) {
-                        ui.label(format!(
-                            "selected #{mi}: src {} → tgt {} · score {:.2} · {} · {}",
-                            m.src,
-                            m.tgt,
-                            m.score,
-                            m.branch.label(),
-                            match m.inlier_gt {
-                                Some(true) => "GT inlier",
-                                Some(false) => "GT outlier",
-                                None => "GT unknown",
+        egui::Panel::left("controls")
+            .default_size(300.0)
+            .resizable(true)
+            .show(ui, |ui| {
+                egui::ScrollArea::vertical()
+                    .id_salt("controls_scroll")
+                    .show(ui, |ui| {
+                        ui.horizontal(|ui| {
+                            ui.heading("C-GenReg inspector");
+                        });
+                        ui.menu_button("Open…", |ui| {
+                            for k in [
+                                OpenKind::Manifest,
+                                OpenKind::ThreeDMatchFolder,
+                                OpenKind::RgbdSequence,
+                                OpenKind::TwoClouds,
+                                OpenKind::CosmosOutput,
+                            ] {
+                                if ui.button(k.label()).clicked() {
+                                    open_request = Some(k);
+                                    ui.close();
+                                }
                             }
-                        ));
-                    }
-                }
-                ui.separator();
-                if let Some(p) = self.model.generation_missing.clone() {
-                    ui.colored_label(egui::Color32::from_rgb(230, 190, 60), format!("No cached generation for this prompt:\n“{p}”"));
-                    if ui.button("Run the generator").clicked() {
-                        commands.push(Command::RunGenerator { prompt: p });
-                    }
-                    ui.separator();
-                }
-                let scene = self.scene_specific_prompt();
-                controls::controls_ui(ui, &mut self.settings, &scene, &mut commands);
+                        });
+                        if let Some((k, paths)) = self.last_opened.clone() {
+                            if ui
+                                .small_button("Reopen last")
+                                .on_hover_text(format!("{paths:?}"))
+                                .clicked()
+                            {
+                                commands.push(Command::Open { kind: k, paths });
+                            }
+                        }
+                        ui.separator();
+                        ui.strong("Pairs");
+                        pairs_panel::pairs_panel(
+                            ui,
+                            &self.model,
+                            &mut self.ui_state.pair_sort,
+                            &mut commands,
+                        );
+                        ui.separator();
+                        ui.strong("Correspondences");
+                        egui::ComboBox::from_label("Match colours")
+                            .selected_text(self.ui_state.match_mode.label())
+                            .show_ui(ui, |ui| {
+                                for m in MatchColorMode::ALL {
+                                    ui.selectable_value(
+                                        &mut self.ui_state.match_mode,
+                                        m,
+                                        m.label(),
+                                    );
+                                }
+                            });
+                        let n = self.model.matches.len().max(1);
+                        ui.add(
+                            egui::Slider::new(&mut self.ui_state.match_count, 0..=n)
+                                .text("matches shown"),
+                        );
+                        if let Some(mi) = self.ui_state.selected_match {
+                            if let Some(m) = self.model.matches.get(mi) {
+                                ui.label(format!(
+                                    "selected #{mi}: src {} -> tgt {} · score {:.2} · {} · {}",
+                                    m.src,
+                                    m.tgt,
+                                    m.score,
+                                    m.branch.label(),
+                                    match m.inlier_gt {
+                                        Some(true) => "GT inlier",
+                                        Some(false) => "GT outlier",
+                                        None => "GT unknown",
+                                    }
+                                ));
+                            }
+                        }
+                        ui.separator();
+                        if let Some(p) = self.model.generation_missing.clone() {
+                            ui.colored_label(
+                                egui::Color32::from_rgb(230, 190, 60),
+                                format!("No cached generation for this prompt:\n“{p}”"),
+                            );
+                            if ui.button("Run the generator").clicked() {
+                                commands.push(Command::RunGenerator { prompt: p });
+                            }
+                            ui.separator();
+                        }
+                        controls::controls_ui(ui, &mut self.settings, &scene, &mut commands);
+                    });
             });
-        });
 
         egui::CentralPanel::default().show(ui, |ui| {
             ui.horizontal(|ui| {
@@ -535,7 +640,12 @@ impl App {
                 }
             });
             ui.separator();
-            let mut shared = Shared { model: &self.model, model_gen: self.model_gen, ui: &mut self.ui_state, commands: &mut commands };
+            let mut shared = Shared {
+                model: &self.model,
+                model_gen: self.model_gen,
+                ui: &mut self.ui_state,
+                commands: &mut commands,
+            };
             match shared.ui.tab {
                 Panel::Views => {
                     ui.checkbox(&mut shared.ui.show_3d_below_views, "3D view below");
@@ -548,7 +658,12 @@ impl App {
                     }
                 }
                 Panel::View3d => view3d::view3d_panel(ui, &mut shared, &mut self.view3d),
-                Panel::Posterior => posterior_panel::posterior_panel(ui, &mut shared, &mut self.views, &mut self.posterior),
+                Panel::Posterior => posterior_panel::posterior_panel(
+                    ui,
+                    &mut shared,
+                    &mut self.views,
+                    &mut self.posterior,
+                ),
                 Panel::Plots => plots_panel::plots_panel(ui, &self.model),
                 Panel::Stages => stages_panel::stages_panel(ui, &self.model),
             }
@@ -561,21 +676,39 @@ impl App {
             self.send(c);
         }
         if ctx.input(|i| !i.raw.hovered_files.is_empty()) {
-            let painter = ctx.layer_painter(egui::LayerId::new(egui::Order::Foreground, egui::Id::new("drop")));
+            let painter = ctx.layer_painter(egui::LayerId::new(
+                egui::Order::Foreground,
+                egui::Id::unique("drop"),
+            ));
             let r = ctx.content_rect();
             painter.rect_filled(r, 0.0, egui::Color32::from_black_alpha(160));
-            painter.text(r.center(), egui::Align2::CENTER_CENTER, "Drop scan files or folders to open", egui::FontId::proportional(24.0), egui::Color32::WHITE);
+            painter.text(
+                r.center(),
+                egui::Align2::CENTER_CENTER,
+                "Drop scan files or folders to open",
+                egui::FontId::proportional(24.0),
+                egui::Color32::WHITE,
+            );
         }
         self.save_if_changed();
     }
 
     fn log_bar(&mut self, ui: &mut egui::Ui) {
         ui.horizontal(|ui| {
-            let label = if self.show_log { "▼ log" } else { "▲ log" };
+            let label = if self.show_log {
+                "Hide log"
+            } else {
+                "Show log"
+            };
             if ui.small_button(label).clicked() {
                 self.show_log = !self.show_log;
             }
-            if self.model.stages.iter().any(|s| s.state == model::StageState::Running) {
+            if self
+                .model
+                .stages
+                .iter()
+                .any(|s| s.state == model::StageState::Running)
+            {
                 ui.spinner();
             }
             if let Some(l) = self.log.last() {
@@ -585,11 +718,15 @@ impl App {
             }
         });
         if self.show_log {
-            egui::ScrollArea::vertical().id_salt("log").max_height(120.0).stick_to_bottom(true).show(ui, |ui| {
-                for l in &self.log {
-                    ui.colored_label(level_color(l.level), &l.text);
-                }
-            });
+            egui::ScrollArea::vertical()
+                .id_salt("log")
+                .max_height(120.0)
+                .stick_to_bottom(true)
+                .show(ui, |ui| {
+                    for l in &self.log {
+                        ui.colored_label(level_color(l.level), &l.text);
+                    }
+                });
         }
     }
 }
@@ -605,7 +742,10 @@ fn level_color(l: LogLevel) -> egui::Color32 {
 fn short(c: &Command) -> String {
     let s = format!("{c:?}");
     if s.len() > 120 {
-        format!("{}…", &s[..s.char_indices().nth(117).map(|x| x.0).unwrap_or(s.len())])
+        format!(
+            "{}…",
+            &s[..s.char_indices().nth(117).map(|x| x.0).unwrap_or(s.len())]
+        )
     } else {
         s
     }
@@ -637,6 +777,10 @@ impl eframe::App for EframeApp {
     fn ui(&mut self, ui: &mut egui::Ui, _frame: &mut eframe::Frame) {
         self.0.show(ui);
     }
+    fn on_exit(&mut self, _gl: Option<&eframe::glow::Context>) {
+        // the GL context is still current here; free the 3D buffers before it goes
+        render3d::release_gl(None);
+    }
 }
 
 /// Opens the inspector window (blocks until it is closed).
@@ -644,15 +788,25 @@ pub fn run_gui(model: InspectorModel, worker: Box<dyn Worker>) -> Result<(), Str
     let options = eframe::NativeOptions {
         renderer: eframe::Renderer::Glow,
         depth_buffer: 24,
-        viewport: egui::ViewportBuilder::default().with_inner_size([1400.0, 900.0]).with_title("C-GenReg inspector").with_drag_and_drop(true),
+        viewport: egui::ViewportBuilder::default()
+            .with_inner_size([1400.0, 900.0])
+            .with_title("C-GenReg inspector")
+            .with_drag_and_drop(true),
         ..Default::default()
     };
     eframe::run_native(
         "cgenreg inspector",
         options,
         Box::new(move |cc| {
+            // a missing glyph (e.g. in a user's prompt) must draw a box, never abort
+            cc.egui_ctx
+                .set_missing_glyph_policy(egui::MissingGlyphPolicy::Tofu);
             let handle = spawn_worker(worker, Some(cc.egui_ctx.clone()));
-            Ok(Box::new(EframeApp(App::new(model, Some(handle), default_settings_path()))))
+            Ok(Box::new(EframeApp(App::new(
+                model,
+                Some(handle),
+                default_settings_path(),
+            ))))
         }),
     )
     .map_err(|e| format!("could not open the inspector window: {e}"))
@@ -688,12 +842,21 @@ mod tests {
     #[test]
     fn drops_are_classified() {
         let dir = tempfile::tempdir().unwrap();
-        assert_eq!(classify_drop(&["a.ply".into(), "b.PLY".into()]), OpenKind::TwoClouds);
+        assert_eq!(
+            classify_drop(&["a.ply".into(), "b.PLY".into()]),
+            OpenKind::TwoClouds
+        );
         assert_eq!(classify_drop(&["m.json".into()]), OpenKind::Manifest);
         std::fs::create_dir(dir.path().join("video_0")).unwrap();
-        assert_eq!(classify_drop(&[dir.path().to_path_buf()]), OpenKind::CosmosOutput);
+        assert_eq!(
+            classify_drop(&[dir.path().to_path_buf()]),
+            OpenKind::CosmosOutput
+        );
         let seq = tempfile::tempdir().unwrap();
         std::fs::create_dir(seq.path().join("seq-01")).unwrap();
-        assert_eq!(classify_drop(&[seq.path().to_path_buf()]), OpenKind::RgbdSequence);
+        assert_eq!(
+            classify_drop(&[seq.path().to_path_buf()]),
+            OpenKind::RgbdSequence
+        );
     }
 }

@@ -71,7 +71,11 @@ pub struct RgbImage {
 
 impl RgbImage {
     pub fn new(width: u32, height: u32) -> Self {
-        Self { width, height, pixels: vec![0; (width * height * 3) as usize] }
+        Self {
+            width,
+            height,
+            pixels: vec![0; (width * height * 3) as usize],
+        }
     }
     pub fn put(&mut self, x: u32, y: u32, rgb: [u8; 3]) {
         if x < self.width && y < self.height {
@@ -242,7 +246,9 @@ impl InspectorModel {
 
     /// Posterior for a source point, if the pipeline computed one.
     pub fn posterior_for(&self, source_point: usize) -> Option<&Posterior> {
-        self.posteriors.iter().find(|p| p.source_point == source_point)
+        self.posteriors
+            .iter()
+            .find(|p| p.source_point == source_point)
     }
 
     /// Axis-aligned bounds of both clouds (target frame for the target, source frame for the
@@ -264,7 +270,10 @@ impl InspectorModel {
 /// Rotation angle between two rotations, degrees, and translation distance, metres.
 pub fn pose_errors(a: &Isometry3<f64>, b: &Isometry3<f64>) -> (f64, f64) {
     let d = a.rotation.inverse() * b.rotation;
-    (d.angle().to_degrees(), (a.translation.vector - b.translation.vector).norm())
+    (
+        d.angle().to_degrees(),
+        (a.translation.vector - b.translation.vector).norm(),
+    )
 }
 
 mod demo {
@@ -305,7 +314,11 @@ mod demo {
             if r < 0.3 {
                 p = [rng.range(-1.5, 1.5), 1.0, rng.range(1.0, 4.0)];
                 let checker = ((p[0] * 2.0).floor() as i32 + (p[2] * 2.0).floor() as i32) & 1;
-                c = if checker == 0 { [150, 120, 90] } else { [110, 85, 60] };
+                c = if checker == 0 {
+                    [150, 120, 90]
+                } else {
+                    [110, 85, 60]
+                };
             } else if r < 0.5 {
                 p = [rng.range(-1.5, 1.5), rng.range(-1.0, 1.0), 4.0];
                 c = [200, 200, 185];
@@ -325,7 +338,11 @@ mod demo {
             } else {
                 let (th, ph) = (rng.range(0.0, std::f32::consts::TAU), rng.range(-1.0, 1.0));
                 let s = (1.0 - ph * ph).sqrt();
-                p = [-0.7 + 0.35 * s * th.cos(), 0.65 + 0.35 * ph, 2.8 + 0.35 * s * th.sin()];
+                p = [
+                    -0.7 + 0.35 * s * th.cos(),
+                    0.65 + 0.35 * ph,
+                    2.8 + 0.35 * s * th.sin(),
+                ];
                 c = [60, 140, 70];
             }
             pts.push((p, c));
@@ -366,7 +383,7 @@ mod demo {
         for (p, c) in pts {
             let pc = camera_from_cloud * to_f64(*p);
             if let Some((u, v)) = k.project(&pc) {
-                let r = (3.0 / pc.z).clamp(1.0, 3.0) as i64;
+                let r = (5.0 / pc.z).clamp(1.0, 4.0) as i64;
                 let (ui, vi) = (u as i64, v as i64);
                 for dy in -r..=r {
                     for dx in -r..=r {
@@ -427,8 +444,18 @@ mod demo {
         let world_from_source = iso(0.05, 0.35, 0.0, [0.3, 0.0, 0.2]);
         let world_from_target = iso(-0.03, -0.25, 0.02, [-0.4, 0.05, 0.0]);
         let gt = world_from_target.inverse() * world_from_source;
-        let src_world: Vec<_> = world.iter().filter(|(p, _)| p[0] < 0.6).take(n).cloned().collect();
-        let tgt_world: Vec<_> = world.iter().filter(|(p, _)| p[0] > -0.9).take(n).cloned().collect();
+        let src_world: Vec<_> = world
+            .iter()
+            .filter(|(p, _)| p[0] < 0.6)
+            .take(n)
+            .cloned()
+            .collect();
+        let tgt_world: Vec<_> = world
+            .iter()
+            .filter(|(p, _)| p[0] > -0.9)
+            .take(n)
+            .cloned()
+            .collect();
         let to_frame = |pts: &[([f32; 3], [u8; 3])], world_from: &Isometry3<f64>, rng: &mut Rng| {
             let inv = world_from.inverse();
             pts.iter()
@@ -478,10 +505,18 @@ mod demo {
                 continue; // outside the overlap
             }
             let good = rng.f32() < 0.7;
-            let t = if good { t_true } else { rng.usize(target.len()) };
+            let t = if good {
+                t_true
+            } else {
+                rng.usize(target.len())
+            };
             let err = (gt * to_f64(source[s]) - to_f64(target[t])).norm();
             let inlier = err < 0.1;
-            let score = if inlier { rng.range(0.45, 1.0) } else { rng.range(0.0, 0.7) };
+            let score = if inlier {
+                rng.range(0.45, 1.0)
+            } else {
+                rng.range(0.0, 0.7)
+            };
             let branch = match rng.usize(3) {
                 0 => Branch::Image,
                 1 => Branch::Geometry,
@@ -499,13 +534,34 @@ mod demo {
 
         // K = 2 views per scan, looking into the room from the scan's own origin.
         let k = 2;
-        let intr = Intrinsics { fx: 150.0, fy: 150.0, cx: 160.0, cy: 120.0, width: 320, height: 240 };
+        let intr = Intrinsics {
+            fx: 150.0,
+            fy: 150.0,
+            cx: 160.0,
+            cy: 120.0,
+            width: 320,
+            height: 240,
+        };
         let mk_views = |pts: &[([f32; 3], [u8; 3])], is_src: bool, tint: [f32; 3]| {
+            let n = pts.len().max(1) as f64;
+            let c = pts.iter().fold(nalgebra::Vector3::zeros(), |a, (p, _)| {
+                a + to_f64(*p).coords
+            }) / n;
             (0..k)
                 .map(|v| {
-                    let yaw = (v as f64 - 0.5) * 0.35;
+                    // look at the cloud's centroid from 2.3 m away, K views spread in yaw
+                    let yaw = (v as f64 - (k as f64 - 1.0) / 2.0) * 0.5;
+                    let back = nalgebra::Vector3::new(-yaw.sin(), -0.45, -yaw.cos()).normalize();
+                    let eye = c + back * 2.3;
+                    let z = (c - eye).normalize();
+                    let x = nalgebra::Vector3::new(0.0, 1.0, 0.0).cross(&z).normalize();
+                    let y = z.cross(&x);
+                    let rot = nalgebra::Rotation3::from_matrix_unchecked(nalgebra::Matrix3::from_columns(&[x, y, z]));
                     let cam = ViewCamera {
-                        cloud_from_camera: iso(0.12, yaw, 0.0, [0.0, -0.3, -0.6]),
+                        cloud_from_camera: Isometry3::from_parts(
+                            Translation3::from(eye),
+                            UnitQuaternion::from_rotation_matrix(&rot),
+                        ),
                         intrinsics: intr,
                     };
                     let (rgb, depth, zbuf) = render_view(pts, &cam, tint);
@@ -556,8 +612,10 @@ mod demo {
                     (-(d * d) / 0.01).max(-(dd * dd) / 0.01 - 0.7) as f32 * 1.0
                 })
                 .collect();
-            let geo_logits: Vec<f32> =
-                cand.iter().map(|(_, d)| (-(d * d) / 0.08) as f32 + 0.3 * rng.f32()).collect();
+            let geo_logits: Vec<f32> = cand
+                .iter()
+                .map(|(_, d)| (-(d * d) / 0.08) as f32 + 0.3 * rng.f32())
+                .collect();
             let image = softmax(&image_logits);
             let geometric = softmax(&geo_logits);
             let prod: Vec<f32> = image.iter().zip(&geometric).map(|(a, b)| a * b).collect();
@@ -604,7 +662,11 @@ mod demo {
             let e = ((i * 37) % 11) as f64;
             pairs.push(PairEntry {
                 id: format!("demo/redkitchen {}-{}", i * 50, i * 50 + 50),
-                status: if i == 5 { PairStatus::Failed("no overlap".into()) } else { PairStatus::Done },
+                status: if i == 5 {
+                    PairStatus::Failed("no overlap".into())
+                } else {
+                    PairStatus::Done
+                },
                 rre_deg: (i != 5).then_some(0.4 + e * e * 0.3),
                 rte_m: (i != 5).then_some(0.01 + e * 0.012),
             });
@@ -628,7 +690,11 @@ mod demo {
             ("SC2-PCR", StageState::Done, Some(36.0)),
         ]
         .into_iter()
-        .map(|(n, s, t)| StageInfo { name: n.into(), state: s, time_ms: t })
+        .map(|(n, s, t)| StageInfo {
+            name: n.into(),
+            state: s,
+            time_ms: t,
+        })
         .collect();
 
         let pr = |name: &str, sharp: f64| PrCurve {
@@ -643,7 +709,11 @@ mod demo {
         let plots = PlotData {
             pr_curves: vec![pr("Noisy-AND", 2.6), pr("Noisy-OR", 1.4)],
             vs_k: (1..=6)
-                .map(|k| KPoint { k, rre_deg: 4.0 / k as f64 + 0.8, rte_m: 0.12 / k as f64 + 0.03 })
+                .map(|k| KPoint {
+                    k,
+                    rre_deg: 4.0 / k as f64 + 0.8,
+                    rte_m: 0.12 / k as f64 + 0.03,
+                })
                 .collect(),
             prompt_study: [
                 ("no prompt", 3.1, 0.09),
@@ -653,7 +723,12 @@ mod demo {
                 ("adversarial", 5.4, 0.16),
             ]
             .into_iter()
-            .map(|(c, r, t)| PromptBar { category: c.into(), rre_deg: r, rte_m: t, pairs: 8 })
+            .map(|(c, r, t)| PromptBar {
+                category: c.into(),
+                rre_deg: r,
+                rte_m: t,
+                pairs: 8,
+            })
             .collect(),
         };
 
@@ -695,12 +770,19 @@ mod tests {
             let d = (q - Point3::new(t[0] as f64, t[1] as f64, t[2] as f64)).norm();
             assert_eq!(c.inlier_gt, Some(d < 0.1));
         }
-        let inl = m.matches.iter().filter(|c| c.inlier_gt == Some(true)).count();
+        let inl = m
+            .matches
+            .iter()
+            .filter(|c| c.inlier_gt == Some(true))
+            .count();
         assert!(inl * 2 > m.matches.len(), "inlier ratio too low: {inl}");
         for v in m.source_views.iter().chain(&m.target_views) {
             assert_eq!(v.match_pixels.len(), m.matches.len());
             let visible = v.match_pixels.iter().flatten().count();
-            assert!(visible > m.matches.len() / 4, "too few visible endpoints: {visible}");
+            assert!(
+                visible > m.matches.len() / 4,
+                "too few visible endpoints: {visible}"
+            );
         }
         for p in &m.posteriors {
             for row in [&p.image, &p.geometric, &p.fused] {

@@ -25,46 +25,70 @@ pub fn sorted_pairs(pairs: &[PairEntry], sort: PairSort) -> Vec<usize> {
     };
     match sort {
         PairSort::Name => idx.sort_by(|&a, &b| pairs[a].id.cmp(&pairs[b].id)),
-        PairSort::RreWorstFirst => idx.sort_by(|&a, &b| key(&pairs[b], true).total_cmp(&key(&pairs[a], true))),
-        PairSort::RteWorstFirst => idx.sort_by(|&a, &b| key(&pairs[b], false).total_cmp(&key(&pairs[a], false))),
+        PairSort::RreWorstFirst => {
+            idx.sort_by(|&a, &b| key(&pairs[b], true).total_cmp(&key(&pairs[a], true)))
+        }
+        PairSort::RteWorstFirst => {
+            idx.sort_by(|&a, &b| key(&pairs[b], false).total_cmp(&key(&pairs[a], false)))
+        }
     }
     idx
 }
 
-pub fn pairs_panel(ui: &mut egui::Ui, model: &InspectorModel, sort: &mut PairSort, out: &mut Vec<Command>) {
+pub fn pairs_panel(
+    ui: &mut egui::Ui,
+    model: &InspectorModel,
+    sort: &mut PairSort,
+    out: &mut Vec<Command>,
+) {
     ui.horizontal(|ui| {
         ui.label("Sort:");
-        ui.selectable_value(sort, PairSort::RreWorstFirst, "RRE ↓");
-        ui.selectable_value(sort, PairSort::RteWorstFirst, "RTE ↓");
+        ui.selectable_value(sort, PairSort::RreWorstFirst, "worst RRE");
+        ui.selectable_value(sort, PairSort::RteWorstFirst, "worst RTE");
         ui.selectable_value(sort, PairSort::Name, "name");
     });
-    egui::ScrollArea::vertical().id_salt("pairs").max_height(170.0).show(ui, |ui| {
-        egui::Grid::new("pairs_grid").striped(true).num_columns(4).show(ui, |ui| {
-            ui.strong("pair");
-            ui.strong("status");
-            ui.strong("RRE °");
-            ui.strong("RTE cm");
-            ui.end_row();
-            for i in sorted_pairs(&model.pairs, *sort) {
-                let p = &model.pairs[i];
-                let current = model.current_pair == Some(i);
-                if ui.selectable_label(current, &p.id).clicked() && !current {
-                    out.push(Command::SelectPair(p.id.clone()));
-                }
-                match &p.status {
-                    PairStatus::Failed(m) => {
-                        ui.colored_label(egui::Color32::from_rgb(240, 80, 70), "failed").on_hover_text(m);
+    egui::ScrollArea::vertical()
+        .id_salt("pairs")
+        .max_height(170.0)
+        .show(ui, |ui| {
+            egui::Grid::new("pairs_grid")
+                .striped(true)
+                .num_columns(4)
+                .show(ui, |ui| {
+                    ui.strong("pair");
+                    ui.strong("status");
+                    ui.strong("RRE °");
+                    ui.strong("RTE cm");
+                    ui.end_row();
+                    for i in sorted_pairs(&model.pairs, *sort) {
+                        let p = &model.pairs[i];
+                        let current = model.current_pair == Some(i);
+                        if ui.selectable_label(current, &p.id).clicked() && !current {
+                            out.push(Command::SelectPair(p.id.clone()));
+                        }
+                        match &p.status {
+                            PairStatus::Failed(m) => {
+                                ui.colored_label(egui::Color32::from_rgb(240, 80, 70), "failed")
+                                    .on_hover_text(m);
+                            }
+                            s => {
+                                ui.label(format!("{s:?}").to_lowercase());
+                            }
+                        }
+                        ui.label(
+                            p.rre_deg
+                                .map(|v| format!("{v:.2}"))
+                                .unwrap_or_else(|| "–".into()),
+                        );
+                        ui.label(
+                            p.rte_m
+                                .map(|v| format!("{:.1}", v * 100.0))
+                                .unwrap_or_else(|| "–".into()),
+                        );
+                        ui.end_row();
                     }
-                    s => {
-                        ui.label(format!("{s:?}").to_lowercase());
-                    }
-                }
-                ui.label(p.rre_deg.map(|v| format!("{v:.2}")).unwrap_or_else(|| "–".into()));
-                ui.label(p.rte_m.map(|v| format!("{:.1}", v * 100.0)).unwrap_or_else(|| "–".into()));
-                ui.end_row();
-            }
+                });
         });
-    });
 }
 
 #[cfg(test)]

@@ -25,23 +25,41 @@ pub fn per_pair_plot(ui: &mut egui::Ui, model: &InspectorModel, h: f32) {
     let rre: Vec<Bar> = done
         .iter()
         .enumerate()
-        .map(|(i, p)| Bar::new(i as f64 - 0.18, p.rre_deg.unwrap_or(0.0)).width(0.36).name(&p.id))
+        .map(|(i, p)| {
+            Bar::new(i as f64 - 0.18, p.rre_deg.unwrap_or(0.0))
+                .width(0.36)
+                .name(&p.id)
+        })
         .collect();
     let rte: Vec<Bar> = done
         .iter()
         .enumerate()
-        .map(|(i, p)| Bar::new(i as f64 + 0.18, p.rte_m.unwrap_or(0.0) * 100.0).width(0.36).name(&p.id))
+        .map(|(i, p)| {
+            Bar::new(i as f64 + 0.18, p.rte_m.unwrap_or(0.0) * 100.0)
+                .width(0.36)
+                .name(&p.id)
+        })
         .collect();
-    plot("per_pair", "RRE / RTE per pair", "pair", "RRE (°) · RTE (cm)", ui, h)
-        .include_y(0.0)
-        .show(ui, |p| {
-            p.bar_chart(BarChart::new("RRE (°)", rre).color(RRE_COLOR));
-            p.bar_chart(BarChart::new("RTE (cm)", rte).color(RTE_COLOR));
-        });
+    plot(
+        "per_pair",
+        "RRE / RTE per pair",
+        "pair",
+        "RRE (°) · RTE (cm)",
+        ui,
+        h,
+    )
+    .include_y(0.0)
+    .show(ui, |p| {
+        p.bar_chart(BarChart::new("RRE (°)", rre).color(RRE_COLOR));
+        p.bar_chart(BarChart::new("RTE (cm)", rte).color(RTE_COLOR));
+    });
 }
 
 pub fn pr_plot(ui: &mut egui::Ui, model: &InspectorModel, h: f32) {
-    let colors = [egui::Color32::from_rgb(60, 200, 90), egui::Color32::from_rgb(230, 80, 60)];
+    let colors = [
+        egui::Color32::from_rgb(60, 200, 90),
+        egui::Color32::from_rgb(230, 80, 60),
+    ];
     plot("pr", "Match precision–recall", "recall", "precision", ui, h)
         .include_x(0.0)
         .include_x(1.0)
@@ -59,16 +77,49 @@ pub fn pr_plot(ui: &mut egui::Ui, model: &InspectorModel, h: f32) {
 }
 
 pub fn vs_k_plot(ui: &mut egui::Ui, model: &InspectorModel, h: f32) {
-    let rre: Vec<[f64; 2]> = model.plots.vs_k.iter().map(|k| [k.k as f64, k.rre_deg]).collect();
-    let rte: Vec<[f64; 2]> = model.plots.vs_k.iter().map(|k| [k.k as f64, k.rte_m * 100.0]).collect();
-    plot("vs_k", "RRE / RTE against K", "K (views per scan)", "RRE (°) · RTE (cm)", ui, h)
-        .include_y(0.0)
-        .show(ui, |p| {
-            p.line(Line::new("RRE (°)", PlotPoints::from(rre.clone())).color(RRE_COLOR).width(2.0));
-            p.points(Points::new("RRE (°) pts", PlotPoints::from(rre)).color(RRE_COLOR).radius(3.0));
-            p.line(Line::new("RTE (cm)", PlotPoints::from(rte.clone())).color(RTE_COLOR).width(2.0));
-            p.points(Points::new("RTE (cm) pts", PlotPoints::from(rte)).color(RTE_COLOR).radius(3.0));
-        });
+    let rre: Vec<[f64; 2]> = model
+        .plots
+        .vs_k
+        .iter()
+        .map(|k| [k.k as f64, k.rre_deg])
+        .collect();
+    let rte: Vec<[f64; 2]> = model
+        .plots
+        .vs_k
+        .iter()
+        .map(|k| [k.k as f64, k.rte_m * 100.0])
+        .collect();
+    plot(
+        "vs_k",
+        "RRE / RTE against K",
+        "K (views per scan)",
+        "RRE (°) · RTE (cm)",
+        ui,
+        h,
+    )
+    .include_y(0.0)
+    .show(ui, |p| {
+        p.line(
+            Line::new("RRE (°)", PlotPoints::from(rre.clone()))
+                .color(RRE_COLOR)
+                .width(2.0),
+        );
+        p.points(
+            Points::new("RRE (°)", PlotPoints::from(rre))
+                .color(RRE_COLOR)
+                .radius(3.0),
+        );
+        p.line(
+            Line::new("RTE (cm)", PlotPoints::from(rte.clone()))
+                .color(RTE_COLOR)
+                .width(2.0),
+        );
+        p.points(
+            Points::new("RTE (cm)", PlotPoints::from(rte))
+                .color(RTE_COLOR)
+                .radius(3.0),
+        );
+    });
 }
 
 pub fn prompt_plot(ui: &mut egui::Ui, model: &InspectorModel, h: f32) {
@@ -76,28 +127,48 @@ pub fn prompt_plot(ui: &mut egui::Ui, model: &InspectorModel, h: f32) {
     let rre: Vec<Bar> = bars
         .iter()
         .enumerate()
-        .map(|(i, b)| Bar::new(i as f64 - 0.18, b.rre_deg).width(0.36).name(format!("{} ({} pairs)", b.category, b.pairs)))
+        .map(|(i, b)| {
+            Bar::new(i as f64 - 0.18, b.rre_deg)
+                .width(0.36)
+                .name(format!("{} ({} pairs)", b.category, b.pairs))
+        })
         .collect();
     let rte: Vec<Bar> = bars
         .iter()
         .enumerate()
-        .map(|(i, b)| Bar::new(i as f64 + 0.18, b.rte_m * 100.0).width(0.36).name(format!("{} ({} pairs)", b.category, b.pairs)))
+        .map(|(i, b)| {
+            Bar::new(i as f64 + 0.18, b.rte_m * 100.0)
+                .width(0.36)
+                .name(format!("{} ({} pairs)", b.category, b.pairs))
+        })
         .collect();
     let names: Vec<String> = bars.iter().map(|b| b.category.clone()).collect();
-    plot("prompt", "Prompt study (cached generations)", "prompt category", "RRE (°) · RTE (cm)", ui, h)
-        .include_y(0.0)
-        .x_axis_formatter(move |mark, _range| {
-            let i = mark.value.round();
-            if (mark.value - i).abs() < 1e-6 && i >= 0.0 {
-                names.get(i as usize).cloned().unwrap_or_default()
-            } else {
-                String::new()
-            }
-        })
-        .show(ui, |p| {
-            p.bar_chart(BarChart::new("RRE (°)", rre).color(RRE_COLOR));
-            p.bar_chart(BarChart::new("RTE (cm)", rte).color(RTE_COLOR));
-        });
+    let top = bars
+        .iter()
+        .map(|b| b.rre_deg.max(b.rte_m * 100.0))
+        .fold(0.0, f64::max);
+    plot(
+        "prompt",
+        "Prompt study (cached generations)",
+        "prompt category",
+        "RRE (°) · RTE (cm)",
+        ui,
+        h,
+    )
+    .include_y(0.0)
+    .include_y(top * 1.25)
+    .x_axis_formatter(move |mark, _range| {
+        let i = mark.value.round();
+        if (mark.value - i).abs() < 1e-6 && i >= 0.0 {
+            names.get(i as usize).cloned().unwrap_or_default()
+        } else {
+            String::new()
+        }
+    })
+    .show(ui, |p| {
+        p.bar_chart(BarChart::new("RRE (°)", rre).color(RRE_COLOR));
+        p.bar_chart(BarChart::new("RTE (cm)", rte).color(RTE_COLOR));
+    });
 }
 
 /// The four plots in a 2 x 2 grid.

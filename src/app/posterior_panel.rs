@@ -22,13 +22,18 @@ pub enum PosteriorKind {
 }
 
 impl PosteriorKind {
-    pub const ALL: [PosteriorKind; 4] = [Self::Image, Self::Geometric, Self::Fused, Self::Disagreement];
+    pub const ALL: [PosteriorKind; 4] = [
+        Self::Image,
+        Self::Geometric,
+        Self::Fused,
+        Self::Disagreement,
+    ];
     pub fn label(self) -> &'static str {
         match self {
             Self::Image => "image branch",
             Self::Geometric => "geometric branch",
             Self::Fused => "fused",
-            Self::Disagreement => "disagreement (image − geometry)",
+            Self::Disagreement => "disagreement (image - geometry)",
         }
     }
 }
@@ -64,9 +69,17 @@ pub fn value_rgb(v: f32, kind: PosteriorKind) -> [u8; 3] {
         let a = v.abs().clamp(0.0, 1.0);
         let base = 40.0;
         if v >= 0.0 {
-            [(base + a * 215.0) as u8, base as u8, (base + a * 200.0) as u8]
+            [
+                (base + a * 215.0) as u8,
+                base as u8,
+                (base + a * 200.0) as u8,
+            ]
         } else {
-            [base as u8, (base + a * 215.0) as u8, (base + a * 215.0) as u8]
+            [
+                base as u8,
+                (base + a * 215.0) as u8,
+                (base + a * 215.0) as u8,
+            ]
         }
     } else {
         turbo(v)
@@ -74,13 +87,21 @@ pub fn value_rgb(v: f32, kind: PosteriorKind) -> [u8; 3] {
 }
 
 fn argmax(v: &[f32]) -> Option<usize> {
-    v.iter().enumerate().max_by(|a, b| a.1.total_cmp(b.1)).map(|(i, _)| i)
+    v.iter()
+        .enumerate()
+        .max_by(|a, b| a.1.total_cmp(b.1))
+        .map(|(i, _)| i)
 }
 
 /// Target-cloud colours for the 3D posterior view: candidates coloured, the rest dimmed.
-pub fn posterior_cloud_colors(model: &InspectorModel, p: &Posterior, kind: PosteriorKind) -> Vec<[u8; 4]> {
+pub fn posterior_cloud_colors(
+    model: &InspectorModel,
+    p: &Posterior,
+    kind: PosteriorKind,
+) -> Vec<[u8; 4]> {
     let d = |c: u8| c / 4 + 30;
-    let mut out = vec![[d(TARGET_RGB[0]), d(TARGET_RGB[1]), d(TARGET_RGB[2]), 255]; model.target.len()];
+    let mut out =
+        vec![[d(TARGET_RGB[0]), d(TARGET_RGB[1]), d(TARGET_RGB[2]), 255]; model.target.len()];
     for (ci, v) in p.candidates.iter().zip(normalised(p, kind)) {
         if let Some(o) = out.get_mut(*ci) {
             let c = value_rgb(v, kind);
@@ -90,7 +111,14 @@ pub fn posterior_cloud_colors(model: &InspectorModel, p: &Posterior, kind: Poste
     out
 }
 
-fn heat_map(ui: &mut egui::Ui, shared: &Shared<'_>, views: &mut ViewsState, p: &Posterior, kind: PosteriorKind, size: egui::Vec2) {
+fn heat_map(
+    ui: &mut egui::Ui,
+    shared: &Shared<'_>,
+    views: &mut ViewsState,
+    p: &Posterior,
+    kind: PosteriorKind,
+    size: egui::Vec2,
+) {
     let model = shared.model;
     ui.vertical(|ui| {
         ui.strong(kind.label());
@@ -99,8 +127,16 @@ fn heat_map(ui: &mut egui::Ui, shared: &Shared<'_>, views: &mut ViewsState, p: &
             return;
         };
         let s = (size.x / tv.rgb.width as f32).min(size.y / tv.rgb.height as f32);
-        let (rect, _) = ui.allocate_exact_size(egui::vec2(tv.rgb.width as f32 * s, tv.rgb.height as f32 * s), egui::Sense::hover());
-        let tex = views.textures.get(ui.ctx(), shared.model_gen, &format!("tgt{}c", p.target_view), &tv.rgb);
+        let (rect, _) = ui.allocate_exact_size(
+            egui::vec2(tv.rgb.width as f32 * s, tv.rgb.height as f32 * s),
+            egui::Sense::hover(),
+        );
+        let tex = views.textures.get(
+            ui.ctx(),
+            shared.model_gen,
+            &format!("tgt{}c", p.target_view),
+            &tv.rgb,
+        );
         image_in_rect(ui, &tex, rect);
         let painter = ui.painter_at(rect);
         painter.rect_filled(rect, 0.0, egui::Color32::from_black_alpha(110));
@@ -109,19 +145,37 @@ fn heat_map(ui: &mut egui::Ui, shared: &Shared<'_>, views: &mut ViewsState, p: &
         let mut order: Vec<usize> = (0..vals.len()).collect();
         order.sort_by(|&a, &b| vals[a].abs().total_cmp(&vals[b].abs()));
         for i in order {
-            let Some(px) = p.candidate_pixels.get(i).copied().flatten() else { continue };
+            let Some(px) = p.candidate_pixels.get(i).copied().flatten() else {
+                continue;
+            };
             let c = value_rgb(vals[i], kind);
             let a = (60.0 + 195.0 * vals[i].abs().sqrt()) as u8;
-            painter.circle_filled(to_screen(rect, tv.rgb.width, tv.rgb.height, px), 3.0, egui::Color32::from_rgba_unmultiplied(c[0], c[1], c[2], a));
+            painter.circle_filled(
+                to_screen(rect, tv.rgb.width, tv.rgb.height, px),
+                3.0,
+                egui::Color32::from_rgba_unmultiplied(c[0], c[1], c[2], a),
+            );
         }
         if kind != PosteriorKind::Disagreement {
-            if let Some(px) = argmax(&vals).and_then(|i| p.candidate_pixels.get(i).copied().flatten()) {
+            if let Some(px) =
+                argmax(&vals).and_then(|i| p.candidate_pixels.get(i).copied().flatten())
+            {
                 let q = to_screen(rect, tv.rgb.width, tv.rgb.height, px);
-                painter.rect_stroke(egui::Rect::from_center_size(q, egui::vec2(10.0, 10.0)), 0.0, egui::Stroke::new(2.0, egui::Color32::WHITE), egui::StrokeKind::Middle);
+                painter.rect_stroke(
+                    egui::Rect::from_center_size(q, egui::vec2(10.0, 10.0)),
+                    0.0,
+                    egui::Stroke::new(2.0, egui::Color32::WHITE),
+                    egui::StrokeKind::Middle,
+                );
             }
         }
         if let Some(gt) = p.gt_target {
-            if let Some(px) = p.candidates.iter().position(|c| *c == gt).and_then(|i| p.candidate_pixels.get(i).copied().flatten()) {
+            if let Some(px) = p
+                .candidates
+                .iter()
+                .position(|c| *c == gt)
+                .and_then(|i| p.candidate_pixels.get(i).copied().flatten())
+            {
                 let q = to_screen(rect, tv.rgb.width, tv.rgb.height, px);
                 let st = egui::Stroke::new(2.0, egui::Color32::from_rgb(60, 255, 90));
                 painter.line_segment([q - egui::vec2(7.0, 0.0), q + egui::vec2(7.0, 0.0)], st);
@@ -131,7 +185,12 @@ fn heat_map(ui: &mut egui::Ui, shared: &Shared<'_>, views: &mut ViewsState, p: &
     });
 }
 
-pub fn posterior_panel(ui: &mut egui::Ui, shared: &mut Shared<'_>, views: &mut ViewsState, state: &mut PosteriorState) {
+pub fn posterior_panel(
+    ui: &mut egui::Ui,
+    shared: &mut Shared<'_>,
+    views: &mut ViewsState,
+    state: &mut PosteriorState,
+) {
     let model = shared.model;
     if model.posteriors.is_empty() {
         ui.label("No posteriors: click a source point in the Views or 3D tab to request one.");
@@ -142,41 +201,72 @@ pub fn posterior_panel(ui: &mut egui::Ui, shared: &mut Shared<'_>, views: &mut V
         Some(p) => p,
         None => {
             if let Some(s) = sel {
-                ui.colored_label(egui::Color32::from_rgb(230, 190, 60), format!("posterior of source point {s} requested; showing the first available"));
+                ui.colored_label(
+                    egui::Color32::from_rgb(230, 190, 60),
+                    format!("posterior of source point {s} requested; showing the first available"),
+                );
             }
             &model.posteriors[0]
         }
     };
     ui.horizontal_wrapped(|ui| {
-        ui.label("Source point:");
-        egui::ComboBox::from_id_salt("post_src").selected_text(format!("#{}", p.source_point)).show_ui(ui, |ui| {
-            for q in &model.posteriors {
-                if ui.selectable_label(q.source_point == p.source_point, format!("#{}", q.source_point)).clicked() {
-                    shared.ui.selected_source_point = Some(q.source_point);
+        egui::ComboBox::from_label("Source point")
+            .selected_text(format!("#{}", p.source_point))
+            .show_ui(ui, |ui| {
+                for q in &model.posteriors {
+                    if ui
+                        .selectable_label(
+                            q.source_point == p.source_point,
+                            format!("#{}", q.source_point),
+                        )
+                        .clicked()
+                    {
+                        shared.ui.selected_source_point = Some(q.source_point);
+                    }
                 }
-            }
-        });
-        let gt = p.gt_target.map(|g| format!("#{g}")).unwrap_or_else(|| "unknown".into());
+            });
+        let gt = p
+            .gt_target
+            .map(|g| format!("#{g}"))
+            .unwrap_or_else(|| "unknown".into());
         ui.separator();
         ui.label(format!("GT target: {gt}"));
-        for (name, row) in [("image", &p.image), ("geometric", &p.geometric), ("fused", &p.fused)] {
+        for (name, row) in [
+            ("image", &p.image),
+            ("geometric", &p.geometric),
+            ("fused", &p.fused),
+        ] {
             if let Some(i) = argmax(row) {
                 let hit = p.gt_target == Some(p.candidates[i]);
                 ui.separator();
                 ui.colored_label(
-                    if hit { egui::Color32::from_rgb(90, 210, 110) } else { egui::Color32::from_rgb(240, 80, 70) },
-                    format!("{name} argmax #{} {}", p.candidates[i], if hit { "= GT" } else { "≠ GT" }),
+                    if hit {
+                        egui::Color32::from_rgb(90, 210, 110)
+                    } else {
+                        egui::Color32::from_rgb(240, 80, 70)
+                    },
+                    format!(
+                        "{name} argmax #{} {}",
+                        p.candidates[i],
+                        if hit { "= GT" } else { "!= GT" }
+                    ),
                 );
             }
         }
         ui.separator();
         match p.survived {
-            Some(true) => ui.colored_label(egui::Color32::from_rgb(90, 210, 110), "match survived SC2-PCR"),
-            Some(false) => ui.colored_label(egui::Color32::from_rgb(240, 80, 70), "match rejected by SC2-PCR"),
+            Some(true) => ui.colored_label(
+                egui::Color32::from_rgb(90, 210, 110),
+                "match survived SC2-PCR",
+            ),
+            Some(false) => ui.colored_label(
+                egui::Color32::from_rgb(240, 80, 70),
+                "match rejected by SC2-PCR",
+            ),
             None => ui.label("not estimated yet"),
         };
     });
-    ui.label(egui::RichText::new("■ argmax   + ground truth   colours: turbo (low → high); disagreement: magenta = image only, cyan = geometry only").small());
+    ui.label(egui::RichText::new("square: argmax · cross: ground truth   colours: turbo (low to high); disagreement: magenta = image only, cyan = geometry only").small());
     let w = (ui.available_width() - 30.0) / 4.0;
     let size = egui::vec2(w, w * 0.75);
     ui.horizontal(|ui| {
@@ -185,13 +275,26 @@ pub fn posterior_panel(ui: &mut egui::Ui, shared: &mut Shared<'_>, views: &mut V
             ui.strong(format!("source view {}", p.source_view));
             if let Some(sv) = model.source_views.get(p.source_view) {
                 let s = (size.x / sv.rgb.width as f32).min(size.y / sv.rgb.height as f32);
-                let (rect, _) = ui.allocate_exact_size(egui::vec2(sv.rgb.width as f32 * s, sv.rgb.height as f32 * s), egui::Sense::hover());
-                let tex = views.textures.get(ui.ctx(), shared.model_gen, &format!("src{}c", p.source_view), &sv.rgb);
+                let (rect, _) = ui.allocate_exact_size(
+                    egui::vec2(sv.rgb.width as f32 * s, sv.rgb.height as f32 * s),
+                    egui::Sense::hover(),
+                );
+                let tex = views.textures.get(
+                    ui.ctx(),
+                    shared.model_gen,
+                    &format!("src{}c", p.source_view),
+                    &sv.rgb,
+                );
                 image_in_rect(ui, &tex, rect);
                 if let Some(px) = p.source_pixel {
                     let q = to_screen(rect, sv.rgb.width, sv.rgb.height, px);
-                    ui.painter().circle_stroke(q, 7.0, egui::Stroke::new(2.5, egui::Color32::WHITE));
-                    ui.painter().circle_filled(q, 3.0, to_color32([255, 200, 20]));
+                    ui.painter().circle_stroke(
+                        q,
+                        7.0,
+                        egui::Stroke::new(2.5, egui::Color32::WHITE),
+                    );
+                    ui.painter()
+                        .circle_filled(q, 3.0, to_color32([255, 200, 20]));
                 }
             }
         });
@@ -203,23 +306,28 @@ pub fn posterior_panel(ui: &mut egui::Ui, shared: &mut Shared<'_>, views: &mut V
         heat_map(ui, shared, views, p, PosteriorKind::Disagreement, size);
         ui.vertical(|ui| {
             let kind = state.kind3d.get_or_insert(PosteriorKind::Fused);
-            ui.horizontal(|ui| {
-                ui.strong("target cloud coloured by");
-                egui::ComboBox::from_id_salt("post3d").selected_text(kind.label()).show_ui(ui, |ui| {
+            egui::ComboBox::from_label("target cloud coloured by")
+                .selected_text(kind.label())
+                .show_ui(ui, |ui| {
                     for k in PosteriorKind::ALL {
                         ui.selectable_value(kind, k, k.label());
                     }
                 });
-            });
             let kind = *kind;
             let key = (shared.model_gen, p.source_point, kind);
             if state.colors_key != Some(key) {
-                state.colors = Some((view3d::next_id(), Arc::new(posterior_cloud_colors(model, p, kind))));
+                state.colors = Some((
+                    view3d::next_id(),
+                    Arc::new(posterior_cloud_colors(model, p, kind)),
+                ));
                 state.colors_key = Some(key);
                 state.view3d.prefs.show_lines = false;
                 state.view3d.prefs.show_frusta = false;
             }
-            let over = state.colors.as_ref().map(|(id, c)| TargetOverride { id: *id, colors: c.clone() });
+            let over = state.colors.as_ref().map(|(id, c)| TargetOverride {
+                id: *id,
+                colors: c.clone(),
+            });
             let prev = shared.ui.selected_source_point;
             shared.ui.selected_source_point = Some(p.source_point);
             view3d::scene_ui(ui, shared, &mut state.view3d, over);

@@ -12,7 +12,7 @@ use super::model::{Branch, InspectorModel};
 use super::render3d::camera::{project, OrbitCamera};
 use super::render3d::nearest::CappedNearest;
 use super::render3d::{self, CloudData, Instance, LineData, SceneFrame};
-use super::{Command, MatchColorMode, Shared};
+use super::{MatchColorMode, Shared};
 
 /// How a cloud's points are coloured.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -139,7 +139,11 @@ fn apply(t: &Isometry3<f64>, p: [f32; 3]) -> [f32; 3] {
 
 /// Per-point colours of a cloud under a colour mode.
 pub fn cloud_colors(model: &InspectorModel, is_source: bool, mode: CloudColorMode) -> Vec<[u8; 4]> {
-    let pts = if is_source { &model.source } else { &model.target };
+    let pts = if is_source {
+        &model.source
+    } else {
+        &model.target
+    };
     let base = if is_source { SOURCE_RGB } else { TARGET_RGB };
     let dim = |c: [u8; 3]| rgba([c[0] / 3 + 40, c[1] / 3 + 40, c[2] / 3 + 40]);
     match mode {
@@ -164,7 +168,9 @@ pub fn cloud_colors(model: &InspectorModel, is_source: bool, mode: CloudColorMod
             } else {
                 model.ground_truth
             };
-            let Some(t) = t else { return vec![rgba([128, 128, 128]); pts.len()] };
+            let Some(t) = t else {
+                return vec![rgba([128, 128, 128]); pts.len()];
+            };
             let (from, to, xf) = if is_source {
                 (&model.source, &model.target, t)
             } else {
@@ -173,7 +179,11 @@ pub fn cloud_colors(model: &InspectorModel, is_source: bool, mode: CloudColorMod
             let nn = CappedNearest::new(to, RESIDUAL_CAP_M);
             use rayon::prelude::*;
             from.par_iter()
-                .map(|p| rgba(colormap::turbo(nn.distance(apply(&xf, *p)) / RESIDUAL_CAP_M)))
+                .map(|p| {
+                    rgba(colormap::turbo(
+                        nn.distance(apply(&xf, *p)) / RESIDUAL_CAP_M,
+                    ))
+                })
                 .collect()
         }
     }
@@ -212,12 +222,17 @@ fn frustum_lines(
             let Some(cam) = &v.camera else { continue };
             let k = &cam.intrinsics;
             let depth = 0.35;
-            let corners = [(0.0, 0.0), (k.width as f64, 0.0), (k.width as f64, k.height as f64), (0.0, k.height as f64)]
-                .map(|(u, v)| {
-                    let p = k.backproject(u, v, depth);
-                    let w = xf * (cam.cloud_from_camera * p);
-                    [w.x as f32, w.y as f32, w.z as f32]
-                });
+            let corners = [
+                (0.0, 0.0),
+                (k.width as f64, 0.0),
+                (k.width as f64, k.height as f64),
+                (0.0, k.height as f64),
+            ]
+            .map(|(u, v)| {
+                let p = k.backproject(u, v, depth);
+                let w = xf * (cam.cloud_from_camera * p);
+                [w.x as f32, w.y as f32, w.z as f32]
+            });
             let o = xf * (cam.cloud_from_camera * Point3::origin());
             let o = [o.x as f32, o.y as f32, o.z as f32];
             for i in 0..4 {
@@ -251,12 +266,17 @@ pub fn view3d_options(ui: &mut egui::Ui, state: &mut View3dState) {
         ui.add(egui::Slider::new(&mut p.point_size, 1.0..=8.0).text("point size"));
     });
     ui.horizontal_wrapped(|ui| {
-        for (name, mode) in [("Source colour", &mut p.source_mode), ("Target colour", &mut p.target_mode)] {
-            egui::ComboBox::from_label(name).selected_text(mode.label()).show_ui(ui, |ui| {
-                for m in CloudColorMode::ALL {
-                    ui.selectable_value(mode, m, m.label());
-                }
-            });
+        for (name, mode) in [
+            ("Source colour", &mut p.source_mode),
+            ("Target colour", &mut p.target_mode),
+        ] {
+            egui::ComboBox::from_label(name)
+                .selected_text(mode.label())
+                .show_ui(ui, |ui| {
+                    for m in CloudColorMode::ALL {
+                        ui.selectable_value(mode, m, m.label());
+                    }
+                });
         }
         if ui.button("Reset camera").clicked() {
             state.framed_for = None;
@@ -273,8 +293,10 @@ pub fn scene_ui(
 ) {
     let model = shared.model;
     let gen = shared.model_gen;
-    let (rect, response) =
-        ui.allocate_exact_size(ui.available_size().max(egui::vec2(64.0, 64.0)), egui::Sense::click_and_drag());
+    let (rect, response) = ui.allocate_exact_size(
+        ui.available_size().max(egui::vec2(64.0, 64.0)),
+        egui::Sense::click_and_drag(),
+    );
     if state.framed_for != Some(gen) {
         state.camera = match model.bounds() {
             Some((lo, hi)) => OrbitCamera::framing(lo, hi),
@@ -316,37 +338,64 @@ pub fn scene_ui(
     let src_xf = primary_alignment(model, &prefs);
 
     // colours, recomputed only when the mode or the model changes
-    let residual_dep = |m: CloudColorMode| {
-        matches!(m, CloudColorMode::ResidualEstimate | CloudColorMode::ResidualGroundTruth)
-    };
-    let _ = residual_dep;
     for (is_src, cache, mode, pos) in [
-        (true, &mut state.source_colors, prefs.source_mode, &state.source_pos),
-        (false, &mut state.target_colors, prefs.target_mode, &state.target_pos),
+        (
+            true,
+            &mut state.source_colors,
+            prefs.source_mode,
+            &state.source_pos,
+        ),
+        (
+            false,
+            &mut state.target_colors,
+            prefs.target_mode,
+            &state.target_pos,
+        ),
     ] {
         let key = (gen, mode, is_src, 0);
         if cache.key != Some(key) {
             let colors = Arc::new(cloud_colors(model, is_src, mode));
-            cache.data = Some(CloudData { id: next_id(), positions: pos.clone(), colors });
+            cache.data = Some(CloudData {
+                id: next_id(),
+                positions: pos.clone(),
+                colors,
+            });
             cache.key = Some(key);
         }
     }
-    let (Some(source), Some(mut target)) = (state.source_colors.data.clone(), state.target_colors.data.clone())
-    else {
+    let (Some(source), Some(mut target)) = (
+        state.source_colors.data.clone(),
+        state.target_colors.data.clone(),
+    ) else {
         return;
     };
     if let Some(o) = target_override {
-        target = CloudData { id: o.id, positions: target.positions.clone(), colors: o.colors };
+        target = CloudData {
+            id: o.id,
+            positions: target.positions.clone(),
+            colors: o.colors,
+        };
     }
 
     let mut instances = Vec::new();
     let mut add_inst = |on: bool, t: Option<Isometry3<f64>>, tint: [f32; 4]| {
         if let (true, Some(t)) = (on, t) {
-            instances.push(Instance { model: mat_to_arr(&iso_to_mat(&t)), tint });
+            instances.push(Instance {
+                model: mat_to_arr(&iso_to_mat(&t)),
+                tint,
+            });
         }
     };
-    add_inst(prefs.show_initial, Some(model.initial), [1.0, 0.55, 0.5, 1.0]);
-    add_inst(prefs.show_ground_truth, model.ground_truth, [0.55, 1.0, 0.55, 1.0]);
+    add_inst(
+        prefs.show_initial,
+        Some(model.initial),
+        [1.0, 0.55, 0.5, 1.0],
+    );
+    add_inst(
+        prefs.show_ground_truth,
+        model.ground_truth,
+        [0.55, 1.0, 0.55, 1.0],
+    );
     add_inst(prefs.show_estimated, model.estimated, [1.0, 1.0, 1.0, 1.0]);
 
     // correspondence lines (source endpoint under the primary alignment)
@@ -356,17 +405,24 @@ pub fn scene_ui(
     let mut screen_segments = Vec::with_capacity(shown.len());
     for (rank, &mi) in shown.iter().enumerate() {
         let m = &model.matches[mi];
-        let (Some(s), Some(t)) = (model.source.get(m.src), model.target.get(m.tgt)) else { continue };
+        let (Some(s), Some(t)) = (model.source.get(m.src), model.target.get(m.tgt)) else {
+            continue;
+        };
         let a = apply(&src_xf, *s);
         if prefs.show_lines {
             lpos.extend_from_slice(&[a, *t]);
             let c = rgba(match_rgb(model, mi, rank, shared.ui.match_mode));
             lcol.extend_from_slice(&[c, c]);
         }
-        if let (Some(pa), Some(pb)) =
-            (project(&vp, a, rect.width(), rect.height()), project(&vp, *t, rect.width(), rect.height()))
-        {
-            screen_segments.push((mi, rect.min + egui::vec2(pa[0], pa[1]), rect.min + egui::vec2(pb[0], pb[1])));
+        if let (Some(pa), Some(pb)) = (
+            project(&vp, a, rect.width(), rect.height()),
+            project(&vp, *t, rect.width(), rect.height()),
+        ) {
+            screen_segments.push((
+                mi,
+                rect.min + egui::vec2(pa[0], pa[1]),
+                rect.min + egui::vec2(pb[0], pb[1]),
+            ));
         }
     }
     let mut fpos = Vec::new();
@@ -381,12 +437,21 @@ pub fn scene_ui(
         source_instances: instances,
         show_target: prefs.show_target,
         view_proj: mat_to_arr(&vp),
-        overlay_lines: LineData { id: state.line_id, positions: Arc::new(lpos), colors: Arc::new(lcol) },
-        scene_lines: LineData { id: next_id(), positions: Arc::new(fpos), colors: Arc::new(fcol) },
+        overlay_lines: LineData {
+            id: state.line_id,
+            positions: Arc::new(lpos),
+            colors: Arc::new(lcol),
+        },
+        scene_lines: LineData {
+            id: next_id(),
+            positions: Arc::new(fpos),
+            colors: Arc::new(fcol),
+        },
         point_size: prefs.point_size,
         background: [0.07, 0.07, 0.09, 1.0],
     };
-    ui.painter().add(render3d::paint_callback(rect, Arc::new(frame)));
+    ui.painter()
+        .add(render3d::paint_callback(rect, Arc::new(frame)));
 
     // hover / click on a correspondence line, click on a source point
     if let Some(pos) = response.hover_pos() {
@@ -412,11 +477,17 @@ pub fn scene_ui(
 
     // highlight hovered/selected match and the selected source point on top
     let painter = ui.painter_at(rect);
-    for (mi, strong) in [(shared.ui.selected_match, true), (shared.ui.hovered_match, false)] {
+    for (mi, strong) in [
+        (shared.ui.selected_match, true),
+        (shared.ui.hovered_match, false),
+    ] {
         let Some(mi) = mi else { continue };
         if let Some((_, a, b)) = screen_segments.iter().find(|s| s.0 == mi) {
             let c = to_color32(HIGHLIGHT_RGB);
-            painter.line_segment([*a, *b], egui::Stroke::new(if strong { 3.0 } else { 2.0 }, c));
+            painter.line_segment(
+                [*a, *b],
+                egui::Stroke::new(if strong { 3.0 } else { 2.0 }, c),
+            );
             painter.circle_stroke(*a, 5.0, egui::Stroke::new(2.0, to_color32(SOURCE_RGB)));
             painter.circle_stroke(*b, 5.0, egui::Stroke::new(2.0, to_color32(TARGET_RGB)));
         }
@@ -424,7 +495,11 @@ pub fn scene_ui(
     if let Some(i) = shared.ui.selected_source_point {
         if let Some(p) = model.source.get(i) {
             if let Some(s) = project(&vp, apply(&src_xf, *p), rect.width(), rect.height()) {
-                painter.circle_stroke(rect.min + egui::vec2(s[0], s[1]), 7.0, egui::Stroke::new(2.0, egui::Color32::WHITE));
+                painter.circle_stroke(
+                    rect.min + egui::vec2(s[0], s[1]),
+                    7.0,
+                    egui::Stroke::new(2.0, egui::Color32::WHITE),
+                );
             }
         }
     }
@@ -520,5 +595,4 @@ pub fn next_id() -> u64 {
 pub fn view3d_panel(ui: &mut egui::Ui, shared: &mut Shared<'_>, state: &mut View3dState) {
     view3d_options(ui, state);
     scene_ui(ui, shared, state, None);
-    let _ = Command::Cancel;
 }

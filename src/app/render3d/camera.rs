@@ -15,20 +15,36 @@ pub struct OrbitCamera {
 
 impl Default for OrbitCamera {
     fn default() -> Self {
-        Self { target: [0.0, 0.0, 2.0], yaw: 0.0, pitch: 0.35, distance: 4.0, fov_y: 0.9 }
+        Self {
+            target: [0.0, 0.0, 2.0],
+            yaw: 0.0,
+            pitch: 0.35,
+            distance: 4.0,
+            fov_y: 0.9,
+        }
     }
 }
 
 impl OrbitCamera {
     /// Frames an axis-aligned box, seen from behind the scan origin (-z) and slightly above.
     pub fn framing(lo: [f32; 3], hi: [f32; 3]) -> Self {
-        let c = [(lo[0] + hi[0]) / 2.0, (lo[1] + hi[1]) / 2.0, (lo[2] + hi[2]) / 2.0];
+        let c = [
+            (lo[0] + hi[0]) / 2.0,
+            (lo[1] + hi[1]) / 2.0,
+            (lo[2] + hi[2]) / 2.0,
+        ];
         let r = ((hi[0] - lo[0]).powi(2) + (hi[1] - lo[1]).powi(2) + (hi[2] - lo[2]).powi(2))
             .sqrt()
             .max(1e-3)
             / 2.0;
         let fov_y: f32 = 0.9;
-        Self { target: c, yaw: 0.35, pitch: 0.45, distance: r / (fov_y / 2.0).sin() * 1.05, fov_y }
+        Self {
+            target: c,
+            yaw: 0.35,
+            pitch: 0.45,
+            distance: r / (fov_y / 2.0).tan() * 0.8,
+            fov_y,
+        }
     }
 
     pub fn eye(&self) -> Point3<f32> {
@@ -95,10 +111,16 @@ mod tests {
         let cam = OrbitCamera::framing([-1.0, -1.0, 1.0], [1.0, 1.0, 3.0]);
         let vp = cam.view_projection(1.5);
         let c = project(&vp, [0.0, 0.0, 2.0], 300.0, 200.0).unwrap();
-        assert!((c[0] - 150.0).abs() < 1e-2 && (c[1] - 100.0).abs() < 1e-2, "{c:?}");
+        assert!(
+            (c[0] - 150.0).abs() < 1e-2 && (c[1] - 100.0).abs() < 1e-2,
+            "{c:?}"
+        );
         for corner in [[-1.0, -1.0, 1.0], [1.0, 1.0, 3.0], [1.0, -1.0, 1.0]] {
             let p = project(&vp, corner, 300.0, 200.0).unwrap();
-            assert!(p[0] > 0.0 && p[0] < 300.0 && p[1] > 0.0 && p[1] < 200.0, "{p:?}");
+            assert!(
+                p[0] > 0.0 && p[0] < 300.0 && p[1] > 0.0 && p[1] < 200.0,
+                "{p:?}"
+            );
         }
         // -y is up: a point above the centre projects above it on screen
         let above = project(&vp, [0.0, -0.5, 2.0], 300.0, 200.0).unwrap();

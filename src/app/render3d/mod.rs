@@ -15,8 +15,7 @@ use eframe::egui;
 use eframe::egui_glow;
 use eframe::glow::{self, HasContext};
 use three_d::{
-    Blend, Context, Cull, DepthTest, Mat4, Program, RenderStates, VertexBuffer, Viewport,
-    WriteMask,
+    Blend, Context, Cull, DepthTest, Mat4, Program, RenderStates, VertexBuffer, Viewport, WriteMask,
 };
 
 /// Geometry and colours of one cloud; `id` changes whenever the contents change.
@@ -103,7 +102,12 @@ struct GpuCloud {
 
 impl GpuCloud {
     fn new(ctx: &Context) -> Self {
-        Self { id: None, positions: VertexBuffer::new(ctx), colors: VertexBuffer::new(ctx), count: 0 }
+        Self {
+            id: None,
+            positions: VertexBuffer::new(ctx),
+            colors: VertexBuffer::new(ctx),
+            count: 0,
+        }
     }
     fn sync(&mut self, id: u64, pos: &[[f32; 3]], colors: &[[u8; 4]]) {
         if self.id != Some(id) {
@@ -137,6 +141,11 @@ fn gpu_for(gl: &Arc<glow::Context>) -> Result<(), String> {
         if g.as_ref().is_some_and(|s| Arc::ptr_eq(&s.gl, gl)) {
             return Ok(());
         }
+        // State of another (possibly destroyed) context: its ids mean nothing in the current
+        // one, so deleting them here could free live objects. Leak it instead.
+        if let Some(old) = g.take() {
+            std::mem::forget(old);
+        }
         let ctx = Context::from_gl_context(gl.clone()).map_err(|e| format!("three-d: {e}"))?;
         let points = Program::from_source(&ctx, POINT_VS, FS).map_err(|e| format!("{e}"))?;
         let lines = Program::from_source(&ctx, LINE_VS, FS).map_err(|e| format!("{e}"))?;
@@ -152,6 +161,19 @@ fn gpu_for(gl: &Arc<glow::Context>) -> Result<(), String> {
         });
         Ok(())
     })
+}
+
+/// Frees the GL objects made for `gl` while its context is still current (call before
+/// destroying a context). `None` frees whatever this thread holds.
+pub fn release_gl(gl: Option<&Arc<glow::Context>>) {
+    GPU.with(|g| {
+        let mut g = g.borrow_mut();
+        if g.as_ref()
+            .is_some_and(|s| gl.is_none_or(|gl| Arc::ptr_eq(&s.gl, gl)))
+        {
+            drop(g.take());
+        }
+    });
 }
 
 /// Wraps a frame into an egui paint callback covering `rect`.
@@ -200,7 +222,9 @@ pub fn paint(
     }
     GPU.with(|g| {
         let mut g = g.borrow_mut();
-        let Some(gpu) = g.as_mut() else { return Err("no GL state".to_string()) };
+        let Some(gpu) = g.as_mut() else {
+            return Err("no GL state".to_string());
+        };
         unsafe {
             gl.disable(glow::FRAMEBUFFER_SRGB);
             gl.enable(glow::SCISSOR_TEST);
@@ -211,8 +235,12 @@ pub fn paint(
             gl.clear(glow::COLOR_BUFFER_BIT | glow::DEPTH_BUFFER_BIT);
             gl.enable(glow::PROGRAM_POINT_SIZE);
         }
-        let viewport =
-            Viewport { x: vp.left_px, y: vp.from_bottom_px, width: vp.width_px as u32, height: vp.height_px as u32 };
+        let viewport = Viewport {
+            x: vp.left_px,
+            y: vp.from_bottom_px,
+            width: vp.width_px as u32,
+            height: vp.height_px as u32,
+        };
         let vp_m = mat4(&frame.view_proj);
         let states = RenderStates {
             depth_test: DepthTest::Less,
@@ -220,8 +248,16 @@ pub fn paint(
             blend: Blend::Disabled,
             cull: Cull::None,
         };
-        gpu.source.sync(frame.source.id, &frame.source.positions, &frame.source.colors);
-        gpu.target.sync(frame.target.id, &frame.target.positions, &frame.target.colors);
+        gpu.source.sync(
+            frame.source.id,
+            &frame.source.positions,
+            &frame.source.colors,
+        );
+        gpu.target.sync(
+            frame.target.id,
+            &frame.target.positions,
+            &frame.target.colors,
+        );
         gpu.overlay.sync(
             frame.overlay_lines.id,
             &frame.overlay_lines.positions,
@@ -238,7 +274,10 @@ pub fn paint(
             }
             prog.use_uniform("mvp", vp_m * model);
             prog.use_uniform("point_size", frame.point_size);
-            prog.use_uniform("tint", three_d::Vec4::new(tint[0], tint[1], tint[2], tint[3]));
+            prog.use_uniform(
+                "tint",
+                three_d::Vec4::new(tint[0], tint[1], tint[2], tint[3]),
+            );
             prog.use_vertex_attribute("position", &cloud.positions);
             prog.use_vertex_attribute("color", &cloud.colors);
             let n = cloud.count as i32;
@@ -246,7 +285,9 @@ pub fn paint(
                 gl.draw_arrays(glow::POINTS, 0, n);
             });
         };
-        let ident = mat4(&[1., 0., 0., 0., 0., 1., 0., 0., 0., 0., 1., 0., 0., 0., 0., 1.]);
+        let ident = mat4(&[
+            1., 0., 0., 0., 0., 1., 0., 0., 0., 0., 1., 0., 0., 0., 0., 1.,
+        ]);
         if frame.show_target {
             draw_points(&gpu.points, &gpu.target, ident, [1.0; 4]);
         }
@@ -269,7 +310,10 @@ pub fn paint(
         draw_lines(
             &gpu.lines,
             &gpu.overlay,
-            RenderStates { depth_test: DepthTest::Always, ..states },
+            RenderStates {
+                depth_test: DepthTest::Always,
+                ..states
+            },
         );
         let _ = &gpu.ctx;
         unsafe {

@@ -17,7 +17,11 @@ impl CappedNearest {
         for (i, p) in points.iter().enumerate() {
             grid.entry(key(p, cell)).or_default().push(i as u32);
         }
-        Self { cell, grid, points: points.to_vec() }
+        Self {
+            cell,
+            grid,
+            points: points.to_vec(),
+        }
     }
 
     /// Distance to the nearest stored point, or the cap when none is closer.
@@ -30,7 +34,9 @@ impl CappedNearest {
                     if let Some(ids) = self.grid.get(&[k[0] + dx, k[1] + dy, k[2] + dz]) {
                         for &i in ids {
                             let p = self.points[i as usize];
-                            let d = (p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2);
+                            let d = (p[0] - q[0]).powi(2)
+                                + (p[1] - q[1]).powi(2)
+                                + (p[2] - q[2]).powi(2);
                             best = best.min(d);
                         }
                     }
@@ -42,7 +48,11 @@ impl CappedNearest {
 }
 
 fn key(p: &[f32; 3], cell: f32) -> [i32; 3] {
-    [(p[0] / cell).floor() as i32, (p[1] / cell).floor() as i32, (p[2] / cell).floor() as i32]
+    [
+        (p[0] / cell).floor() as i32,
+        (p[1] / cell).floor() as i32,
+        (p[2] / cell).floor() as i32,
+    ]
 }
 
 #[cfg(test)]
@@ -65,7 +75,9 @@ mod tests {
             let q = [r() * 1.2 - 0.1, r(), r()];
             let brute = pts
                 .iter()
-                .map(|p| ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2)).sqrt())
+                .map(|p| {
+                    ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2)).sqrt()
+                })
                 .fold(f32::INFINITY, f32::min)
                 .min(cap);
             assert!((nn.distance(q) - brute).abs() < 1e-6, "{q:?}");
