@@ -1,1 +1,862 @@
-//! The inspector GUI (in progress).
+//! The inspector GUI (eframe + glow, three-d inside egui panels, egui_plot).
+//!
+//! The UI reads an [`InspectorModel`] (plain data) every frame and never computes pipeline
+//! results: control changes become [`Command`]s for a [`Worker`] thread, whose
+//! [`WorkerEvent`]s replace the model, update stages and fill the log.
+
+pub mod colormap;
+pub mod controls;
+pub mod headless;
+pub mod model;
+pub mod pairs_panel;
+pub mod plots_panel;
+pub mod posterior_panel;
+pub mod render3d;
+pub mod stages_panel;
+pub mod view3d;
+pub mod views_panel;
+
+use std::path::{Path, PathBuf};
+use std::sync::mpsc::{channel, Receiver};
+use std::sync::Arc;
+
+use eframe::egui;
+use serde::{Deserialize, Serialize};
+
+pub use controls::{
+    spawn_worker, Command, EventSink, LogLevel, LogOnlyWorker, OpenKind, PipelineSettings, Worker,
+    WorkerEvent, WorkerHandle,
+};
+pub use model::InspectorModel;
+
+use pairs_panel::PairSort;
+use posterior_panel::PosteriorState;
+use view3d::{View3dPrefs, View3dState};
+use views_panel::ViewsState;
+
+/// The tabs of the central area.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Panel {
+    Views,
+    View3d,
+    Posterior,
+    Plots,
+    Stages,
+}
+
+impl Panel {
+    pub const ALL: [Panel; 5] = [
+        Self::Views,
+        Self::View3d,
+        Self::Posterior,
+        Self::Plots,
+        Self::Stages,
+    ];
+    pub fn label(self) -> &'static str {
+        match self {
+            Self::Views => "Views",
+            Self::View3d => "3D",
+            Self::Posterior => "Posterior",
+            Self::Plots => "Plots",
+            Self::Stages => "Stages",
+        }
+    }
+    /// Parses a CLI name ("views", "3d", "posterior", "plots", "stages").
+    pub fn from_name(s: &str) -> Option<Panel> {
+        match s.to_ascii_lowercase().as_str() {
+            "views" => Some(Self::Views),
+            "3d" | "view3d" => Some(Self::View3d),
+            "posterior" => Some(Self::Posterior),
+            "plots" => Some(Self::Plots),
+            "stages" => Some(Self::Stages),
+            _ => None,
+        }
+    }
+}
+
+/// How correspondences are coloured in the views and in 3D.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum MatchColorMode {
+    /// One colour per match of the shown subset (as in the paper's figures).
+    Categorical,
+    /// Green inlier / red outlier under ground truth.
+    InlierOutlier,
+    /// Turbo colormap of the fused confidence.
+    Confidence,
+}
+
+impl MatchColorMode {
+    pub const ALL: [MatchColorMode; 3] = [Self::Categorical, Self::InlierOutlier, Self::Confidence];
+    pub fn label(self) -> &'static str {
+        match self {
+            Self::Categorical => "Categorical",
+            Self::InlierOutlier => "Inlier / outlier (GT)",
+            Self::Confidence => "Fused confidence",
+        }
+    }
+}
+
+/// Selection and display state shared by the panels.
+#[derive(Debug)]
+pub struct UiState {
+    pub tab: Panel,
+    pub match_mode: MatchColorMode,
+    /// Number of matches drawn (highest fused score first).
+    pub match_count: usize,
+    pub selected_match: Option<usize>,
+    /// Set by whichever widget the pointer is over this frame.
+    pub hovered_match: Option<usize>,
+    prev_hovered: Option<usize>,
+    pub selected_source_point: Option<usize>,
+    pub pair_sort: PairSort,
+    pub show_3d_below_views: bool,
+}
+
+impl Default for UiState {
+    fn default() -> Self {
+        Self {
+            tab: Panel::Views,
+            match_mode: MatchColorMode::Categorical,
+            match_count: 40,
+            selected_match: None,
+            hovered_match: None,
+            prev_hovered: None,
+            selected_source_point: None,
+            pair_sort: PairSort::RreWorstFirst,
+            show_3d_below_views: true,
+        }
+    }
+}
+
+/// What a panel function gets: the model (read-only), the shared UI state and the command
+/// queue.
+pub struct Shared<'a> {
+    pub model: &'a InspectorModel,
+    /// Changes whenever the model is replaced (GPU and texture caches key on it).
+    pub model_gen: u64,
+    pub ui: &'a mut UiState,
+    pub commands: &'a mut Vec<Command>,
+}
+
+impl Shared<'_> {
+    /// Indices of the matches drawn, highest fused score first.
+    pub fn shown_matches(&self) -> Vec<usize> {
+        let mut idx: Vec<usize> = (0..self.model.matches.len()).collect();
+        idx.sort_by(|&a, &b| {
+            self.model.matches[b]
+                .score
+                .total_cmp(&self.model.matches[a].score)
+        });
+        idx.truncate(self.ui.match_count);
+        idx
+    }
+    /// The match to highlight: hovered now, hovered last frame, else selected.
+    pub fn highlight(&self) -> Option<usize> {
+        self.ui
+            .hovered_match
+            .or(self.ui.prev_hovered)
+            .or(self.ui.selected_match)
+    }
+    pub fn select_match(&mut self, mi: usize) {
+        self.ui.selected_match = Some(mi);
+        if let Some(m) = self.model.matches.get(mi) {
+            self.select_source_point(m.src);
+        }
+    }
+    pub fn select_source_point(&mut self, i: usize) {
+        if self.ui.selected_source_point != Some(i) {
+            self.ui.selected_source_point = Some(i);
+            if self.model.posterior_for(i).is_none() {
+                self.commands.push(Command::InspectSourcePoint(i));
+            }
+        }
+    }
+}
+
+/// What persists between runs (JSON in the user config dir).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct Persisted {
+    pub settings: PipelineSettings,
+    pub view3d: View3dPrefs,
+    pub match_mode: MatchColorMode,
+    pub match_count: usize,
+    pub tab: Panel,
+    pub pair_sort: PairSort,
+    pub last_opened: Option<(OpenKind, Vec<PathBuf>)>,
+}
+
+impl Default for Persisted {
+    fn default() -> Self {
+        let ui = UiState::default();
+        Self {
+            settings: PipelineSettings::default(),
+            view3d: View3dPrefs::default(),
+            match_mode: ui.match_mode,
+            match_count: ui.match_count,
+            tab: ui.tab,
+            pair_sort: ui.pair_sort,
+            last_opened: None,
+        }
+    }
+}
+
+/// `$XDG_CONFIG_HOME/cgenreg/inspector.json`, else `~/.config/cgenreg/inspector.json`.
+pub fn default_settings_path() -> Option<PathBuf> {
+    let base = std::env::var_os("XDG_CONFIG_HOME")
+        .map(PathBuf::from)
+        .filter(|p| p.is_absolute())
+        .or_else(|| std::env::var_os("HOME").map(|h| PathBuf::from(h).join(".config")))?;
+    Some(base.join("cgenreg").join("inspector.json"))
+}
+
+/// Reads persisted settings; a missing or unreadable file gives defaults and a message.
+pub fn load_persisted(path: &Path) -> (Persisted, Option<String>) {
+    match std::fs::read(path) {
+        Ok(b) => match serde_json::from_slice(&b) {
+            Ok(p) => (p, None),
+            Err(e) => (
+                Persisted::default(),
+                Some(format!(
+                    "{}: ignored unreadable settings ({e})",
+                    path.display()
+                )),
+            ),
+        },
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => (Persisted::default(), None),
+        Err(e) => (
+            Persisted::default(),
+            Some(format!("{}: {e}", path.display())),
+        ),
+    }
+}
+
+pub fn save_persisted(path: &Path, p: &Persisted) -> Result<(), String> {
+    let bytes = serde_json::to_vec_pretty(p).map_err(|e| e.to_string())?;
+    crate::error::write_atomic(path, &bytes).map_err(|e| e.to_string())
+}
+
+/// Guesses what dropped files are, from their names.
+pub fn classify_drop(paths: &[PathBuf]) -> OpenKind {
+    let ext = |p: &PathBuf| {
+        p.extension()
+            .and_then(|e| e.to_str())
+            .unwrap_or("")
+            .to_ascii_lowercase()
+    };
+    let cloud = |p: &PathBuf| {
+        matches!(
+            ext(p).as_str(),
+            "ply" | "pcd" | "xyz" | "npy" | "bin" | "pth"
+        )
+    };
+    if paths.len() == 2 && paths.iter().all(cloud) {
+        return OpenKind::TwoClouds;
+    }
+    if paths.len() == 1 {
+        let p = &paths[0];
+        if matches!(ext(p).as_str(), "json" | "toml" | "txt") {
+            return OpenKind::Manifest;
+        }
+        if p.is_dir() {
+            if p.join("seq-01").is_dir() || p.join("camera-intrinsics.txt").is_file() {
+                return OpenKind::RgbdSequence;
+            }
+            if std::fs::read_dir(p)
+                .map(|d| {
+                    d.flatten()
+                        .any(|e| e.file_name().to_string_lossy().starts_with("video_"))
+                })
+                .unwrap_or(false)
+            {
+                return OpenKind::CosmosOutput;
+            }
+            return OpenKind::ThreeDMatchFolder;
+        }
+    }
+    OpenKind::Auto
+}
+
+#[derive(Clone, Debug)]
+pub struct LogLine {
+    pub level: LogLevel,
+    pub text: String,
+}
+
+/// The inspector application.
+pub struct App {
+    model: InspectorModel,
+    model_gen: u64,
+    pub ui_state: UiState,
+    pub settings: PipelineSettings,
+    view3d: View3dState,
+    views: ViewsState,
+    posterior: PosteriorState,
+    worker: Option<WorkerHandle>,
+    pub log: Vec<LogLine>,
+    show_log: bool,
+    dialog: Option<Receiver<(OpenKind, Option<Vec<PathBuf>>)>>,
+    settings_path: Option<PathBuf>,
+    last_saved: Option<Persisted>,
+    last_opened: Option<(OpenKind, Vec<PathBuf>)>,
+    /// Native dialogs are refused in tests and headless rendering.
+    pub allow_dialogs: bool,
+}
+
+impl App {
+    /// `settings_path`: where settings persist (None: nothing is read or written).
+    pub fn new(
+        model: InspectorModel,
+        worker: Option<WorkerHandle>,
+        settings_path: Option<PathBuf>,
+    ) -> Self {
+        let mut app = Self {
+            model,
+            model_gen: view3d::next_id(),
+            ui_state: UiState::default(),
+            settings: PipelineSettings::default(),
+            view3d: View3dState::default(),
+            views: ViewsState::default(),
+            posterior: PosteriorState::default(),
+            worker,
+            log: Vec::new(),
+            show_log: false,
+            dialog: None,
+            settings_path,
+            last_saved: None,
+            last_opened: None,
+            allow_dialogs: true,
+        };
+        if let Some(path) = app.settings_path.clone() {
+            let (p, err) = load_persisted(&path);
+            if let Some(e) = err {
+                app.push_log(LogLevel::Warn, e);
+            }
+            app.apply_persisted(p.clone());
+            app.last_saved = Some(p);
+        }
+        if app.settings.prompt_scene.is_empty() {
+            app.settings.prompt_scene = app.scene_specific_prompt();
+        }
+        app
+    }
+
+    pub fn apply_persisted(&mut self, p: Persisted) {
+        self.settings = p.settings;
+        self.view3d.prefs = p.view3d;
+        self.ui_state.match_mode = p.match_mode;
+        self.ui_state.match_count = p.match_count;
+        self.ui_state.tab = p.tab;
+        self.ui_state.pair_sort = p.pair_sort;
+        self.last_opened = p.last_opened;
+    }
+
+    pub fn persisted(&self) -> Persisted {
+        Persisted {
+            settings: self.settings.clone(),
+            view3d: self.view3d.prefs.clone(),
+            match_mode: self.ui_state.match_mode,
+            match_count: self.ui_state.match_count,
+            tab: self.ui_state.tab,
+            pair_sort: self.ui_state.pair_sort,
+            last_opened: self.last_opened.clone(),
+        }
+    }
+
+    pub fn model(&self) -> &InspectorModel {
+        &self.model
+    }
+
+    /// Replaces the shown model (caches keyed on the generation are rebuilt).
+    pub fn set_model(&mut self, model: InspectorModel) {
+        self.model = model;
+        self.model_gen = view3d::next_id();
+        if self
+            .ui_state
+            .selected_match
+            .is_some_and(|m| m >= self.model.matches.len())
+        {
+            self.ui_state.selected_match = None;
+        }
+    }
+
+    /// Turns the 3D camera (benchmarks and scripted screenshots).
+    pub fn orbit_3d(&mut self, dx: f32, dy: f32) {
+        self.view3d.camera.orbit(dx, dy);
+    }
+
+    pub fn view3d_prefs_mut(&mut self) -> &mut View3dPrefs {
+        &mut self.view3d.prefs
+    }
+
+    fn scene_specific_prompt(&self) -> String {
+        self.model
+            .source_views
+            .first()
+            .map(|v| v.label.prompt.clone())
+            .unwrap_or_default()
+    }
+
+    pub fn push_log(&mut self, level: LogLevel, text: impl Into<String>) {
+        let text = text.into();
+        if level == LogLevel::Error {
+            eprintln!("cgenreg: {text}");
+            self.show_log = true;
+        }
+        self.log.push(LogLine { level, text });
+        if self.log.len() > 2000 {
+            self.log.drain(..500);
+        }
+    }
+
+    fn send(&mut self, c: Command) {
+        if let Command::Open { kind, paths } = &c {
+            self.last_opened = Some((*kind, paths.clone()));
+        }
+        let ok = self.worker.as_ref().map(|w| w.send(c.clone()));
+        match ok {
+            Some(true) => self.push_log(LogLevel::Info, format!("-> {}", short(&c))),
+            Some(false) => self.push_log(
+                LogLevel::Error,
+                "the worker thread has stopped; command dropped",
+            ),
+            None => self.push_log(LogLevel::Info, format!("(no worker) {}", short(&c))),
+        }
+    }
+
+    fn poll_worker(&mut self) {
+        let events = self.worker.as_ref().map(|w| w.poll()).unwrap_or_default();
+        for e in events {
+            match e {
+                WorkerEvent::Model(m) => self.set_model(*m),
+                WorkerEvent::Stage(s) => {
+                    if let Some(x) = self.model.stages.iter_mut().find(|x| x.name == s.name) {
+                        *x = s;
+                    } else {
+                        self.model.stages.push(s);
+                    }
+                }
+                WorkerEvent::Log(l, t) => self.push_log(l, t),
+            }
+        }
+        if let Some(rx) = &self.dialog {
+            if let Ok((kind, paths)) = rx.try_recv() {
+                self.dialog = None;
+                match paths {
+                    Some(paths) if !paths.is_empty() => self.send(Command::Open { kind, paths }),
+                    _ => self.push_log(
+                        LogLevel::Info,
+                        "open cancelled (or no file dialog available)",
+                    ),
+                }
+            }
+        }
+    }
+
+    /// Native dialog on a thread: the UI keeps running while it is open.
+    fn open_dialog(&mut self, kind: OpenKind, ctx: &egui::Context) {
+        if !self.allow_dialogs || self.dialog.is_some() {
+            return;
+        }
+        let (tx, rx) = channel();
+        self.dialog = Some(rx);
+        let ctx = ctx.clone();
+        let spawned = std::thread::Builder::new()
+            .name("cgenreg-dialog".into())
+            .spawn(move || {
+                let fut = async move {
+                    let d = rfd::AsyncFileDialog::new();
+                    if kind.wants_folder() {
+                        d.pick_folder().await.map(|h| vec![h.path().to_path_buf()])
+                    } else if kind == OpenKind::TwoClouds {
+                        d.add_filter("point clouds", &["ply", "pcd", "xyz", "npy", "bin"])
+                            .pick_files()
+                            .await
+                            .map(|v| v.iter().map(|h| h.path().to_path_buf()).collect())
+                    } else {
+                        d.add_filter("manifest", &["json", "toml", "txt"])
+                            .pick_file()
+                            .await
+                            .map(|h| vec![h.path().to_path_buf()])
+                    }
+                };
+                let r = block_on(fut);
+                let _ = tx.send((kind, r));
+                ctx.request_repaint();
+            });
+        if spawned.is_err() {
+            self.dialog = None;
+            self.push_log(LogLevel::Error, "could not start the file dialog thread");
+        }
+    }
+
+    fn handle_drops(&mut self, ctx: &egui::Context) {
+        let dropped: Vec<PathBuf> = ctx.input(|i| {
+            i.raw
+                .dropped_files
+                .iter()
+                .map(|f| f.path().to_path_buf())
+                .filter(|p| !p.as_os_str().is_empty())
+                .collect()
+        });
+        if !dropped.is_empty() {
+            let kind = classify_drop(&dropped);
+            self.send(Command::Open {
+                kind,
+                paths: dropped,
+            });
+        }
+    }
+
+    fn save_if_changed(&mut self) {
+        let Some(path) = self.settings_path.clone() else {
+            return;
+        };
+        let p = self.persisted();
+        if self.last_saved.as_ref() != Some(&p) {
+            if let Err(e) = save_persisted(&path, &p) {
+                self.push_log(LogLevel::Warn, format!("settings not saved: {e}"));
+                self.settings_path = None;
+            }
+            self.last_saved = Some(p);
+        }
+    }
+
+    /// The whole UI, inside any `Ui` (eframe window, headless renderer, test harness).
+    pub fn show(&mut self, ui: &mut egui::Ui) {
+        let ctx = ui.ctx().clone();
+        self.poll_worker();
+        self.handle_drops(&ctx);
+        self.ui_state.prev_hovered = self.ui_state.hovered_match.take();
+        let mut commands: Vec<Command> = Vec::new();
+        let mut open_request: Option<OpenKind> = None;
+        let scene = self.scene_specific_prompt();
+
+        egui::Panel::bottom("log_bar").show(ui, |ui| self.log_bar(ui));
+
+        egui::Panel::left("controls")
+            .default_size(300.0)
+            .resizable(true)
+            .show(ui, |ui| {
+                egui::ScrollArea::vertical()
+                    .id_salt("controls_scroll")
+                    .show(ui, |ui| {
+                        ui.horizontal(|ui| {
+                            ui.heading("C-GenReg inspector");
+                        });
+                        ui.menu_button("Open…", |ui| {
+                            for k in [
+                                OpenKind::Manifest,
+                                OpenKind::ThreeDMatchFolder,
+                                OpenKind::RgbdSequence,
+                                OpenKind::TwoClouds,
+                                OpenKind::CosmosOutput,
+                            ] {
+                                if ui.button(k.label()).clicked() {
+                                    open_request = Some(k);
+                                    ui.close();
+                                }
+                            }
+                        });
+                        if let Some((k, paths)) = self.last_opened.clone() {
+                            if ui
+                                .small_button("Reopen last")
+                                .on_hover_text(format!("{paths:?}"))
+                                .clicked()
+                            {
+                                commands.push(Command::Open { kind: k, paths });
+                            }
+                        }
+                        ui.separator();
+                        ui.strong("Pairs");
+                        pairs_panel::pairs_panel(
+                            ui,
+                            &self.model,
+                            &mut self.ui_state.pair_sort,
+                            &mut commands,
+                        );
+                        ui.separator();
+                        ui.strong("Correspondences");
+                        egui::ComboBox::from_label("Match colours")
+                            .selected_text(self.ui_state.match_mode.label())
+                            .show_ui(ui, |ui| {
+                                for m in MatchColorMode::ALL {
+                                    ui.selectable_value(
+                                        &mut self.ui_state.match_mode,
+                                        m,
+                                        m.label(),
+                                    );
+                                }
+                            });
+                        let n = self.model.matches.len().max(1);
+                        ui.add(
+                            egui::Slider::new(&mut self.ui_state.match_count, 0..=n)
+                                .text("matches shown"),
+                        );
+                        if let Some(mi) = self.ui_state.selected_match {
+                            if let Some(m) = self.model.matches.get(mi) {
+                                ui.label(format!(
+                                    "selected #{mi}: src {} -> tgt {} · score {:.2} · {} · {}",
+                                    m.src,
+                                    m.tgt,
+                                    m.score,
+                                    m.branch.label(),
+                                    match m.inlier_gt {
+                                        Some(true) => "GT inlier",
+                                        Some(false) => "GT outlier",
+                                        None => "GT unknown",
+                                    }
+                                ));
+                            }
+                        }
+                        ui.separator();
+                        if let Some(p) = self.model.generation_missing.clone() {
+                            ui.colored_label(
+                                egui::Color32::from_rgb(230, 190, 60),
+                                format!("No cached generation for this prompt:\n“{p}”"),
+                            );
+                            if ui.button("Run the generator").clicked() {
+                                commands.push(Command::RunGenerator { prompt: p });
+                            }
+                            ui.separator();
+                        }
+                        controls::controls_ui(ui, &mut self.settings, &scene, &mut commands);
+                    });
+            });
+
+        egui::CentralPanel::default().show(ui, |ui| {
+            ui.horizontal(|ui| {
+                for p in Panel::ALL {
+                    ui.selectable_value(&mut self.ui_state.tab, p, p.label());
+                }
+                ui.separator();
+                if let Some(pi) = self.model.current_pair {
+                    if let Some(p) = self.model.pairs.get(pi) {
+                        ui.label(egui::RichText::new(&p.id).strong());
+                        if let (Some(r), Some(t)) = (p.rre_deg, p.rte_m) {
+                            ui.label(format!("RRE {r:.2}° · RTE {:.1} cm", t * 100.0));
+                        }
+                    }
+                }
+            });
+            ui.separator();
+            let mut shared = Shared {
+                model: &self.model,
+                model_gen: self.model_gen,
+                ui: &mut self.ui_state,
+                commands: &mut commands,
+            };
+            match shared.ui.tab {
+                Panel::Views => {
+                    ui.checkbox(&mut shared.ui.show_3d_below_views, "3D view below");
+                    let h = ui.available_height();
+                    if shared.ui.show_3d_below_views {
+                        views_panel::views_panel(ui, &mut shared, &mut self.views, h * 0.62);
+                        view3d::scene_ui(ui, &mut shared, &mut self.view3d, None);
+                    } else {
+                        views_panel::views_panel(ui, &mut shared, &mut self.views, h);
+                    }
+                }
+                Panel::View3d => view3d::view3d_panel(ui, &mut shared, &mut self.view3d),
+                Panel::Posterior => posterior_panel::posterior_panel(
+                    ui,
+                    &mut shared,
+                    &mut self.views,
+                    &mut self.posterior,
+                ),
+                Panel::Plots => plots_panel::plots_panel(ui, &self.model),
+                Panel::Stages => stages_panel::stages_panel(ui, &self.model),
+            }
+        });
+
+        if let Some(k) = open_request {
+            self.open_dialog(k, &ctx);
+        }
+        for c in commands {
+            self.send(c);
+        }
+        if ctx.input(|i| !i.raw.hovered_files.is_empty()) {
+            let painter = ctx.layer_painter(egui::LayerId::new(
+                egui::Order::Foreground,
+                egui::Id::unique("drop"),
+            ));
+            let r = ctx.content_rect();
+            painter.rect_filled(r, 0.0, egui::Color32::from_black_alpha(160));
+            painter.text(
+                r.center(),
+                egui::Align2::CENTER_CENTER,
+                "Drop scan files or folders to open",
+                egui::FontId::proportional(24.0),
+                egui::Color32::WHITE,
+            );
+        }
+        self.save_if_changed();
+    }
+
+    fn log_bar(&mut self, ui: &mut egui::Ui) {
+        ui.horizontal(|ui| {
+            let label = if self.show_log {
+                "Hide log"
+            } else {
+                "Show log"
+            };
+            if ui.small_button(label).clicked() {
+                self.show_log = !self.show_log;
+            }
+            if self
+                .model
+                .stages
+                .iter()
+                .any(|s| s.state == model::StageState::Running)
+            {
+                ui.spinner();
+            }
+            if let Some(l) = self.log.last() {
+                ui.colored_label(level_color(l.level), &l.text);
+            } else {
+                ui.weak("ready");
+            }
+        });
+        if self.show_log {
+            egui::ScrollArea::vertical()
+                .id_salt("log")
+                .max_height(120.0)
+                .stick_to_bottom(true)
+                .show(ui, |ui| {
+                    for l in &self.log {
+                        ui.colored_label(level_color(l.level), &l.text);
+                    }
+                });
+        }
+    }
+}
+
+fn level_color(l: LogLevel) -> egui::Color32 {
+    match l {
+        LogLevel::Info => egui::Color32::from_gray(190),
+        LogLevel::Warn => egui::Color32::from_rgb(230, 190, 60),
+        LogLevel::Error => egui::Color32::from_rgb(240, 80, 70),
+    }
+}
+
+fn short(c: &Command) -> String {
+    let s = format!("{c:?}");
+    if s.len() > 120 {
+        format!(
+            "{}…",
+            &s[..s.char_indices().nth(117).map(|x| x.0).unwrap_or(s.len())]
+        )
+    } else {
+        s
+    }
+}
+
+/// Minimal executor for rfd's async dialog (it resolves on its own thread).
+fn block_on<F: std::future::Future>(fut: F) -> F::Output {
+    use std::task::{Context, Poll, Wake, Waker};
+    struct ThreadWaker(std::thread::Thread);
+    impl Wake for ThreadWaker {
+        fn wake(self: Arc<Self>) {
+            self.0.unpark();
+        }
+    }
+    let waker = Waker::from(Arc::new(ThreadWaker(std::thread::current())));
+    let mut cx = Context::from_waker(&waker);
+    let mut fut = std::pin::pin!(fut);
+    loop {
+        match fut.as_mut().poll(&mut cx) {
+            Poll::Ready(v) => return v,
+            Poll::Pending => std::thread::park(),
+        }
+    }
+}
+
+struct EframeApp(App);
+
+impl eframe::App for EframeApp {
+    fn ui(&mut self, ui: &mut egui::Ui, _frame: &mut eframe::Frame) {
+        self.0.show(ui);
+    }
+    fn on_exit(&mut self, _gl: Option<&eframe::glow::Context>) {
+        // the GL context is still current here; free the 3D buffers before it goes
+        render3d::release_gl(None);
+    }
+}
+
+/// Opens the inspector window (blocks until it is closed).
+pub fn run_gui(model: InspectorModel, worker: Box<dyn Worker>) -> Result<(), String> {
+    let options = eframe::NativeOptions {
+        renderer: eframe::Renderer::Glow,
+        depth_buffer: 24,
+        viewport: egui::ViewportBuilder::default()
+            .with_inner_size([1400.0, 900.0])
+            .with_title("C-GenReg inspector")
+            .with_drag_and_drop(true),
+        ..Default::default()
+    };
+    eframe::run_native(
+        "cgenreg inspector",
+        options,
+        Box::new(move |cc| {
+            // a missing glyph (e.g. in a user's prompt) must draw a box, never abort
+            cc.egui_ctx
+                .set_missing_glyph_policy(egui::MissingGlyphPolicy::Tofu);
+            let handle = spawn_worker(worker, Some(cc.egui_ctx.clone()));
+            Ok(Box::new(EframeApp(App::new(
+                model,
+                Some(handle),
+                default_settings_path(),
+            ))))
+        }),
+    )
+    .map_err(|e| format!("could not open the inspector window: {e}"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn settings_persist_round_trip_and_bad_file_gives_defaults() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("cfg").join("inspector.json");
+        let mut p = Persisted::default();
+        p.settings.k = 5;
+        p.match_mode = MatchColorMode::Confidence;
+        p.last_opened = Some((OpenKind::TwoClouds, vec!["a.ply".into(), "b.ply".into()]));
+        save_persisted(&path, &p).unwrap();
+        let (q, err) = load_persisted(&path);
+        assert!(err.is_none());
+        assert_eq!(p, q);
+        std::fs::write(&path, b"{not json").unwrap();
+        let (q, err) = load_persisted(&path);
+        assert_eq!(q, Persisted::default());
+        assert!(err.unwrap().contains("inspector.json"));
+        // the app reads the file at start
+        save_persisted(&path, &p).unwrap();
+        let app = App::new(InspectorModel::demo(), None, Some(path));
+        assert_eq!(app.settings.k, 5);
+        assert_eq!(app.ui_state.match_mode, MatchColorMode::Confidence);
+    }
+
+    #[test]
+    fn drops_are_classified() {
+        let dir = tempfile::tempdir().unwrap();
+        assert_eq!(
+            classify_drop(&["a.ply".into(), "b.PLY".into()]),
+            OpenKind::TwoClouds
+        );
+        assert_eq!(classify_drop(&["m.json".into()]), OpenKind::Manifest);
+        std::fs::create_dir(dir.path().join("video_0")).unwrap();
+        assert_eq!(
+            classify_drop(&[dir.path().to_path_buf()]),
+            OpenKind::CosmosOutput
+        );
+        let seq = tempfile::tempdir().unwrap();
+        std::fs::create_dir(seq.path().join("seq-01")).unwrap();
+        assert_eq!(
+            classify_drop(&[seq.path().to_path_buf()]),
+            OpenKind::RgbdSequence
+        );
+    }
+}

@@ -1,0 +1,551 @@
+//! Pipeline controls and the channel to the worker that re-runs the pipeline.
+//!
+//! The UI never computes: every change of a control produces a [`Command`] sent over a
+//! `std::sync::mpsc` channel to a worker thread, which answers with [`WorkerEvent`]s. The
+//! lead implements [`Worker`] on top of the pipeline; [`spawn_worker`] runs it.
+
+use std::path::PathBuf;
+use std::sync::mpsc::{channel, Receiver, Sender, TryRecvError};
+
+use eframe::egui;
+use serde::{Deserialize, Serialize};
+
+use super::model::{InspectorModel, StageInfo};
+
+/// The four prompt presets of the prompt study (project page ablation).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum PromptPreset {
+    /// The per-pair scene description from the spec file.
+    SceneSpecific,
+    General,
+    Minimal,
+    /// A deliberately wrong description (robustness study).
+    Wrong,
+}
+
+impl PromptPreset {
+    pub const ALL: [PromptPreset; 4] = [
+        Self::SceneSpecific,
+        Self::General,
+        Self::Minimal,
+        Self::Wrong,
+    ];
+    pub fn label(self) -> &'static str {
+        match self {
+            Self::SceneSpecific => "Scene-specific",
+            Self::General => "General",
+            Self::Minimal => "Minimal",
+            Self::Wrong => "Wrong",
+        }
+    }
+    /// Scene text the preset puts in the editor (`scene_specific` is the pair's own).
+    pub fn scene_text(self, scene_specific: &str) -> String {
+        match self {
+            Self::SceneSpecific => scene_specific.to_owned(),
+            Self::General => {
+                "An indoor room with furniture, walls and floor, lit by soft daylight. \
+                Complete the unseen parts with consistent materials and lighting."
+                    .into()
+            }
+            Self::Minimal => "An indoor scene.".into(),
+            Self::Wrong => "A sunny beach with palm trees and waves under a blue sky.".into(),
+        }
+    }
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum FusionMode {
+    NoisyAnd,
+    NoisyOr,
+    Concatenation,
+    ImageOnly,
+    GeometryOnly,
+}
+
+impl FusionMode {
+    pub const ALL: [FusionMode; 5] = [
+        Self::NoisyAnd,
+        Self::NoisyOr,
+        Self::Concatenation,
+        Self::ImageOnly,
+        Self::GeometryOnly,
+    ];
+    pub fn label(self) -> &'static str {
+        match self {
+            Self::NoisyAnd => "Noisy-AND",
+            Self::NoisyOr => "Noisy-OR",
+            Self::Concatenation => "Concatenation",
+            Self::ImageOnly => "Image only",
+            Self::GeometryOnly => "Geometry only",
+        }
+    }
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Calibration {
+    /// Softmax over similarities with a temperature.
+    Softmax,
+    /// Dual softmax (row and column).
+    DualSoftmax,
+    None,
+}
+
+impl Calibration {
+    pub const ALL: [Calibration; 3] = [Self::Softmax, Self::DualSoftmax, Self::None];
+    pub fn label(self) -> &'static str {
+        match self {
+            Self::Softmax => "Softmax",
+            Self::DualSoftmax => "Dual softmax",
+            Self::None => "None",
+        }
+    }
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum SelectionRule {
+    MutualNearest,
+    TopK,
+    Threshold,
+}
+
+impl SelectionRule {
+    pub const ALL: [SelectionRule; 3] = [Self::MutualNearest, Self::TopK, Self::Threshold];
+    pub fn label(self) -> &'static str {
+        match self {
+            Self::MutualNearest => "Mutual nearest",
+            Self::TopK => "Top-k by score",
+            Self::Threshold => "Score threshold",
+        }
+    }
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Estimator {
+    Sc2Pcr,
+    Ransac,
+}
+
+impl Estimator {
+    pub const ALL: [Estimator; 2] = [Self::Sc2Pcr, Self::Ransac];
+    pub fn label(self) -> &'static str {
+        match self {
+            Self::Sc2Pcr => "SC2-PCR",
+            Self::Ransac => "RANSAC",
+        }
+    }
+}
+
+/// Calibration of one branch.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct BranchCalibration {
+    pub method: Calibration,
+    pub temperature: f32,
+}
+
+/// Every setting that changes a pipeline result. The worker diffs two snapshots to know
+/// which stages to re-run.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PipelineSettings {
+    pub prompt_prefix: String,
+    pub prompt_scene: String,
+    pub preset: PromptPreset,
+    pub k: usize,
+    /// Safeguard margin, metres.
+    pub margin_m: f32,
+    pub vfm: String,
+    pub image_calibration: BranchCalibration,
+    pub geometry_calibration: BranchCalibration,
+    pub fusion: FusionMode,
+    pub selection: SelectionRule,
+    pub estimator: Estimator,
+}
+
+impl Default for PipelineSettings {
+    fn default() -> Self {
+        Self {
+            prompt_prefix: "A photorealistic".into(),
+            prompt_scene: String::new(),
+            preset: PromptPreset::SceneSpecific,
+            k: 2,
+            margin_m: 0.05,
+            vfm: "xfeat".into(),
+            image_calibration: BranchCalibration {
+                method: Calibration::Softmax,
+                temperature: 0.1,
+            },
+            geometry_calibration: BranchCalibration {
+                method: Calibration::Softmax,
+                temperature: 0.1,
+            },
+            fusion: FusionMode::NoisyAnd,
+            selection: SelectionRule::MutualNearest,
+            estimator: Estimator::Sc2Pcr,
+        }
+    }
+}
+
+impl PipelineSettings {
+    /// The full prompt sent to the generator.
+    pub fn prompt(&self) -> String {
+        match (self.prompt_prefix.trim(), self.prompt_scene.trim()) {
+            ("", s) => s.to_owned(),
+            (p, "") => p.to_owned(),
+            (p, s) => format!("{p} {s}"),
+        }
+    }
+}
+
+/// What a dropped or chosen path is meant to be.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum OpenKind {
+    /// Decide from the file names (drag and drop).
+    Auto,
+    Manifest,
+    ThreeDMatchFolder,
+    RgbdSequence,
+    /// Exactly two cloud files: source then target.
+    TwoClouds,
+    CosmosOutput,
+}
+
+impl OpenKind {
+    pub fn label(self) -> &'static str {
+        match self {
+            Self::Auto => "Auto",
+            Self::Manifest => "Dataset manifest…",
+            Self::ThreeDMatchFolder => "3DMatch folder…",
+            Self::RgbdSequence => "RGB-D sequence…",
+            Self::TwoClouds => "Two cloud files…",
+            Self::CosmosOutput => "Cosmos output folder…",
+        }
+    }
+    pub fn wants_folder(self) -> bool {
+        matches!(
+            self,
+            Self::ThreeDMatchFolder | Self::RgbdSequence | Self::CosmosOutput
+        )
+    }
+}
+
+/// A request from the UI to the worker.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Command {
+    Open {
+        kind: OpenKind,
+        paths: Vec<PathBuf>,
+    },
+    SelectPair(String),
+    /// New settings snapshot; re-run the stages that depend on what changed, from the cache.
+    ApplySettings(PipelineSettings),
+    /// Run the configured generator for a prompt whose generation is not cached.
+    RunGenerator {
+        prompt: String,
+    },
+    /// Compute branch posteriors for a source point (posterior inspector).
+    InspectSourcePoint(usize),
+    Cancel,
+}
+
+impl Command {
+    /// Commands of the same kind supersede each other when queued (slider drags).
+    fn coalesces_with(&self, other: &Command) -> bool {
+        matches!(
+            (self, other),
+            (Command::ApplySettings(_), Command::ApplySettings(_))
+                | (
+                    Command::InspectSourcePoint(_),
+                    Command::InspectSourcePoint(_)
+                )
+                | (Command::SelectPair(_), Command::SelectPair(_))
+        )
+    }
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LogLevel {
+    Info,
+    Warn,
+    Error,
+}
+
+/// What the worker reports back.
+#[derive(Clone, Debug)]
+pub enum WorkerEvent {
+    /// A new model replaces the shown one.
+    Model(Box<InspectorModel>),
+    /// One stage changed state (the stage panel updates without a full model).
+    Stage(StageInfo),
+    Log(LogLevel, String),
+}
+
+/// Sends events to the UI and wakes it up.
+#[derive(Clone)]
+pub struct EventSink {
+    tx: Sender<WorkerEvent>,
+    ctx: Option<egui::Context>,
+}
+
+impl EventSink {
+    pub fn send(&self, event: WorkerEvent) {
+        // A closed UI is not an error for the worker.
+        let _ = self.tx.send(event);
+        if let Some(ctx) = &self.ctx {
+            ctx.request_repaint();
+        }
+    }
+    pub fn log(&self, level: LogLevel, msg: impl Into<String>) {
+        self.send(WorkerEvent::Log(level, msg.into()));
+    }
+}
+
+/// The pipeline side of the inspector; runs on its own thread.
+pub trait Worker: Send + 'static {
+    /// Handle one command. Long work is fine here (it never blocks the UI); report progress
+    /// and results through `events`. Errors must be reported as `WorkerEvent::Log(Error, ..)`
+    /// and stage `Failed` states, never by panicking.
+    fn handle(&mut self, command: Command, events: &EventSink);
+}
+
+/// A worker that only logs what it receives (for a UI without a pipeline).
+pub struct LogOnlyWorker;
+
+impl Worker for LogOnlyWorker {
+    fn handle(&mut self, command: Command, events: &EventSink) {
+        events.log(
+            LogLevel::Info,
+            format!("no pipeline connected; ignored {command:?}"),
+        );
+    }
+}
+
+/// The UI's end of the worker channel.
+pub struct WorkerHandle {
+    tx: Sender<Command>,
+    rx: Receiver<WorkerEvent>,
+    _thread: Option<std::thread::JoinHandle<()>>,
+}
+
+impl WorkerHandle {
+    pub fn send(&self, command: Command) -> bool {
+        self.tx.send(command).is_ok()
+    }
+    /// Drains pending events without blocking.
+    pub fn poll(&self) -> Vec<WorkerEvent> {
+        let mut out = Vec::new();
+        loop {
+            match self.rx.try_recv() {
+                Ok(e) => out.push(e),
+                Err(TryRecvError::Empty) => break,
+                Err(TryRecvError::Disconnected) => {
+                    out.push(WorkerEvent::Log(
+                        LogLevel::Error,
+                        "worker thread ended".into(),
+                    ));
+                    break;
+                }
+            }
+        }
+        out
+    }
+}
+
+/// Starts `worker` on a thread. Queued commands of the same kind are coalesced so a slider
+/// drag re-runs once with the last value. A panicking worker is reported, not propagated.
+pub fn spawn_worker(mut worker: Box<dyn Worker>, ctx: Option<egui::Context>) -> WorkerHandle {
+    let (tx, cmd_rx) = channel::<Command>();
+    let (ev_tx, rx) = channel::<WorkerEvent>();
+    let sink = EventSink { tx: ev_tx, ctx };
+    let thread = std::thread::Builder::new()
+        .name("cgenreg-worker".into())
+        .spawn(move || {
+            while let Ok(first) = cmd_rx.recv() {
+                let mut batch = vec![first];
+                while let Ok(c) = cmd_rx.try_recv() {
+                    batch.retain(|b| !b.coalesces_with(&c));
+                    batch.push(c);
+                }
+                for c in batch {
+                    let desc = format!("{c:?}");
+                    let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                        worker.handle(c, &sink)
+                    }));
+                    if r.is_err() {
+                        sink.log(
+                            LogLevel::Error,
+                            format!("worker panicked while handling {desc}"),
+                        );
+                    }
+                }
+            }
+        })
+        .ok();
+    WorkerHandle {
+        tx,
+        rx,
+        _thread: thread,
+    }
+}
+
+/// The side-panel controls. Returns the commands the user's changes produced.
+pub fn controls_ui(
+    ui: &mut egui::Ui,
+    settings: &mut PipelineSettings,
+    scene_specific: &str,
+    out: &mut Vec<Command>,
+) {
+    let before = settings.clone();
+    egui::CollapsingHeader::new("Prompt")
+        .default_open(true)
+        .show(ui, |ui| {
+            ui.horizontal_wrapped(|ui| {
+                for p in PromptPreset::ALL {
+                    if ui
+                        .selectable_label(settings.preset == p, p.label())
+                        .clicked()
+                    {
+                        settings.preset = p;
+                        settings.prompt_scene = p.scene_text(scene_specific);
+                    }
+                }
+            });
+            let l = ui.label("Shared prefix");
+            ui.add(
+                egui::TextEdit::singleline(&mut settings.prompt_prefix)
+                    .desired_width(f32::INFINITY),
+            )
+            .labelled_by(l.id);
+            let l = ui.label("Scene description");
+            ui.add(
+                egui::TextEdit::multiline(&mut settings.prompt_scene)
+                    .desired_rows(3)
+                    .desired_width(f32::INFINITY),
+            )
+            .labelled_by(l.id);
+        });
+    egui::CollapsingHeader::new("Views")
+        .default_open(true)
+        .show(ui, |ui| {
+            ui.add(egui::Slider::new(&mut settings.k, 1..=8).text("K views"));
+            ui.add(
+                egui::Slider::new(&mut settings.margin_m, 0.0..=0.5)
+                    .text("Safeguard margin (m)")
+                    .fixed_decimals(2),
+            );
+            egui::ComboBox::from_label("VFM")
+                .selected_text(settings.vfm.clone())
+                .show_ui(ui, |ui| {
+                    for v in ["xfeat", "disk", "dift"] {
+                        ui.selectable_value(&mut settings.vfm, v.to_owned(), v);
+                    }
+                });
+        });
+    egui::CollapsingHeader::new("Calibration & fusion")
+        .default_open(true)
+        .show(ui, |ui| {
+            for (name, cal) in [
+                ("Image", &mut settings.image_calibration),
+                ("Geometry", &mut settings.geometry_calibration),
+            ] {
+                ui.horizontal(|ui| {
+                    egui::ComboBox::from_label(format!("{name} calibration"))
+                        .selected_text(cal.method.label())
+                        .show_ui(ui, |ui| {
+                            for c in Calibration::ALL {
+                                ui.selectable_value(&mut cal.method, c, c.label());
+                            }
+                        });
+                });
+                ui.add(
+                    egui::Slider::new(&mut cal.temperature, 0.005..=1.0)
+                        .logarithmic(true)
+                        .text(format!("{name} temperature")),
+                );
+            }
+            egui::ComboBox::from_label("Fusion")
+                .selected_text(settings.fusion.label())
+                .show_ui(ui, |ui| {
+                    for f in FusionMode::ALL {
+                        ui.selectable_value(&mut settings.fusion, f, f.label());
+                    }
+                });
+            egui::ComboBox::from_label("Selection")
+                .selected_text(settings.selection.label())
+                .show_ui(ui, |ui| {
+                    for s in SelectionRule::ALL {
+                        ui.selectable_value(&mut settings.selection, s, s.label());
+                    }
+                });
+            egui::ComboBox::from_label("Estimator")
+                .selected_text(settings.estimator.label())
+                .show_ui(ui, |ui| {
+                    for e in Estimator::ALL {
+                        ui.selectable_value(&mut settings.estimator, e, e.label());
+                    }
+                });
+        });
+    if *settings != before {
+        out.push(Command::ApplySettings(settings.clone()));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::sync::{Arc, Mutex};
+
+    struct Recorder(Arc<Mutex<Vec<Command>>>);
+    impl Worker for Recorder {
+        fn handle(&mut self, command: Command, events: &EventSink) {
+            std::thread::sleep(std::time::Duration::from_millis(20));
+            self.0.lock().unwrap().push(command.clone());
+            events.log(LogLevel::Info, format!("{command:?}"));
+        }
+    }
+
+    #[test]
+    fn worker_coalesces_settings_and_reports() {
+        let seen = Arc::new(Mutex::new(Vec::new()));
+        let h = spawn_worker(Box::new(Recorder(seen.clone())), None);
+        // first command is taken at once; the next ones queue while it sleeps
+        h.send(Command::Cancel);
+        std::thread::sleep(std::time::Duration::from_millis(5));
+        for k in 1..=5 {
+            h.send(Command::ApplySettings(PipelineSettings {
+                k,
+                ..Default::default()
+            }));
+        }
+        h.send(Command::RunGenerator { prompt: "p".into() });
+        let t0 = std::time::Instant::now();
+        while seen.lock().unwrap().len() < 3 && t0.elapsed().as_secs() < 5 {
+            std::thread::sleep(std::time::Duration::from_millis(10));
+        }
+        std::thread::sleep(std::time::Duration::from_millis(50));
+        let seen = seen.lock().unwrap().clone();
+        assert_eq!(seen[0], Command::Cancel);
+        let applied: Vec<usize> = seen
+            .iter()
+            .filter_map(|c| match c {
+                Command::ApplySettings(s) => Some(s.k),
+                _ => None,
+            })
+            .collect();
+        assert_eq!(
+            applied,
+            vec![5],
+            "only the last settings snapshot runs: {seen:?}"
+        );
+        assert!(seen.contains(&Command::RunGenerator { prompt: "p".into() }));
+        let logs = h.poll();
+        assert_eq!(logs.len(), seen.len());
+    }
+
+    #[test]
+    fn prompt_joins_prefix_and_scene() {
+        let mut s = PipelineSettings::default();
+        s.prompt_scene = PromptPreset::Minimal.scene_text("x");
+        assert_eq!(s.prompt(), "A photorealistic An indoor scene.");
+        s.prompt_prefix.clear();
+        assert_eq!(s.prompt(), "An indoor scene.");
+    }
+}

@@ -1,0 +1,339 @@
+//! Posterior inspector: the image, geometric and fused posteriors of one source point over
+//! the target points, as heat maps on the target view and as colours of the target cloud.
+
+use std::sync::Arc;
+
+use eframe::egui;
+use serde::{Deserialize, Serialize};
+
+use super::colormap::{to_color32, turbo, TARGET_RGB};
+use super::model::{InspectorModel, Posterior};
+use super::view3d::{self, TargetOverride, View3dState};
+use super::views_panel::{image_in_rect, to_screen, ViewsState};
+use super::Shared;
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum PosteriorKind {
+    Image,
+    Geometric,
+    Fused,
+    /// Image minus geometric (normalised): where the branches disagree.
+    Disagreement,
+}
+
+impl PosteriorKind {
+    pub const ALL: [PosteriorKind; 4] = [
+        Self::Image,
+        Self::Geometric,
+        Self::Fused,
+        Self::Disagreement,
+    ];
+    pub fn label(self) -> &'static str {
+        match self {
+            Self::Image => "image branch",
+            Self::Geometric => "geometric branch",
+            Self::Fused => "fused",
+            Self::Disagreement => "disagreement (image - geometry)",
+        }
+    }
+}
+
+#[derive(Default)]
+pub struct PosteriorState {
+    pub kind3d: Option<PosteriorKind>,
+    pub view3d: View3dState,
+    colors_key: Option<(u64, usize, PosteriorKind)>,
+    colors: Option<(u64, Arc<Vec<[u8; 4]>>)>,
+}
+
+/// Values in [0, 1] (or [-1, 1] for disagreement) per candidate.
+pub fn normalised(p: &Posterior, kind: PosteriorKind) -> Vec<f32> {
+    let norm = |v: &[f32]| {
+        let m = v.iter().cloned().fold(0.0f32, f32::max).max(1e-12);
+        v.iter().map(|x| x / m).collect::<Vec<f32>>()
+    };
+    match kind {
+        PosteriorKind::Image => norm(&p.image),
+        PosteriorKind::Geometric => norm(&p.geometric),
+        PosteriorKind::Fused => norm(&p.fused),
+        PosteriorKind::Disagreement => {
+            let (a, b) = (norm(&p.image), norm(&p.geometric));
+            a.iter().zip(&b).map(|(x, y)| x - y).collect()
+        }
+    }
+}
+
+/// Colour of a normalised value; disagreement uses magenta (image) vs cyan (geometry).
+pub fn value_rgb(v: f32, kind: PosteriorKind) -> [u8; 3] {
+    if kind == PosteriorKind::Disagreement {
+        let a = v.abs().clamp(0.0, 1.0);
+        let base = 40.0;
+        if v >= 0.0 {
+            [
+                (base + a * 215.0) as u8,
+                base as u8,
+                (base + a * 200.0) as u8,
+            ]
+        } else {
+            [
+                base as u8,
+                (base + a * 215.0) as u8,
+                (base + a * 215.0) as u8,
+            ]
+        }
+    } else {
+        turbo(v)
+    }
+}
+
+fn argmax(v: &[f32]) -> Option<usize> {
+    v.iter()
+        .enumerate()
+        .max_by(|a, b| a.1.total_cmp(b.1))
+        .map(|(i, _)| i)
+}
+
+/// Target-cloud colours for the 3D posterior view: candidates coloured, the rest dimmed.
+pub fn posterior_cloud_colors(
+    model: &InspectorModel,
+    p: &Posterior,
+    kind: PosteriorKind,
+) -> Vec<[u8; 4]> {
+    let d = |c: u8| c / 4 + 30;
+    let mut out =
+        vec![[d(TARGET_RGB[0]), d(TARGET_RGB[1]), d(TARGET_RGB[2]), 255]; model.target.len()];
+    for (ci, v) in p.candidates.iter().zip(normalised(p, kind)) {
+        if let Some(o) = out.get_mut(*ci) {
+            let c = value_rgb(v, kind);
+            *o = [c[0], c[1], c[2], 255];
+        }
+    }
+    out
+}
+
+fn heat_map(
+    ui: &mut egui::Ui,
+    shared: &Shared<'_>,
+    views: &mut ViewsState,
+    p: &Posterior,
+    kind: PosteriorKind,
+    size: egui::Vec2,
+) {
+    let model = shared.model;
+    ui.vertical(|ui| {
+        ui.strong(kind.label());
+        let Some(tv) = model.target_views.get(p.target_view) else {
+            ui.label("no target view");
+            return;
+        };
+        let s = (size.x / tv.rgb.width as f32).min(size.y / tv.rgb.height as f32);
+        let (rect, _) = ui.allocate_exact_size(
+            egui::vec2(tv.rgb.width as f32 * s, tv.rgb.height as f32 * s),
+            egui::Sense::hover(),
+        );
+        let tex = views.textures.get(
+            ui.ctx(),
+            shared.model_gen,
+            &format!("tgt{}c", p.target_view),
+            &tv.rgb,
+        );
+        image_in_rect(ui, &tex, rect);
+        let painter = ui.painter_at(rect);
+        painter.rect_filled(rect, 0.0, egui::Color32::from_black_alpha(110));
+        let vals = normalised(p, kind);
+        // draw low values first so peaks stay on top
+        let mut order: Vec<usize> = (0..vals.len()).collect();
+        order.sort_by(|&a, &b| vals[a].abs().total_cmp(&vals[b].abs()));
+        for i in order {
+            let Some(px) = p.candidate_pixels.get(i).copied().flatten() else {
+                continue;
+            };
+            let c = value_rgb(vals[i], kind);
+            let a = (60.0 + 195.0 * vals[i].abs().sqrt()) as u8;
+            painter.circle_filled(
+                to_screen(rect, tv.rgb.width, tv.rgb.height, px),
+                3.0,
+                egui::Color32::from_rgba_unmultiplied(c[0], c[1], c[2], a),
+            );
+        }
+        if kind != PosteriorKind::Disagreement {
+            if let Some(px) =
+                argmax(&vals).and_then(|i| p.candidate_pixels.get(i).copied().flatten())
+            {
+                let q = to_screen(rect, tv.rgb.width, tv.rgb.height, px);
+                painter.rect_stroke(
+                    egui::Rect::from_center_size(q, egui::vec2(10.0, 10.0)),
+                    0.0,
+                    egui::Stroke::new(2.0, egui::Color32::WHITE),
+                    egui::StrokeKind::Middle,
+                );
+            }
+        }
+        if let Some(gt) = p.gt_target {
+            if let Some(px) = p
+                .candidates
+                .iter()
+                .position(|c| *c == gt)
+                .and_then(|i| p.candidate_pixels.get(i).copied().flatten())
+            {
+                let q = to_screen(rect, tv.rgb.width, tv.rgb.height, px);
+                let st = egui::Stroke::new(2.0, egui::Color32::from_rgb(60, 255, 90));
+                painter.line_segment([q - egui::vec2(7.0, 0.0), q + egui::vec2(7.0, 0.0)], st);
+                painter.line_segment([q - egui::vec2(0.0, 7.0), q + egui::vec2(0.0, 7.0)], st);
+            }
+        }
+    });
+}
+
+pub fn posterior_panel(
+    ui: &mut egui::Ui,
+    shared: &mut Shared<'_>,
+    views: &mut ViewsState,
+    state: &mut PosteriorState,
+) {
+    let model = shared.model;
+    if model.posteriors.is_empty() {
+        ui.label("No posteriors: click a source point in the Views or 3D tab to request one.");
+        return;
+    }
+    let sel = shared.ui.selected_source_point;
+    let p = match sel.and_then(|s| model.posterior_for(s)) {
+        Some(p) => p,
+        None => {
+            if let Some(s) = sel {
+                ui.colored_label(
+                    egui::Color32::from_rgb(230, 190, 60),
+                    format!("posterior of source point {s} requested; showing the first available"),
+                );
+            }
+            &model.posteriors[0]
+        }
+    };
+    ui.horizontal_wrapped(|ui| {
+        egui::ComboBox::from_label("Source point")
+            .selected_text(format!("#{}", p.source_point))
+            .show_ui(ui, |ui| {
+                for q in &model.posteriors {
+                    if ui
+                        .selectable_label(
+                            q.source_point == p.source_point,
+                            format!("#{}", q.source_point),
+                        )
+                        .clicked()
+                    {
+                        shared.ui.selected_source_point = Some(q.source_point);
+                    }
+                }
+            });
+        let gt = p
+            .gt_target
+            .map(|g| format!("#{g}"))
+            .unwrap_or_else(|| "unknown".into());
+        ui.separator();
+        ui.label(format!("GT target: {gt}"));
+        for (name, row) in [
+            ("image", &p.image),
+            ("geometric", &p.geometric),
+            ("fused", &p.fused),
+        ] {
+            if let Some(i) = argmax(row) {
+                let hit = p.gt_target == Some(p.candidates[i]);
+                ui.separator();
+                ui.colored_label(
+                    if hit {
+                        egui::Color32::from_rgb(90, 210, 110)
+                    } else {
+                        egui::Color32::from_rgb(240, 80, 70)
+                    },
+                    format!(
+                        "{name} argmax #{} {}",
+                        p.candidates[i],
+                        if hit { "= GT" } else { "!= GT" }
+                    ),
+                );
+            }
+        }
+        ui.separator();
+        match p.survived {
+            Some(true) => ui.colored_label(
+                egui::Color32::from_rgb(90, 210, 110),
+                "match survived SC2-PCR",
+            ),
+            Some(false) => ui.colored_label(
+                egui::Color32::from_rgb(240, 80, 70),
+                "match rejected by SC2-PCR",
+            ),
+            None => ui.label("not estimated yet"),
+        };
+    });
+    ui.label(egui::RichText::new("square: argmax · cross: ground truth   colours: turbo (low to high); disagreement: magenta = image only, cyan = geometry only").small());
+    let w = (ui.available_width() - 30.0) / 4.0;
+    let size = egui::vec2(w, w * 0.75);
+    ui.horizontal(|ui| {
+        // the source view with the selected point
+        ui.vertical(|ui| {
+            ui.strong(format!("source view {}", p.source_view));
+            if let Some(sv) = model.source_views.get(p.source_view) {
+                let s = (size.x / sv.rgb.width as f32).min(size.y / sv.rgb.height as f32);
+                let (rect, _) = ui.allocate_exact_size(
+                    egui::vec2(sv.rgb.width as f32 * s, sv.rgb.height as f32 * s),
+                    egui::Sense::hover(),
+                );
+                let tex = views.textures.get(
+                    ui.ctx(),
+                    shared.model_gen,
+                    &format!("src{}c", p.source_view),
+                    &sv.rgb,
+                );
+                image_in_rect(ui, &tex, rect);
+                if let Some(px) = p.source_pixel {
+                    let q = to_screen(rect, sv.rgb.width, sv.rgb.height, px);
+                    ui.painter().circle_stroke(
+                        q,
+                        7.0,
+                        egui::Stroke::new(2.5, egui::Color32::WHITE),
+                    );
+                    ui.painter()
+                        .circle_filled(q, 3.0, to_color32([255, 200, 20]));
+                }
+            }
+        });
+        heat_map(ui, shared, views, p, PosteriorKind::Image, size);
+        heat_map(ui, shared, views, p, PosteriorKind::Geometric, size);
+        heat_map(ui, shared, views, p, PosteriorKind::Fused, size);
+    });
+    ui.horizontal(|ui| {
+        heat_map(ui, shared, views, p, PosteriorKind::Disagreement, size);
+        ui.vertical(|ui| {
+            let kind = state.kind3d.get_or_insert(PosteriorKind::Fused);
+            egui::ComboBox::from_label("target cloud coloured by")
+                .selected_text(kind.label())
+                .show_ui(ui, |ui| {
+                    for k in PosteriorKind::ALL {
+                        ui.selectable_value(kind, k, k.label());
+                    }
+                });
+            let kind = *kind;
+            let key = (shared.model_gen, p.source_point, kind);
+            if state.colors_key != Some(key) {
+                state.colors = Some((
+                    view3d::next_id(),
+                    Arc::new(posterior_cloud_colors(model, p, kind)),
+                ));
+                state.colors_key = Some(key);
+                state.view3d.prefs.show_lines = false;
+                state.view3d.prefs.show_frusta = false;
+            }
+            let over = state.colors.as_ref().map(|(id, c)| TargetOverride {
+                id: *id,
+                colors: c.clone(),
+            });
+            let prev = shared.ui.selected_source_point;
+            shared.ui.selected_source_point = Some(p.source_point);
+            view3d::scene_ui(ui, shared, &mut state.view3d, over);
+            if shared.ui.selected_source_point == Some(p.source_point) {
+                shared.ui.selected_source_point = prev.or(Some(p.source_point));
+            }
+        });
+    });
+}

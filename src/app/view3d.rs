@@ -1,0 +1,598 @@
+//! The 3D panel: source (yellow) and target (blue) clouds drawn by three-d, alignments,
+//! correspondence lines, camera frusta, orbit/pan/zoom and picking.
+
+use std::sync::Arc;
+
+use eframe::egui;
+use nalgebra::{Isometry3, Matrix4, Point3};
+use serde::{Deserialize, Serialize};
+
+use super::colormap::{self, to_color32, HIGHLIGHT_RGB, SOURCE_RGB, TARGET_RGB};
+use super::model::{Branch, InspectorModel};
+use super::render3d::camera::{project, OrbitCamera};
+use super::render3d::nearest::CappedNearest;
+use super::render3d::{self, CloudData, Instance, LineData, SceneFrame};
+use super::{MatchColorMode, Shared};
+
+/// How a cloud's points are coloured.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum CloudColorMode {
+    Fixed,
+    FusedScore,
+    ResidualEstimate,
+    ResidualGroundTruth,
+    Branch,
+}
+
+impl CloudColorMode {
+    pub const ALL: [CloudColorMode; 5] = [
+        Self::Fixed,
+        Self::FusedScore,
+        Self::ResidualEstimate,
+        Self::ResidualGroundTruth,
+        Self::Branch,
+    ];
+    pub fn label(self) -> &'static str {
+        match self {
+            Self::Fixed => "Fixed",
+            Self::FusedScore => "Fused score",
+            Self::ResidualEstimate => "Residual (estimate)",
+            Self::ResidualGroundTruth => "Residual (ground truth)",
+            Self::Branch => "Proposing branch",
+        }
+    }
+}
+
+/// Residuals saturate the colormap at this distance (metres).
+pub const RESIDUAL_CAP_M: f32 = 0.1;
+
+/// Persisted options of the 3D panel.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct View3dPrefs {
+    pub show_initial: bool,
+    pub show_estimated: bool,
+    pub show_ground_truth: bool,
+    pub show_target: bool,
+    pub show_lines: bool,
+    pub show_frusta: bool,
+    pub point_size: f32,
+    pub source_mode: CloudColorMode,
+    pub target_mode: CloudColorMode,
+}
+
+impl Default for View3dPrefs {
+    fn default() -> Self {
+        Self {
+            show_initial: false,
+            show_estimated: true,
+            show_ground_truth: false,
+            show_target: true,
+            show_lines: true,
+            show_frusta: true,
+            point_size: 2.0,
+            source_mode: CloudColorMode::Fixed,
+            target_mode: CloudColorMode::Fixed,
+        }
+    }
+}
+
+/// Colours a cloud: `Arc`ed so unchanged clouds are not re-uploaded.
+#[derive(Default)]
+struct ColorCache {
+    key: Option<(u64, CloudColorMode, bool, u64)>,
+    data: Option<CloudData>,
+}
+
+#[derive(Default)]
+pub struct View3dState {
+    pub prefs: View3dPrefs,
+    pub camera: OrbitCamera,
+    framed_for: Option<u64>,
+    positions_for: Option<u64>,
+    source_pos: Arc<Vec<[f32; 3]>>,
+    target_pos: Arc<Vec<[f32; 3]>>,
+    source_colors: ColorCache,
+    target_colors: ColorCache,
+    line_id: u64,
+}
+
+/// A colour override for the target cloud (posterior heat map in 3D).
+pub struct TargetOverride {
+    pub id: u64,
+    pub colors: Arc<Vec<[u8; 4]>>,
+}
+
+fn iso_to_mat(iso: &Isometry3<f64>) -> Matrix4<f32> {
+    iso.to_homogeneous().cast::<f32>()
+}
+
+fn mat_to_arr(m: &Matrix4<f32>) -> [f32; 16] {
+    let mut a = [0.0; 16];
+    a.copy_from_slice(m.as_slice());
+    a
+}
+
+fn rgba(c: [u8; 3]) -> [u8; 4] {
+    [c[0], c[1], c[2], 255]
+}
+
+/// The transform the source is shown under for lines and picking: estimated, else ground
+/// truth, else initial, following the toggles.
+pub fn primary_alignment(model: &InspectorModel, prefs: &View3dPrefs) -> Isometry3<f64> {
+    if prefs.show_estimated {
+        if let Some(e) = model.estimated {
+            return e;
+        }
+    }
+    if prefs.show_ground_truth {
+        if let Some(g) = model.ground_truth {
+            return g;
+        }
+    }
+    model.initial
+}
+
+fn apply(t: &Isometry3<f64>, p: [f32; 3]) -> [f32; 3] {
+    let q = t * Point3::new(p[0] as f64, p[1] as f64, p[2] as f64);
+    [q.x as f32, q.y as f32, q.z as f32]
+}
+
+/// Per-point colours of a cloud under a colour mode.
+pub fn cloud_colors(model: &InspectorModel, is_source: bool, mode: CloudColorMode) -> Vec<[u8; 4]> {
+    let pts = if is_source {
+        &model.source
+    } else {
+        &model.target
+    };
+    let base = if is_source { SOURCE_RGB } else { TARGET_RGB };
+    let dim = |c: [u8; 3]| rgba([c[0] / 3 + 40, c[1] / 3 + 40, c[2] / 3 + 40]);
+    match mode {
+        CloudColorMode::Fixed => vec![rgba(base); pts.len()],
+        CloudColorMode::FusedScore | CloudColorMode::Branch => {
+            let mut out = vec![dim(base); pts.len()];
+            for m in &model.matches {
+                let i = if is_source { m.src } else { m.tgt };
+                if i < out.len() {
+                    out[i] = rgba(if mode == CloudColorMode::FusedScore {
+                        colormap::turbo(m.score)
+                    } else {
+                        branch_rgb(m.branch)
+                    });
+                }
+            }
+            out
+        }
+        CloudColorMode::ResidualEstimate | CloudColorMode::ResidualGroundTruth => {
+            let t = if mode == CloudColorMode::ResidualEstimate {
+                model.estimated
+            } else {
+                model.ground_truth
+            };
+            let Some(t) = t else {
+                return vec![rgba([128, 128, 128]); pts.len()];
+            };
+            let (from, to, xf) = if is_source {
+                (&model.source, &model.target, t)
+            } else {
+                (&model.target, &model.source, t.inverse())
+            };
+            let nn = CappedNearest::new(to, RESIDUAL_CAP_M);
+            use rayon::prelude::*;
+            from.par_iter()
+                .map(|p| {
+                    rgba(colormap::turbo(
+                        nn.distance(apply(&xf, *p)) / RESIDUAL_CAP_M,
+                    ))
+                })
+                .collect()
+        }
+    }
+}
+
+pub fn branch_rgb(b: Branch) -> [u8; 3] {
+    match b {
+        Branch::Image => [255, 80, 220],
+        Branch::Geometry => [40, 230, 230],
+        Branch::Both => [255, 255, 255],
+    }
+}
+
+/// Colour of a shown match under the chosen colour mode (`rank` is its index in the shown set).
+pub fn match_rgb(model: &InspectorModel, idx: usize, rank: usize, mode: MatchColorMode) -> [u8; 3] {
+    let m = &model.matches[idx];
+    match mode {
+        MatchColorMode::Categorical => colormap::categorical(rank),
+        MatchColorMode::InlierOutlier => match m.inlier_gt {
+            Some(true) => colormap::INLIER_RGB,
+            Some(false) => colormap::OUTLIER_RGB,
+            None => [160, 160, 160],
+        },
+        MatchColorMode::Confidence => colormap::turbo(m.score),
+    }
+}
+
+fn frustum_lines(
+    model: &InspectorModel,
+    src_xf: &Isometry3<f64>,
+    pos: &mut Vec<[f32; 3]>,
+    col: &mut Vec<[u8; 4]>,
+) {
+    let mut add = |views: &[super::model::ViewImage], xf: &Isometry3<f64>, c: [u8; 3]| {
+        for v in views {
+            let Some(cam) = &v.camera else { continue };
+            let k = &cam.intrinsics;
+            let depth = 0.35;
+            let corners = [
+                (0.0, 0.0),
+                (k.width as f64, 0.0),
+                (k.width as f64, k.height as f64),
+                (0.0, k.height as f64),
+            ]
+            .map(|(u, v)| {
+                let p = k.backproject(u, v, depth);
+                let w = xf * (cam.cloud_from_camera * p);
+                [w.x as f32, w.y as f32, w.z as f32]
+            });
+            let o = xf * (cam.cloud_from_camera * Point3::origin());
+            let o = [o.x as f32, o.y as f32, o.z as f32];
+            for i in 0..4 {
+                pos.extend_from_slice(&[o, corners[i], corners[i], corners[(i + 1) % 4]]);
+                col.extend_from_slice(&[rgba(c); 4]);
+            }
+        }
+    };
+    add(&model.source_views, src_xf, [255, 230, 120]);
+    add(&model.target_views, &Isometry3::identity(), [140, 190, 255]);
+}
+
+fn point_segment_distance(p: egui::Pos2, a: egui::Pos2, b: egui::Pos2) -> f32 {
+    let ab = b - a;
+    let t = ((p - a).dot(ab) / ab.length_sq().max(1e-6)).clamp(0.0, 1.0);
+    (a + ab * t - p).length()
+}
+
+/// Options row above the 3D view.
+pub fn view3d_options(ui: &mut egui::Ui, state: &mut View3dState) {
+    let p = &mut state.prefs;
+    ui.horizontal_wrapped(|ui| {
+        ui.label("Source under:");
+        ui.checkbox(&mut p.show_initial, "initial");
+        ui.checkbox(&mut p.show_estimated, "estimated");
+        ui.checkbox(&mut p.show_ground_truth, "ground truth");
+        ui.separator();
+        ui.checkbox(&mut p.show_target, "target");
+        ui.checkbox(&mut p.show_lines, "lines");
+        ui.checkbox(&mut p.show_frusta, "frusta");
+        ui.add(egui::Slider::new(&mut p.point_size, 1.0..=8.0).text("point size"));
+    });
+    ui.horizontal_wrapped(|ui| {
+        for (name, mode) in [
+            ("Source colour", &mut p.source_mode),
+            ("Target colour", &mut p.target_mode),
+        ] {
+            egui::ComboBox::from_label(name)
+                .selected_text(mode.label())
+                .show_ui(ui, |ui| {
+                    for m in CloudColorMode::ALL {
+                        ui.selectable_value(mode, m, m.label());
+                    }
+                });
+        }
+        if ui.button("Reset camera").clicked() {
+            state.framed_for = None;
+        }
+    });
+}
+
+/// The 3D viewport. `target_override` recolours the target (posterior heat map).
+pub fn scene_ui(
+    ui: &mut egui::Ui,
+    shared: &mut Shared<'_>,
+    state: &mut View3dState,
+    target_override: Option<TargetOverride>,
+) {
+    let model = shared.model;
+    let gen = shared.model_gen;
+    let (rect, response) = ui.allocate_exact_size(
+        ui.available_size().max(egui::vec2(64.0, 64.0)),
+        egui::Sense::click_and_drag(),
+    );
+    if state.framed_for != Some(gen) {
+        state.camera = match model.bounds() {
+            Some((lo, hi)) => OrbitCamera::framing(lo, hi),
+            None => OrbitCamera::default(),
+        };
+        state.framed_for = Some(gen);
+    }
+    if state.positions_for != Some(gen) {
+        state.source_pos = Arc::new(model.source.clone());
+        state.target_pos = Arc::new(model.target.clone());
+        state.positions_for = Some(gen);
+    }
+
+    // Interaction: left drag orbits, right/middle drag or shift-drag pans, scroll zooms,
+    // double click resets.
+    if response.dragged() {
+        let d = response.drag_delta();
+        let pan = response.dragged_by(egui::PointerButton::Secondary)
+            || response.dragged_by(egui::PointerButton::Middle)
+            || ui.input(|i| i.modifiers.shift);
+        if pan {
+            state.camera.pan(d.x, d.y, rect.height());
+        } else {
+            state.camera.orbit(d.x, d.y);
+        }
+    }
+    if response.hovered() {
+        let scroll = ui.input(|i| i.smooth_scroll_delta.y);
+        if scroll != 0.0 {
+            state.camera.zoom(scroll);
+        }
+    }
+    if response.double_clicked() {
+        state.framed_for = None;
+    }
+
+    let prefs = state.prefs.clone();
+    let vp = state.camera.view_projection(rect.width() / rect.height());
+    let src_xf = primary_alignment(model, &prefs);
+
+    // colours, recomputed only when the mode or the model changes
+    for (is_src, cache, mode, pos) in [
+        (
+            true,
+            &mut state.source_colors,
+            prefs.source_mode,
+            &state.source_pos,
+        ),
+        (
+            false,
+            &mut state.target_colors,
+            prefs.target_mode,
+            &state.target_pos,
+        ),
+    ] {
+        let key = (gen, mode, is_src, 0);
+        if cache.key != Some(key) {
+            let colors = Arc::new(cloud_colors(model, is_src, mode));
+            cache.data = Some(CloudData {
+                id: next_id(),
+                positions: pos.clone(),
+                colors,
+            });
+            cache.key = Some(key);
+        }
+    }
+    let (Some(source), Some(mut target)) = (
+        state.source_colors.data.clone(),
+        state.target_colors.data.clone(),
+    ) else {
+        return;
+    };
+    if let Some(o) = target_override {
+        target = CloudData {
+            id: o.id,
+            positions: target.positions.clone(),
+            colors: o.colors,
+        };
+    }
+
+    let mut instances = Vec::new();
+    let mut add_inst = |on: bool, t: Option<Isometry3<f64>>, tint: [f32; 4]| {
+        if let (true, Some(t)) = (on, t) {
+            instances.push(Instance {
+                model: mat_to_arr(&iso_to_mat(&t)),
+                tint,
+            });
+        }
+    };
+    add_inst(
+        prefs.show_initial,
+        Some(model.initial),
+        [1.0, 0.55, 0.5, 1.0],
+    );
+    add_inst(
+        prefs.show_ground_truth,
+        model.ground_truth,
+        [0.55, 1.0, 0.55, 1.0],
+    );
+    add_inst(prefs.show_estimated, model.estimated, [1.0, 1.0, 1.0, 1.0]);
+
+    // correspondence lines (source endpoint under the primary alignment)
+    let shown = shared.shown_matches();
+    let mut lpos = Vec::new();
+    let mut lcol = Vec::new();
+    let mut screen_segments = Vec::with_capacity(shown.len());
+    for (rank, &mi) in shown.iter().enumerate() {
+        let m = &model.matches[mi];
+        let (Some(s), Some(t)) = (model.source.get(m.src), model.target.get(m.tgt)) else {
+            continue;
+        };
+        let a = apply(&src_xf, *s);
+        if prefs.show_lines {
+            lpos.extend_from_slice(&[a, *t]);
+            let c = rgba(match_rgb(model, mi, rank, shared.ui.match_mode));
+            lcol.extend_from_slice(&[c, c]);
+        }
+        if let (Some(pa), Some(pb)) = (
+            project(&vp, a, rect.width(), rect.height()),
+            project(&vp, *t, rect.width(), rect.height()),
+        ) {
+            screen_segments.push((
+                mi,
+                rect.min + egui::vec2(pa[0], pa[1]),
+                rect.min + egui::vec2(pb[0], pb[1]),
+            ));
+        }
+    }
+    let mut fpos = Vec::new();
+    let mut fcol = Vec::new();
+    if prefs.show_frusta {
+        frustum_lines(model, &src_xf, &mut fpos, &mut fcol);
+    }
+    state.line_id = next_id();
+    let frame = SceneFrame {
+        source,
+        target,
+        source_instances: instances,
+        show_target: prefs.show_target,
+        view_proj: mat_to_arr(&vp),
+        overlay_lines: LineData {
+            id: state.line_id,
+            positions: Arc::new(lpos),
+            colors: Arc::new(lcol),
+        },
+        scene_lines: LineData {
+            id: next_id(),
+            positions: Arc::new(fpos),
+            colors: Arc::new(fcol),
+        },
+        point_size: prefs.point_size,
+        background: [0.07, 0.07, 0.09, 1.0],
+    };
+    ui.painter()
+        .add(render3d::paint_callback(rect, Arc::new(frame)));
+
+    // hover / click on a correspondence line, click on a source point
+    if let Some(pos) = response.hover_pos() {
+        let best = screen_segments
+            .iter()
+            .map(|(mi, a, b)| (*mi, point_segment_distance(pos, *a, *b)))
+            .min_by(|a, b| a.1.total_cmp(&b.1));
+        if let Some((mi, d)) = best {
+            if d < 5.0 && prefs.show_lines {
+                shared.ui.hovered_match = Some(mi);
+            }
+        }
+    }
+    if response.clicked() {
+        if let Some(mi) = shared.ui.hovered_match {
+            shared.select_match(mi);
+        } else if let Some(pos) = response.interact_pointer_pos() {
+            if let Some(i) = pick_point(&state.source_pos, &src_xf, &vp, rect, pos, 10.0) {
+                shared.select_source_point(i);
+            }
+        }
+    }
+
+    // highlight hovered/selected match and the selected source point on top
+    let painter = ui.painter_at(rect);
+    for (mi, strong) in [
+        (shared.ui.selected_match, true),
+        (shared.ui.hovered_match, false),
+    ] {
+        let Some(mi) = mi else { continue };
+        if let Some((_, a, b)) = screen_segments.iter().find(|s| s.0 == mi) {
+            let c = to_color32(HIGHLIGHT_RGB);
+            painter.line_segment(
+                [*a, *b],
+                egui::Stroke::new(if strong { 3.0 } else { 2.0 }, c),
+            );
+            painter.circle_stroke(*a, 5.0, egui::Stroke::new(2.0, to_color32(SOURCE_RGB)));
+            painter.circle_stroke(*b, 5.0, egui::Stroke::new(2.0, to_color32(TARGET_RGB)));
+        }
+    }
+    if let Some(i) = shared.ui.selected_source_point {
+        if let Some(p) = model.source.get(i) {
+            if let Some(s) = project(&vp, apply(&src_xf, *p), rect.width(), rect.height()) {
+                painter.circle_stroke(
+                    rect.min + egui::vec2(s[0], s[1]),
+                    7.0,
+                    egui::Stroke::new(2.0, egui::Color32::WHITE),
+                );
+            }
+        }
+    }
+    legend(&painter, rect, model, &prefs);
+}
+
+fn legend(painter: &egui::Painter, rect: egui::Rect, model: &InspectorModel, p: &View3dPrefs) {
+    let mut rows: Vec<(String, [u8; 3])> = Vec::new();
+    let tinted = |t: [f32; 3]| {
+        [
+            (SOURCE_RGB[0] as f32 * t[0]) as u8,
+            (SOURCE_RGB[1] as f32 * t[1]) as u8,
+            (SOURCE_RGB[2] as f32 * t[2]) as u8,
+        ]
+    };
+    if p.show_estimated && model.estimated.is_some() {
+        rows.push(("source (estimated)".into(), SOURCE_RGB));
+    }
+    if p.show_ground_truth && model.ground_truth.is_some() {
+        rows.push(("source (ground truth)".into(), tinted([0.55, 1.0, 0.55])));
+    }
+    if p.show_initial {
+        rows.push(("source (initial)".into(), tinted([1.0, 0.55, 0.5])));
+    }
+    if p.show_target {
+        rows.push(("target".into(), TARGET_RGB));
+    }
+    let mut y = rect.top() + 8.0;
+    for (text, c) in rows {
+        let pos = egui::pos2(rect.left() + 10.0, y);
+        painter.circle_filled(pos + egui::vec2(5.0, 7.0), 5.0, to_color32(c));
+        painter.text(
+            pos + egui::vec2(16.0, 0.0),
+            egui::Align2::LEFT_TOP,
+            text,
+            egui::FontId::proportional(13.0),
+            egui::Color32::from_gray(230),
+        );
+        y += 18.0;
+    }
+    painter.text(
+        rect.right_bottom() + egui::vec2(-8.0, -6.0),
+        egui::Align2::RIGHT_BOTTOM,
+        format!(
+            "{} + {} points · drag: orbit · right/shift-drag: pan · scroll: zoom · double-click: reset",
+            model.source.len(),
+            model.target.len()
+        ),
+        egui::FontId::proportional(11.0),
+        egui::Color32::from_gray(160),
+    );
+}
+
+/// The source point nearest to `pos` on screen within `radius` pixels.
+fn pick_point(
+    pts: &[[f32; 3]],
+    xf: &Isometry3<f64>,
+    vp: &Matrix4<f32>,
+    rect: egui::Rect,
+    pos: egui::Pos2,
+    radius: f32,
+) -> Option<usize> {
+    let m = vp * iso_to_mat(xf);
+    let (w, h) = (rect.width(), rect.height());
+    let local = pos - rect.min;
+    let mut best: Option<(usize, f32, f32)> = None;
+    for (i, p) in pts.iter().enumerate() {
+        let c = m * nalgebra::Vector4::new(p[0], p[1], p[2], 1.0);
+        if c.w <= 1e-6 {
+            continue;
+        }
+        let x = (c.x / c.w + 1.0) * 0.5 * w;
+        let y = (1.0 - c.y / c.w) * 0.5 * h;
+        let d2 = (x - local.x).powi(2) + (y - local.y).powi(2);
+        if d2 <= radius * radius {
+            let z = c.z / c.w;
+            // prefer the nearest to the camera among those under the cursor
+            if best.is_none_or(|b| z < b.2 - 1e-4 || (d2 < b.1 && (z - b.2).abs() < 1e-4)) {
+                best = Some((i, d2, z));
+            }
+        }
+    }
+    best.map(|b| b.0)
+}
+
+pub fn next_id() -> u64 {
+    use std::sync::atomic::{AtomicU64, Ordering};
+    static ID: AtomicU64 = AtomicU64::new(1);
+    ID.fetch_add(1, Ordering::Relaxed)
+}
+
+/// Full 3D panel: options row then the viewport.
+pub fn view3d_panel(ui: &mut egui::Ui, shared: &mut Shared<'_>, state: &mut View3dState) {
+    view3d_options(ui, state);
+    scene_ui(ui, shared, state, None);
+}
