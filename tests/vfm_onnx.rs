@@ -10,7 +10,9 @@ use image::{Rgb, RgbImage};
 use std::path::PathBuf;
 
 fn fixture(name: &str) -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures").join(name)
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/fixtures")
+        .join(name)
 }
 
 fn frame(seed: u32, w: u32, h: u32) -> RgbImage {
@@ -29,8 +31,14 @@ fn tiny_desc(first: bool, x1: [f32; 3], x2: [f32; 3]) -> Vec<f32> {
     let (ks, kc) = if first { (1.0, 2.0) } else { (3.0, 4.0) };
     let mut d: Vec<f32> = (0..24)
         .map(|o| {
-            let b = if first { 0.5 + 0.01 * o as f32 } else { 0.5 + 0.01 * (23 - o) as f32 };
-            b + (0..3).map(|c| w(ks, o, c) * x1[c] + w(kc, o, c) * x2[c]).sum::<f32>()
+            let b = if first {
+                0.5 + 0.01 * o as f32
+            } else {
+                0.5 + 0.01 * (23 - o) as f32
+            };
+            b + (0..3)
+                .map(|c| w(ks, o, c) * x1[c] + w(kc, o, c) * x2[c])
+                .sum::<f32>()
         })
         .collect();
     let n = d.iter().map(|v| v * v).sum::<f32>().sqrt();
@@ -62,7 +70,10 @@ fn mast3r_preprocessing_matches_the_reference_collate() {
     let q = mast3r::prepare(&flat).unwrap();
     let v = px(&q, 100, 100);
     assert!((v[0] - 1.0).abs() < 1e-6 && (v[1] + 1.0).abs() < 1e-6 && (v[2] + 0.6).abs() < 1e-6);
-    assert!(mast3r::prepare(&frame(0, 480, 640)).is_err(), "portrait frames do not fit 384x512");
+    assert!(
+        mast3r::prepare(&frame(0, 480, 640)).is_err(),
+        "portrait frames do not fit 384x512"
+    );
 }
 
 #[test]
@@ -85,14 +96,26 @@ fn mast3r_pairs_on_a_tiny_model_of_the_same_signature() {
                 assert!((d.stride_y - 704.0 / 375.0).abs() < 1e-6);
             }
             // grid cells against the formula, including the last unpadded row
-            for &(x, y) in &[(0usize, 0usize), (17, 200), (511, 374), (300, 374), (256, 3)] {
+            for &(x, y) in &[
+                (0usize, 0usize),
+                (17, 200),
+                (511, 374),
+                (300, 374),
+                (256, 3),
+            ] {
                 let want1 = tiny_desc(true, px(&ps[s], x, y), px(&pt[t], x, y));
                 let want2 = tiny_desc(false, px(&pt[t], x, y), px(&ps[s], x, y));
                 for (g, w) in d1.cell(x as u32, y as u32).iter().zip(&want1) {
-                    assert!((g - w).abs() < 1e-4, "pair {s},{t} desc_1 at {x},{y}: {g} vs {w}");
+                    assert!(
+                        (g - w).abs() < 1e-4,
+                        "pair {s},{t} desc_1 at {x},{y}: {g} vs {w}"
+                    );
                 }
                 for (g, w) in d2.cell(x as u32, y as u32).iter().zip(&want2) {
-                    assert!((g - w).abs() < 1e-4, "pair {s},{t} desc_2 at {x},{y}: {g} vs {w}");
+                    assert!(
+                        (g - w).abs() < 1e-4,
+                        "pair {s},{t} desc_2 at {x},{y}: {g} vs {w}"
+                    );
                 }
             }
             // the bottom image row samples the last real row, never the zero padding
@@ -128,7 +151,9 @@ fn missing_and_malformed_models_are_clear_errors() {
     let e = XFeat::load(&empty).unwrap_err().to_string();
     assert!(e.contains("empty.onnx") && e.contains("0-byte"), "{e}");
     // a valid ONNX file with the wrong signature
-    let e = XFeat::load(&fixture("tiny_mast3r.onnx")).unwrap_err().to_string();
+    let e = XFeat::load(&fixture("tiny_mast3r.onnx"))
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("image") && e.contains("img1"), "{e}");
 }
 
@@ -163,19 +188,36 @@ fn xfeat_matches_agree_with_depth_and_poses_on_real_frames() {
     let seq = cgenreg::io::rgbd_sequence::RgbdSequence::open(&dir).unwrap();
     let k = seq.intrinsics().unwrap();
     let model = XFeat::load_default().unwrap();
-    let load = |i: usize| image::open(seq.frame(i).unwrap().color.as_ref().unwrap()).unwrap().to_rgb8();
-    let (da, db) = (model.describe(&load(0)).unwrap(), model.describe(&load(50)).unwrap());
+    let load = |i: usize| {
+        image::open(seq.frame(i).unwrap().color.as_ref().unwrap())
+            .unwrap()
+            .to_rgb8()
+    };
+    let (da, db) = (
+        model.describe(&load(0)).unwrap(),
+        model.describe(&load(50)).unwrap(),
+    );
     let depth = cgenreg::io::depth_png::read_depth_png(&seq.frame(0).unwrap().depth).unwrap();
     let b_from_a = seq.world_from_camera(50).unwrap().inverse() * seq.world_from_camera(0).unwrap();
     let n = (da.width * da.height) as usize;
-    let best = |from: &cgenreg::vfm::DenseDescriptors, to: &cgenreg::vfm::DenseDescriptors, i: usize| {
-        let q = &from.data[i * 64..(i + 1) * 64];
-        (0..n)
-            .map(|j| (j, to.data[j * 64..(j + 1) * 64].iter().zip(q).map(|(a, b)| a * b).sum::<f32>()))
-            .max_by(|a, b| a.1.total_cmp(&b.1))
-            .unwrap()
-            .0
-    };
+    let best =
+        |from: &cgenreg::vfm::DenseDescriptors, to: &cgenreg::vfm::DenseDescriptors, i: usize| {
+            let q = &from.data[i * 64..(i + 1) * 64];
+            (0..n)
+                .map(|j| {
+                    (
+                        j,
+                        to.data[j * 64..(j + 1) * 64]
+                            .iter()
+                            .zip(q)
+                            .map(|(a, b)| a * b)
+                            .sum::<f32>(),
+                    )
+                })
+                .max_by(|a, b| a.1.total_cmp(&b.1))
+                .unwrap()
+                .0
+        };
     use rayon::prelude::*;
     let ab: Vec<usize> = (0..n).into_par_iter().map(|i| best(&da, &db, i)).collect();
     let ba: Vec<usize> = (0..n).into_par_iter().map(|j| best(&db, &da, j)).collect();
@@ -201,7 +243,11 @@ fn xfeat_matches_agree_with_depth_and_poses_on_real_frames() {
         }
     }
     let ratio = good as f64 / matches as f64;
-    eprintln!("xfeat probe ({}): {matches} mutual matches with depth, {:.1} % within 12 px", cgenreg::vfm::backend_name(), 100.0 * ratio);
+    eprintln!(
+        "xfeat probe ({}): {matches} mutual matches with depth, {:.1} % within 12 px",
+        cgenreg::vfm::backend_name(),
+        100.0 * ratio
+    );
     assert!(matches > 1500, "{matches} matches");
     assert!(ratio > 0.7, "{:.3}", ratio);
 }
