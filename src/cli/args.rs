@@ -70,8 +70,10 @@ pub struct PipelineArgs {
     /// Noisy-AND prior; default 1/(N*M).
     #[arg(long)]
     pub prior: Option<f64>,
-    #[arg(long, value_enum, default_value_t = SelectionArg::Mutual)]
-    pub selection: SelectionArg,
+    /// Correspondence selection. Default: `nn` when only the geometric branch runs (the
+    /// SC2-PCR FPFH protocol), `mutual` when branches are fused (the paper).
+    #[arg(long, value_enum)]
+    pub selection: Option<SelectionArg>,
     /// k of --selection topk.
     #[arg(long, default_value_t = 8000)]
     pub topk: usize,
@@ -83,10 +85,20 @@ pub struct PipelineArgs {
 }
 
 impl PipelineArgs {
-    pub fn to_params(&self) -> RegisterParams {
-        let mut p = RegisterParams { voxel: self.voxel, ..Default::default() };
-        p.geo_features = match (&self.learned_source, &self.learned_target, &self.geotransformer_pkl) {
-            (Some(s), Some(t), _) => GeoFeatureSource::Files { source: s.clone(), target: t.clone() },
+    pub fn to_params(&self, image_branch: bool) -> RegisterParams {
+        let mut p = RegisterParams {
+            voxel: self.voxel,
+            ..Default::default()
+        };
+        p.geo_features = match (
+            &self.learned_source,
+            &self.learned_target,
+            &self.geotransformer_pkl,
+        ) {
+            (Some(s), Some(t), _) => GeoFeatureSource::Files {
+                source: s.clone(),
+                target: t.clone(),
+            },
             (_, _, Some(pkl)) => GeoFeatureSource::GeoTransformerPkl { path: pkl.clone() },
             _ => GeoFeatureSource::Fpfh,
         };
@@ -95,7 +107,11 @@ impl PipelineArgs {
         } else {
             (
                 self.calibration,
-                match self.selection {
+                match self.selection.unwrap_or(if image_branch {
+                    SelectionArg::Mutual
+                } else {
+                    SelectionArg::Nn
+                }) {
                     SelectionArg::Mutual => Selection::MutualNn,
                     SelectionArg::Topk => Selection::TopK(self.topk),
                     SelectionArg::Nn => Selection::RowNn,

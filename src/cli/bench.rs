@@ -63,7 +63,11 @@ pub fn run(a: BenchArgs) -> Result<()> {
     let mut specs: Vec<_> = ds
         .pairs()
         .iter()
-        .filter(|p| a.split.as_ref().is_none_or(|s| p.split.eq_ignore_ascii_case(s)))
+        .filter(|p| {
+            a.split
+                .as_ref()
+                .is_none_or(|s| p.split.eq_ignore_ascii_case(s))
+        })
         .collect();
     if let Some(n) = a.limit {
         specs.truncate(n);
@@ -75,9 +79,12 @@ pub fn run(a: BenchArgs) -> Result<()> {
         return Ok(());
     }
     if specs.is_empty() {
-        return Err(Error::Invalid(format!("{}: no pairs selected", a.manifest.display())));
+        return Err(Error::Invalid(format!(
+            "{}: no pairs selected",
+            a.manifest.display()
+        )));
     }
-    let params = a.pipeline.to_params();
+    let params = a.pipeline.to_params(false);
     let bar = indicatif::ProgressBar::new(specs.len() as u64);
     bar.set_style(
         indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} {msg} [{elapsed}<{eta}]")
@@ -87,7 +94,9 @@ pub fn run(a: BenchArgs) -> Result<()> {
     for spec in &specs {
         bar.set_message(spec.id.clone());
         let t = std::time::Instant::now();
-        let res = ds.load_pair(&spec.id).and_then(|pair| register_pair(&pair, &params));
+        let res = ds
+            .load_pair(&spec.id)
+            .and_then(|pair| register_pair(&pair, &params));
         let time_s = t.elapsed().as_secs_f64();
         let row = match res {
             Ok(r) => PairRow {
@@ -163,7 +172,12 @@ pub fn run(a: BenchArgs) -> Result<()> {
             100.0 * s.rte_median,
             tpp
         );
-        summaries.push(SplitSummary { split: split.clone(), recall: s.recall, summary: s, time_per_pair_s: tpp });
+        summaries.push(SplitSummary {
+            split: split.clone(),
+            recall: s.recall,
+            summary: s,
+            time_per_pair_s: tpp,
+        });
     }
     if let Some(path) = &a.json {
         let out = BenchJson {

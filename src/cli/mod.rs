@@ -2,16 +2,23 @@
 
 mod args;
 mod bench;
+mod cache;
+#[cfg(feature = "gui")]
+mod gui;
 mod register;
 
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
 
 #[derive(Parser, Debug)]
-#[command(name = "cgenreg", version, about = "Training-free point-cloud registration by C-GenReg")]
+#[command(
+    name = "cgenreg",
+    version,
+    about = "Training-free point-cloud registration by C-GenReg"
+)]
 pub struct Cli {
     #[command(subcommand)]
-    pub command: Command,
+    pub command: Option<Command>,
 }
 
 #[derive(Subcommand, Debug)]
@@ -20,13 +27,32 @@ pub enum Command {
     Register(register::RegisterArgs),
     /// Register every pair of a dataset manifest and print the paper-style table.
     Bench(bench::BenchArgs),
+    /// List, verify or remove cache entries.
+    Cache(cache::CacheArgs),
+    /// Open the inspector GUI (the default command; the bundled demo pair when no data is given).
+    #[cfg(feature = "gui")]
+    Inspect(gui::InspectArgs),
+    /// Render the inspector headless (no X server) to a PNG.
+    #[cfg(feature = "gui")]
+    Screenshot(gui::ScreenshotArgs),
 }
 
 pub fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
-        Command::Register(a) => register::run(a),
-        Command::Bench(a) => bench::run(a),
+        Some(Command::Register(a)) => register::run(a),
+        Some(Command::Bench(a)) => bench::run(a),
+        Some(Command::Cache(a)) => cache::run(a),
+        #[cfg(feature = "gui")]
+        Some(Command::Inspect(a)) => gui::run_inspect(a),
+        #[cfg(feature = "gui")]
+        Some(Command::Screenshot(a)) => gui::run_screenshot(a),
+        #[cfg(feature = "gui")]
+        None => gui::run_inspect(gui::InspectArgs::default()),
+        #[cfg(not(feature = "gui"))]
+        None => Err(crate::Error::Invalid(
+            "built without the GUI: use a subcommand (see --help)".into(),
+        )),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

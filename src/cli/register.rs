@@ -41,9 +41,20 @@ pub(crate) fn load_pair(a: &RegisterArgs) -> Result<ScanPair> {
 }
 
 pub fn run(a: RegisterArgs) -> Result<()> {
+    let t0 = std::time::Instant::now();
     let pair = load_pair(&a)?;
-    let params = a.pipeline.to_params();
-    let res = register_pair(&pair, &params)?;
+    let load_ms = t0.elapsed().as_secs_f64() * 1e3;
+    let params = a.pipeline.to_params(false);
+    let mut res = register_pair(&pair, &params)?;
+    res.timings.insert(
+        0,
+        crate::pipeline::StageTiming {
+            stage: "load pair".into(),
+            ms: load_ms,
+            status: "computed".into(),
+        },
+    );
+    res.total_ms += load_ms;
     if a.json {
         let s = serde_json::to_string_pretty(&res)
             .map_err(|e| Error::Invalid(format!("serialising the result: {e}")))?;
@@ -55,7 +66,10 @@ pub fn run(a: RegisterArgs) -> Result<()> {
 }
 
 pub fn print_human(r: &RegistrationResult) {
-    println!("pair {}: source {} -> target {}", r.pair_id, r.source_name, r.target_name);
+    println!(
+        "pair {}: source {} -> target {}",
+        r.pair_id, r.source_name, r.target_name
+    );
     println!(
         "geometric features: {}; image branch: {}",
         r.geo_features,
@@ -67,7 +81,10 @@ pub fn print_human(r: &RegistrationResult) {
     );
     println!("estimated target_from_source (p_target = T * p_source):");
     for row in &r.target_from_source {
-        println!("  {:>12.8} {:>12.8} {:>12.8} {:>12.8}", row[0], row[1], row[2], row[3]);
+        println!(
+            "  {:>12.8} {:>12.8} {:>12.8} {:>12.8}",
+            row[0], row[1], row[2], row[3]
+        );
     }
     match &r.metrics {
         Some(m) => println!(
@@ -75,7 +92,11 @@ pub fn print_human(r: &RegistrationResult) {
             m.rre_deg,
             m.rte_m,
             100.0 * m.inlier_ratio,
-            if m.success { "SUCCESS (RRE <= 15 deg, RTE <= 0.30 m)" } else { "FAILURE" }
+            if m.success {
+                "SUCCESS (RRE <= 15 deg, RTE <= 0.30 m)"
+            } else {
+                "FAILURE"
+            }
         ),
         None => println!("no ground truth: metrics not computed"),
     }

@@ -11,6 +11,7 @@ pub mod fuse;
 pub mod matrix;
 pub mod select;
 pub mod similarity;
+pub mod streaming;
 
 pub use calibrate::{calibrate, calibrate_in_place, Calibration};
 pub use fuse::{concat_features, concat_similarity, fuse, noisy_and, noisy_or, FusionMode};

@@ -43,7 +43,11 @@ pub fn select(scores: &DenseMatrix, sel: Selection) -> Vec<Correspondence> {
             .par_chunks(cols)
             .enumerate()
             .filter_map(|(i, row)| {
-                row_argmax(row).map(|(j, s)| Correspondence { src: i as u32, tgt: j as u32, score: s })
+                row_argmax(row).map(|(j, s)| Correspondence {
+                    src: i as u32,
+                    tgt: j as u32,
+                    score: s,
+                })
             })
             .collect(),
     };
@@ -310,7 +314,11 @@ mod tests {
                     }
                 }
                 if let Some(j) = bj {
-                    brute.push(Correspondence { src: i as u32, tgt: j as u32, score: m.get(i, j) });
+                    brute.push(Correspondence {
+                        src: i as u32,
+                        tgt: j as u32,
+                        score: m.get(i, j),
+                    });
                 }
             }
             brute.sort_by(order);

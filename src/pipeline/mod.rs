@@ -6,4 +6,4 @@ pub mod params;
 pub mod register;
 
 pub use params::RegisterParams;
-pub use register::{register_pair, RegistrationResult, StageTiming};
+pub use register::{register_pair, ImageBranchOutput, RegistrationResult, StageTiming, ViewInfo};

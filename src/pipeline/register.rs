@@ -25,6 +25,31 @@ pub struct StageTiming {
     pub status: String,
 }
 
+/// One selected view of the image branch, as shown in the GUI.
+#[derive(Clone, Debug)]
+pub struct ViewInfo {
+    /// The (generated, oracle or built-in) RGB frame the VFM saw.
+    pub image: image::RgbImage,
+    /// Index into the generated video, and into the scan's depth frames.
+    pub generated_index: usize,
+    pub depth_index: usize,
+    /// Backend, prompt and cache entry, e.g. "oracle (real RGB) | cache 3f2a..".
+    pub label: String,
+}
+
+/// What the image branch produced for one pair (None in `RegistrationResult` when it was off).
+#[derive(Clone, Debug)]
+pub struct ImageBranchOutput {
+    pub source_views: Vec<ViewInfo>,
+    pub target_views: Vec<ViewInfo>,
+    /// Pixel of each source / target keypoint in its view (None: no pixel within the radius).
+    pub source_links: Vec<Option<crate::vfm::lift::PixelLink>>,
+    pub target_links: Vec<Option<crate::vfm::lift::PixelLink>>,
+    pub provenance: crate::wfm::backend::Provenance,
+    /// The VFM that described the views, e.g. "xfeat (onnx, native ORT 1.31)".
+    pub vfm: String,
+}
+
 /// Everything a registration produced, for the CLI, JSON output and the GUI.
 #[derive(Clone, Debug, Serialize)]
 pub struct RegistrationResult {
@@ -57,6 +82,8 @@ pub struct RegistrationResult {
     pub correspondences: Vec<Correspondence>,
     #[serde(skip)]
     pub inliers: Vec<usize>,
+    #[serde(skip)]
+    pub image: Option<ImageBranchOutput>,
 }
 
 pub fn matrix_rows(t: &Isometry3<f64>) -> [[f64; 4]; 4] {
@@ -77,7 +104,10 @@ pub(crate) struct Timer {
 
 impl Timer {
     fn new() -> Self {
-        Timer { timings: Vec::new(), t0: Instant::now() }
+        Timer {
+            timings: Vec::new(),
+            t0: Instant::now(),
+        }
     }
     fn stage<T>(&mut self, name: &str, f: impl FnOnce() -> Result<T>) -> Result<T> {
         let t = Instant::now();
@@ -102,39 +132,74 @@ pub struct GeoBranch {
 /// oriented towards the scan origin (the first camera of a fragment), features radius 5v.
 pub fn fpfh_branch(cloud: &PointCloud, voxel: f64) -> Result<GeoBranch> {
     if cloud.is_empty() {
-        return Err(Error::Invalid("cannot compute FPFH of an empty cloud".into()));
+        return Err(Error::Invalid(
+            "cannot compute FPFH of an empty cloud".into(),
+        ));
     }
     let mut kp = voxel_downsample(cloud, voxel);
     let index = KdIndex::new(&kp.points);
     let params = FpfhParams::for_voxel(voxel);
-    let mut normals = estimate_normals(&kp.points, &index, params.normal_radius, params.normal_max_nn);
+    let mut normals = estimate_normals(
+        &kp.points,
+        &index,
+        params.normal_radius,
+        params.normal_max_nn,
+    );
     orient_towards_viewpoint(&kp.points, &mut normals, Point3::origin());
     let features = compute_fpfh(&kp.points, &normals, &index, &params);
     kp.normals = Some(normals);
-    Ok(GeoBranch { keypoints: kp, features, label: format!("fpfh(v={voxel:.3})") })
+    Ok(GeoBranch {
+        keypoints: kp,
+        features,
+        label: format!("fpfh(v={voxel:.3})"),
+    })
 }
 
-fn geo_branches(pair: &ScanPair, params: &RegisterParams, timer: &mut Timer) -> Result<(GeoBranch, GeoBranch)> {
+fn geo_branches(
+    pair: &ScanPair,
+    params: &RegisterParams,
+    timer: &mut Timer,
+) -> Result<(GeoBranch, GeoBranch)> {
     match &params.geo_features {
         GeoFeatureSource::Fpfh => {
-            let s = timer.stage("fpfh source", || fpfh_branch(&pair.source.cloud, params.voxel))?;
-            let t = timer.stage("fpfh target", || fpfh_branch(&pair.target.cloud, params.voxel))?;
+            let s = timer.stage("fpfh source", || {
+                fpfh_branch(&pair.source.cloud, params.voxel)
+            })?;
+            let t = timer.stage("fpfh target", || {
+                fpfh_branch(&pair.target.cloud, params.voxel)
+            })?;
             Ok((s, t))
         }
         GeoFeatureSource::Files { source, target } => timer.stage("load learned features", || {
             let s = crate::features::learned::load_learned_features(source)?;
             let t = crate::features::learned::load_learned_features(target)?;
             Ok((
-                GeoBranch { keypoints: s.points, features: s.feats, label: s.source },
-                GeoBranch { keypoints: t.points, features: t.feats, label: t.source },
+                GeoBranch {
+                    keypoints: s.points,
+                    features: s.feats,
+                    label: s.source,
+                },
+                GeoBranch {
+                    keypoints: t.points,
+                    features: t.feats,
+                    label: t.source,
+                },
             ))
         }),
         GeoFeatureSource::GeoTransformerPkl { path } => timer.stage("load geotransformer", || {
             let (r, s) = crate::features::learned::load_geotransformer_pkl(path)?;
             // Reference §5 (3DMatch): GeoTransformer's ref is C-GenReg's source.
             Ok((
-                GeoBranch { keypoints: r.points, features: r.feats, label: r.source },
-                GeoBranch { keypoints: s.points, features: s.feats, label: s.source },
+                GeoBranch {
+                    keypoints: r.points,
+                    features: r.feats,
+                    label: r.source,
+                },
+                GeoBranch {
+                    keypoints: s.points,
+                    features: s.feats,
+                    label: s.source,
+                },
             ))
         }),
     }
@@ -150,15 +215,27 @@ pub fn register_pair(pair: &ScanPair, params: &RegisterParams) -> Result<Registr
             src.features.dim, tgt.features.dim
         )));
     }
-    let sim = timer.stage("similarity", || {
-        crate::fusion::similarity::cosine_similarity(&src.features, &tgt.features)
-    })?;
     // Without the image branch there is nothing to fuse: the geometric posterior is used alone.
     let mut fusion = params.fusion;
     fusion.mode = crate::fusion::FusionMode::GeometryOnly;
-    let fused = timer.stage("calibrate+select", || match_then_fuse(None, Some(&sim), &fusion))?;
-    drop(sim);
-    let corr = fused.correspondences;
+    let corr = match (fusion.selection, fusion.calibration_geo) {
+        // Row softmax keeps each row's argmax, so nearest-neighbour selection needs no N x M
+        // matrix (same result as the dense path; see fusion::streaming).
+        (crate::fusion::Selection::RowNn, crate::fusion::Calibration::RowSoftmax { tau }) => timer
+            .stage("similarity+calibrate+select", || {
+                crate::fusion::streaming::row_nn_posterior(&src.features, &tgt.features, tau)
+            })?,
+        _ => {
+            let sim = timer.stage("similarity", || {
+                crate::fusion::similarity::cosine_similarity(&src.features, &tgt.features)
+            })?;
+            timer
+                .stage("calibrate+select", || {
+                    match_then_fuse(None, Some(&sim), &fusion)
+                })?
+                .correspondences
+        }
+    };
     finish(pair, params, timer, src, tgt, corr, None)
 }
 
@@ -171,10 +248,18 @@ pub(crate) fn finish(
     corr: Vec<Correspondence>,
     image_branch: Option<String>,
 ) -> Result<RegistrationResult> {
-    let sp: Vec<Point3<f32>> = corr.iter().map(|c| src.keypoints.points[c.src as usize]).collect();
-    let tp: Vec<Point3<f32>> = corr.iter().map(|c| tgt.keypoints.points[c.tgt as usize]).collect();
+    let sp: Vec<Point3<f32>> = corr
+        .iter()
+        .map(|c| src.keypoints.points[c.src as usize])
+        .collect();
+    let tp: Vec<Point3<f32>> = corr
+        .iter()
+        .map(|c| tgt.keypoints.points[c.tgt as usize])
+        .collect();
     let w: Vec<f32> = corr.iter().map(|c| c.score).collect();
-    let est: Estimate = timer.stage("estimate", || estimate_pose(&sp, &tp, &w, &params.estimator))?;
+    let est: Estimate = timer.stage("estimate", || {
+        estimate_pose(&sp, &tp, &w, &params.estimator)
+    })?;
     let metrics = match pair.gt_target_from_source.as_ref() {
         Some(gt) => Some(PairMetrics::new(
             &est.target_from_source,
@@ -206,5 +291,6 @@ pub(crate) fn finish(
         target_keypoints: tgt.keypoints.points,
         correspondences: corr,
         inliers: est.inliers,
+        image: None,
     })
 }

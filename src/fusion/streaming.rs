@@ -1,0 +1,151 @@
+//! Geometry-only matching without an N x M matrix: similarity, row-softmax posterior and each
+//! source point's best target, computed band by band. It gives exactly what the dense path
+//! (cosine similarity -> `RowSoftmax` -> `GeometryOnly` -> `RowNn`) gives, because the row
+//! softmax is monotone within a row: the argmax is the similarity's argmax and its posterior
+//! is 1 / sum_j exp((s_ij - s_max) / tau). Memory is one band of rows, not N x M.
+
+use super::calibrate::fast_exp;
+use super::similarity::normalize_rows;
+use super::Correspondence;
+use crate::features::Features;
+use crate::{Error, Result};
+use rayon::prelude::*;
+
+const BAND: usize = 128;
+
+/// Every source row's best target with its row-softmax posterior (temperature `tau`), sorted by
+/// (score descending, source, target) like `select`.
+pub fn row_nn_posterior(src: &Features, tgt: &Features, tau: f32) -> Result<Vec<Correspondence>> {
+    if src.dim != tgt.dim {
+        return Err(Error::Invalid(format!(
+            "row-nn: source features are {}-D, target features {}-D",
+            src.dim, tgt.dim
+        )));
+    }
+    if !(tau > 0.0 && tau.is_finite()) {
+        return Err(Error::Invalid(format!(
+            "row-nn: temperature must be > 0, got {tau}"
+        )));
+    }
+    let (n, m, d) = (src.len(), tgt.len(), src.dim);
+    if n == 0 || m == 0 || d == 0 {
+        return Ok(Vec::new());
+    }
+    let a = normalize_rows(src);
+    let b = normalize_rows(tgt);
+    let it = 1.0 / tau;
+    let mut out: Vec<Correspondence> = a
+        .data
+        .par_chunks(BAND * d)
+        .enumerate()
+        .flat_map_iter(|(t, a_band)| {
+            let rows = a_band.len() / d;
+            let mut s = vec![0.0f32; rows * m];
+            // SAFETY: a_band is rows x d (row stride d); b.data is m x d read as d x m
+            // (row stride 1, column stride d); s is rows x m; the slices have exactly these
+            // lengths and do not alias.
+            unsafe {
+                matrixmultiply::sgemm(
+                    rows,
+                    d,
+                    m,
+                    1.0,
+                    a_band.as_ptr(),
+                    d as isize,
+                    1,
+                    b.data.as_ptr(),
+                    1,
+                    d as isize,
+                    0.0,
+                    s.as_mut_ptr(),
+                    m as isize,
+                    1,
+                );
+            }
+            let base = t * BAND;
+            (0..rows)
+                .filter_map(|r| {
+                    let row = &s[r * m..(r + 1) * m];
+                    let mx = row.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+                    if !mx.is_finite() {
+                        return None;
+                    }
+                    let j = row.iter().position(|&v| v == mx)?;
+                    let z: f32 = row.iter().map(|&v| fast_exp((v - mx) * it)).sum();
+                    Some(Correspondence {
+                        src: (base + r) as u32,
+                        tgt: j as u32,
+                        score: 1.0 / z,
+                    })
+                })
+                .collect::<Vec<_>>()
+        })
+        .collect();
+    out.sort_unstable_by(|a, b| {
+        b.score
+            .total_cmp(&a.score)
+            .then(a.src.cmp(&b.src))
+            .then(a.tgt.cmp(&b.tgt))
+    });
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::fusion::{match_then_fuse, Calibration, FusionMode, FusionParams, Selection};
+
+    fn feats(n: usize, d: usize, seed: u64) -> Features {
+        let mut s = seed;
+        let data = (0..n * d)
+            .map(|_| {
+                s = s
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                ((s >> 40) as f32) / (1u64 << 24) as f32
+            })
+            .collect();
+        Features::new(d, data)
+    }
+
+    #[test]
+    fn equals_the_dense_path() {
+        for (n, m, d, tau) in [
+            (300, 500, 33, 0.1f32),
+            (1000, 257, 8, 0.05),
+            (5, 3, 33, 1.0),
+        ] {
+            let (a, b) = (feats(n, d, 1), feats(m, d, 2));
+            let fast = row_nn_posterior(&a, &b, tau).unwrap();
+            let sim = crate::fusion::cosine_similarity(&a, &b).unwrap();
+            let p = FusionParams {
+                calibration_geo: Calibration::RowSoftmax { tau },
+                mode: FusionMode::GeometryOnly,
+                selection: Selection::RowNn,
+                ..Default::default()
+            };
+            let dense = match_then_fuse(None, Some(&sim), &p)
+                .unwrap()
+                .correspondences;
+            assert_eq!(fast.len(), dense.len());
+            for (x, y) in fast.iter().zip(&dense) {
+                assert_eq!((x.src, x.tgt), (y.src, y.tgt));
+                assert!(
+                    (x.score - y.score).abs() <= 1e-5 * y.score.max(1e-6),
+                    "{x:?} {y:?}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn rejects_bad_input() {
+        assert!(row_nn_posterior(&feats(3, 4, 1), &feats(3, 5, 1), 0.1).is_err());
+        assert!(row_nn_posterior(&feats(3, 4, 1), &feats(3, 4, 1), 0.0).is_err());
+        assert!(
+            row_nn_posterior(&Features::new(4, vec![]), &feats(3, 4, 1), 0.1)
+                .unwrap()
+                .is_empty()
+        );
+    }
+}
