@@ -270,8 +270,8 @@ struct Acc {
 }
 
 /// Voxel merge of the frames' points, the same result as
-/// [`crate::geometry::voxel::voxel_downsample`] on their concatenation (grid anchored at the
-/// minimum bound, centroid per voxel, output ordered by each voxel's first point), computed
+/// [`crate::geometry::voxel::voxel_downsample`] on their concatenation (grid anchored half a voxel
+/// below the minimum bound, centroid per voxel, output ordered by each voxel's first point), computed
 /// per frame in parallel and then reduced.
 fn merge_voxel(parts: &[FramePoints], voxel: f64, with_color: bool) -> PointCloud {
     let lo = parts
@@ -281,7 +281,9 @@ fn merge_voxel(parts: &[FramePoints], voxel: f64, with_color: bool) -> PointClou
         .reduce(
             || Point3::new(f64::INFINITY, f64::INFINITY, f64::INFINITY),
             |a, b| a.inf(&b),
-        );
+        )
+        // Same anchor as voxel_downsample (and Open3D): half a voxel below the minimum bound.
+        - nalgebra::Vector3::repeat(voxel * 0.5);
     let mut offsets = Vec::with_capacity(parts.len());
     let mut acc = 0usize;
     for (p, _) in parts {
