@@ -101,22 +101,51 @@ fn argmax(v: &[f32]) -> Option<usize> {
         .map(|(i, _)| i)
 }
 
-/// Target-cloud colours for the 3D posterior view: candidates coloured, the rest dimmed.
+/// Decades of posterior shown in 3D (log scale: a softmax posterior is too peaked for a
+/// linear colormap).
+pub const LOG_DECADES: f32 = 3.0;
+
+/// Target-cloud colours for the 3D posterior view: every target point within `SPLAT_M` of a
+/// candidate takes the candidate's value (candidates are sparse keypoints among dense display
+/// points), the rest dimmed. Log scale over `LOG_DECADES` except for the disagreement.
 pub fn posterior_cloud_colors(
     model: &InspectorModel,
     p: &Posterior,
     kind: PosteriorKind,
 ) -> Vec<[u8; 4]> {
+    const SPLAT_M: f32 = 0.04;
     let d = |c: u8| c / 4 + 30;
-    let mut out =
-        vec![[d(TARGET_RGB[0]), d(TARGET_RGB[1]), d(TARGET_RGB[2]), 255]; model.target.len()];
-    for (ci, v) in p.candidates.iter().zip(normalised(p, kind)) {
-        if let Some(o) = out.get_mut(*ci) {
-            let c = value_rgb(v, kind);
-            *o = [c[0], c[1], c[2], 255];
-        }
+    let dim = [d(TARGET_RGB[0]), d(TARGET_RGB[1]), d(TARGET_RGB[2]), 255];
+    let vals = normalised(p, kind);
+    let (pos, val): (Vec<[f32; 3]>, Vec<f32>) = p
+        .candidates
+        .iter()
+        .zip(&vals)
+        .filter_map(|(ci, v)| model.target.get(*ci).map(|q| (*q, *v)))
+        .unzip();
+    if pos.is_empty() {
+        return vec![dim; model.target.len()];
     }
-    out
+    let shown = |v: f32| {
+        if kind == PosteriorKind::Disagreement {
+            v
+        } else {
+            (1.0 + v.max(1e-12).log10() / LOG_DECADES).clamp(0.0, 1.0)
+        }
+    };
+    let nn = crate::app::render3d::nearest::CappedNearest::new(&pos, SPLAT_M);
+    use rayon::prelude::*;
+    model
+        .target
+        .par_iter()
+        .map(|q| match nn.nearest(*q) {
+            Some((i, _)) => {
+                let c = value_rgb(shown(val[i]), kind);
+                [c[0], c[1], c[2], 255]
+            }
+            None => dim,
+        })
+        .collect()
 }
 
 fn heat_map(
@@ -284,6 +313,7 @@ pub fn posterior_panel(
         if p.image.is_empty() {
             ui.label("No image posterior (image branch off): the target cloud shows the geometric posterior, which is also the fused one.");
         }
+        ui.label(format!("3D: target points within 4 cm of a candidate keypoint, log scale over {LOG_DECADES} decades (turbo: low to high); white circle: the source point under the estimate"));
         posterior_3d(ui, shared, state, p);
         return;
     }
@@ -352,8 +382,14 @@ fn posterior_3d(
             Arc::new(posterior_cloud_colors(model, p, kind)),
         ));
         state.colors_key = Some(key);
-        state.view3d.prefs.show_lines = false;
-        state.view3d.prefs.show_frusta = false;
+        let prefs = &mut state.view3d.prefs;
+        prefs.show_lines = false;
+        prefs.show_frusta = false;
+        // the heat map is on the target: the source would hide it
+        prefs.show_estimated = false;
+        prefs.show_initial = false;
+        prefs.show_ground_truth = false;
+        prefs.point_size = prefs.point_size.max(3.0);
     }
     let over = state.colors.as_ref().map(|(id, c)| TargetOverride {
         id: *id,

@@ -147,6 +147,13 @@ pub fn primary_alignment(model: &InspectorModel, prefs: &View3dPrefs) -> Isometr
             return g;
         }
     }
+    if !(prefs.show_estimated || prefs.show_ground_truth || prefs.show_initial) {
+        // no source drawn: lines and markers still sit where the source would be
+        return model
+            .estimated
+            .or(model.ground_truth)
+            .unwrap_or(model.initial);
+    }
     model.initial
 }
 

@@ -45,6 +45,9 @@ pub struct ScreenshotArgs {
     /// Number of correspondences drawn (highest fused score first).
     #[arg(long, default_value_t = 150)]
     pub matches: usize,
+    /// Pose the source is drawn under in the 3D view: estimated, gt, initial or all.
+    #[arg(long, value_enum, default_value_t = Alignment::Estimated)]
+    pub alignment: Alignment,
     /// Draw only the correspondences the estimator kept (SC2-PCR inliers).
     #[arg(long)]
     pub only_survivors: bool,
@@ -54,6 +57,14 @@ pub struct ScreenshotArgs {
     pub all_pairs: bool,
     #[command(flatten)]
     pub pipeline: PipelineArgs,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, clap::ValueEnum)]
+pub enum Alignment {
+    Estimated,
+    Gt,
+    Initial,
+    All,
 }
 
 #[derive(Clone, Copy, Debug, clap::ValueEnum)]
@@ -176,7 +187,7 @@ pub fn run_screenshot(a: ScreenshotArgs) -> Result<()> {
         }
     }
     let settings = worker.settings().clone();
-    let (mode, count, only) = (a.match_colors, a.matches, a.only_survivors);
+    let (mode, count, only, align) = (a.match_colors, a.matches, a.only_survivors, a.alignment);
     crate::app::headless::render_screenshot_with(
         &model,
         panel,
@@ -191,6 +202,10 @@ pub fn run_screenshot(a: ScreenshotArgs) -> Result<()> {
             };
             app.ui_state.match_count = count;
             app.ui_state.only_survivors = only;
+            let p = app.view3d_prefs_mut();
+            p.show_estimated = matches!(align, Alignment::Estimated | Alignment::All);
+            p.show_ground_truth = matches!(align, Alignment::Gt | Alignment::All);
+            p.show_initial = matches!(align, Alignment::Initial | Alignment::All);
         },
     )
     .map_err(|e| Error::Invalid(format!("cannot render the screenshot headless: {e}")))?;
