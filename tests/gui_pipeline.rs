@@ -116,7 +116,7 @@ fn registration_result_becomes_a_consistent_model() {
 
 #[test]
 fn worker_registers_on_the_worker_thread_and_reports_posteriors() {
-    let mut worker = PipelineWorker::open_manifest(&demo_manifest(), params()).unwrap();
+    let worker = PipelineWorker::open_manifest(&demo_manifest(), params()).unwrap();
     let id = worker.pair_ids()[0].clone();
     // settings map back onto the same parameters
     let p = settings_to_params(worker.settings(), &params());
@@ -125,10 +125,20 @@ fn worker_registers_on_the_worker_thread_and_reports_posteriors() {
 
     // a bad pair id fails in the UI, not with a panic
     let handle = spawn_worker(Box::new(worker), None);
+    // (queued selections coalesce, so the good one is sent once the bad one is answered)
     handle.send(Command::SelectPair("nope/1-2".into()));
-    handle.send(Command::SelectPair(id.clone()));
     let t0 = Instant::now();
     let mut error_logged = false;
+    while !error_logged && t0.elapsed() < Duration::from_secs(60) {
+        for e in handle.poll() {
+            if let WorkerEvent::Log(cgenreg::app::LogLevel::Error, t) = e {
+                error_logged |= t.contains("nope/1-2");
+            }
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    handle.send(Command::SelectPair(id.clone()));
+    let t0 = Instant::now();
     let mut model = None;
     while model.is_none() && t0.elapsed() < Duration::from_secs(300) {
         for e in handle.poll() {
