@@ -8,6 +8,15 @@ use std::time::Instant;
 use cgenreg::app::headless::HeadlessRenderer;
 use cgenreg::app::{InspectorModel, Panel};
 
+/// CPU time of the whole process (all threads, llvmpipe's included), ms: unlike wall time it
+/// barely moves when other processes compete for the cores.
+fn cpu_ms() -> f64 {
+    let mut u: libc::rusage = unsafe { std::mem::zeroed() };
+    unsafe { libc::getrusage(libc::RUSAGE_SELF, &mut u) };
+    let t = |v: libc::timeval| v.tv_sec as f64 * 1e3 + v.tv_usec as f64 / 1e3;
+    t(u.ru_utime) + t(u.ru_stime)
+}
+
 fn stats(mut v: Vec<f64>) -> (f64, f64, f64) {
     v.sort_by(|a, b| a.total_cmp(b));
     let mean = v.iter().sum::<f64>() / v.len() as f64;
@@ -36,15 +45,17 @@ fn run(
         r.frame(false)?;
     }
     let mut times = Vec::with_capacity(frames);
+    let cpu0 = cpu_ms();
     for _ in 0..frames {
         r.app.orbit_3d(3.0, 0.0);
         let t = Instant::now();
         r.frame(false)?;
         times.push(t.elapsed().as_secs_f64() * 1e3);
     }
+    let cpu = (cpu_ms() - cpu0) / frames as f64;
     let (med, mean, p90) = stats(times);
     println!(
-        "{label:<32} {}x{}  median {med:6.1} ms  mean {mean:6.1} ms  p90 {p90:6.1} ms  ({})",
+        "{label:<32} {}x{}  median {med:6.1} ms  mean {mean:6.1} ms  p90 {p90:6.1} ms  cpu {cpu:6.1} ms/frame  ({})",
         size.0, size.1, r.gl.renderer
     );
     Ok(())

@@ -105,16 +105,17 @@ impl Calibration {
 pub enum SelectionRule {
     MutualNearest,
     TopK,
-    Threshold,
+    /// Each source point's best target, no mutual check (SC2-PCR's FPFH protocol).
+    RowNearest,
 }
 
 impl SelectionRule {
-    pub const ALL: [SelectionRule; 3] = [Self::MutualNearest, Self::TopK, Self::Threshold];
+    pub const ALL: [SelectionRule; 3] = [Self::MutualNearest, Self::TopK, Self::RowNearest];
     pub fn label(self) -> &'static str {
         match self {
             Self::MutualNearest => "Mutual nearest",
             Self::TopK => "Top-k by score",
-            Self::Threshold => "Score threshold",
+            Self::RowNearest => "Best target per source",
         }
     }
 }

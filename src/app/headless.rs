@@ -345,8 +345,20 @@ pub fn render_screenshot(
     size: (u32, u32),
     out: &Path,
 ) -> Result<(), String> {
+    render_screenshot_with(model, panel, size, out, |_| {})
+}
+
+/// [`render_screenshot`] with the app configured first (settings shown, colour modes, ...).
+pub fn render_screenshot_with(
+    model: &InspectorModel,
+    panel: Panel,
+    size: (u32, u32),
+    out: &Path,
+    configure: impl FnOnce(&mut App),
+) -> Result<(), String> {
     let mut r = HeadlessRenderer::new(model.clone(), size)?;
     r.app.ui_state.tab = panel;
+    configure(&mut r.app);
     let img = r.settled_frame()?;
     if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;

@@ -9,6 +9,7 @@ pub mod controls;
 pub mod headless;
 pub mod model;
 pub mod pairs_panel;
+pub mod pipeline_worker;
 pub mod plots_panel;
 pub mod posterior_panel;
 pub mod render3d;
@@ -110,6 +111,8 @@ pub struct UiState {
     pub selected_source_point: Option<usize>,
     pub pair_sort: PairSort,
     pub show_3d_below_views: bool,
+    /// Draw only the matches the estimator kept (SC2-PCR inliers).
+    pub only_survivors: bool,
 }
 
 impl Default for UiState {
@@ -124,6 +127,7 @@ impl Default for UiState {
             selected_source_point: None,
             pair_sort: PairSort::RreWorstFirst,
             show_3d_below_views: true,
+            only_survivors: false,
         }
     }
 }
@@ -141,7 +145,9 @@ pub struct Shared<'a> {
 impl Shared<'_> {
     /// Indices of the matches drawn, highest fused score first.
     pub fn shown_matches(&self) -> Vec<usize> {
-        let mut idx: Vec<usize> = (0..self.model.matches.len()).collect();
+        let mut idx: Vec<usize> = (0..self.model.matches.len())
+            .filter(|&i| !self.ui.only_survivors || self.model.matches[i].survived == Some(true))
+            .collect();
         idx.sort_by(|&a, &b| {
             self.model.matches[b]
                 .score
@@ -593,6 +599,32 @@ impl App {
                             egui::Slider::new(&mut self.ui_state.match_count, 0..=n)
                                 .text("matches shown"),
                         );
+                        let kept = self
+                            .model
+                            .matches
+                            .iter()
+                            .filter(|m| m.survived == Some(true))
+                            .count();
+                        ui.checkbox(
+                            &mut self.ui_state.only_survivors,
+                            format!("only estimator inliers ({kept} of {})", self.model.matches.len()),
+                        );
+                        let gt_known: Vec<bool> =
+                            self.model.matches.iter().filter_map(|m| m.inlier_gt).collect();
+                        if !gt_known.is_empty() {
+                            let inl = gt_known.iter().filter(|x| **x).count();
+                            let kept_inl = self
+                                .model
+                                .matches
+                                .iter()
+                                .filter(|m| m.survived == Some(true) && m.inlier_gt == Some(true))
+                                .count();
+                            ui.label(format!(
+                                "GT inliers (10 cm): {inl} of {} matches ({:.1} %); {kept_inl} of {kept} kept",
+                                gt_known.len(),
+                                100.0 * inl as f64 / gt_known.len() as f64
+                            ));
+                        }
                         if let Some(mi) = self.ui_state.selected_match {
                             if let Some(m) = self.model.matches.get(mi) {
                                 ui.label(format!(
@@ -785,6 +817,15 @@ impl eframe::App for EframeApp {
 
 /// Opens the inspector window (blocks until it is closed).
 pub fn run_gui(model: InspectorModel, worker: Box<dyn Worker>) -> Result<(), String> {
+    run_gui_with(model, worker, Vec::new())
+}
+
+/// [`run_gui`], sending `initial` commands to the worker once it runs (e.g. the pair to load).
+pub fn run_gui_with(
+    model: InspectorModel,
+    worker: Box<dyn Worker>,
+    initial: Vec<Command>,
+) -> Result<(), String> {
     let options = eframe::NativeOptions {
         renderer: eframe::Renderer::Glow,
         depth_buffer: 24,
@@ -802,6 +843,9 @@ pub fn run_gui(model: InspectorModel, worker: Box<dyn Worker>) -> Result<(), Str
             cc.egui_ctx
                 .set_missing_glyph_policy(egui::MissingGlyphPolicy::Tofu);
             let handle = spawn_worker(worker, Some(cc.egui_ctx.clone()));
+            for c in initial {
+                handle.send(c);
+            }
             Ok(Box::new(EframeApp(App::new(
                 model,
                 Some(handle),

@@ -210,6 +210,8 @@ pub struct InspectorModel {
     pub plots: PlotData,
     /// A changed prompt whose generation is not cached: the UI offers to run the generator.
     pub generation_missing: Option<String>,
+    /// Why no views are shown (image branch off, or not available for this pair/build).
+    pub image_branch_note: Option<String>,
 }
 
 impl Default for InspectorModel {
@@ -229,6 +231,7 @@ impl Default for InspectorModel {
             stages: Vec::new(),
             plots: PlotData::default(),
             generation_missing: None,
+            image_branch_note: None,
         }
     }
 }
@@ -747,6 +750,7 @@ mod demo {
             stages,
             plots,
             generation_missing: None,
+            image_branch_note: None,
         }
     }
 }

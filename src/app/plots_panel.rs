@@ -40,15 +40,36 @@ pub fn per_pair_plot(ui: &mut egui::Ui, model: &InspectorModel, h: f32) {
                 .name(&p.id)
         })
         .collect();
+    let names: Vec<String> = done.iter().map(|p| p.id.clone()).collect();
+    let failed = model
+        .pairs
+        .iter()
+        .filter(|p| matches!(p.status, super::model::PairStatus::Failed(_)))
+        .count();
     plot(
         "per_pair",
-        "RRE / RTE per pair",
+        &if failed > 0 {
+            format!("RRE / RTE per pair ({} done, {failed} failed)", done.len())
+        } else {
+            format!("RRE / RTE per pair ({} done)", done.len())
+        },
         "pair",
         "RRE (°) · RTE (cm)",
         ui,
         h,
     )
     .include_y(0.0)
+    .x_axis_formatter(move |mark, _range| {
+        let i = mark.value.round();
+        if (mark.value - i).abs() < 1e-6 && i >= 0.0 {
+            names
+                .get(i as usize)
+                .map(|n| n.rsplit('/').next().unwrap_or(n).to_owned())
+                .unwrap_or_default()
+        } else {
+            String::new()
+        }
+    })
     .show(ui, |p| {
         p.bar_chart(BarChart::new("RRE (°)", rre).color(RRE_COLOR));
         p.bar_chart(BarChart::new("RTE (cm)", rte).color(RTE_COLOR));
@@ -77,6 +98,15 @@ pub fn pr_plot(ui: &mut egui::Ui, model: &InspectorModel, h: f32) {
 }
 
 pub fn vs_k_plot(ui: &mut egui::Ui, model: &InspectorModel, h: f32) {
+    if model.plots.vs_k.is_empty() {
+        no_data(
+            ui,
+            "RRE / RTE against K",
+            "no runs over K for this dataset:\nthe K sweep needs the image branch",
+            h,
+        );
+        return;
+    }
     let rre: Vec<[f64; 2]> = model
         .plots
         .vs_k
@@ -122,8 +152,37 @@ pub fn vs_k_plot(ui: &mut egui::Ui, model: &InspectorModel, h: f32) {
     });
 }
 
+/// An empty plot area that says why it is empty.
+fn no_data(ui: &mut egui::Ui, title: &str, why: &str, h: f32) {
+    ui.strong(title);
+    let (rect, _) =
+        ui.allocate_exact_size(egui::vec2(ui.available_width(), h), egui::Sense::hover());
+    ui.painter().rect_stroke(
+        rect,
+        2.0,
+        egui::Stroke::new(1.0, egui::Color32::from_gray(70)),
+        egui::StrokeKind::Inside,
+    );
+    ui.painter().text(
+        rect.center(),
+        egui::Align2::CENTER_CENTER,
+        why,
+        egui::FontId::proportional(14.0),
+        egui::Color32::from_gray(170),
+    );
+}
+
 pub fn prompt_plot(ui: &mut egui::Ui, model: &InspectorModel, h: f32) {
     let bars = &model.plots.prompt_study;
+    if bars.is_empty() {
+        no_data(
+            ui,
+            "Prompt study (cached generations)",
+            "no cached generations for this dataset:\nthe prompt study needs the image branch",
+            h,
+        );
+        return;
+    }
     let rre: Vec<Bar> = bars
         .iter()
         .enumerate()

@@ -86,6 +86,14 @@ pub fn value_rgb(v: f32, kind: PosteriorKind) -> [u8; 3] {
     }
 }
 
+/// A candidate counts as the ground truth within the 10 cm inlier threshold.
+fn near_gt(model: &InspectorModel, cand: usize, gt: usize) -> bool {
+    match (model.target.get(cand), model.target.get(gt)) {
+        (Some(a), Some(b)) => (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f32>() < 0.1f32 * 0.1,
+        _ => cand == gt,
+    }
+}
+
 fn argmax(v: &[f32]) -> Option<usize> {
     v.iter()
         .enumerate()
@@ -93,22 +101,51 @@ fn argmax(v: &[f32]) -> Option<usize> {
         .map(|(i, _)| i)
 }
 
-/// Target-cloud colours for the 3D posterior view: candidates coloured, the rest dimmed.
+/// Decades of posterior shown in 3D (log scale: a softmax posterior is too peaked for a
+/// linear colormap).
+pub const LOG_DECADES: f32 = 3.0;
+
+/// Target-cloud colours for the 3D posterior view: every target point within `SPLAT_M` of a
+/// candidate takes the candidate's value (candidates are sparse keypoints among dense display
+/// points), the rest dimmed. Log scale over `LOG_DECADES` except for the disagreement.
 pub fn posterior_cloud_colors(
     model: &InspectorModel,
     p: &Posterior,
     kind: PosteriorKind,
 ) -> Vec<[u8; 4]> {
+    const SPLAT_M: f32 = 0.04;
     let d = |c: u8| c / 4 + 30;
-    let mut out =
-        vec![[d(TARGET_RGB[0]), d(TARGET_RGB[1]), d(TARGET_RGB[2]), 255]; model.target.len()];
-    for (ci, v) in p.candidates.iter().zip(normalised(p, kind)) {
-        if let Some(o) = out.get_mut(*ci) {
-            let c = value_rgb(v, kind);
-            *o = [c[0], c[1], c[2], 255];
-        }
+    let dim = [d(TARGET_RGB[0]), d(TARGET_RGB[1]), d(TARGET_RGB[2]), 255];
+    let vals = normalised(p, kind);
+    let (pos, val): (Vec<[f32; 3]>, Vec<f32>) = p
+        .candidates
+        .iter()
+        .zip(&vals)
+        .filter_map(|(ci, v)| model.target.get(*ci).map(|q| (*q, *v)))
+        .unzip();
+    if pos.is_empty() {
+        return vec![dim; model.target.len()];
     }
-    out
+    let shown = |v: f32| {
+        if kind == PosteriorKind::Disagreement {
+            v
+        } else {
+            (1.0 + v.max(1e-12).log10() / LOG_DECADES).clamp(0.0, 1.0)
+        }
+    };
+    let nn = crate::app::render3d::nearest::CappedNearest::new(&pos, SPLAT_M);
+    use rayon::prelude::*;
+    model
+        .target
+        .par_iter()
+        .map(|q| match nn.nearest(*q) {
+            Some((i, _)) => {
+                let c = value_rgb(shown(val[i]), kind);
+                [c[0], c[1], c[2], 255]
+            }
+            None => dim,
+        })
+        .collect()
 }
 
 fn heat_map(
@@ -237,7 +274,9 @@ pub fn posterior_panel(
             ("fused", &p.fused),
         ] {
             if let Some(i) = argmax(row) {
-                let hit = p.gt_target == Some(p.candidates[i]);
+                let hit = p
+                    .gt_target
+                    .is_some_and(|g| near_gt(model, p.candidates[i], g));
                 ui.separator();
                 ui.colored_label(
                     if hit {
@@ -248,7 +287,7 @@ pub fn posterior_panel(
                     format!(
                         "{name} argmax #{} {}",
                         p.candidates[i],
-                        if hit { "= GT" } else { "!= GT" }
+                        if hit { "at GT (< 10 cm)" } else { "off GT" }
                     ),
                 );
             }
@@ -267,6 +306,17 @@ pub fn posterior_panel(
         };
     });
     ui.label(egui::RichText::new("square: argmax · cross: ground truth   colours: turbo (low to high); disagreement: magenta = image only, cyan = geometry only").small());
+    if model.target_views.is_empty() {
+        if let Some(note) = &model.image_branch_note {
+            ui.colored_label(egui::Color32::from_rgb(230, 190, 60), note);
+        }
+        if p.image.is_empty() {
+            ui.label("No image posterior (image branch off): the target cloud shows the geometric posterior, which is also the fused one.");
+        }
+        ui.label(format!("3D: target points within 4 cm of a candidate keypoint, log scale over {LOG_DECADES} decades (turbo: low to high); white circle: the source point under the estimate"));
+        posterior_3d(ui, shared, state, p);
+        return;
+    }
     let w = (ui.available_width() - 30.0) / 4.0;
     let size = egui::vec2(w, w * 0.75);
     ui.horizontal(|ui| {
@@ -304,36 +354,51 @@ pub fn posterior_panel(
     });
     ui.horizontal(|ui| {
         heat_map(ui, shared, views, p, PosteriorKind::Disagreement, size);
-        ui.vertical(|ui| {
-            let kind = state.kind3d.get_or_insert(PosteriorKind::Fused);
-            egui::ComboBox::from_label("target cloud coloured by")
-                .selected_text(kind.label())
-                .show_ui(ui, |ui| {
-                    for k in PosteriorKind::ALL {
-                        ui.selectable_value(kind, k, k.label());
-                    }
-                });
-            let kind = *kind;
-            let key = (shared.model_gen, p.source_point, kind);
-            if state.colors_key != Some(key) {
-                state.colors = Some((
-                    view3d::next_id(),
-                    Arc::new(posterior_cloud_colors(model, p, kind)),
-                ));
-                state.colors_key = Some(key);
-                state.view3d.prefs.show_lines = false;
-                state.view3d.prefs.show_frusta = false;
-            }
-            let over = state.colors.as_ref().map(|(id, c)| TargetOverride {
-                id: *id,
-                colors: c.clone(),
-            });
-            let prev = shared.ui.selected_source_point;
-            shared.ui.selected_source_point = Some(p.source_point);
-            view3d::scene_ui(ui, shared, &mut state.view3d, over);
-            if shared.ui.selected_source_point == Some(p.source_point) {
-                shared.ui.selected_source_point = prev.or(Some(p.source_point));
+        ui.vertical(|ui| posterior_3d(ui, shared, state, p));
+    });
+}
+
+/// The target cloud coloured by a posterior, with a chooser of which one.
+fn posterior_3d(
+    ui: &mut egui::Ui,
+    shared: &mut Shared<'_>,
+    state: &mut PosteriorState,
+    p: &Posterior,
+) {
+    let model = shared.model;
+    let kind = state.kind3d.get_or_insert(PosteriorKind::Fused);
+    egui::ComboBox::from_label("target cloud coloured by")
+        .selected_text(kind.label())
+        .show_ui(ui, |ui| {
+            for k in PosteriorKind::ALL {
+                ui.selectable_value(kind, k, k.label());
             }
         });
+    let kind = *kind;
+    let key = (shared.model_gen, p.source_point, kind);
+    if state.colors_key != Some(key) {
+        state.colors = Some((
+            view3d::next_id(),
+            Arc::new(posterior_cloud_colors(model, p, kind)),
+        ));
+        state.colors_key = Some(key);
+        let prefs = &mut state.view3d.prefs;
+        prefs.show_lines = false;
+        prefs.show_frusta = false;
+        // the heat map is on the target: the source would hide it
+        prefs.show_estimated = false;
+        prefs.show_initial = false;
+        prefs.show_ground_truth = false;
+        prefs.point_size = prefs.point_size.max(3.0);
+    }
+    let over = state.colors.as_ref().map(|(id, c)| TargetOverride {
+        id: *id,
+        colors: c.clone(),
     });
+    let prev = shared.ui.selected_source_point;
+    shared.ui.selected_source_point = Some(p.source_point);
+    view3d::scene_ui(ui, shared, &mut state.view3d, over);
+    if shared.ui.selected_source_point == Some(p.source_point) {
+        shared.ui.selected_source_point = prev.or(Some(p.source_point));
+    }
 }

@@ -93,7 +93,25 @@ pub struct View3dState {
     target_pos: Arc<Vec<[f32; 3]>>,
     source_colors: ColorCache,
     target_colors: ColorCache,
-    line_id: u64,
+    /// Last uploaded line sets: the same contents keep their id (no re-upload).
+    overlay: Option<LineData>,
+    frusta: Option<LineData>,
+}
+
+/// Reuses `prev` when the contents are unchanged, so the GPU buffer is not re-uploaded.
+fn keep_or_new(prev: &mut Option<LineData>, pos: Vec<[f32; 3]>, col: Vec<[u8; 4]>) -> LineData {
+    if let Some(p) = prev {
+        if *p.positions == pos && *p.colors == col {
+            return p.clone();
+        }
+    }
+    let l = LineData {
+        id: next_id(),
+        positions: Arc::new(pos),
+        colors: Arc::new(col),
+    };
+    *prev = Some(l.clone());
+    l
 }
 
 /// A colour override for the target cloud (posterior heat map in 3D).
@@ -128,6 +146,13 @@ pub fn primary_alignment(model: &InspectorModel, prefs: &View3dPrefs) -> Isometr
         if let Some(g) = model.ground_truth {
             return g;
         }
+    }
+    if !(prefs.show_estimated || prefs.show_ground_truth || prefs.show_initial) {
+        // no source drawn: lines and markers still sit where the source would be
+        return model
+            .estimated
+            .or(model.ground_truth)
+            .unwrap_or(model.initial);
     }
     model.initial
 }
@@ -430,23 +455,16 @@ pub fn scene_ui(
     if prefs.show_frusta {
         frustum_lines(model, &src_xf, &mut fpos, &mut fcol);
     }
-    state.line_id = next_id();
+    let overlay_lines = keep_or_new(&mut state.overlay, lpos, lcol);
+    let scene_lines = keep_or_new(&mut state.frusta, fpos, fcol);
     let frame = SceneFrame {
         source,
         target,
         source_instances: instances,
         show_target: prefs.show_target,
         view_proj: mat_to_arr(&vp),
-        overlay_lines: LineData {
-            id: state.line_id,
-            positions: Arc::new(lpos),
-            colors: Arc::new(lcol),
-        },
-        scene_lines: LineData {
-            id: next_id(),
-            positions: Arc::new(fpos),
-            colors: Arc::new(fcol),
-        },
+        overlay_lines,
+        scene_lines,
         point_size: prefs.point_size,
         background: [0.07, 0.07, 0.09, 1.0],
     };

@@ -106,7 +106,15 @@ pub fn views_panel(
     let model = shared.model;
     let k = model.source_views.len().max(model.target_views.len());
     if k == 0 {
-        ui.label("No views: open a pair or run the generation stage.");
+        match &model.image_branch_note {
+            Some(note) => {
+                ui.colored_label(egui::Color32::from_rgb(230, 190, 60), "Image branch off");
+                ui.label(note);
+            }
+            None => {
+                ui.label("No views yet: the pair is still being registered.");
+            }
+        }
         return;
     }
     state.show_depth.resize(k, false);

@@ -1,31 +1,214 @@
-//! `cgenreg inspect` and `cgenreg screenshot`.
+//! `cgenreg inspect` and `cgenreg screenshot`: the inspector on a dataset pair, in a window or
+//! rendered headless to a PNG.
 
-use crate::error::Result;
+use super::args::PipelineArgs;
+use crate::app::pipeline_worker::PipelineWorker;
+use crate::app::{Command, MatchColorMode, Panel};
+use crate::error::{Error, Result};
 use clap::Args;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 #[derive(Args, Debug, Default)]
 pub struct InspectArgs {
-    /// Dataset manifest to open (default: the bundled demo pair).
+    /// Dataset manifest to open (default: the bundled synthetic demo, no download).
     #[arg(long)]
     pub manifest: Option<PathBuf>,
+    /// Pair id within the manifest (default: its first pair).
+    #[arg(long)]
+    pub pair: Option<String>,
+    #[command(flatten)]
+    pub pipeline: Option<PipelineArgs>,
 }
 
 #[derive(Args, Debug)]
 pub struct ScreenshotArgs {
+    /// Dataset manifest (default: the bundled synthetic demo).
+    #[arg(long)]
+    pub manifest: Option<PathBuf>,
+    /// Pair id within the manifest (default: its first pair).
+    #[arg(long)]
+    pub pair: Option<String>,
+    /// Panel to render: views, 3d, posterior, plots or stages.
+    #[arg(long, default_value = "3d")]
+    pub panel: String,
     /// Output PNG.
     #[arg(long)]
     pub out: PathBuf,
+    #[arg(long, default_value_t = 1600)]
+    pub width: u32,
+    #[arg(long, default_value_t = 1000)]
+    pub height: u32,
+    /// Correspondence colours: gt (green inlier / red outlier under ground truth),
+    /// categorical or confidence.
+    #[arg(long, value_enum, default_value_t = MatchColors::Gt)]
+    pub match_colors: MatchColors,
+    /// Number of correspondences drawn (highest fused score first).
+    #[arg(long, default_value_t = 150)]
+    pub matches: usize,
+    /// Pose the source is drawn under in the 3D view: estimated, gt, initial or all.
+    #[arg(long, value_enum, default_value_t = Alignment::Estimated)]
+    pub alignment: Alignment,
+    /// Draw only the correspondences the estimator kept (SC2-PCR inliers).
+    #[arg(long)]
+    pub only_survivors: bool,
+    /// Register every pair of the manifest first (fills the pair browser and the RRE/RTE
+    /// plot; failing pairs are listed as failed), then show --pair.
+    #[arg(long)]
+    pub all_pairs: bool,
+    #[command(flatten)]
+    pub pipeline: PipelineArgs,
 }
 
-pub fn run_inspect(_a: InspectArgs) -> Result<()> {
-    Err(crate::Error::Invalid(
-        "cgenreg inspect: not implemented yet".into(),
-    ))
+#[derive(Clone, Copy, Debug, PartialEq, clap::ValueEnum)]
+pub enum Alignment {
+    Estimated,
+    Gt,
+    Initial,
+    All,
 }
 
-pub fn run_screenshot(_a: ScreenshotArgs) -> Result<()> {
-    Err(crate::Error::Invalid(
-        "cgenreg screenshot: not implemented yet".into(),
-    ))
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+pub enum MatchColors {
+    Gt,
+    Categorical,
+    Confidence,
+}
+
+/// The bundled synthetic demo's manifest (next to the sources, else under the working dir).
+pub fn demo_manifest() -> PathBuf {
+    let built = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/demo/demo.toml");
+    if built.is_file() {
+        built
+    } else {
+        PathBuf::from("assets/demo/demo.toml")
+    }
+}
+
+fn open(
+    manifest: Option<&Path>,
+    pair: Option<&str>,
+    pipeline: &PipelineArgs,
+) -> Result<(PipelineWorker, String)> {
+    let manifest = manifest
+        .map(Path::to_path_buf)
+        .unwrap_or_else(demo_manifest);
+    let worker = PipelineWorker::open_manifest(&manifest, pipeline.to_params(false))?;
+    let ids = worker.pair_ids();
+    let id = match pair {
+        Some(p) if ids.iter().any(|i| i == p) => p.to_string(),
+        Some(p) => {
+            return Err(Error::Invalid(format!(
+                "{}: no pair {p:?}; pairs: {}",
+                manifest.display(),
+                ids.join(", ")
+            )))
+        }
+        None => ids.first().cloned().ok_or_else(|| {
+            Error::Invalid(format!(
+                "{}: the manifest lists no pairs",
+                manifest.display()
+            ))
+        })?,
+    };
+    Ok((worker, id))
+}
+
+fn default_pipeline() -> PipelineArgs {
+    use clap::Parser;
+    #[derive(Parser)]
+    struct P {
+        #[command(flatten)]
+        p: PipelineArgs,
+    }
+    P::parse_from(["cgenreg"]).p
+}
+
+pub fn run_inspect(a: InspectArgs) -> Result<()> {
+    let pipeline = a.pipeline.unwrap_or_else(default_pipeline);
+    let (worker, id) = open(a.manifest.as_deref(), a.pair.as_deref(), &pipeline)?;
+    let model = worker.initial_model(Some(&id));
+    crate::app::run_gui_with(model, Box::new(worker), vec![Command::SelectPair(id)])
+        .map_err(Error::Invalid)
+}
+
+pub fn run_screenshot(a: ScreenshotArgs) -> Result<()> {
+    let panel = Panel::from_name(&a.panel).ok_or_else(|| {
+        Error::Invalid(format!(
+            "--panel {:?}: expected views, 3d, posterior, plots or stages",
+            a.panel
+        ))
+    })?;
+    let (mut worker, id) = open(a.manifest.as_deref(), a.pair.as_deref(), &a.pipeline)?;
+    if a.all_pairs {
+        for other in worker.pair_ids() {
+            if other != id {
+                let t = std::time::Instant::now();
+                match worker.run_pair(&other) {
+                    Ok(m) => {
+                        let p = m.current_pair.and_then(|i| m.pairs.get(i).cloned());
+                        eprintln!(
+                            "{other}: RRE {:.2}° RTE {:.1} cm ({:.0} ms)",
+                            p.as_ref().and_then(|p| p.rre_deg).unwrap_or(f64::NAN),
+                            p.as_ref().and_then(|p| p.rte_m).unwrap_or(f64::NAN) * 100.0,
+                            t.elapsed().as_secs_f64() * 1e3
+                        );
+                    }
+                    Err(e) => {
+                        eprintln!("{other}: failed: {e}");
+                        worker.mark_failed(&other, &e.to_string());
+                    }
+                }
+            }
+        }
+    }
+    let t = std::time::Instant::now();
+    let mut model = worker.run_pair(&id)?;
+    eprintln!(
+        "registered {id} in {:.0} ms ({} matches)",
+        t.elapsed().as_secs_f64() * 1e3,
+        model.matches.len()
+    );
+    if panel == Panel::Posterior {
+        // posteriors of the best-scored surviving matches (inliers under GT first)
+        let mut order: Vec<usize> = (0..model.matches.len()).collect();
+        order.sort_by(|&x, &y| {
+            let (mx, my) = (&model.matches[x], &model.matches[y]);
+            (my.survived, my.inlier_gt, my.score)
+                .partial_cmp(&(mx.survived, mx.inlier_gt, mx.score))
+                .unwrap_or(std::cmp::Ordering::Equal)
+        });
+        let srcs: Vec<usize> = order
+            .iter()
+            .take(6)
+            .map(|&i| model.matches[i].src)
+            .collect();
+        for s in srcs {
+            model = worker.inspect_point(s)?;
+        }
+    }
+    let settings = worker.settings().clone();
+    let (mode, count, only, align) = (a.match_colors, a.matches, a.only_survivors, a.alignment);
+    crate::app::headless::render_screenshot_with(
+        &model,
+        panel,
+        (a.width, a.height),
+        &a.out,
+        |app| {
+            app.settings = settings;
+            app.ui_state.match_mode = match mode {
+                MatchColors::Gt => MatchColorMode::InlierOutlier,
+                MatchColors::Categorical => MatchColorMode::Categorical,
+                MatchColors::Confidence => MatchColorMode::Confidence,
+            };
+            app.ui_state.match_count = count;
+            app.ui_state.only_survivors = only;
+            let p = app.view3d_prefs_mut();
+            p.show_estimated = matches!(align, Alignment::Estimated | Alignment::All);
+            p.show_ground_truth = matches!(align, Alignment::Gt | Alignment::All);
+            p.show_initial = matches!(align, Alignment::Initial | Alignment::All);
+        },
+    )
+    .map_err(|e| Error::Invalid(format!("cannot render the screenshot headless: {e}")))?;
+    eprintln!("wrote {}", a.out.display());
+    Ok(())
 }

@@ -14,9 +14,6 @@ use std::sync::Arc;
 use eframe::egui;
 use eframe::egui_glow;
 use eframe::glow::{self, HasContext};
-use three_d::{
-    Blend, Context, Cull, DepthTest, Mat4, Program, RenderStates, VertexBuffer, Viewport, WriteMask,
-};
 
 /// Geometry and colours of one cloud; `id` changes whenever the contents change.
 #[derive(Clone)]
@@ -60,34 +57,25 @@ pub struct SceneFrame {
     pub background: [f32; 4],
 }
 
+// Points: colours as normalised bytes (three-d bound them as integer attributes), and one VAO
+// per cloud set up once at upload: a frame is a handful of GL calls and one draw per cloud.
 const POINT_VS: &str = r#"
 uniform mat4 mvp;
-uniform float point_size;
 uniform vec4 tint;
+uniform float point_size;
 in vec3 position;
-in uvec4 color;
+in vec4 color;
 out vec4 v_color;
 void main() {
     gl_Position = mvp * vec4(position, 1.0);
     gl_PointSize = point_size;
-    v_color = vec4(color) / 255.0 * tint;
-}
-"#;
-
-const LINE_VS: &str = r#"
-uniform mat4 mvp;
-in vec3 position;
-in uvec4 color;
-out vec4 v_color;
-void main() {
-    gl_Position = mvp * vec4(position, 1.0);
-    v_color = vec4(color) / 255.0;
+    v_color = color * tint;
 }
 "#;
 
 const FS: &str = r#"
 in vec4 v_color;
-layout (location = 0) out vec4 out_color;
+out vec4 out_color;
 void main() {
     out_color = v_color;
 }
@@ -95,40 +83,152 @@ void main() {
 
 struct GpuCloud {
     id: Option<u64>,
-    positions: VertexBuffer<[f32; 3]>,
-    colors: VertexBuffer<[u8; 4]>,
+    vao: glow::VertexArray,
+    positions: glow::Buffer,
+    colors: glow::Buffer,
     count: u32,
 }
 
 impl GpuCloud {
-    fn new(ctx: &Context) -> Self {
-        Self {
-            id: None,
-            positions: VertexBuffer::new(ctx),
-            colors: VertexBuffer::new(ctx),
-            count: 0,
+    fn new(gl: &glow::Context, prog: &GpuProgram) -> Result<Self, String> {
+        unsafe {
+            let vao = gl.create_vertex_array()?;
+            let positions = gl.create_buffer()?;
+            let colors = gl.create_buffer()?;
+            gl.bind_vertex_array(Some(vao));
+            gl.bind_buffer(glow::ARRAY_BUFFER, Some(positions));
+            gl.enable_vertex_attrib_array(prog.position);
+            gl.vertex_attrib_pointer_f32(prog.position, 3, glow::FLOAT, false, 12, 0);
+            gl.bind_buffer(glow::ARRAY_BUFFER, Some(colors));
+            gl.enable_vertex_attrib_array(prog.color);
+            gl.vertex_attrib_pointer_f32(prog.color, 4, glow::UNSIGNED_BYTE, true, 4, 0);
+            gl.bind_vertex_array(None);
+            gl.bind_buffer(glow::ARRAY_BUFFER, None);
+            Ok(Self {
+                id: None,
+                vao,
+                positions,
+                colors,
+                count: 0,
+            })
         }
     }
-    fn sync(&mut self, id: u64, pos: &[[f32; 3]], colors: &[[u8; 4]]) {
+    /// Uploads only when the contents' id changed.
+    fn sync(&mut self, gl: &glow::Context, id: u64, pos: &[[f32; 3]], colors: &[[u8; 4]]) {
         if self.id != Some(id) {
             let n = pos.len().min(colors.len());
-            self.positions.fill(&pos[..n]);
-            self.colors.fill(&colors[..n]);
+            unsafe {
+                gl.bind_buffer(glow::ARRAY_BUFFER, Some(self.positions));
+                gl.buffer_data_u8_slice(
+                    glow::ARRAY_BUFFER,
+                    bytemuck_f32(&pos[..n]),
+                    glow::STATIC_DRAW,
+                );
+                gl.bind_buffer(glow::ARRAY_BUFFER, Some(self.colors));
+                gl.buffer_data_u8_slice(
+                    glow::ARRAY_BUFFER,
+                    colors[..n].as_flattened(),
+                    glow::STATIC_DRAW,
+                );
+                gl.bind_buffer(glow::ARRAY_BUFFER, None);
+            }
             self.count = n as u32;
             self.id = Some(id);
         }
+    }
+    fn delete(&self, gl: &glow::Context) {
+        unsafe {
+            gl.delete_vertex_array(self.vao);
+            gl.delete_buffer(self.positions);
+            gl.delete_buffer(self.colors);
+        }
+    }
+}
+
+fn bytemuck_f32(v: &[[f32; 3]]) -> &[u8] {
+    let flat = v.as_flattened();
+    // SAFETY: f32 has no padding or invalid bit patterns; the length is in bytes.
+    unsafe { std::slice::from_raw_parts(flat.as_ptr() as *const u8, std::mem::size_of_val(flat)) }
+}
+
+struct GpuProgram {
+    program: glow::Program,
+    mvp: Option<glow::UniformLocation>,
+    tint: Option<glow::UniformLocation>,
+    point_size: Option<glow::UniformLocation>,
+    position: u32,
+    color: u32,
+}
+
+fn compile(gl: &glow::Context) -> Result<GpuProgram, String> {
+    let version = egui_glow::ShaderVersion::get(gl);
+    if !version.is_new_shader_interface() {
+        return Err(format!(
+            "the 3D view needs GLSL 1.30+/ES 3.0 (have {version:?})"
+        ));
+    }
+    let header = format!(
+        "{}\n{}",
+        version.version_declaration(),
+        if version.is_embedded() {
+            "precision highp float;"
+        } else {
+            ""
+        }
+    );
+    unsafe {
+        let program = gl.create_program()?;
+        let mut shaders = Vec::new();
+        for (kind, src) in [(glow::VERTEX_SHADER, POINT_VS), (glow::FRAGMENT_SHADER, FS)] {
+            let sh = gl.create_shader(kind)?;
+            gl.shader_source(sh, &format!("{header}\n{src}"));
+            gl.compile_shader(sh);
+            if !gl.get_shader_compile_status(sh) {
+                return Err(format!("3D shader: {}", gl.get_shader_info_log(sh)));
+            }
+            gl.attach_shader(program, sh);
+            shaders.push(sh);
+        }
+        gl.bind_attrib_location(program, 0, "position");
+        gl.bind_attrib_location(program, 1, "color");
+        gl.link_program(program);
+        for sh in shaders {
+            gl.detach_shader(program, sh);
+            gl.delete_shader(sh);
+        }
+        if !gl.get_program_link_status(program) {
+            return Err(format!(
+                "3D shader link: {}",
+                gl.get_program_info_log(program)
+            ));
+        }
+        Ok(GpuProgram {
+            mvp: gl.get_uniform_location(program, "mvp"),
+            tint: gl.get_uniform_location(program, "tint"),
+            point_size: gl.get_uniform_location(program, "point_size"),
+            program,
+            position: 0,
+            color: 1,
+        })
     }
 }
 
 struct Gpu {
     gl: Arc<glow::Context>,
-    ctx: Context,
-    points: Program,
-    lines: Program,
+    prog: GpuProgram,
     source: GpuCloud,
     target: GpuCloud,
     overlay: GpuCloud,
     scene_lines: GpuCloud,
+}
+
+impl Drop for Gpu {
+    fn drop(&mut self) {
+        for c in [&self.source, &self.target, &self.overlay, &self.scene_lines] {
+            c.delete(&self.gl);
+        }
+        unsafe { self.gl.delete_program(self.prog.program) };
+    }
 }
 
 thread_local! {
@@ -146,18 +246,14 @@ fn gpu_for(gl: &Arc<glow::Context>) -> Result<(), String> {
         if let Some(old) = g.take() {
             std::mem::forget(old);
         }
-        let ctx = Context::from_gl_context(gl.clone()).map_err(|e| format!("three-d: {e}"))?;
-        let points = Program::from_source(&ctx, POINT_VS, FS).map_err(|e| format!("{e}"))?;
-        let lines = Program::from_source(&ctx, LINE_VS, FS).map_err(|e| format!("{e}"))?;
+        let prog = compile(gl)?;
         *g = Some(Gpu {
             gl: gl.clone(),
-            source: GpuCloud::new(&ctx),
-            target: GpuCloud::new(&ctx),
-            overlay: GpuCloud::new(&ctx),
-            scene_lines: GpuCloud::new(&ctx),
-            ctx,
-            points,
-            lines,
+            source: GpuCloud::new(gl, &prog)?,
+            target: GpuCloud::new(gl, &prog)?,
+            overlay: GpuCloud::new(gl, &prog)?,
+            scene_lines: GpuCloud::new(gl, &prog)?,
+            prog,
         });
         Ok(())
     })
@@ -196,13 +292,6 @@ fn log_once(msg: &str) {
     }
 }
 
-fn mat4(m: &[f32; 16]) -> Mat4 {
-    Mat4::new(
-        m[0], m[1], m[2], m[3], m[4], m[5], m[6], m[7], m[8], m[9], m[10], m[11], m[12], m[13],
-        m[14], m[15],
-    )
-}
-
 /// Draws one frame into the currently bound framebuffer, inside the callback's viewport.
 pub fn paint(
     info: &egui::PaintCallbackInfo,
@@ -233,90 +322,86 @@ pub fn paint(
             gl.clear_color(b[0], b[1], b[2], b[3]);
             gl.depth_mask(true);
             gl.clear(glow::COLOR_BUFFER_BIT | glow::DEPTH_BUFFER_BIT);
-            gl.enable(glow::PROGRAM_POINT_SIZE);
         }
-        let viewport = Viewport {
-            x: vp.left_px,
-            y: vp.from_bottom_px,
-            width: vp.width_px as u32,
-            height: vp.height_px as u32,
-        };
-        let vp_m = mat4(&frame.view_proj);
-        let states = RenderStates {
-            depth_test: DepthTest::Less,
-            write_mask: WriteMask::COLOR_AND_DEPTH,
-            blend: Blend::Disabled,
-            cull: Cull::None,
+        let vp_m = frame.view_proj;
+        let mul = |a: &[f32; 16], b: &[f32; 16]| -> [f32; 16] {
+            // column-major a * b
+            let mut o = [0.0f32; 16];
+            for c in 0..4 {
+                for r in 0..4 {
+                    o[c * 4 + r] = (0..4).map(|k| a[k * 4 + r] * b[c * 4 + k]).sum();
+                }
+            }
+            o
         };
         gpu.source.sync(
+            gl,
             frame.source.id,
             &frame.source.positions,
             &frame.source.colors,
         );
         gpu.target.sync(
+            gl,
             frame.target.id,
             &frame.target.positions,
             &frame.target.colors,
         );
         gpu.overlay.sync(
+            gl,
             frame.overlay_lines.id,
             &frame.overlay_lines.positions,
             &frame.overlay_lines.colors,
         );
         gpu.scene_lines.sync(
+            gl,
             frame.scene_lines.id,
             &frame.scene_lines.positions,
             &frame.scene_lines.colors,
         );
-        let draw_points = |prog: &Program, cloud: &GpuCloud, model: Mat4, tint: [f32; 4]| {
-            if cloud.count == 0 {
+        let prog = &gpu.prog;
+        unsafe {
+            gl.viewport(vp.left_px, vp.from_bottom_px, vp.width_px, vp.height_px);
+            gl.use_program(Some(prog.program));
+            gl.disable(glow::BLEND);
+            gl.disable(glow::CULL_FACE);
+            gl.enable(glow::DEPTH_TEST);
+            gl.depth_func(glow::LESS);
+            gl.enable(glow::PROGRAM_POINT_SIZE);
+        }
+        let draw = |cloud: &GpuCloud, mode: u32, mvp: &[f32; 16], tint: [f32; 4]| {
+            let n = if mode == glow::LINES {
+                cloud.count / 2 * 2
+            } else {
+                cloud.count
+            };
+            if n == 0 {
                 return;
             }
-            prog.use_uniform("mvp", vp_m * model);
-            prog.use_uniform("point_size", frame.point_size);
-            prog.use_uniform(
-                "tint",
-                three_d::Vec4::new(tint[0], tint[1], tint[2], tint[3]),
-            );
-            prog.use_vertex_attribute("position", &cloud.positions);
-            prog.use_vertex_attribute("color", &cloud.colors);
-            let n = cloud.count as i32;
-            prog.draw_with(states, viewport, || unsafe {
-                gl.draw_arrays(glow::POINTS, 0, n);
-            });
+            unsafe {
+                gl.uniform_matrix_4_f32_slice(prog.mvp.as_ref(), false, mvp);
+                gl.uniform_4_f32_slice(prog.tint.as_ref(), &tint);
+                gl.uniform_1_f32(prog.point_size.as_ref(), frame.point_size.clamp(1.0, 16.0));
+                gl.bind_vertex_array(Some(cloud.vao));
+                gl.draw_arrays(mode, 0, n as i32);
+            }
         };
-        let ident = mat4(&[
-            1., 0., 0., 0., 0., 1., 0., 0., 0., 0., 1., 0., 0., 0., 0., 1.,
-        ]);
         if frame.show_target {
-            draw_points(&gpu.points, &gpu.target, ident, [1.0; 4]);
+            draw(&gpu.target, glow::POINTS, &vp_m, [1.0; 4]);
         }
         for inst in &frame.source_instances {
-            draw_points(&gpu.points, &gpu.source, mat4(&inst.model), inst.tint);
+            draw(
+                &gpu.source,
+                glow::POINTS,
+                &mul(&vp_m, &inst.model),
+                inst.tint,
+            );
         }
-        let draw_lines = |prog: &Program, lines: &GpuCloud, states: RenderStates| {
-            if lines.count < 2 {
-                return;
-            }
-            prog.use_uniform("mvp", vp_m);
-            prog.use_vertex_attribute("position", &lines.positions);
-            prog.use_vertex_attribute("color", &lines.colors);
-            let n = (lines.count / 2 * 2) as i32;
-            prog.draw_with(states, viewport, || unsafe {
-                gl.draw_arrays(glow::LINES, 0, n);
-            });
-        };
-        draw_lines(&gpu.lines, &gpu.scene_lines, states);
-        draw_lines(
-            &gpu.lines,
-            &gpu.overlay,
-            RenderStates {
-                depth_test: DepthTest::Always,
-                ..states
-            },
-        );
-        let _ = &gpu.ctx;
+        draw(&gpu.scene_lines, glow::LINES, &vp_m, [1.0; 4]);
+        unsafe { gl.disable(glow::DEPTH_TEST) };
+        draw(&gpu.overlay, glow::LINES, &vp_m, [1.0; 4]);
         unsafe {
+            gl.bind_vertex_array(None);
+            gl.use_program(None);
             gl.disable(glow::PROGRAM_POINT_SIZE);
         }
         Ok(())

@@ -24,6 +24,31 @@ impl CappedNearest {
         }
     }
 
+    /// Index of and distance to the nearest stored point closer than the cap.
+    pub fn nearest(&self, q: [f32; 3]) -> Option<(usize, f32)> {
+        let k = key(&q, self.cell);
+        let mut best: Option<(usize, f32)> = None;
+        let cap2 = self.cell * self.cell;
+        for dx in -1..=1 {
+            for dy in -1..=1 {
+                for dz in -1..=1 {
+                    if let Some(ids) = self.grid.get(&[k[0] + dx, k[1] + dy, k[2] + dz]) {
+                        for &i in ids {
+                            let p = self.points[i as usize];
+                            let d = (p[0] - q[0]).powi(2)
+                                + (p[1] - q[1]).powi(2)
+                                + (p[2] - q[2]).powi(2);
+                            if d < cap2 && best.is_none_or(|b| d < b.1) {
+                                best = Some((i as usize, d));
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        best.map(|(i, d)| (i, d.sqrt()))
+    }
+
     /// Distance to the nearest stored point, or the cap when none is closer.
     pub fn distance(&self, q: [f32; 3]) -> f32 {
         let k = key(&q, self.cell);
