@@ -4,4 +4,4 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
 export CGENREG_DATA="${CGENREG_DATA:-$(cd .. && pwd)/shared/data}"
-cargo test 2>&1
+cargo test --no-fail-fast 2>&1

@@ -145,7 +145,7 @@ fn tabs_and_controls_drive_the_ui_and_the_worker() {
     assert!(h.query_all_by_label("K views").next().is_some());
     h.get_by_label("Match colours");
     assert!(h
-        .query_all_by_label("Safeguard margin (m)")
+        .query_all_by_label("Safeguard margin (frames)")
         .next()
         .is_some());
 }

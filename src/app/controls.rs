@@ -151,8 +151,9 @@ pub struct PipelineSettings {
     pub prompt_scene: String,
     pub preset: PromptPreset,
     pub k: usize,
-    /// Safeguard margin, metres.
-    pub margin_m: f32,
+    /// Safeguard margin m in frames: generated frames [L-m, L+m) around the source/target seam
+    /// are dropped (reference §3).
+    pub margin: usize,
     pub vfm: String,
     pub image_calibration: BranchCalibration,
     pub geometry_calibration: BranchCalibration,
@@ -167,8 +168,8 @@ impl Default for PipelineSettings {
             prompt_prefix: "A photorealistic".into(),
             prompt_scene: String::new(),
             preset: PromptPreset::SceneSpecific,
-            k: 2,
-            margin_m: 0.05,
+            k: 4,
+            margin: 3,
             vfm: "xfeat".into(),
             image_calibration: BranchCalibration {
                 method: Calibration::Softmax,
@@ -428,14 +429,12 @@ pub fn controls_ui(
         .show(ui, |ui| {
             ui.add(egui::Slider::new(&mut settings.k, 1..=8).text("K views"));
             ui.add(
-                egui::Slider::new(&mut settings.margin_m, 0.0..=0.5)
-                    .text("Safeguard margin (m)")
-                    .fixed_decimals(2),
+                egui::Slider::new(&mut settings.margin, 0..=10).text("Safeguard margin (frames)"),
             );
             egui::ComboBox::from_label("VFM")
                 .selected_text(settings.vfm.clone())
                 .show_ui(ui, |ui| {
-                    for v in ["xfeat", "disk", "dift"] {
+                    for v in ["xfeat", "mast3r"] {
                         ui.selectable_value(&mut settings.vfm, v.to_owned(), v);
                     }
                 });

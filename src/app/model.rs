@@ -237,7 +237,9 @@ impl Default for InspectorModel {
 }
 
 impl InspectorModel {
-    /// Small synthetic scene (about 6k points per cloud) exercising every panel.
+    /// Small synthetic UI fixture (about 6k points per cloud) exercising every panel in tests and
+    /// benchmarks. Its views are labelled as fixture renders and its extra pairs carry made-up
+    /// metrics by design; the inspector itself always shows pipeline results.
     pub fn demo() -> Self {
         Self::demo_sized(6000)
     }
@@ -577,7 +579,8 @@ mod demo {
                         .collect();
                     ViewImage {
                         label: ViewLabel {
-                            backend: if v == 0 { "cosmos-transfer".into() } else { "oracle".into() },
+                            // A UI test fixture: say so, never name a real generator for these pixels.
+                            backend: "ui-fixture render (not generated)".into(),
                             prompt: "A photo of an indoor scene: a kitchen corner with a red box and a green ball".into(),
                             cache_entry: format!("demo/{}/view{v}", if is_src { "src" } else { "tgt" }),
                         },
@@ -664,7 +667,7 @@ mod demo {
         for i in 1..8 {
             let e = ((i * 37) % 11) as f64;
             pairs.push(PairEntry {
-                id: format!("demo/redkitchen {}-{}", i * 50, i * 50 + 50),
+                id: format!("fixture/pair-{i} (made-up metrics)"),
                 status: if i == 5 {
                     PairStatus::Failed("no overlap".into())
                 } else {
@@ -675,7 +678,7 @@ mod demo {
             });
         }
         pairs.push(PairEntry {
-            id: "demo/redkitchen 400-450".into(),
+            id: "fixture/pair-8 (made-up metrics)".into(),
             status: PairStatus::Pending,
             rre_deg: None,
             rte_m: None,

@@ -628,7 +628,7 @@ impl Worker for PipelineWorker {
             Command::ApplySettings(s) => {
                 let image_changed = s.prompt() != self.settings.prompt()
                     || s.k != self.settings.k
-                    || s.margin_m != self.settings.margin_m
+                    || s.margin != self.settings.margin
                     || s.vfm != self.settings.vfm;
                 self.settings = s;
                 if image_changed {
