@@ -7,7 +7,9 @@ use crate::fusion::calibrate::Calibration;
 use crate::fusion::fuse::FusionMode;
 use crate::fusion::select::Selection;
 use crate::pipeline::cache::Cache;
-use crate::pipeline::params::{GeoFeatureSource, ImageBranchParams, RegisterParams, VfmSpec, WfmSpec};
+use crate::pipeline::params::{
+    GeoFeatureSource, ImageBranchParams, RegisterParams, VfmSpec, WfmSpec,
+};
 use crate::wfm::{Prompt, PromptPreset};
 use clap::{Args, ValueEnum};
 use std::path::PathBuf;

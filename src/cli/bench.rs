@@ -134,17 +134,18 @@ pub fn run(a: BenchArgs) -> Result<()> {
                     }
                 }
                 PairRow {
-                id: spec.id.clone(),
-                split: spec.split.clone(),
-                source: r.source_name.clone(),
-                target: r.target_name.clone(),
-                rre_deg: r.metrics.as_ref().map(|m| m.rre_deg),
-                rte_m: r.metrics.as_ref().map(|m| m.rte_m),
-                inlier_ratio: r.metrics.as_ref().map(|m| m.inlier_ratio),
-                success: r.metrics.as_ref().map(|m| m.success),
-                time_s,
-                error: None,
-            }}
+                    id: spec.id.clone(),
+                    split: spec.split.clone(),
+                    source: r.source_name.clone(),
+                    target: r.target_name.clone(),
+                    rre_deg: r.metrics.as_ref().map(|m| m.rre_deg),
+                    rte_m: r.metrics.as_ref().map(|m| m.rte_m),
+                    inlier_ratio: r.metrics.as_ref().map(|m| m.inlier_ratio),
+                    success: r.metrics.as_ref().map(|m| m.success),
+                    time_s,
+                    error: None,
+                }
+            }
             Err(e) => {
                 bar.println(format!("{}: error: {e}", spec.id));
                 PairRow {

@@ -60,7 +60,14 @@ fn provenance_summary(v: &serde_json::Value) -> String {
         parts.push(format!("backend {b}"));
     }
     if let Some(p) = field("prompt") {
-        let short: String = p.chars().rev().take(40).collect::<Vec<_>>().into_iter().rev().collect();
+        let short: String = p
+            .chars()
+            .rev()
+            .take(40)
+            .collect::<Vec<_>>()
+            .into_iter()
+            .rev()
+            .collect();
         parts.push(format!("prompt …{short}"));
     }
     if let Some(n) = v.get("frame_count").and_then(|x| x.as_u64()) {
@@ -110,14 +117,21 @@ pub fn run(a: CacheArgs) -> Result<()> {
             for r in &reports {
                 if let Err(e) = &r.result {
                     bad += 1;
-                    println!("CORRUPT {}/{}: {e}", r.stage, &r.hash[..12.min(r.hash.len())]);
+                    println!(
+                        "CORRUPT {}/{}: {e}",
+                        r.stage,
+                        &r.hash[..12.min(r.hash.len())]
+                    );
                     if *remove_bad {
                         cache.remove_entry(&r.stage, &r.hash)?;
                         println!("  removed");
                     }
                 }
             }
-            println!("{} entries verified, {bad} corrupt or partial", reports.len());
+            println!(
+                "{} entries verified, {bad} corrupt or partial",
+                reports.len()
+            );
             if bad > 0 && !remove_bad {
                 return Err(Error::Cache(format!(
                     "{bad} corrupt or partial cache entries in {} (they are never used; \

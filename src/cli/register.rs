@@ -113,11 +113,18 @@ pub fn print_human(r: &RegistrationResult) {
             "image branch: frames from {} ({}); VFM {}",
             img.provenance.backend, img.provenance.model, img.vfm
         );
-        let linked = |l: &[Option<crate::vfm::lift::PixelLink>]| l.iter().filter(|x| x.is_some()).count();
+        let linked =
+            |l: &[Option<crate::vfm::lift::PixelLink>]| l.iter().filter(|x| x.is_some()).count();
         println!(
             "  views: source {:?}, target {:?}; keypoints with a pixel: {}/{} source, {}/{} target",
-            img.source_views.iter().map(|v| v.generated_index).collect::<Vec<_>>(),
-            img.target_views.iter().map(|v| v.generated_index).collect::<Vec<_>>(),
+            img.source_views
+                .iter()
+                .map(|v| v.generated_index)
+                .collect::<Vec<_>>(),
+            img.target_views
+                .iter()
+                .map(|v| v.generated_index)
+                .collect::<Vec<_>>(),
             linked(&img.source_links),
             img.source_links.len(),
             linked(&img.target_links),

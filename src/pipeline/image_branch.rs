@@ -124,7 +124,12 @@ fn points_flat(p: &[Point3<f32>]) -> Vec<f32> {
 
 fn points_from(rows: usize, cols: usize, d: &[f32], what: &Path) -> Result<Vec<Point3<f32>>> {
     if cols != 3 || d.len() != rows * 3 {
-        return Err(Error::format(what, "shape", "(N, 3)", format!("({rows}, {cols})")));
+        return Err(Error::format(
+            what,
+            "shape",
+            "(N, 3)",
+            format!("({rows}, {cols})"),
+        ));
     }
     Ok(d.chunks(3).map(|c| Point3::new(c[0], c[1], c[2])).collect())
 }
@@ -415,7 +420,9 @@ fn lift_stage(
                 })
                 .collect();
             let l = lift_views(&views, keypoints, radius, image_size, LIFT_MAX_DEPTH)?;
-            Ok(l.into_iter().map(|o| o.map(|p| (p.view, p.u, p.v))).collect())
+            Ok(l.into_iter()
+                .map(|o| o.map(|p| (p.view, p.u, p.v)))
+                .collect())
         },
         |l, c, k| {
             let mut ne = c.put(k, json!({ "stage": "lift" }))?;
@@ -434,7 +441,10 @@ fn lift_stage(
 }
 
 /// Each keypoint's descriptor at its linked pixel (unit norm), zeros and invalid when unlinked.
-fn point_descriptors(links: &[Option<PixelLink>], grids: &[DenseDescriptors]) -> (Features, Vec<bool>) {
+fn point_descriptors(
+    links: &[Option<PixelLink>],
+    grids: &[DenseDescriptors],
+) -> (Features, Vec<bool>) {
     let dim = grids.first().map_or(0, |g| g.dim);
     let mut data = vec![0.0f32; links.len() * dim];
     let mut valid = vec![false; links.len()];
@@ -500,8 +510,14 @@ pub fn register_with_image(
     let (tgt_geo, tgt_geo_key) = geo_cached(&mut ctx, "fpfh target", &pair.target, params.voxel)?;
 
     // Depth video.
-    let src_paths: Vec<PathBuf> = src_fs.frames[..l].iter().map(|f| f.depth_path.clone()).collect();
-    let tgt_paths: Vec<PathBuf> = tgt_fs.frames[..l].iter().map(|f| f.depth_path.clone()).collect();
+    let src_paths: Vec<PathBuf> = src_fs.frames[..l]
+        .iter()
+        .map(|f| f.depth_path.clone())
+        .collect();
+    let tgt_paths: Vec<PathBuf> = tgt_fs.frames[..l]
+        .iter()
+        .map(|f| f.depth_path.clone())
+        .collect();
     let t = Instant::now();
     let depth_hashes: Vec<String> = src_paths
         .par_iter()
@@ -532,7 +548,10 @@ pub fn register_with_image(
             Ok(m)
         },
         |m, c, k| {
-            let mut ne = c.put(k, json!({ "L": l, "source": pair.source.name, "target": pair.target.name }))?;
+            let mut ne = c.put(
+                k,
+                json!({ "L": l, "source": pair.source.name, "target": pair.target.name }),
+            )?;
             ne.add_json("video.json", m)?;
             ne.commit()?;
             Ok(())
@@ -545,7 +564,10 @@ pub fn register_with_image(
     let backend_id = backend.id();
     let is_oracle = matches!(ib.backend, WfmSpec::Oracle);
     let colour = |fs: &FrameSet| -> Option<Vec<PathBuf>> {
-        fs.frames[..l].iter().map(|f| f.color_path.clone()).collect()
+        fs.frames[..l]
+            .iter()
+            .map(|f| f.color_path.clone())
+            .collect()
     };
     let (src_col, tgt_col) = (colour(src_fs), colour(tgt_fs));
     let mut gen_inputs = vec![vmeta.hash.clone()];
@@ -629,8 +651,14 @@ pub fn register_with_image(
             })
         },
         |g, c, k| {
-            let frames = g.frames.as_ref().ok_or_else(|| Error::Invalid("no frames".into()))?;
-            let pngs: Vec<Vec<u8>> = frames.par_iter().map(encode_png_fast).collect::<Result<_>>()?;
+            let frames = g
+                .frames
+                .as_ref()
+                .ok_or_else(|| Error::Invalid("no frames".into()))?;
+            let pngs: Vec<Vec<u8>> = frames
+                .par_iter()
+                .map(encode_png_fast)
+                .collect::<Result<_>>()?;
             let prov = serde_json::to_value(&g.provenance)
                 .map_err(|e| Error::Invalid(format!("provenance: {e}")))?;
             let mut ne = c.put(k, prov)?;
@@ -657,7 +685,10 @@ pub fn register_with_image(
 
     // VFM descriptors per selected view.
     let mut model: Option<Arc<dyn PerImageModel>> = None;
-    let mut describe_side = |ctx: &mut Ctx, name: &str, idx: &[usize]| -> Result<(Vec<DenseDescriptors>, Vec<RgbImage>, Vec<String>)> {
+    let mut describe_side = |ctx: &mut Ctx,
+                             name: &str,
+                             idx: &[usize]|
+     -> Result<(Vec<DenseDescriptors>, Vec<RgbImage>, Vec<String>)> {
         let t = Instant::now();
         let mut all_hit = true;
         let mut grids = Vec::new();
@@ -712,8 +743,10 @@ pub fn register_with_image(
         ctx.timer.record(name, t.elapsed(), all_hit);
         Ok((grids, images, keys))
     };
-    let (src_grids, src_imgs, src_vkeys) = describe_side(&mut ctx, "vfm source views", &sel.src_generated)?;
-    let (tgt_grids, tgt_imgs, tgt_vkeys) = describe_side(&mut ctx, "vfm target views", &sel.tgt_generated)?;
+    let (src_grids, src_imgs, src_vkeys) =
+        describe_side(&mut ctx, "vfm source views", &sel.src_generated)?;
+    let (tgt_grids, tgt_imgs, tgt_vkeys) =
+        describe_side(&mut ctx, "vfm target views", &sel.tgt_generated)?;
     let vfm_label = match &model {
         Some(_) => format!("{vfm_id} ({})", crate::vfm::backend_name()),
         None => format!("{vfm_id} (descriptors from the cache)"),
@@ -754,8 +787,15 @@ pub fn register_with_image(
             let fs = e.read_features("source.npy")?;
             let ft = e.read_features("target.npy")?;
             let (vs, vt): (Vec<bool>, Vec<bool>) = e.read_json("valid.json")?;
-            if fs.len() != src_links.len() || ft.len() != tgt_links.len() || vs.len() != fs.len() || vt.len() != ft.len() {
-                return Err(Error::Cache(format!("{}: sizes disagree with the keypoints", e.dir.display())));
+            if fs.len() != src_links.len()
+                || ft.len() != tgt_links.len()
+                || vs.len() != fs.len()
+                || vt.len() != ft.len()
+            {
+                return Err(Error::Cache(format!(
+                    "{}: sizes disagree with the keypoints",
+                    e.dir.display()
+                )));
             }
             Ok((fs, vs, ft, vt))
         },
