@@ -6,7 +6,11 @@ use crate::estimate::EstimatorKind;
 use crate::fusion::calibrate::Calibration;
 use crate::fusion::fuse::FusionMode;
 use crate::fusion::select::Selection;
-use crate::pipeline::params::{GeoFeatureSource, RegisterParams};
+use crate::pipeline::cache::Cache;
+use crate::pipeline::params::{
+    GeoFeatureSource, ImageBranchParams, RegisterParams, VfmSpec, WfmSpec,
+};
+use crate::wfm::{Prompt, PromptPreset};
 use clap::{Args, ValueEnum};
 use std::path::PathBuf;
 
@@ -140,5 +144,153 @@ impl PipelineArgs {
             EstimatorArg::Svd => EstimatorKind::WeightedSvd,
         };
         p
+    }
+}
+
+#[derive(Clone, Copy, Debug, ValueEnum)]
+pub enum WfmArg {
+    /// The dataset's real colour frames ("C-GenReg (Oracle)").
+    Oracle,
+    /// builtin-depthshade-v1: deterministic shading of the depth video. NOT a WFM.
+    Builtin,
+    /// An existing Cosmos output folder (--wfm-dir) with its JSONL spec (--wfm-spec).
+    Cached,
+    /// Run Cosmos-Transfer1 (--cosmos-cmd, as an argument vector).
+    Cosmos,
+}
+
+#[derive(Clone, Copy, Debug, ValueEnum)]
+pub enum PresetArg {
+    Scene,
+    General,
+    Minimal,
+    Wrong,
+}
+
+/// Options of the generated-RGB image branch and of the stage cache.
+#[derive(Args, Debug, Clone)]
+pub struct ImageArgs {
+    /// WFM backend of the image branch; absent = geometric branch only.
+    #[arg(long, value_enum)]
+    pub wfm: Option<WfmArg>,
+    /// Cosmos output folder for --wfm cached.
+    #[arg(long)]
+    pub wfm_dir: Option<PathBuf>,
+    /// JSONL batch spec for --wfm cached.
+    #[arg(long)]
+    pub wfm_spec: Option<PathBuf>,
+    /// Cosmos command for --wfm cosmos: program and arguments, one per occurrence
+    /// (`--cosmos-cmd torchrun --cosmos-cmd ...`); never run through a shell.
+    #[arg(long, num_args = 1, allow_hyphen_values = true)]
+    pub cosmos_cmd: Vec<String>,
+    /// Job folder for --wfm cosmos.
+    #[arg(long)]
+    pub cosmos_work_dir: Option<PathBuf>,
+    /// Timeout of the Cosmos command, seconds.
+    #[arg(long, default_value_t = 3600)]
+    pub cosmos_timeout: u64,
+    /// Prompt preset (paper's four categories).
+    #[arg(long, value_enum, default_value_t = PresetArg::Scene)]
+    pub prompt_preset: PresetArg,
+    /// Scene description replacing the preset's (the shared prefix is kept).
+    #[arg(long)]
+    pub prompt: Option<String>,
+    /// Generation seed.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// XFeat ONNX model (default models/xfeat.onnx).
+    #[arg(long)]
+    pub vfm_model: Option<PathBuf>,
+    /// Views per side.
+    #[arg(long, default_value_t = 4)]
+    pub k: usize,
+    /// Safeguard margin m (frames dropped on each side of the source/target seam).
+    #[arg(long, default_value_t = 3)]
+    pub margin: usize,
+    /// Frames per fragment in the depth video (L).
+    #[arg(long, default_value_t = 50)]
+    pub frames: usize,
+    /// Lifting radius in metres.
+    #[arg(long, default_value_t = 0.05)]
+    pub lift_radius: f32,
+    /// Stage cache directory (default: $CGENREG_CACHE or ~/.cache/cgenreg).
+    #[arg(long)]
+    pub cache_dir: Option<PathBuf>,
+    /// Compute every stage in memory; read and write no cache.
+    #[arg(long, conflicts_with = "cache_dir")]
+    pub no_cache: bool,
+}
+
+impl ImageArgs {
+    pub fn to_image_params(&self) -> crate::Result<Option<ImageBranchParams>> {
+        let Some(wfm) = self.wfm else {
+            return Ok(None);
+        };
+        let backend = match wfm {
+            WfmArg::Oracle => WfmSpec::Oracle,
+            WfmArg::Builtin => WfmSpec::Builtin,
+            WfmArg::Cached => match (&self.wfm_dir, &self.wfm_spec) {
+                (Some(d), Some(s)) => WfmSpec::Cached {
+                    dir: d.clone(),
+                    spec: s.clone(),
+                },
+                _ => {
+                    return Err(crate::Error::Invalid(
+                        "--wfm cached needs --wfm-dir (Cosmos output folder) and --wfm-spec (its JSONL)"
+                            .into(),
+                    ))
+                }
+            },
+            WfmArg::Cosmos => {
+                if self.cosmos_cmd.is_empty() {
+                    return Err(crate::Error::Invalid(
+                        "--wfm cosmos needs --cosmos-cmd PROGRAM [--cosmos-cmd ARG ...]".into(),
+                    ));
+                }
+                WfmSpec::Cosmos {
+                    command: self.cosmos_cmd.clone(),
+                    work_dir: self
+                        .cosmos_work_dir
+                        .clone()
+                        .unwrap_or_else(|| std::env::temp_dir().join("cgenreg-cosmos")),
+                    timeout_s: self.cosmos_timeout,
+                }
+            }
+        };
+        let preset = match self.prompt_preset {
+            PresetArg::Scene => PromptPreset::SceneSpecific,
+            PresetArg::General => PromptPreset::General,
+            PresetArg::Minimal => PromptPreset::Minimal,
+            PresetArg::Wrong => PromptPreset::SemanticallyWrong,
+        };
+        let mut prompt = Prompt::from_preset(preset);
+        if let Some(s) = &self.prompt {
+            prompt.scene = s.clone();
+        }
+        Ok(Some(ImageBranchParams {
+            backend,
+            prompt,
+            seed: self.seed,
+            vfm: match &self.vfm_model {
+                Some(p) => VfmSpec::Xfeat { model: p.clone() },
+                None => VfmSpec::default(),
+            },
+            k: self.k,
+            margin: self.margin,
+            frames_per_fragment: self.frames,
+            lift_radius: self.lift_radius,
+        }))
+    }
+
+    /// The stage cache, None with --no-cache.
+    pub fn open_cache(&self) -> crate::Result<Option<Cache>> {
+        if self.no_cache {
+            return Ok(None);
+        }
+        let dir = self
+            .cache_dir
+            .clone()
+            .unwrap_or_else(crate::pipeline::image_branch::default_cache_dir);
+        Ok(Some(Cache::open(dir)?))
     }
 }

@@ -1,8 +1,8 @@
-use super::args::PipelineArgs;
+use super::args::{ImageArgs, PipelineArgs};
 use crate::dataset::manifest::Dataset;
 use crate::error::{Error, Result};
 use crate::metrics::{PairMetrics, Summary};
-use crate::pipeline::register_pair;
+use crate::pipeline::register_pair_cached;
 use clap::Args;
 use serde::Serialize;
 use std::path::PathBuf;
@@ -25,6 +25,8 @@ pub struct BenchArgs {
     pub json: Option<PathBuf>,
     #[command(flatten)]
     pub pipeline: PipelineArgs,
+    #[command(flatten)]
+    pub image: ImageArgs,
 }
 
 #[derive(Serialize)]
@@ -84,7 +86,16 @@ pub fn run(a: BenchArgs) -> Result<()> {
             a.manifest.display()
         )));
     }
-    let params = a.pipeline.to_params(false);
+    let mut params = a.pipeline.to_params(a.image.wfm.is_some());
+    params.image = a.image.to_image_params()?;
+    let cache = if params.image.is_some() {
+        a.image.open_cache()?
+    } else {
+        None
+    };
+    let (mut n_cached, mut n_computed) = (0usize, 0usize);
+    let mut stage_ms: Vec<(String, f64, usize, usize)> = Vec::new();
+    let mut warnings = 0usize;
     let bar = indicatif::ProgressBar::new(specs.len() as u64);
     bar.set_style(
         indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} {msg} [{elapsed}<{eta}]")
@@ -96,21 +107,45 @@ pub fn run(a: BenchArgs) -> Result<()> {
         let t = std::time::Instant::now();
         let res = ds
             .load_pair(&spec.id)
-            .and_then(|pair| register_pair(&pair, &params));
+            .and_then(|pair| register_pair_cached(&pair, &params, cache.as_ref()));
         let time_s = t.elapsed().as_secs_f64();
         let row = match res {
-            Ok(r) => PairRow {
-                id: spec.id.clone(),
-                split: spec.split.clone(),
-                source: r.source_name.clone(),
-                target: r.target_name.clone(),
-                rre_deg: r.metrics.as_ref().map(|m| m.rre_deg),
-                rte_m: r.metrics.as_ref().map(|m| m.rte_m),
-                inlier_ratio: r.metrics.as_ref().map(|m| m.inlier_ratio),
-                success: r.metrics.as_ref().map(|m| m.success),
-                time_s,
-                error: None,
-            },
+            Ok(r) => {
+                for t in &r.timings {
+                    let hit = crate::pipeline::image_branch::is_cached(&t.status);
+                    if hit {
+                        n_cached += 1;
+                    } else {
+                        n_computed += 1;
+                    }
+                    match stage_ms.iter_mut().find(|s| s.0 == t.stage) {
+                        Some(s) => {
+                            s.1 += t.ms;
+                            s.2 += hit as usize;
+                            s.3 += !hit as usize;
+                        }
+                        None => stage_ms.push((t.stage.clone(), t.ms, hit as usize, !hit as usize)),
+                    }
+                }
+                for w in &r.warnings {
+                    if w.contains("corrupt") || w.contains("could not write cache") {
+                        bar.println(format!("{}: warning: {w}", spec.id));
+                        warnings += 1;
+                    }
+                }
+                PairRow {
+                    id: spec.id.clone(),
+                    split: spec.split.clone(),
+                    source: r.source_name.clone(),
+                    target: r.target_name.clone(),
+                    rre_deg: r.metrics.as_ref().map(|m| m.rre_deg),
+                    rte_m: r.metrics.as_ref().map(|m| m.rte_m),
+                    inlier_ratio: r.metrics.as_ref().map(|m| m.inlier_ratio),
+                    success: r.metrics.as_ref().map(|m| m.success),
+                    time_s,
+                    error: None,
+                }
+            }
             Err(e) => {
                 bar.println(format!("{}: error: {e}", spec.id));
                 PairRow {
@@ -178,6 +213,26 @@ pub fn run(a: BenchArgs) -> Result<()> {
             summary: s,
             time_per_pair_s: tpp,
         });
+    }
+    if params.image.is_some() {
+        println!();
+        println!("| stage | total s | cached | computed |");
+        println!("|---|---|---|---|");
+        for (name, ms, c, n) in &stage_ms {
+            println!("| {name} | {:.2} | {c} | {n} |", ms / 1e3);
+        }
+        println!(
+            "cache ({}): {n_cached} stage results were cache hits, {n_computed} were computed{}",
+            cache
+                .as_ref()
+                .map(|c| c.root().display().to_string())
+                .unwrap_or_else(|| "off".into()),
+            if warnings > 0 {
+                format!("; {warnings} cache problems reported above")
+            } else {
+                String::new()
+            }
+        );
     }
     if let Some(path) = &a.json {
         let out = BenchJson {

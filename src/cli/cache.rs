@@ -1,18 +1,175 @@
-//! `cgenreg cache`: list, verify and remove entries of the content-addressed cache.
+//! `cgenreg cache`: list, verify and remove entries of the content-addressed stage cache.
 
-use crate::error::Result;
-use clap::Args;
+use crate::error::{Error, Result};
+use crate::pipeline::cache::Cache;
+use clap::{Args, Subcommand};
 use std::path::PathBuf;
 
 #[derive(Args, Debug)]
 pub struct CacheArgs {
     /// Cache directory (default: $CGENREG_CACHE or ~/.cache/cgenreg).
-    #[arg(long)]
+    #[arg(long, global = true)]
     pub dir: Option<PathBuf>,
+    #[command(subcommand)]
+    pub action: CacheAction,
 }
 
-pub fn run(_a: CacheArgs) -> Result<()> {
-    Err(crate::Error::Invalid(
-        "cgenreg cache: not implemented yet".into(),
-    ))
+#[derive(Subcommand, Debug)]
+pub enum CacheAction {
+    /// One line per entry: stage, hash, size, creation time and provenance.
+    List {
+        /// Only entries of this stage (e.g. generation, vfm-view, lift).
+        #[arg(long)]
+        stage: Option<String>,
+    },
+    /// Re-hash every entry against its manifest; exits with an error if any is corrupt.
+    Verify {
+        /// Remove the corrupt or partial entries found.
+        #[arg(long)]
+        remove_bad: bool,
+    },
+    /// Remove entries: `STAGE/HASHPREFIX` (as `list` prints), or a whole `STAGE`, or --all.
+    Rm {
+        targets: Vec<String>,
+        #[arg(long, conflicts_with = "targets")]
+        all: bool,
+    },
+}
+
+fn open(a: &CacheArgs) -> Result<Cache> {
+    let dir = a
+        .dir
+        .clone()
+        .unwrap_or_else(crate::pipeline::image_branch::default_cache_dir);
+    Cache::open(dir)
+}
+
+fn human_bytes(b: u64) -> String {
+    match b {
+        b if b >= 1 << 30 => format!("{:.1} GiB", b as f64 / (1u64 << 30) as f64),
+        b if b >= 1 << 20 => format!("{:.1} MiB", b as f64 / (1u64 << 20) as f64),
+        b if b >= 1 << 10 => format!("{:.1} KiB", b as f64 / 1024.0),
+        b => format!("{b} B"),
+    }
+}
+
+fn provenance_summary(v: &serde_json::Value) -> String {
+    let field = |k: &str| v.get(k).and_then(|x| x.as_str()).map(str::to_string);
+    let mut parts = Vec::new();
+    if let Some(b) = field("backend") {
+        parts.push(format!("backend {b}"));
+    }
+    if let Some(p) = field("prompt") {
+        let short: String = p
+            .chars()
+            .rev()
+            .take(40)
+            .collect::<Vec<_>>()
+            .into_iter()
+            .rev()
+            .collect();
+        parts.push(format!("prompt …{short}"));
+    }
+    if let Some(n) = v.get("frame_count").and_then(|x| x.as_u64()) {
+        parts.push(format!("{n} frames"));
+    }
+    if let Some(m) = field("vfm") {
+        parts.push(m);
+    }
+    if parts.is_empty() {
+        parts.push(v.to_string().chars().take(60).collect());
+    }
+    parts.join(", ")
+}
+
+pub fn run(a: CacheArgs) -> Result<()> {
+    let cache = open(&a)?;
+    match &a.action {
+        CacheAction::List { stage } => {
+            let entries = cache.list()?;
+            let mut total = 0u64;
+            let mut n = 0usize;
+            println!("cache {}", cache.root().display());
+            for e in entries
+                .iter()
+                .filter(|e| stage.as_ref().is_none_or(|s| &e.stage == s))
+            {
+                n += 1;
+                total += e.total_bytes;
+                let id = format!("{}/{}", e.stage, &e.hash[..12.min(e.hash.len())]);
+                match (&e.manifest, &e.problem) {
+                    (Some(m), None) => println!(
+                        "{id:<28} {:>10}  created {}  {}",
+                        human_bytes(e.total_bytes),
+                        m.created_unix,
+                        provenance_summary(&m.provenance)
+                    ),
+                    (_, Some(p)) => println!("{id:<28} PROBLEM: {p}"),
+                    (None, None) => println!("{id:<28} (no manifest)"),
+                }
+            }
+            println!("{n} entries, {}", human_bytes(total));
+            Ok(())
+        }
+        CacheAction::Verify { remove_bad } => {
+            let reports = cache.verify_all()?;
+            let mut bad = 0usize;
+            for r in &reports {
+                if let Err(e) = &r.result {
+                    bad += 1;
+                    println!(
+                        "CORRUPT {}/{}: {e}",
+                        r.stage,
+                        &r.hash[..12.min(r.hash.len())]
+                    );
+                    if *remove_bad {
+                        cache.remove_entry(&r.stage, &r.hash)?;
+                        println!("  removed");
+                    }
+                }
+            }
+            println!(
+                "{} entries verified, {bad} corrupt or partial",
+                reports.len()
+            );
+            if bad > 0 && !remove_bad {
+                return Err(Error::Cache(format!(
+                    "{bad} corrupt or partial cache entries in {} (they are never used; \
+                     `cgenreg cache verify --remove-bad` removes them)",
+                    cache.root().display()
+                )));
+            }
+            Ok(())
+        }
+        CacheAction::Rm { targets, all } => {
+            if *all {
+                let stages: std::collections::BTreeSet<String> =
+                    cache.list()?.into_iter().map(|e| e.stage).collect();
+                let mut n = 0;
+                for s in stages {
+                    n += cache.remove_stage(&s)?;
+                }
+                println!("removed {n} entries");
+                return Ok(());
+            }
+            if targets.is_empty() {
+                return Err(Error::Invalid(
+                    "cgenreg cache rm: give STAGE/HASHPREFIX, STAGE, or --all".into(),
+                ));
+            }
+            for t in targets {
+                match t.split_once('/') {
+                    Some((stage, hash)) => {
+                        if cache.remove_entry(stage, hash)? {
+                            println!("removed {t}");
+                        } else {
+                            return Err(Error::Invalid(format!("no cache entry {t}")));
+                        }
+                    }
+                    None => println!("removed {} entries of stage {t}", cache.remove_stage(t)?),
+                }
+            }
+            Ok(())
+        }
+    }
 }

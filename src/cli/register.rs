@@ -1,8 +1,8 @@
-use super::args::PipelineArgs;
+use super::args::{ImageArgs, PipelineArgs};
 use crate::dataset::manifest::Dataset;
 use crate::dataset::ScanPair;
 use crate::error::{Error, Result};
-use crate::pipeline::{register_pair, RegistrationResult};
+use crate::pipeline::{register_pair_cached, RegistrationResult};
 use clap::Args;
 use std::path::PathBuf;
 
@@ -28,6 +28,8 @@ pub struct RegisterArgs {
     pub json: bool,
     #[command(flatten)]
     pub pipeline: PipelineArgs,
+    #[command(flatten)]
+    pub image: ImageArgs,
 }
 
 pub(crate) fn load_pair(a: &RegisterArgs) -> Result<ScanPair> {
@@ -44,8 +46,14 @@ pub fn run(a: RegisterArgs) -> Result<()> {
     let t0 = std::time::Instant::now();
     let pair = load_pair(&a)?;
     let load_ms = t0.elapsed().as_secs_f64() * 1e3;
-    let params = a.pipeline.to_params(false);
-    let mut res = register_pair(&pair, &params)?;
+    let mut params = a.pipeline.to_params(a.image.wfm.is_some());
+    params.image = a.image.to_image_params()?;
+    let cache = if params.image.is_some() {
+        a.image.open_cache()?
+    } else {
+        None
+    };
+    let mut res = register_pair_cached(&pair, &params, cache.as_ref())?;
     res.timings.insert(
         0,
         crate::pipeline::StageTiming {
@@ -99,6 +107,29 @@ pub fn print_human(r: &RegistrationResult) {
             }
         ),
         None => println!("no ground truth: metrics not computed"),
+    }
+    if let Some(img) = &r.image {
+        println!(
+            "image branch: frames from {} ({}); VFM {}",
+            img.provenance.backend, img.provenance.model, img.vfm
+        );
+        let linked =
+            |l: &[Option<crate::vfm::lift::PixelLink>]| l.iter().filter(|x| x.is_some()).count();
+        println!(
+            "  views: source {:?}, target {:?}; keypoints with a pixel: {}/{} source, {}/{} target",
+            img.source_views
+                .iter()
+                .map(|v| v.generated_index)
+                .collect::<Vec<_>>(),
+            img.target_views
+                .iter()
+                .map(|v| v.generated_index)
+                .collect::<Vec<_>>(),
+            linked(&img.source_links),
+            img.source_links.len(),
+            linked(&img.target_links),
+            img.target_links.len()
+        );
     }
     for w in &r.warnings {
         println!("warning: {w}");

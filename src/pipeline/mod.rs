@@ -2,8 +2,9 @@
 //! keyed by content so the GUI and `bench` re-run only what changed.
 
 pub mod cache;
+pub mod image_branch;
 pub mod params;
 pub mod register;
 
-pub use params::RegisterParams;
-pub use register::{register_pair, ImageBranchOutput, RegistrationResult, StageTiming, ViewInfo};
+pub use params::{ImageBranchParams, RegisterParams, VfmSpec, WfmSpec};
+pub use register::{register_pair, register_pair_cached, ImageBranchOutput, RegistrationResult, StageTiming, ViewInfo};

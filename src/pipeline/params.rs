@@ -28,6 +28,9 @@ pub struct RegisterParams {
     pub estimator: EstimatorKind,
     /// Threshold (m) for the inlier ratio of the selected correspondences under ground truth.
     pub inlier_threshold: f64,
+    /// The generated-RGB branch; None runs the geometric branch alone.
+    #[serde(default)]
+    pub image: Option<ImageBranchParams>,
 }
 
 impl Default for RegisterParams {
@@ -38,6 +41,74 @@ impl Default for RegisterParams {
             fusion: FusionParams::default(),
             estimator: EstimatorKind::default(),
             inlier_threshold: 0.10,
+            image: None,
+        }
+    }
+}
+
+/// Which WFM backend produces the RGB frames of the image branch.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "kebab-case")]
+pub enum WfmSpec {
+    /// The dataset's real colour frames ("C-GenReg (Oracle)").
+    Oracle,
+    /// `builtin-depthshade-v1`: deterministic shading of the depth video, NOT a WFM.
+    Builtin,
+    /// An existing Cosmos output folder plus its JSONL batch spec.
+    Cached { dir: PathBuf, spec: PathBuf },
+    /// Run a Cosmos-Transfer1 command (argument vector, never a shell).
+    Cosmos {
+        command: Vec<String>,
+        work_dir: PathBuf,
+        timeout_s: u64,
+    },
+}
+
+/// Which vision foundation model describes the selected views.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "kebab-case")]
+pub enum VfmSpec {
+    /// XFeat through ONNX (default `models/xfeat.onnx`).
+    Xfeat { model: PathBuf },
+}
+
+impl Default for VfmSpec {
+    fn default() -> Self {
+        VfmSpec::Xfeat {
+            model: crate::vfm::default_xfeat_path(),
+        }
+    }
+}
+
+/// The generated-RGB branch (reference §1-4, §7-8).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct ImageBranchParams {
+    pub backend: WfmSpec,
+    pub prompt: crate::wfm::Prompt,
+    pub seed: u64,
+    pub vfm: VfmSpec,
+    /// Views per side.
+    pub k: usize,
+    /// Safeguard margin m around the source/target seam of the generated video.
+    pub margin: usize,
+    /// Frames per fragment in the depth video (L; the reference uses 50).
+    pub frames_per_fragment: usize,
+    /// Lifting radius (m): a point with no valid pixel this close gets no image feature.
+    pub lift_radius: f32,
+}
+
+impl Default for ImageBranchParams {
+    fn default() -> Self {
+        ImageBranchParams {
+            backend: WfmSpec::Builtin,
+            prompt: crate::wfm::Prompt::from_preset(crate::wfm::PromptPreset::SceneSpecific),
+            seed: 0,
+            vfm: VfmSpec::default(),
+            k: 4,
+            margin: 3,
+            frames_per_fragment: 50,
+            lift_radius: 0.05,
         }
     }
 }

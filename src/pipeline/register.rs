@@ -1,6 +1,7 @@
 //! One registration: geometric branch (and, when configured, the image branch), Match-then-Fuse,
 //! pose estimation and evaluation against ground truth.
 
+use super::cache::Cache;
 use super::params::{GeoFeatureSource, RegisterParams};
 use crate::dataset::ScanPair;
 use crate::error::{Error, Result};
@@ -103,11 +104,19 @@ pub(crate) struct Timer {
 }
 
 impl Timer {
-    fn new() -> Self {
+    pub(crate) fn new() -> Self {
         Timer {
             timings: Vec::new(),
             t0: Instant::now(),
         }
+    }
+    /// Record a stage that ran (or was read from the cache) outside `stage`.
+    pub(crate) fn record(&mut self, name: &str, elapsed: std::time::Duration, cached: bool) {
+        self.timings.push(StageTiming {
+            stage: name.to_string(),
+            ms: elapsed.as_secs_f64() * 1e3,
+            status: if cached { "cached" } else { "computed" }.into(),
+        });
     }
     fn stage<T>(&mut self, name: &str, f: impl FnOnce() -> Result<T>) -> Result<T> {
         let t = Instant::now();
@@ -205,8 +214,26 @@ fn geo_branches(
     }
 }
 
-/// Register `pair.source` onto `pair.target` with the geometric branch only.
+/// Register `pair.source` onto `pair.target`: the geometric branch, plus the image branch
+/// when `params.image` is set (everything computed in memory, no cache).
 pub fn register_pair(pair: &ScanPair, params: &RegisterParams) -> Result<RegistrationResult> {
+    register_pair_cached(pair, params, None)
+}
+
+/// [`register_pair`] with the image branch's stages read from / written to `cache`.
+pub fn register_pair_cached(
+    pair: &ScanPair,
+    params: &RegisterParams,
+    cache: Option<&Cache>,
+) -> Result<RegistrationResult> {
+    match &params.image {
+        Some(ib) => super::image_branch::register_with_image(pair, params, ib, cache),
+        None => register_geometry(pair, params),
+    }
+}
+
+/// The geometric branch alone.
+fn register_geometry(pair: &ScanPair, params: &RegisterParams) -> Result<RegistrationResult> {
     let mut timer = Timer::new();
     let (src, tgt) = geo_branches(pair, params, &mut timer)?;
     if src.features.dim != tgt.features.dim {

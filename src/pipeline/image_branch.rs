@@ -1,0 +1,903 @@
+//! The full method: geometric branch (dense) + generated-RGB image branch, Match-then-Fuse.
+//!
+//! Stages and their cache keys (each key chains the keys of its inputs, see `pipeline::cache`):
+//! - `geo-fpfh` per scan: cloud content hash + voxel -> keypoints, normals, FPFH;
+//! - `depth-video`: content hashes of the first L depth frames of both scans + L -> the hash of
+//!   the encoded video (reference §1). Frames are rebuilt in memory only when generation misses;
+//! - `generation`: depth-video hash (+ colour-frame hashes for `oracle`) + prompt + backend id +
+//!   seed -> all frames (PNG) and their provenance;
+//! - view selection (K, m; in memory, trivial);
+//! - `vfm-view` per selected view: generation key + frame index + model id -> descriptor grid;
+//! - `lift` per scan: keypoints key + the selected views' depth hashes, poses, intrinsics,
+//!   radius, image size -> pixel link of each keypoint (or none);
+//! - `image-points`: lift and vfm keys -> one descriptor per keypoint + validity (reference
+//!   §8.1: unmapped points are invalid).
+//!
+//! Cosine similarities, calibration, fusion, selection and estimation are cheap and run in
+//! memory every time, so changing a temperature or the fusion mode recomputes only those.
+
+use super::cache::{hash_file, Cache, CacheKey, Entry};
+use super::params::{ImageBranchParams, RegisterParams, VfmSpec, WfmSpec};
+use super::register::{finish, fpfh_branch, GeoBranch, ImageBranchOutput, Timer, ViewInfo};
+use super::RegistrationResult;
+use crate::dataset::{FrameSet, Scan, ScanPair};
+use crate::error::{Error, Result};
+use crate::features::Features;
+use crate::fusion::{cosine_similarity, match_then_fuse};
+use crate::geometry::PointCloud;
+use crate::vfm::lift::{lift_views, LiftView, PixelLink};
+use crate::vfm::{DenseDescriptors, PerImageModel};
+use crate::wfm::backend::{GenerateRequest, Provenance, WfmBackend};
+use image::RgbImage;
+use nalgebra::Point3;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use serde_json::json;
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex, OnceLock};
+use std::time::Instant;
+
+/// Depth clip used when lifting (reference §4: 5 m).
+const LIFT_MAX_DEPTH: f32 = 5.0;
+
+struct Ctx<'a> {
+    cache: Option<&'a Cache>,
+    timer: Timer,
+    warnings: Vec<String>,
+}
+
+impl Ctx<'_> {
+    /// The cached value for `key` (verified), or `compute` then `store`. A corrupt entry is
+    /// reported in the warnings, removed and recomputed, never used.
+    fn cached<T>(
+        &mut self,
+        key: &CacheKey,
+        load: impl FnOnce(&Entry) -> Result<T>,
+        compute: impl FnOnce() -> Result<T>,
+        store: impl FnOnce(&T, &Cache, &CacheKey) -> Result<()>,
+    ) -> Result<(T, bool)> {
+        if let Some(c) = self.cache {
+            let problem = match c.get(key) {
+                Ok(Some(e)) => match load(&e) {
+                    Ok(v) => return Ok((v, true)),
+                    Err(err) => Some(err.to_string()),
+                },
+                Ok(None) => None,
+                Err(err) => Some(err.to_string()),
+            };
+            if let Some(p) = problem {
+                self.warnings.push(format!(
+                    "cache entry {} is corrupt ({p}); not used, recomputed",
+                    key.short()
+                ));
+                let _ = c.remove(key);
+            }
+        }
+        let v = compute()?;
+        if let Some(c) = self.cache {
+            if let Err(e) = store(&v, c, key) {
+                self.warnings
+                    .push(format!("could not write cache entry {}: {e}", key.short()));
+            }
+        }
+        Ok((v, false))
+    }
+
+    fn stage<T>(
+        &mut self,
+        name: &str,
+        key: &CacheKey,
+        load: impl FnOnce(&Entry) -> Result<T>,
+        compute: impl FnOnce() -> Result<T>,
+        store: impl FnOnce(&T, &Cache, &CacheKey) -> Result<()>,
+    ) -> Result<T> {
+        let t = Instant::now();
+        let (v, hit) = self.cached(key, load, compute, store)?;
+        self.timer.record(name, t.elapsed(), hit);
+        Ok(v)
+    }
+}
+
+fn status_word(hit: bool) -> &'static str {
+    if hit {
+        "cached"
+    } else {
+        "computed"
+    }
+}
+
+/// Content hash of a cloud's points (x, y, z little-endian f32).
+fn cloud_hash(c: &PointCloud) -> String {
+    let mut h = blake3::Hasher::new();
+    for p in &c.points {
+        h.update(&p.x.to_le_bytes());
+        h.update(&p.y.to_le_bytes());
+        h.update(&p.z.to_le_bytes());
+    }
+    h.finalize().to_hex().to_string()
+}
+
+fn points_flat(p: &[Point3<f32>]) -> Vec<f32> {
+    p.iter().flat_map(|q| [q.x, q.y, q.z]).collect()
+}
+
+fn points_from(rows: usize, cols: usize, d: &[f32], what: &Path) -> Result<Vec<Point3<f32>>> {
+    if cols != 3 || d.len() != rows * 3 {
+        return Err(Error::format(
+            what,
+            "shape",
+            "(N, 3)",
+            format!("({rows}, {cols})"),
+        ));
+    }
+    Ok(d.chunks(3).map(|c| Point3::new(c[0], c[1], c[2])).collect())
+}
+
+fn geo_cached(ctx: &mut Ctx, name: &str, scan: &Scan, voxel: f64) -> Result<(GeoBranch, CacheKey)> {
+    let key = CacheKey::new(
+        "geo-fpfh",
+        1,
+        &[&cloud_hash(&scan.cloud)],
+        &json!({ "voxel": voxel, "n_points": scan.cloud.len() }),
+    )?;
+    let g = ctx.stage(
+        name,
+        &key,
+        |e| {
+            let (r, c, d) = e.read_f32_matrix("keypoints.npy")?;
+            let points = points_from(r, c, &d, &e.path("keypoints.npy"))?;
+            let (rn, cn, dn) = e.read_f32_matrix("normals.npy")?;
+            let normals = points_from(rn, cn, &dn, &e.path("normals.npy"))?
+                .into_iter()
+                .map(|p| p.coords)
+                .collect::<Vec<_>>();
+            let features = e.read_features("fpfh.npy")?;
+            if features.len() != points.len() || normals.len() != points.len() {
+                return Err(Error::Cache(format!(
+                    "{}: keypoints, normals and features disagree in length",
+                    e.dir.display()
+                )));
+            }
+            let mut kp = PointCloud::from_points(points);
+            kp.normals = Some(normals);
+            Ok(GeoBranch {
+                keypoints: kp,
+                features,
+                label: format!("fpfh(v={voxel:.3})"),
+            })
+        },
+        || fpfh_branch(&scan.cloud, voxel),
+        |g, c, k| {
+            let mut ne = c.put(k, json!({ "scan": scan.name, "features": g.label }))?;
+            ne.add_f32_matrix(
+                "keypoints.npy",
+                g.keypoints.len(),
+                3,
+                &points_flat(&g.keypoints.points),
+            )?;
+            let normals: Vec<Point3<f32>> = g
+                .keypoints
+                .normals
+                .as_ref()
+                .map(|n| n.iter().map(|v| Point3::from(*v)).collect())
+                .unwrap_or_default();
+            ne.add_f32_matrix("normals.npy", normals.len(), 3, &points_flat(&normals))?;
+            ne.add_features("fpfh.npy", &g.features)?;
+            ne.commit()?;
+            Ok(())
+        },
+    )?;
+    Ok((g, key))
+}
+
+fn frames_of<'a>(scan: &'a Scan, l: usize) -> Result<&'a FrameSet> {
+    let fs = scan.frames.as_ref().ok_or_else(|| {
+        Error::Invalid(format!(
+            "{}: the image branch needs the RGB-D frames the scan was made from (a raw-sequence \
+             fragment, or a cloud with `frames` in the manifest)",
+            scan.name
+        ))
+    })?;
+    if fs.frames.len() < l {
+        return Err(Error::Invalid(format!(
+            "{}: {} frames, but the depth video needs L = {l} per fragment (set \
+             frames_per_fragment / --frames)",
+            scan.name,
+            fs.frames.len()
+        )));
+    }
+    Ok(fs)
+}
+
+#[derive(Serialize, Deserialize)]
+struct VideoMeta {
+    hash: String,
+    frames: usize,
+    width: u32,
+    height: u32,
+}
+
+#[derive(Serialize, Deserialize)]
+struct GenMeta {
+    frames: usize,
+    width: u32,
+    height: u32,
+}
+
+/// Generated frames: in memory when just computed, read lazily from the cache entry on a hit.
+struct GenOut {
+    provenance: Provenance,
+    meta: GenMeta,
+    frames: Option<Vec<RgbImage>>,
+    entry: Option<Entry>,
+}
+
+impl GenOut {
+    fn frame(&self, i: usize) -> Result<RgbImage> {
+        if let Some(f) = &self.frames {
+            return f
+                .get(i)
+                .cloned()
+                .ok_or_else(|| Error::Invalid(format!("generated frame {i} out of range")));
+        }
+        match &self.entry {
+            Some(e) => e.read_png(&frame_name(i)),
+            None => Err(Error::Invalid("generated frames are not available".into())),
+        }
+    }
+}
+
+fn frame_name(i: usize) -> String {
+    format!("frames/{i:05}.png")
+}
+
+fn encode_png_fast(img: &RgbImage) -> Result<Vec<u8>> {
+    use image::codecs::png::{CompressionType, FilterType, PngEncoder};
+    use image::ImageEncoder;
+    let mut buf = Vec::new();
+    PngEncoder::new_with_quality(&mut buf, CompressionType::Fast, FilterType::Sub)
+        .write_image(
+            img.as_raw(),
+            img.width(),
+            img.height(),
+            image::ExtendedColorType::Rgb8,
+        )
+        .map_err(|e| Error::Invalid(format!("encoding a frame as PNG: {e}")))?;
+    Ok(buf)
+}
+
+fn make_backend(spec: &WfmSpec) -> Result<Box<dyn WfmBackend>> {
+    Ok(match spec {
+        WfmSpec::Oracle => Box::new(crate::wfm::oracle::OracleBackend::default()),
+        WfmSpec::Builtin => Box::new(crate::wfm::builtin::DepthShadeBackend::default()),
+        WfmSpec::Cached { dir, spec } => {
+            Box::new(crate::wfm::cached::CachedBackend::open(dir, spec)?)
+        }
+        WfmSpec::Cosmos {
+            command,
+            work_dir,
+            timeout_s,
+        } => Box::new(crate::wfm::cosmos::CosmosBackend::new(
+            crate::wfm::cosmos::CosmosConfig::new(
+                command.clone(),
+                work_dir.clone(),
+                std::time::Duration::from_secs(*timeout_s),
+            ),
+        )?),
+    })
+}
+
+type ModelMap = HashMap<PathBuf, Arc<dyn PerImageModel>>;
+
+/// Models stay loaded for the process (bench registers many pairs with one model).
+fn load_vfm(spec: &VfmSpec) -> Result<Arc<dyn PerImageModel>> {
+    static MODELS: OnceLock<Mutex<ModelMap>> = OnceLock::new();
+    let VfmSpec::Xfeat { model } = spec;
+    let map = MODELS.get_or_init(|| Mutex::new(HashMap::new()));
+    let mut g = map
+        .lock()
+        .map_err(|_| Error::Invalid("VFM model cache poisoned".into()))?;
+    if let Some(m) = g.get(model) {
+        return Ok(m.clone());
+    }
+    let m = load_xfeat(model)?;
+    g.insert(model.clone(), m.clone());
+    Ok(m)
+}
+
+#[cfg(feature = "onnx")]
+fn load_xfeat(path: &Path) -> Result<Arc<dyn PerImageModel>> {
+    Ok(Arc::new(crate::vfm::xfeat::XFeat::load(path)?))
+}
+
+#[cfg(not(feature = "onnx"))]
+fn load_xfeat(path: &Path) -> Result<Arc<dyn PerImageModel>> {
+    Err(Error::Invalid(format!(
+        "the image branch needs XFeat ({}) through ONNX, but cgenreg was built without the \
+         `onnx` feature: rebuild with default features or `--features onnx`",
+        path.display()
+    )))
+}
+
+/// Id of the VFM for cache keys, from the model file's content (no need to load it).
+fn vfm_id(spec: &VfmSpec) -> Result<String> {
+    let VfmSpec::Xfeat { model } = spec;
+    if !model.is_file() {
+        return Err(Error::Invalid(format!(
+            "{}: XFeat ONNX model not found (see models/README.md, or pass --vfm-model)",
+            model.display()
+        )));
+    }
+    Ok(format!("xfeat@{}", &hash_file(model)?[..16]))
+}
+
+#[derive(Serialize, Deserialize)]
+struct GridMeta {
+    width: u32,
+    height: u32,
+    dim: usize,
+    stride_x: f32,
+    stride_y: f32,
+}
+
+type Link = Option<(u16, u32, u32)>;
+
+/// One view of the lift stage's inputs: its depth file hash, pose and intrinsics.
+fn lift_stage(
+    ctx: &mut Ctx,
+    name: &str,
+    geo_key: &CacheKey,
+    keypoints: &[Point3<f32>],
+    fs: &FrameSet,
+    depth_idx: &[usize],
+    radius: f32,
+    image_size: (u32, u32),
+) -> Result<(Vec<Option<PixelLink>>, CacheKey)> {
+    let paths: Vec<&Path> = depth_idx
+        .iter()
+        .map(|&i| {
+            fs.frames
+                .get(i)
+                .map(|f| f.depth_path.as_path())
+                .ok_or_else(|| Error::Invalid(format!("depth frame {i} out of range")))
+        })
+        .collect::<Result<_>>()?;
+    let hashes: Vec<String> = paths
+        .par_iter()
+        .map(|p| hash_file(p))
+        .collect::<Result<_>>()?;
+    let mut inputs: Vec<&str> = vec![geo_key.hash.as_str()];
+    inputs.extend(hashes.iter().map(String::as_str));
+    let k = &fs.intrinsics;
+    let poses: Vec<Vec<f64>> = depth_idx
+        .iter()
+        .map(|&i| {
+            fs.frames[i]
+                .scan_from_camera
+                .to_homogeneous()
+                .as_slice()
+                .to_vec()
+        })
+        .collect();
+    let key = CacheKey::new(
+        "lift",
+        1,
+        &inputs,
+        &json!({
+            "views": depth_idx, "radius": radius, "image_size": image_size,
+            "max_depth": LIFT_MAX_DEPTH, "poses": poses,
+            "intrinsics": [k.fx, k.fy, k.cx, k.cy, k.width as f64, k.height as f64],
+        }),
+    )?;
+    let links: Vec<Link> = ctx.stage(
+        name,
+        &key,
+        |e| {
+            let l: Vec<Link> = e.read_json("links.json")?;
+            if l.len() != keypoints.len() {
+                return Err(Error::Cache(format!(
+                    "{}: {} links for {} keypoints",
+                    e.dir.display(),
+                    l.len(),
+                    keypoints.len()
+                )));
+            }
+            Ok(l)
+        },
+        || {
+            let depths: Vec<crate::io::depth_png::DepthImage> = paths
+                .par_iter()
+                .map(|p| crate::io::depth_png::read_depth_png(p))
+                .collect::<Result<_>>()?;
+            let views: Vec<LiftView> = depths
+                .iter()
+                .zip(depth_idx)
+                .map(|(d, &i)| LiftView {
+                    depth: d,
+                    scan_from_camera: fs.frames[i].scan_from_camera,
+                    intrinsics: *k,
+                })
+                .collect();
+            let l = lift_views(&views, keypoints, radius, image_size, LIFT_MAX_DEPTH)?;
+            Ok(l.into_iter()
+                .map(|o| o.map(|p| (p.view, p.u, p.v)))
+                .collect())
+        },
+        |l, c, k| {
+            let mut ne = c.put(k, json!({ "stage": "lift" }))?;
+            ne.add_json("links.json", l)?;
+            ne.commit()?;
+            Ok(())
+        },
+    )?;
+    Ok((
+        links
+            .into_iter()
+            .map(|o| o.map(|(view, u, v)| PixelLink { view, u, v }))
+            .collect(),
+        key,
+    ))
+}
+
+/// Each keypoint's descriptor at its linked pixel (unit norm), zeros and invalid when unlinked.
+fn point_descriptors(
+    links: &[Option<PixelLink>],
+    grids: &[DenseDescriptors],
+) -> (Features, Vec<bool>) {
+    let dim = grids.first().map_or(0, |g| g.dim);
+    let mut data = vec![0.0f32; links.len() * dim];
+    let mut valid = vec![false; links.len()];
+    data.par_chunks_mut(dim.max(1))
+        .zip(valid.par_iter_mut())
+        .zip(links.par_iter())
+        .for_each(|((row, ok), l)| {
+            if let Some(l) = l {
+                if let Some(g) = grids.get(l.view as usize) {
+                    g.sample_into(l.u as f32, l.v as f32, row);
+                    let n = row.iter().map(|v| v * v).sum::<f32>().sqrt();
+                    if n > 1e-12 {
+                        row.iter_mut().for_each(|v| *v /= n);
+                        *ok = true;
+                    }
+                }
+            }
+        });
+    (Features::new(dim, data), valid)
+}
+
+fn short_prompt(p: &crate::wfm::Prompt) -> String {
+    let s = p.scene.trim();
+    let mut out: String = s.chars().take(40).collect();
+    if s.chars().count() > 40 {
+        out.push('…');
+    }
+    if out.is_empty() {
+        "(empty prompt)".into()
+    } else {
+        format!("\"{out}\"")
+    }
+}
+
+/// The full method on one pair; `cache` None computes everything in memory.
+pub fn register_with_image(
+    pair: &ScanPair,
+    params: &RegisterParams,
+    ib: &ImageBranchParams,
+    cache: Option<&Cache>,
+) -> Result<RegistrationResult> {
+    if !matches!(params.geo_features, super::params::GeoFeatureSource::Fpfh) {
+        return Err(Error::Invalid(
+            "the image branch is wired to the FPFH geometric branch; learned geometric \
+             features with the image branch are not supported yet"
+                .into(),
+        ));
+    }
+    let mut ctx = Ctx {
+        cache,
+        timer: Timer::new(),
+        warnings: Vec::new(),
+    };
+    let l = ib.frames_per_fragment;
+    let src_fs = frames_of(&pair.source, l)?;
+    let tgt_fs = frames_of(&pair.target, l)?;
+    // Fail early on bad K / m (before anything expensive).
+    let sel = crate::wfm::select_views(2 * l, l, ib.margin, ib.k)?;
+    let vfm_id = vfm_id(&ib.vfm)?;
+
+    // Geometric branch (dense path: the image branch needs the N x M similarity).
+    let (src_geo, src_geo_key) = geo_cached(&mut ctx, "fpfh source", &pair.source, params.voxel)?;
+    let (tgt_geo, tgt_geo_key) = geo_cached(&mut ctx, "fpfh target", &pair.target, params.voxel)?;
+
+    // Depth video.
+    let src_paths: Vec<PathBuf> = src_fs.frames[..l]
+        .iter()
+        .map(|f| f.depth_path.clone())
+        .collect();
+    let tgt_paths: Vec<PathBuf> = tgt_fs.frames[..l]
+        .iter()
+        .map(|f| f.depth_path.clone())
+        .collect();
+    let t = Instant::now();
+    let depth_hashes: Vec<String> = src_paths
+        .par_iter()
+        .chain(tgt_paths.par_iter())
+        .map(|p| hash_file(p))
+        .collect::<Result<_>>()?;
+    let dh: Vec<&str> = depth_hashes.iter().map(String::as_str).collect();
+    let video_key = CacheKey::new("depth-video", 1, &dh, &json!({ "L": l }))?;
+    let mut video_frames: Option<Vec<RgbImage>> = None;
+    let (vmeta, hit) = ctx.cached(
+        &video_key,
+        |e| e.read_json::<VideoMeta>("video.json"),
+        || {
+            let frames = crate::wfm::depth_video::pair_video_from_files(&src_paths, &tgt_paths)?;
+            let mut h = blake3::Hasher::new();
+            for f in &frames {
+                h.update(&f.width().to_le_bytes());
+                h.update(&f.height().to_le_bytes());
+                h.update(f.as_raw());
+            }
+            let m = VideoMeta {
+                hash: h.finalize().to_hex().to_string(),
+                frames: frames.len(),
+                width: frames.first().map_or(0, |f| f.width()),
+                height: frames.first().map_or(0, |f| f.height()),
+            };
+            video_frames = Some(frames);
+            Ok(m)
+        },
+        |m, c, k| {
+            let mut ne = c.put(
+                k,
+                json!({ "L": l, "source": pair.source.name, "target": pair.target.name }),
+            )?;
+            ne.add_json("video.json", m)?;
+            ne.commit()?;
+            Ok(())
+        },
+    )?;
+    ctx.timer.record("depth video", t.elapsed(), hit);
+
+    // Generation.
+    let backend = make_backend(&ib.backend)?;
+    let backend_id = backend.id();
+    let is_oracle = matches!(ib.backend, WfmSpec::Oracle);
+    let colour = |fs: &FrameSet| -> Option<Vec<PathBuf>> {
+        fs.frames[..l]
+            .iter()
+            .map(|f| f.color_path.clone())
+            .collect()
+    };
+    let (src_col, tgt_col) = (colour(src_fs), colour(tgt_fs));
+    let mut gen_inputs = vec![vmeta.hash.clone()];
+    if is_oracle {
+        // The oracle's output is the colour frames, so they (not the depth) key it.
+        let (Some(s), Some(t)) = (&src_col, &tgt_col) else {
+            return Err(Error::Invalid(format!(
+                "oracle backend: pair `{}` has no colour frames",
+                pair.id
+            )));
+        };
+        let h: Vec<String> = s
+            .par_iter()
+            .chain(t.par_iter())
+            .map(|p| hash_file(p))
+            .collect::<Result<_>>()?;
+        gen_inputs.extend(h);
+    }
+    let gi: Vec<&str> = gen_inputs.iter().map(String::as_str).collect();
+    let prompt_text = ib.prompt.text();
+    let gen_key = CacheKey::new(
+        "generation",
+        1,
+        &gi,
+        &json!({ "backend": backend_id, "prompt": prompt_text, "seed": ib.seed }),
+    )?;
+    let t = Instant::now();
+    let (gen, hit) = ctx.cached(
+        &gen_key,
+        |e| {
+            let provenance: Provenance = e.read_json("provenance.json")?;
+            let meta: GenMeta = e.read_json("meta.json")?;
+            if (0..meta.frames).any(|i| !e.manifest.files.iter().any(|f| f.name == frame_name(i))) {
+                return Err(Error::Cache(format!("{}: frames missing", e.dir.display())));
+            }
+            Ok(GenOut {
+                provenance,
+                meta,
+                frames: None,
+                entry: Some(e.clone()),
+            })
+        },
+        || {
+            let depth_video = match video_frames.take() {
+                Some(f) => f,
+                None if is_oracle => Vec::new(),
+                None => crate::wfm::depth_video::pair_video_from_files(&src_paths, &tgt_paths)?,
+            };
+            let req = GenerateRequest {
+                pair_id: pair.id.clone(),
+                depth_video,
+                depth_video_path: None,
+                prompt: ib.prompt.clone(),
+                seed: ib.seed,
+                source_color: src_col.clone(),
+                target_color: tgt_col.clone(),
+            };
+            let g = backend.generate(&req)?;
+            if g.frames.len() < 2 * l {
+                return Err(Error::External {
+                    what: backend_id.clone(),
+                    message: format!("returned {} frames, {} needed", g.frames.len(), 2 * l),
+                });
+            }
+            let (w, h) = g.frames[0].dimensions();
+            if g.frames.iter().any(|f| f.dimensions() != (w, h)) {
+                return Err(Error::External {
+                    what: backend_id.clone(),
+                    message: "frames of different sizes".into(),
+                });
+            }
+            Ok(GenOut {
+                meta: GenMeta {
+                    frames: g.frames.len(),
+                    width: w,
+                    height: h,
+                },
+                provenance: g.provenance,
+                frames: Some(g.frames),
+                entry: None,
+            })
+        },
+        |g, c, k| {
+            let frames = g
+                .frames
+                .as_ref()
+                .ok_or_else(|| Error::Invalid("no frames".into()))?;
+            let pngs: Vec<Vec<u8>> = frames
+                .par_iter()
+                .map(encode_png_fast)
+                .collect::<Result<_>>()?;
+            let prov = serde_json::to_value(&g.provenance)
+                .map_err(|e| Error::Invalid(format!("provenance: {e}")))?;
+            let mut ne = c.put(k, prov)?;
+            for (i, b) in pngs.iter().enumerate() {
+                ne.add_bytes(&frame_name(i), b)?;
+            }
+            ne.add_json("provenance.json", &g.provenance)?;
+            ne.add_json("meta.json", &g.meta)?;
+            ne.commit()?;
+            Ok(())
+        },
+    )?;
+    ctx.timer.record("generation", t.elapsed(), hit);
+    let image_size = (gen.meta.width, gen.meta.height);
+
+    // View selection on the actual video length.
+    let t = Instant::now();
+    let sel = if gen.meta.frames == 2 * l {
+        sel
+    } else {
+        crate::wfm::select_views(gen.meta.frames, l, ib.margin, ib.k)?
+    };
+    ctx.timer.record("view selection", t.elapsed(), false);
+
+    // VFM descriptors per selected view.
+    let mut model: Option<Arc<dyn PerImageModel>> = None;
+    let mut describe_side = |ctx: &mut Ctx,
+                             name: &str,
+                             idx: &[usize]|
+     -> Result<(Vec<DenseDescriptors>, Vec<RgbImage>, Vec<String>)> {
+        let t = Instant::now();
+        let mut all_hit = true;
+        let mut grids = Vec::new();
+        let mut images = Vec::new();
+        let mut keys = Vec::new();
+        for &gi in idx {
+            let img = gen.frame(gi)?;
+            let key = CacheKey::new(
+                "vfm-view",
+                1,
+                &[&gen_key.hash],
+                &json!({ "frame": gi, "vfm": vfm_id }),
+            )?;
+            let (g, hit) = ctx.cached(
+                &key,
+                |e| {
+                    let m: GridMeta = e.read_json("grid.json")?;
+                    let (_, _, d) = e.read_f32_matrix("desc.npy")?;
+                    DenseDescriptors::new(m.width, m.height, m.dim, d, m.stride_x, m.stride_y)
+                },
+                || {
+                    if model.is_none() {
+                        model = Some(load_vfm(&ib.vfm)?);
+                    }
+                    match &model {
+                        Some(m) => m.describe(&img),
+                        None => Err(Error::Invalid("VFM not loaded".into())),
+                    }
+                },
+                |g, c, k| {
+                    let mut ne = c.put(k, json!({ "vfm": vfm_id, "frame": gi }))?;
+                    ne.add_json(
+                        "grid.json",
+                        &GridMeta {
+                            width: g.width,
+                            height: g.height,
+                            dim: g.dim,
+                            stride_x: g.stride_x,
+                            stride_y: g.stride_y,
+                        },
+                    )?;
+                    ne.add_f32_matrix("desc.npy", (g.width * g.height) as usize, g.dim, &g.data)?;
+                    ne.commit()?;
+                    Ok(())
+                },
+            )?;
+            all_hit &= hit;
+            grids.push(g);
+            images.push(img);
+            keys.push(key.hash);
+        }
+        ctx.timer.record(name, t.elapsed(), all_hit);
+        Ok((grids, images, keys))
+    };
+    let (src_grids, src_imgs, src_vkeys) =
+        describe_side(&mut ctx, "vfm source views", &sel.src_generated)?;
+    let (tgt_grids, tgt_imgs, tgt_vkeys) =
+        describe_side(&mut ctx, "vfm target views", &sel.tgt_generated)?;
+    let vfm_label = match &model {
+        Some(_) => format!("{vfm_id} ({})", crate::vfm::backend_name()),
+        None => format!("{vfm_id} (descriptors from the cache)"),
+    };
+
+    // Lifting, over all K views, radius 5 cm.
+    let (src_links, src_lift_key) = lift_stage(
+        &mut ctx,
+        "lift source",
+        &src_geo_key,
+        &src_geo.keypoints.points,
+        src_fs,
+        &sel.src_depth,
+        ib.lift_radius,
+        image_size,
+    )?;
+    let (tgt_links, tgt_lift_key) = lift_stage(
+        &mut ctx,
+        "lift target",
+        &tgt_geo_key,
+        &tgt_geo.keypoints.points,
+        tgt_fs,
+        &sel.tgt_depth,
+        ib.lift_radius,
+        image_size,
+    )?;
+
+    // Per-keypoint image descriptors.
+    let mut pk: Vec<&str> = vec![&src_lift_key.hash, &tgt_lift_key.hash];
+    pk.extend(src_vkeys.iter().map(String::as_str));
+    pk.extend(tgt_vkeys.iter().map(String::as_str));
+    let pkey = CacheKey::new("image-points", 1, &pk, &json!({ "sample": "bilinear-l2" }))?;
+    type Pts = (Features, Vec<bool>, Features, Vec<bool>);
+    let (f_src, v_src, f_tgt, v_tgt): Pts = ctx.stage(
+        "image point features",
+        &pkey,
+        |e| {
+            let fs = e.read_features("source.npy")?;
+            let ft = e.read_features("target.npy")?;
+            let (vs, vt): (Vec<bool>, Vec<bool>) = e.read_json("valid.json")?;
+            if fs.len() != src_links.len()
+                || ft.len() != tgt_links.len()
+                || vs.len() != fs.len()
+                || vt.len() != ft.len()
+            {
+                return Err(Error::Cache(format!(
+                    "{}: sizes disagree with the keypoints",
+                    e.dir.display()
+                )));
+            }
+            Ok((fs, vs, ft, vt))
+        },
+        || {
+            let (fs, vs) = point_descriptors(&src_links, &src_grids);
+            let (ft, vt) = point_descriptors(&tgt_links, &tgt_grids);
+            Ok((fs, vs, ft, vt))
+        },
+        |(fs, vs, ft, vt), c, k| {
+            let mut ne = c.put(k, json!({ "stage": "image-points" }))?;
+            ne.add_features("source.npy", fs)?;
+            ne.add_features("target.npy", ft)?;
+            ne.add_json("valid.json", &(vs, vt))?;
+            ne.commit()?;
+            Ok(())
+        },
+    )?;
+
+    // Similarities, calibration, fusion, selection: in memory.
+    let t = Instant::now();
+    let s_img = cosine_similarity(&f_src, &f_tgt)?;
+    let s_geo = cosine_similarity(&src_geo.features, &tgt_geo.features)?;
+    ctx.timer.record("similarity", t.elapsed(), false);
+    let t = Instant::now();
+    let fused = match_then_fuse(
+        Some((&s_img, Some(&v_src), Some(&v_tgt))),
+        Some(&s_geo),
+        &params.fusion,
+    )?;
+    drop((s_img, s_geo));
+    ctx.timer.record("fusion", t.elapsed(), false);
+
+    let n_valid = (
+        v_src.iter().filter(|v| **v).count(),
+        v_tgt.iter().filter(|v| **v).count(),
+    );
+    let label = format!(
+        "{} + {} (K={}, m={}, L={}; {} / {} source / target keypoints with a pixel; fusion {:?})",
+        gen.provenance.backend,
+        vfm_id,
+        ib.k,
+        ib.margin,
+        l,
+        n_valid.0,
+        n_valid.1,
+        params.fusion.mode
+    );
+    let view_label = format!(
+        "{} | {} | cache {}",
+        gen.provenance.backend,
+        short_prompt(&ib.prompt),
+        &gen_key.hash[..8]
+    );
+    let views = |imgs: Vec<RgbImage>, gen_idx: &[usize], depth_idx: &[usize]| -> Vec<ViewInfo> {
+        imgs.into_iter()
+            .zip(gen_idx.iter().zip(depth_idx))
+            .map(|(image, (&g, &d))| ViewInfo {
+                image,
+                generated_index: g,
+                depth_index: d,
+                label: view_label.clone(),
+            })
+            .collect()
+    };
+    let output = ImageBranchOutput {
+        source_views: views(src_imgs, &sel.src_generated, &sel.src_depth),
+        target_views: views(tgt_imgs, &sel.tgt_generated, &sel.tgt_depth),
+        source_links: src_links,
+        target_links: tgt_links,
+        provenance: gen.provenance.clone(),
+        vfm: vfm_label,
+    };
+    let Ctx {
+        timer, warnings, ..
+    } = ctx;
+    let mut res = finish(
+        pair,
+        params,
+        timer,
+        src_geo,
+        tgt_geo,
+        fused.correspondences,
+        Some(label),
+    )?;
+    res.warnings.extend(warnings);
+    res.warnings.extend(gen.provenance.warnings.iter().cloned());
+    res.image = Some(output);
+    Ok(res)
+}
+
+/// The default cache directory: `$CGENREG_CACHE`, else `~/.cache/cgenreg`.
+pub fn default_cache_dir() -> PathBuf {
+    if let Some(d) = std::env::var_os("CGENREG_CACHE").filter(|d| !d.is_empty()) {
+        return PathBuf::from(d);
+    }
+    match std::env::var_os("HOME").filter(|d| !d.is_empty()) {
+        Some(h) => PathBuf::from(h).join(".cache").join("cgenreg"),
+        None => PathBuf::from(".cgenreg-cache"),
+    }
+}
+
+/// `status_word` for callers that count hits.
+pub fn is_cached(status: &str) -> bool {
+    status == status_word(true)
+}

@@ -1,0 +1,174 @@
+//! The full method (built-in generator + XFeat) on the bundled synthetic demo: end to end, cache
+//! hits on a second run, only fusion onward recomputed after a temperature change, and a
+//! corrupted cache entry reported and recomputed, never used.
+#![cfg(feature = "onnx")]
+
+use cgenreg::dataset::Dataset;
+use cgenreg::fusion::Calibration;
+use cgenreg::pipeline::cache::Cache;
+use cgenreg::pipeline::{register_pair_cached, ImageBranchParams, RegisterParams, WfmSpec};
+use std::path::Path;
+
+/// Stages read from the cache on a repeat run (everything before the similarities).
+const CACHED: &[&str] = &[
+    "fpfh source",
+    "fpfh target",
+    "depth video",
+    "generation",
+    "vfm source views",
+    "vfm target views",
+    "lift source",
+    "lift target",
+    "image point features",
+];
+
+fn params() -> RegisterParams {
+    let mut p = RegisterParams::default();
+    // The demo room is small and dense (fragment voxel 1 cm).
+    p.voxel = 0.05;
+    p.image = Some(ImageBranchParams {
+        backend: WfmSpec::Builtin,
+        // The demo has 8 frames per sequence: L = 8, m = 1, K = 2 views ([0, 3] / [1, 4]).
+        frames_per_fragment: 8,
+        margin: 1,
+        k: 2,
+        ..Default::default()
+    });
+    p
+}
+
+fn status(r: &cgenreg::pipeline::RegistrationResult, stage: &str) -> String {
+    r.timings
+        .iter()
+        .find(|t| t.stage == stage)
+        .unwrap_or_else(|| panic!("no stage {stage} in {:?}", r.timings))
+        .status
+        .clone()
+}
+
+#[test]
+fn full_method_on_demo_with_cache() {
+    let manifest = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/demo/demo.toml");
+    let ds = Dataset::load(&manifest).unwrap();
+    let id = ds.pairs()[0].id.clone();
+    let pair = ds.load_pair(&id).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let cache = Cache::open(dir.path()).unwrap();
+    let p = params();
+
+    // 1. End to end, everything computed.
+    let r1 = register_pair_cached(&pair, &p, Some(&cache)).unwrap();
+    for s in CACHED {
+        assert_eq!(status(&r1, s), "computed", "{s}");
+    }
+    let img = r1.image.as_ref().expect("image branch output");
+    assert_eq!(img.source_views.len(), 2);
+    assert_eq!(
+        img.source_views
+            .iter()
+            .map(|v| v.generated_index)
+            .collect::<Vec<_>>(),
+        vec![0, 3]
+    );
+    assert_eq!(
+        img.target_views
+            .iter()
+            .map(|v| v.depth_index)
+            .collect::<Vec<_>>(),
+        vec![1, 4]
+    );
+    assert!(img.source_views[0]
+        .label
+        .starts_with("builtin-depthshade-v1 | "));
+    assert!(img.source_views[0].label.contains("| cache "));
+    assert!(img.vfm.starts_with("xfeat@"));
+    let linked = img.source_links.iter().filter(|l| l.is_some()).count();
+    assert!(
+        linked * 2 > img.source_links.len(),
+        "most source keypoints should have a pixel: {linked}/{}",
+        img.source_links.len()
+    );
+    assert!(r1.image_branch.is_some());
+    assert!(r1.n_correspondences > 0);
+    let m = r1.metrics.as_ref().unwrap();
+    assert!(m.rre_deg.is_finite() && m.rte_m.is_finite());
+    eprintln!(
+        "demo: RRE {:.2} deg RTE {:.3} m, {} correspondences; timings {:?}",
+        m.rre_deg, m.rte_m, r1.n_correspondences, r1.timings
+    );
+
+    // 2. Same parameters: every stage up to the similarities is a cache hit, same pose.
+    let r2 = register_pair_cached(&pair, &p, Some(&cache)).unwrap();
+    for s in CACHED {
+        assert_eq!(status(&r2, s), "cached", "{s}");
+    }
+    assert_eq!(r1.target_from_source, r2.target_from_source);
+    assert_eq!(r1.correspondences, r2.correspondences);
+
+    // 3. A changed temperature: only similarity / fusion / estimate run again.
+    let mut p3 = p.clone();
+    p3.fusion.calibration_img = Calibration::RowSoftmax { tau: 0.05 };
+    let r3 = register_pair_cached(&pair, &p3, Some(&cache)).unwrap();
+    for s in CACHED {
+        assert_eq!(status(&r3, s), "cached", "{s}");
+    }
+    for s in ["similarity", "fusion", "estimate"] {
+        assert_eq!(status(&r3, s), "computed", "{s}");
+    }
+
+    // 4. Corrupt one VFM descriptor entry: it is reported, recomputed, and the result is as
+    // before (the corrupt bytes are never used).
+    let vfm_dir = dir.path().join("vfm-view");
+    let entry = std::fs::read_dir(&vfm_dir)
+        .unwrap()
+        .next()
+        .unwrap()
+        .unwrap()
+        .path();
+    let desc = entry.join("desc.npy");
+    let mut bytes = std::fs::read(&desc).unwrap();
+    let n = bytes.len();
+    for b in &mut bytes[n - 64..] {
+        *b ^= 0x5a;
+    }
+    std::fs::write(&desc, bytes).unwrap();
+    let r4 = register_pair_cached(&pair, &p, Some(&cache)).unwrap();
+    assert!(
+        r4.warnings
+            .iter()
+            .any(|w| w.contains("corrupt") && w.contains("vfm-view")),
+        "{:?}",
+        r4.warnings
+    );
+    let side_statuses = [
+        status(&r4, "vfm source views"),
+        status(&r4, "vfm target views"),
+    ];
+    assert!(
+        side_statuses.iter().any(|s| s == "computed"),
+        "{side_statuses:?}"
+    );
+    assert_eq!(r4.target_from_source, r1.target_from_source);
+    // The entry was rewritten and verifies again.
+    assert!(cache.verify_all().unwrap().iter().all(|r| r.result.is_ok()));
+}
+
+#[test]
+fn invalid_k_is_a_clear_error() {
+    let manifest = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/demo/demo.toml");
+    let ds = Dataset::load(&manifest).unwrap();
+    let pair = ds.load_pair(&ds.pairs()[0].id.clone()).unwrap();
+    let mut p = params();
+    p.image.as_mut().unwrap().k = 9;
+    let e = register_pair_cached(&pair, &p, None)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("K = 9"), "{e}");
+    // L larger than the fragment's frames.
+    let mut p = params();
+    p.image.as_mut().unwrap().frames_per_fragment = 50;
+    let e = register_pair_cached(&pair, &p, None)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("L = 50"), "{e}");
+}
