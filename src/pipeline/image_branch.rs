@@ -315,7 +315,7 @@ fn load_xfeat(path: &Path) -> Result<Arc<dyn PerImageModel>> {
 fn load_xfeat(path: &Path) -> Result<Arc<dyn PerImageModel>> {
     Err(Error::Invalid(format!(
         "the image branch needs XFeat ({}) through ONNX, but cgenreg was built without the \
-         `onnx` feature: rebuild with default features or `--features onnx`",
+         `onnx` feature: rebuild with `--features onnx`",
         path.display()
     )))
 }

@@ -7,4 +7,7 @@ pub mod params;
 pub mod register;
 
 pub use params::{ImageBranchParams, RegisterParams, VfmSpec, WfmSpec};
-pub use register::{register_pair, register_pair_cached, ImageBranchOutput, RegistrationResult, StageTiming, ViewInfo};
+pub use register::{
+    register_pair, register_pair_cached, ImageBranchOutput, RegistrationResult, StageTiming,
+    ViewInfo,
+};
