@@ -13,7 +13,7 @@ pub struct Features {
 
 impl Features {
     pub fn new(dim: usize, data: Vec<f32>) -> Self {
-        debug_assert!(dim == 0 || data.len() % dim == 0);
+        debug_assert!(dim == 0 || data.len().is_multiple_of(dim));
         Features { dim, data }
     }
     pub fn len(&self) -> usize {

@@ -41,7 +41,7 @@ fn parse_blocks(path: &Path, text: &str, rows: usize, cols: usize) -> Result<Vec
         .enumerate()
         .filter(|(_, l)| !l.trim().is_empty())
         .collect();
-    if lines.len() % (rows + 1) != 0 {
+    if !lines.len().is_multiple_of(rows + 1) {
         return Err(Error::format(
             path,
             "layout",

@@ -14,7 +14,7 @@ pub fn read_kitti_bin(path: &Path) -> Result<PointCloud> {
 
 /// Parse KITTI bytes; `path` is used only in error messages.
 pub fn parse_kitti_bin(path: &Path, bytes: &[u8]) -> Result<PointCloud> {
-    if bytes.len() % 16 != 0 {
+    if !bytes.len().is_multiple_of(16) {
         return Err(Error::format(
             path,
             "length",

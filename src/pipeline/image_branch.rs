@@ -191,7 +191,7 @@ fn geo_cached(ctx: &mut Ctx, name: &str, scan: &Scan, voxel: f64) -> Result<(Geo
     Ok((g, key))
 }
 
-fn frames_of<'a>(scan: &'a Scan, l: usize) -> Result<&'a FrameSet> {
+fn frames_of(scan: &Scan, l: usize) -> Result<&FrameSet> {
     let fs = scan.frames.as_ref().ok_or_else(|| {
         Error::Invalid(format!(
             "{}: the image branch needs the RGB-D frames the scan was made from (a raw-sequence \

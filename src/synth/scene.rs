@@ -167,7 +167,7 @@ impl Texture {
                     let hi = 0.92 - 0.2 * unit(hash64(h.rotate_left(sh)));
                     f[k] > lo && f[k] < hi
                 };
-                if h % 5 != 0 && inset(axes[0], 3) && inset(axes[1], 17) {
+                if !h.is_multiple_of(5) && inset(axes[0], 3) && inset(axes[1], 17) {
                     PALETTE[(h >> 7) as usize % PALETTE.len()]
                 } else {
                     base
