@@ -105,15 +105,7 @@ impl KdIndex {
         max_nn: usize,
         out: &mut Vec<(usize, f32)>,
     ) {
-        out.clear();
-        if max_nn == 0 {
-            return;
-        }
-        self.within_sq_into(q, radius, out);
-        if out.len() > max_nn {
-            out.select_nth_unstable_by(max_nn - 1, |a, b| a.1.total_cmp(&b.1));
-            out.truncate(max_nn);
-        }
+        self.hybrid_sq_unsorted_into(q, radius, max_nn, out);
         out.sort_unstable_by(|a, b| a.1.total_cmp(&b.1));
         out.iter_mut().for_each(|e| e.1 = e.1.sqrt());
     }

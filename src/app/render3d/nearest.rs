@@ -51,24 +51,8 @@ impl CappedNearest {
 
     /// Distance to the nearest stored point, or the cap when none is closer.
     pub fn distance(&self, q: [f32; 3]) -> f32 {
-        let k = key(&q, self.cell);
-        let mut best = self.cell * self.cell;
-        for dx in -1..=1 {
-            for dy in -1..=1 {
-                for dz in -1..=1 {
-                    if let Some(ids) = self.grid.get(&[k[0] + dx, k[1] + dy, k[2] + dz]) {
-                        for &i in ids {
-                            let p = self.points[i as usize];
-                            let d = (p[0] - q[0]).powi(2)
-                                + (p[1] - q[1]).powi(2)
-                                + (p[2] - q[2]).powi(2);
-                            best = best.min(d);
-                        }
-                    }
-                }
-            }
-        }
-        best.sqrt()
+        // A point at exactly the cap is not "closer", and the cap is returned either way.
+        self.nearest(q).map_or(self.cell, |(_, d)| d)
     }
 }
 
