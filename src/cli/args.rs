@@ -283,6 +283,19 @@ impl ImageArgs {
     }
 
     /// The stage cache, None with --no-cache.
+    /// Where fragments rebuilt from raw RGB-D frames are cached (None with `--no-cache`).
+    pub fn fragment_cache_dir(&self) -> Option<PathBuf> {
+        if self.no_cache {
+            return None;
+        }
+        Some(
+            self.cache_dir
+                .clone()
+                .unwrap_or_else(crate::pipeline::image_branch::default_cache_dir)
+                .join("fragments"),
+        )
+    }
+
     pub fn open_cache(&self) -> crate::Result<Option<Cache>> {
         if self.no_cache {
             return Ok(None);

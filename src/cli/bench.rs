@@ -1,4 +1,5 @@
 use super::args::{ImageArgs, PipelineArgs};
+use crate::dataset::fragment_cache::FragmentCacheStatus;
 use crate::dataset::manifest::Dataset;
 use crate::error::{Error, Result};
 use crate::metrics::{PairMetrics, Summary};
@@ -61,7 +62,7 @@ struct SplitSummary {
 }
 
 pub fn run(a: BenchArgs) -> Result<()> {
-    let ds = Dataset::load(&a.manifest)?;
+    let ds = Dataset::load(&a.manifest)?.with_fragment_cache(a.image.fragment_cache_dir());
     let mut specs: Vec<_> = ds
         .pairs()
         .iter()
@@ -105,9 +106,30 @@ pub fn run(a: BenchArgs) -> Result<()> {
     for spec in &specs {
         bar.set_message(spec.id.clone());
         let t = std::time::Instant::now();
-        let res = ds
-            .load_pair(&spec.id)
-            .and_then(|pair| register_pair_cached(&pair, &params, cache.as_ref()));
+        let res = ds.load_pair_status(&spec.id).and_then(|(pair, st)| {
+            let load_ms = t.elapsed().as_secs_f64() * 1e3;
+            for s in st.iter().flatten() {
+                if let FragmentCacheStatus::Rebuilt(why) = s {
+                    bar.println(format!(
+                        "{}: warning: fragment cache: {why} (rebuilt)",
+                        spec.id
+                    ));
+                    warnings += 1;
+                }
+            }
+            let loaded = st.iter().flatten().all(|s| *s == FragmentCacheStatus::Hit)
+                && st.iter().any(|s| s.is_some());
+            let mut r = register_pair_cached(&pair, &params, cache.as_ref())?;
+            r.timings.insert(
+                0,
+                crate::pipeline::StageTiming {
+                    stage: "load pair".into(),
+                    ms: load_ms,
+                    status: if loaded { "cached" } else { "computed" }.into(),
+                },
+            );
+            Ok(r)
+        });
         let time_s = t.elapsed().as_secs_f64();
         let row = match res {
             Ok(r) => {
@@ -214,7 +236,7 @@ pub fn run(a: BenchArgs) -> Result<()> {
             time_per_pair_s: tpp,
         });
     }
-    if params.image.is_some() {
+    {
         println!();
         println!("| stage | total s | cached | computed |");
         println!("|---|---|---|---|");
@@ -226,6 +248,10 @@ pub fn run(a: BenchArgs) -> Result<()> {
             cache
                 .as_ref()
                 .map(|c| c.root().display().to_string())
+                .or_else(|| ds
+                    .fragment_cache
+                    .as_ref()
+                    .map(|d| format!("fragments only: {}", d.display())))
                 .unwrap_or_else(|| "off".into()),
             if warnings > 0 {
                 format!("; {warnings} cache problems reported above")

@@ -6,6 +6,7 @@ mod cache;
 #[cfg(feature = "gui")]
 mod gui;
 mod register;
+mod table;
 
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
@@ -27,6 +28,8 @@ pub enum Command {
     Register(register::RegisterArgs),
     /// Register every pair of a dataset manifest and print the paper-style table.
     Bench(bench::BenchArgs),
+    /// Several `bench --json` results as one table in the layout of the paper's Table 4.
+    Table(table::TableArgs),
     /// List, verify or remove cache entries.
     Cache(cache::CacheArgs),
     /// Open the inspector GUI (the default command; the bundled demo pair when no data is given).
@@ -43,6 +46,7 @@ pub fn main() -> ExitCode {
         Some(Command::Register(a)) => register::run(a),
         Some(Command::Bench(a)) => bench::run(a),
         Some(Command::Cache(a)) => cache::run(a),
+        Some(Command::Table(a)) => table::run(a),
         #[cfg(feature = "gui")]
         Some(Command::Inspect(a)) => gui::run_inspect(a),
         #[cfg(feature = "gui")]

@@ -1,4 +1,5 @@
 use super::args::{ImageArgs, PipelineArgs};
+use crate::dataset::fragment_cache::FragmentCacheStatus;
 use crate::dataset::manifest::Dataset;
 use crate::dataset::ScanPair;
 use crate::error::{Error, Result};
@@ -32,10 +33,25 @@ pub struct RegisterArgs {
     pub image: ImageArgs,
 }
 
-pub(crate) fn load_pair(a: &RegisterArgs) -> Result<ScanPair> {
+/// The pair, and whether its clouds came from the fragment cache (None: no cache involved).
+pub(crate) fn load_pair(a: &RegisterArgs) -> Result<(ScanPair, Option<bool>)> {
     match (&a.source, &a.target, &a.manifest, &a.pair) {
-        (Some(s), Some(t), _, _) => crate::dataset::pair_from_files(s, t, a.gt.as_deref()),
-        (_, _, Some(m), Some(id)) => Dataset::load(m)?.load_pair(id),
+        (Some(s), Some(t), _, _) => {
+            crate::dataset::pair_from_files(s, t, a.gt.as_deref()).map(|p| (p, None))
+        }
+        (_, _, Some(m), Some(id)) => {
+            let (p, st) = Dataset::load(m)?
+                .with_fragment_cache(a.image.fragment_cache_dir())
+                .load_pair_status(id)?;
+            for s in st.iter().flatten() {
+                if let FragmentCacheStatus::Rebuilt(why) = s {
+                    eprintln!("warning: fragment cache: {why} (rebuilt)");
+                }
+            }
+            let hit = (st.iter().any(|s| s.is_some()))
+                .then(|| st.iter().flatten().all(|s| *s == FragmentCacheStatus::Hit));
+            Ok((p, hit))
+        }
         _ => Err(Error::Invalid(
             "give --source and --target, or --manifest and --pair".into(),
         )),
@@ -44,7 +60,7 @@ pub(crate) fn load_pair(a: &RegisterArgs) -> Result<ScanPair> {
 
 pub fn run(a: RegisterArgs) -> Result<()> {
     let t0 = std::time::Instant::now();
-    let pair = load_pair(&a)?;
+    let (pair, load_hit) = load_pair(&a)?;
     let load_ms = t0.elapsed().as_secs_f64() * 1e3;
     let mut params = a.pipeline.to_params(a.image.wfm.is_some());
     params.image = a.image.to_image_params()?;
@@ -59,7 +75,10 @@ pub fn run(a: RegisterArgs) -> Result<()> {
         crate::pipeline::StageTiming {
             stage: "load pair".into(),
             ms: load_ms,
-            status: "computed".into(),
+            status: match load_hit {
+                Some(true) => "cached".into(),
+                _ => "computed".into(),
+            },
         },
     );
     res.total_ms += load_ms;

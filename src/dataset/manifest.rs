@@ -39,6 +39,7 @@
 //! (p_target = T * p_source), as in gt.log. Every error names the manifest file and the field.
 
 use super::fragment::{build_fragment_with, fragment_frames, CropBox, FragmentOptions};
+use super::fragment_cache::{build_fragment_cached, FragmentCacheStatus};
 use super::{Scan, ScanPair};
 use crate::error::{Error, Result};
 use crate::geometry::transform::isometry_from_matrix;
@@ -149,6 +150,8 @@ pub struct Dataset {
     pub root: PathBuf,
     pub(crate) fragments: Vec<FragmentSpec>,
     pub(crate) pairs: Vec<PairSpec>,
+    /// Where fragments built from raw RGB-D frames are cached (None: rebuilt every time).
+    pub fragment_cache: Option<PathBuf>,
 }
 
 fn bad(
@@ -544,6 +547,7 @@ impl Dataset {
             root,
             fragments,
             pairs,
+            fragment_cache: None,
         })
     }
 
@@ -577,8 +581,19 @@ impl Dataset {
             .unwrap_or_else(|| self.root.display().to_string())
     }
 
-    /// Load (or build) one fragment. Nothing is cached.
+    /// Cache fragments built from raw frames under `dir` (see [`super::fragment_cache`]).
+    pub fn with_fragment_cache(mut self, dir: Option<PathBuf>) -> Self {
+        self.fragment_cache = dir;
+        self
+    }
+
+    /// Load (or build) one fragment.
     pub fn load_fragment(&self, id: &str) -> Result<Scan> {
+        self.load_fragment_status(id).map(|(s, _)| s)
+    }
+
+    /// [`Self::load_fragment`], with how the fragment cache was used (None: no cache involved).
+    pub fn load_fragment_status(&self, id: &str) -> Result<(Scan, Option<FragmentCacheStatus>)> {
         let spec = self.fragment(id).ok_or_else(|| {
             Error::Invalid(format!("{}: no fragment with id {id:?}", self.origin()))
         })?;
@@ -600,21 +615,39 @@ impl Dataset {
                     )?),
                     None => None,
                 };
-                Ok(Scan {
-                    name,
-                    cloud,
-                    frames,
-                })
+                Ok((
+                    Scan {
+                        name,
+                        cloud,
+                        frames,
+                    },
+                    None,
+                ))
             }
             FragmentSource::Rgbd { range, options } => {
                 let seq = RgbdSequence::open(&range.dir)?;
-                build_fragment_with(&seq, range.first, range.count, options, name)
+                match &self.fragment_cache {
+                    Some(dir) => {
+                        build_fragment_cached(&seq, range.first, range.count, options, name, dir)
+                            .map(|(s, st)| (s, Some(st)))
+                    }
+                    None => build_fragment_with(&seq, range.first, range.count, options, name)
+                        .map(|s| (s, None)),
+                }
             }
         }
     }
 
     /// Load a pair by id (`"<dataset>/<target>-<source>"`); both fragments load in parallel.
     pub fn load_pair(&self, id: &str) -> Result<ScanPair> {
+        self.load_pair_status(id).map(|(p, _)| p)
+    }
+
+    /// [`Self::load_pair`], with the fragment cache status of (target, source).
+    pub fn load_pair_status(
+        &self,
+        id: &str,
+    ) -> Result<(ScanPair, [Option<FragmentCacheStatus>; 2])> {
         let spec = self.pair(id).ok_or_else(|| {
             Error::Invalid(format!(
                 "{}: no pair with id {id:?} (ids look like \"{}/<target>-<source>\")",
@@ -623,15 +656,19 @@ impl Dataset {
             ))
         })?;
         let (target, source) = rayon::join(
-            || self.load_fragment(&spec.target),
-            || self.load_fragment(&spec.source),
+            || self.load_fragment_status(&spec.target),
+            || self.load_fragment_status(&spec.source),
         );
-        Ok(ScanPair {
-            id: spec.id.clone(),
-            source: source?,
-            target: target?,
-            gt_target_from_source: spec.gt_target_from_source,
-        })
+        let ((target, st), (source, ss)) = (target?, source?);
+        Ok((
+            ScanPair {
+                id: spec.id.clone(),
+                source,
+                target,
+                gt_target_from_source: spec.gt_target_from_source,
+            },
+            [st, ss],
+        ))
     }
 }
 

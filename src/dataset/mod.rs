@@ -2,6 +2,7 @@
 //! sequences split into fragments, and dataset manifests.
 
 pub mod fragment;
+pub mod fragment_cache;
 pub mod manifest;
 pub mod threedmatch;
 

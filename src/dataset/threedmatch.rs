@@ -110,6 +110,7 @@ pub fn open_folder(dir: &Path) -> Result<Dataset> {
         }
     }
     Ok(Dataset {
+        fragment_cache: None,
         name: scene,
         manifest: None,
         root: dir.to_path_buf(),

@@ -1,0 +1,146 @@
+//! `cgenreg table`: several `bench --json` files as one table in the layout of the paper's
+//! Table 4 (VFM | geometric features | fusion | rotation accuracy and error | translation
+//! accuracy and error), one row per file and split. Rows are labelled from each file's own
+//! parameters, so a row can never claim a backend it did not run.
+
+use crate::error::{Error, Result};
+use clap::Args;
+use serde_json::Value;
+use std::path::{Path, PathBuf};
+
+#[derive(Args, Debug)]
+pub struct TableArgs {
+    /// `cgenreg bench --json` outputs, one row each (per split).
+    #[arg(required = true)]
+    pub files: Vec<PathBuf>,
+    /// Only this split (e.g. 3DMatch).
+    #[arg(long)]
+    pub split: Option<String>,
+}
+
+fn field<'a>(path: &Path, v: &'a Value, ptr: &str) -> Result<&'a Value> {
+    v.pointer(ptr).ok_or_else(|| {
+        Error::format(
+            path,
+            ptr,
+            "a field of `cgenreg bench --json` output",
+            "missing",
+        )
+    })
+}
+
+/// (WFM + VFM, geometric features, fusion) of a run, from its parameters.
+fn row_label(path: &Path, params: &Value) -> Result<(String, String, String)> {
+    let geo = match field(path, params, "/geo_features/kind")?.as_str() {
+        Some("fpfh") => "FPFH".to_string(),
+        Some("files") => "learned (files)".to_string(),
+        Some("geo-transformer-pkl") => "GeoTransformer (pkl)".to_string(),
+        other => format!("{other:?}"),
+    };
+    let mode = field(path, params, "/fusion/mode")?
+        .as_str()
+        .unwrap_or("?")
+        .to_string();
+    let image = params.get("image").filter(|v| !v.is_null());
+    Ok(match image {
+        None => ("—".into(), geo, "—".into()),
+        Some(ib) => {
+            let wfm = match field(path, ib, "/backend/kind")?.as_str() {
+                Some("oracle") => "oracle RGB".to_string(),
+                Some("builtin") => "built-in depth shading (not a WFM)".to_string(),
+                Some("cached") => "Cosmos (cached)".to_string(),
+                Some("cosmos") => "Cosmos (run)".to_string(),
+                other => format!("{other:?}"),
+            };
+            let vfm = match field(path, ib, "/vfm/kind")?.as_str() {
+                Some("xfeat") => "XFeat",
+                _ => "?",
+            };
+            let k = ib.get("k").and_then(Value::as_u64).unwrap_or(0);
+            let label = format!("{vfm} on {wfm}, K={k}");
+            match mode.as_str() {
+                "ImageOnly" => (label, "—".into(), "—".into()),
+                "GeometryOnly" => ("—".into(), geo, "—".into()),
+                m => (label, geo, fusion_name(m)),
+            }
+        }
+    })
+}
+
+fn fusion_name(mode: &str) -> String {
+    match mode {
+        "NoisyAnd" => "Noisy-AND".into(),
+        "NoisyOr" => "Noisy-OR".into(),
+        "Concat" => "Concat.".into(),
+        m => m.into(),
+    }
+}
+
+fn pct(v: &Value, k: &str) -> String {
+    v.get(k)
+        .and_then(Value::as_f64)
+        .map(|x| format!("{:.1}", 100.0 * x))
+        .unwrap_or_else(|| "–".into())
+}
+
+fn num(v: &Value, k: &str, scale: f64) -> String {
+    v.get(k)
+        .and_then(Value::as_f64)
+        .filter(|x| x.is_finite())
+        .map(|x| format!("{:.1}", scale * x))
+        .unwrap_or_else(|| "inf".into())
+}
+
+pub fn run(a: TableArgs) -> Result<()> {
+    println!("| VFM (frames) | Geo. features | Fusion | split | pairs | RR % | RA@5° | RA@10° | RA@45° | RRE mean° | RRE med.° | TA@5cm | TA@10cm | TA@25cm | RTE mean cm | RTE med. cm | s/pair |");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
+    for path in &a.files {
+        let text = std::fs::read_to_string(path).map_err(|e| Error::Io {
+            path: path.clone(),
+            source: e,
+        })?;
+        let v: Value = serde_json::from_str(&text).map_err(|e| {
+            Error::format(
+                path,
+                "(file)",
+                "JSON written by `cgenreg bench --json`",
+                e.to_string(),
+            )
+        })?;
+        let (vfm, geo, fusion) = row_label(path, field(path, &v, "/params")?)?;
+        let summaries = field(path, &v, "/summary")?.as_array().ok_or_else(|| {
+            Error::format(
+                path,
+                "summary",
+                "an array of per-split summaries",
+                "not an array",
+            )
+        })?;
+        for s in summaries {
+            let split = s.get("split").and_then(Value::as_str).unwrap_or("?");
+            if a.split
+                .as_ref()
+                .is_some_and(|w| !w.eq_ignore_ascii_case(split))
+            {
+                continue;
+            }
+            println!(
+                "| {vfm} | {geo} | {fusion} | {split} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {:.2} |",
+                s.get("n").and_then(Value::as_u64).unwrap_or(0),
+                pct(s, "recall"),
+                pct(s, "rot_acc_5"),
+                pct(s, "rot_acc_10"),
+                pct(s, "rot_acc_45"),
+                num(s, "rre_mean", 1.0),
+                num(s, "rre_median", 1.0),
+                pct(s, "trans_acc_5cm"),
+                pct(s, "trans_acc_10cm"),
+                pct(s, "trans_acc_25cm"),
+                num(s, "rte_mean", 100.0),
+                num(s, "rte_median", 100.0),
+                s.get("time_per_pair_s").and_then(Value::as_f64).unwrap_or(f64::NAN),
+            );
+        }
+    }
+    Ok(())
+}
