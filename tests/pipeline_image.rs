@@ -172,3 +172,39 @@ fn invalid_k_is_a_clear_error() {
         .to_string();
     assert!(e.contains("L = 50"), "{e}");
 }
+
+/// The pair-conditioned path (reference §6.3, §8.1) end to end with the tiny model of MASt3R's
+/// ONNX signature: K x K forward passes, a cached point-descriptor stage, and the same pose
+/// again from the cache. (The tiny model is not MASt3R; only the plumbing is under test.)
+#[test]
+fn pair_conditioned_vfm_end_to_end() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let ds = Dataset::load(&root.join("assets/demo/demo.toml")).unwrap();
+    let pair = ds.load_pair(&ds.pairs()[0].id.clone()).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let cache = Cache::open(dir.path()).unwrap();
+    let mut p = params();
+    p.image.as_mut().unwrap().vfm = cgenreg::pipeline::VfmSpec::Mast3r {
+        model: root.join("tests/fixtures/tiny_mast3r.onnx"),
+    };
+    let r1 = register_pair_cached(&pair, &p, Some(&cache)).unwrap();
+    let stage = "vfm view pairs + point features";
+    assert_eq!(status(&r1, stage), "computed");
+    assert!(r1.timings.iter().all(|t| t.stage != "vfm source views"));
+    let img = r1.image.as_ref().unwrap();
+    assert!(img.vfm.starts_with("mast3r@"), "{}", img.vfm);
+    assert!(img.vfm.contains("2x2 view pairs"), "{}", img.vfm);
+    assert!(r1.n_correspondences > 0);
+    let r2 = register_pair_cached(&pair, &p, Some(&cache)).unwrap();
+    assert_eq!(status(&r2, stage), "cached");
+    assert_eq!(r1.correspondences, r2.correspondences);
+    assert_eq!(r1.target_from_source, r2.target_from_source);
+    // A per-image model file given as a pair model is a clear error, not a panic.
+    p.image.as_mut().unwrap().vfm = cgenreg::pipeline::VfmSpec::Mast3r {
+        model: root.join("models/xfeat.onnx"),
+    };
+    let e = register_pair_cached(&pair, &p, None)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("xfeat.onnx"), "{e}");
+}

@@ -198,7 +198,11 @@ pub struct ImageArgs {
     /// Generation seed.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// XFeat ONNX model (default models/xfeat.onnx).
+    /// Vision foundation model: xfeat (per-image; default models/xfeat.onnx) or mast3r
+    /// (pair-conditioned; needs --vfm-model, an export made with models/export_mast3r.py).
+    #[arg(long, value_parser = ["xfeat", "mast3r"], default_value = "xfeat")]
+    pub vfm: String,
+    /// The VFM's ONNX model file.
     #[arg(long)]
     pub vfm_model: Option<PathBuf>,
     /// Views per side.
@@ -271,9 +275,17 @@ impl ImageArgs {
             backend,
             prompt,
             seed: self.seed,
-            vfm: match &self.vfm_model {
-                Some(p) => VfmSpec::Xfeat { model: p.clone() },
-                None => VfmSpec::default(),
+            vfm: match (self.vfm.as_str(), &self.vfm_model) {
+                ("mast3r", Some(p)) => VfmSpec::Mast3r { model: p.clone() },
+                ("mast3r", None) => {
+                    return Err(crate::Error::Invalid(
+                        "--vfm mast3r needs --vfm-model FILE.onnx (export it with \
+                         models/export_mast3r.py; no MASt3R weights ship with cgenreg)"
+                            .into(),
+                    ))
+                }
+                (_, Some(p)) => VfmSpec::Xfeat { model: p.clone() },
+                (_, None) => VfmSpec::default(),
             },
             k: self.k,
             margin: self.margin,

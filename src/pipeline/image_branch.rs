@@ -26,7 +26,8 @@ use crate::features::Features;
 use crate::fusion::{cosine_similarity, match_then_fuse};
 use crate::geometry::PointCloud;
 use crate::vfm::lift::{lift_views, LiftView, PixelLink};
-use crate::vfm::{DenseDescriptors, PerImageModel};
+use crate::vfm::pair_similarity::{pair_point_descriptors, PairPointDescriptors};
+use crate::vfm::{DenseDescriptors, PairModel, PerImageModel};
 use crate::wfm::backend::{GenerateRequest, Provenance, WfmBackend};
 use image::RgbImage;
 use nalgebra::Point3;
@@ -293,7 +294,12 @@ type ModelMap = HashMap<PathBuf, Arc<dyn PerImageModel>>;
 /// Models stay loaded for the process (bench registers many pairs with one model).
 fn load_vfm(spec: &VfmSpec) -> Result<Arc<dyn PerImageModel>> {
     static MODELS: OnceLock<Mutex<ModelMap>> = OnceLock::new();
-    let VfmSpec::Xfeat { model } = spec;
+    let VfmSpec::Xfeat { model } = spec else {
+        return Err(Error::Invalid(format!(
+            "{} is a pair-conditioned model, not a per-image one",
+            spec.model().display()
+        )));
+    };
     let map = MODELS.get_or_init(|| Mutex::new(HashMap::new()));
     let mut g = map
         .lock()
@@ -306,30 +312,68 @@ fn load_vfm(spec: &VfmSpec) -> Result<Arc<dyn PerImageModel>> {
     Ok(m)
 }
 
+type PairModelMap = HashMap<PathBuf, Arc<dyn PairModel>>;
+
+fn load_pair_vfm(spec: &VfmSpec) -> Result<Arc<dyn PairModel>> {
+    static MODELS: OnceLock<Mutex<PairModelMap>> = OnceLock::new();
+    let VfmSpec::Mast3r { model } = spec else {
+        return Err(Error::Invalid(format!(
+            "{} is a per-image model, not a pair-conditioned one",
+            spec.model().display()
+        )));
+    };
+    let map = MODELS.get_or_init(|| Mutex::new(HashMap::new()));
+    let mut g = map
+        .lock()
+        .map_err(|_| Error::Invalid("VFM model cache poisoned".into()))?;
+    if let Some(m) = g.get(model) {
+        return Ok(m.clone());
+    }
+    let m = load_mast3r(model)?;
+    g.insert(model.clone(), m.clone());
+    Ok(m)
+}
+
 #[cfg(feature = "onnx")]
 fn load_xfeat(path: &Path) -> Result<Arc<dyn PerImageModel>> {
     Ok(Arc::new(crate::vfm::xfeat::XFeat::load(path)?))
 }
 
+#[cfg(feature = "onnx")]
+fn load_mast3r(path: &Path) -> Result<Arc<dyn PairModel>> {
+    Ok(Arc::new(crate::vfm::mast3r::Mast3r::load(path)?))
+}
+
 #[cfg(not(feature = "onnx"))]
 fn load_xfeat(path: &Path) -> Result<Arc<dyn PerImageModel>> {
-    Err(Error::Invalid(format!(
-        "the image branch needs XFeat ({}) through ONNX, but cgenreg was built without the \
+    Err(no_onnx(path))
+}
+
+#[cfg(not(feature = "onnx"))]
+fn load_mast3r(path: &Path) -> Result<Arc<dyn PairModel>> {
+    Err(no_onnx(path))
+}
+
+#[cfg(not(feature = "onnx"))]
+fn no_onnx(path: &Path) -> Error {
+    Error::Invalid(format!(
+        "the image branch needs its VFM ({}) through ONNX, but cgenreg was built without the \
          `onnx` feature: rebuild with `--features onnx`",
         path.display()
-    )))
+    ))
 }
 
 /// Id of the VFM for cache keys, from the model file's content (no need to load it).
 fn vfm_id(spec: &VfmSpec) -> Result<String> {
-    let VfmSpec::Xfeat { model } = spec;
+    let model = spec.model();
     if !model.is_file() {
         return Err(Error::Invalid(format!(
-            "{}: XFeat ONNX model not found (see models/README.md, or pass --vfm-model)",
-            model.display()
+            "{}: {} ONNX model not found (see models/README.md, or pass --vfm-model)",
+            model.display(),
+            spec.name()
         )));
     }
-    Ok(format!("xfeat@{}", &hash_file(model)?[..16]))
+    Ok(format!("{}@{}", spec.name(), &hash_file(model)?[..16]))
 }
 
 #[derive(Serialize, Deserialize)]
@@ -464,6 +508,56 @@ fn point_descriptors(
             }
         });
     (Features::new(dim, data), valid)
+}
+
+type Pts = (Features, Vec<bool>, Features, Vec<bool>);
+
+/// Each keypoint's descriptor at its linked pixel of its view's grid (per-image models), cached.
+fn per_image_point_features(
+    ctx: &mut Ctx,
+    lift_keys: (&CacheKey, &CacheKey),
+    view_keys: (&[String], &[String]),
+    links: (&[Option<PixelLink>], &[Option<PixelLink>]),
+    grids: (&[DenseDescriptors], &[DenseDescriptors]),
+) -> Result<Pts> {
+    let (src_links, tgt_links) = links;
+    let mut pk: Vec<&str> = vec![&lift_keys.0.hash, &lift_keys.1.hash];
+    pk.extend(view_keys.0.iter().map(String::as_str));
+    pk.extend(view_keys.1.iter().map(String::as_str));
+    let pkey = CacheKey::new("image-points", 1, &pk, &json!({ "sample": "bilinear-l2" }))?;
+    ctx.stage(
+        "image point features",
+        &pkey,
+        |e| {
+            let fs = e.read_features("source.npy")?;
+            let ft = e.read_features("target.npy")?;
+            let (vs, vt): (Vec<bool>, Vec<bool>) = e.read_json("valid.json")?;
+            if fs.len() != src_links.len()
+                || ft.len() != tgt_links.len()
+                || vs.len() != fs.len()
+                || vt.len() != ft.len()
+            {
+                return Err(Error::Cache(format!(
+                    "{}: sizes disagree with the keypoints",
+                    e.dir.display()
+                )));
+            }
+            Ok((fs, vs, ft, vt))
+        },
+        || {
+            let (fs, vs) = point_descriptors(src_links, grids.0);
+            let (ft, vt) = point_descriptors(tgt_links, grids.1);
+            Ok((fs, vs, ft, vt))
+        },
+        |(fs, vs, ft, vt), c, k| {
+            let mut ne = c.put(k, json!({ "stage": "image-points" }))?;
+            ne.add_features("source.npy", fs)?;
+            ne.add_features("target.npy", ft)?;
+            ne.add_json("valid.json", &(vs, vt))?;
+            ne.commit()?;
+            Ok(())
+        },
+    )
 }
 
 fn short_prompt(p: &crate::wfm::Prompt) -> String {
@@ -743,11 +837,23 @@ pub fn register_with_image(
         ctx.timer.record(name, t.elapsed(), all_hit);
         Ok((grids, images, keys))
     };
-    let (src_grids, src_imgs, src_vkeys) =
-        describe_side(&mut ctx, "vfm source views", &sel.src_generated)?;
-    let (tgt_grids, tgt_imgs, tgt_vkeys) =
-        describe_side(&mut ctx, "vfm target views", &sel.tgt_generated)?;
-    let vfm_label = match &model {
+    let pair_conditioned = matches!(ib.vfm, VfmSpec::Mast3r { .. });
+    let ((src_grids, src_imgs, src_vkeys), (tgt_grids, tgt_imgs, tgt_vkeys)) = if pair_conditioned {
+        // Pair models describe views jointly: only the images here; descriptors below.
+        let imgs = |idx: &[usize]| -> Result<Vec<RgbImage>> {
+            idx.iter().map(|&gi| gen.frame(gi)).collect()
+        };
+        (
+            (Vec::new(), imgs(&sel.src_generated)?, Vec::new()),
+            (Vec::new(), imgs(&sel.tgt_generated)?, Vec::new()),
+        )
+    } else {
+        (
+            describe_side(&mut ctx, "vfm source views", &sel.src_generated)?,
+            describe_side(&mut ctx, "vfm target views", &sel.tgt_generated)?,
+        )
+    };
+    let mut vfm_label = match &model {
         Some(_) => format!("{vfm_id} ({})", crate::vfm::backend_name()),
         None => format!("{vfm_id} (descriptors from the cache)"),
     };
@@ -774,49 +880,89 @@ pub fn register_with_image(
         image_size,
     )?;
 
-    // Per-keypoint image descriptors.
-    let mut pk: Vec<&str> = vec![&src_lift_key.hash, &tgt_lift_key.hash];
-    pk.extend(src_vkeys.iter().map(String::as_str));
-    pk.extend(tgt_vkeys.iter().map(String::as_str));
-    let pkey = CacheKey::new("image-points", 1, &pk, &json!({ "sample": "bilinear-l2" }))?;
-    type Pts = (Features, Vec<bool>, Features, Vec<bool>);
-    let (f_src, v_src, f_tgt, v_tgt): Pts = ctx.stage(
-        "image point features",
-        &pkey,
-        |e| {
-            let fs = e.read_features("source.npy")?;
-            let ft = e.read_features("target.npy")?;
-            let (vs, vt): (Vec<bool>, Vec<bool>) = e.read_json("valid.json")?;
-            if fs.len() != src_links.len()
-                || ft.len() != tgt_links.len()
-                || vs.len() != fs.len()
-                || vt.len() != ft.len()
-            {
-                return Err(Error::Cache(format!(
-                    "{}: sizes disagree with the keypoints",
-                    e.dir.display()
-                )));
-            }
-            Ok((fs, vs, ft, vt))
-        },
-        || {
-            let (fs, vs) = point_descriptors(&src_links, &src_grids);
-            let (ft, vt) = point_descriptors(&tgt_links, &tgt_grids);
-            Ok((fs, vs, ft, vt))
-        },
-        |(fs, vs, ft, vt), c, k| {
-            let mut ne = c.put(k, json!({ "stage": "image-points" }))?;
-            ne.add_features("source.npy", fs)?;
-            ne.add_features("target.npy", ft)?;
-            ne.add_json("valid.json", &(vs, vt))?;
-            ne.commit()?;
-            Ok(())
-        },
-    )?;
-
-    // Similarities, calibration, fusion, selection: in memory.
-    let t = Instant::now();
-    let s_img = cosine_similarity(&f_src, &f_tgt)?;
+    // Per-keypoint image descriptors, then the image similarity.
+    let (s_img, v_src, v_tgt, t) = if pair_conditioned {
+        let mut pk: Vec<&str> = vec![&src_lift_key.hash, &tgt_lift_key.hash, &gen_key.hash];
+        pk.push(&vfm_id);
+        let pkey = CacheKey::new(
+            "image-points-pair",
+            1,
+            &pk,
+            &json!({ "src_frames": sel.src_generated, "tgt_frames": sel.tgt_generated,
+                     "sample": "bilinear-l2" }),
+        )?;
+        let (k_src, k_tgt) = (src_imgs.len(), tgt_imgs.len());
+        let mut loaded = false;
+        let d: PairPointDescriptors = ctx.stage(
+            "vfm view pairs + point features",
+            &pkey,
+            |e| {
+                let (ns, cs, src) = e.read_f32_matrix("source.npy")?;
+                let (nt, ct, tgt) = e.read_f32_matrix("target.npy")?;
+                let (src_view, tgt_view): (Vec<Option<u16>>, Vec<Option<u16>>) =
+                    e.read_json("views.json")?;
+                let dim = cs / k_tgt.max(1);
+                if ns != src_links.len()
+                    || nt != tgt_links.len()
+                    || src_view.len() != ns
+                    || tgt_view.len() != nt
+                    || cs != dim * k_tgt
+                    || ct != dim * k_src
+                {
+                    return Err(Error::Cache(format!(
+                        "{}: sizes disagree with the keypoints and views",
+                        e.dir.display()
+                    )));
+                }
+                Ok(PairPointDescriptors {
+                    k_src,
+                    k_tgt,
+                    dim,
+                    src,
+                    src_view,
+                    tgt,
+                    tgt_view,
+                })
+            },
+            || {
+                let m = load_pair_vfm(&ib.vfm)?;
+                loaded = true;
+                let pairs = crate::vfm::describe_all_pairs(m.as_ref(), &src_imgs, &tgt_imgs)?;
+                pair_point_descriptors(&pairs, k_src, k_tgt, &src_links, &tgt_links)
+            },
+            |d, c, k| {
+                let mut ne = c.put(k, json!({ "stage": "image-points-pair", "vfm": vfm_id }))?;
+                ne.add_f32_matrix("source.npy", d.src_view.len(), d.k_tgt * d.dim, &d.src)?;
+                ne.add_f32_matrix("target.npy", d.tgt_view.len(), d.k_src * d.dim, &d.tgt)?;
+                ne.add_json("views.json", &(&d.src_view, &d.tgt_view))?;
+                ne.commit()?;
+                Ok(())
+            },
+        )?;
+        vfm_label = if loaded {
+            format!(
+                "{vfm_id} ({}; {}x{} view pairs)",
+                crate::vfm::backend_name(),
+                k_src,
+                k_tgt
+            )
+        } else {
+            format!("{vfm_id} (pair descriptors from the cache)")
+        };
+        let t = Instant::now();
+        let (s_img, vs, vt) = d.similarity()?;
+        (s_img, vs, vt, t)
+    } else {
+        let (f_src, v_src, f_tgt, v_tgt) = per_image_point_features(
+            &mut ctx,
+            (&src_lift_key, &tgt_lift_key),
+            (&src_vkeys, &tgt_vkeys),
+            (&src_links, &tgt_links),
+            (&src_grids, &tgt_grids),
+        )?;
+        let t = Instant::now();
+        (cosine_similarity(&f_src, &f_tgt)?, v_src, v_tgt, t)
+    };
     let s_geo = cosine_similarity(&src_geo.features, &tgt_geo.features)?;
     ctx.timer.record("similarity", t.elapsed(), false);
     let t = Instant::now();

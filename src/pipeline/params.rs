@@ -68,8 +68,26 @@ pub enum WfmSpec {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "kebab-case")]
 pub enum VfmSpec {
-    /// XFeat through ONNX (default `models/xfeat.onnx`).
+    /// XFeat through ONNX (default `models/xfeat.onnx`): one descriptor grid per view.
     Xfeat { model: PathBuf },
+    /// A MASt3R ONNX export (reference §13 signature): descriptors of every ordered
+    /// (source view, target view) pair, compared pair-conditioned (reference §8.1).
+    Mast3r { model: PathBuf },
+}
+
+impl VfmSpec {
+    pub fn model(&self) -> &std::path::Path {
+        match self {
+            VfmSpec::Xfeat { model } | VfmSpec::Mast3r { model } => model,
+        }
+    }
+
+    pub fn name(&self) -> &'static str {
+        match self {
+            VfmSpec::Xfeat { .. } => "xfeat",
+            VfmSpec::Mast3r { .. } => "mast3r",
+        }
+    }
 }
 
 impl Default for VfmSpec {

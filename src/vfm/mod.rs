@@ -19,6 +19,7 @@
 pub mod lift;
 #[cfg(feature = "onnx")]
 pub mod mast3r;
+pub mod pair_similarity;
 #[cfg(feature = "onnx")]
 pub mod runtime;
 #[cfg(feature = "onnx")]
