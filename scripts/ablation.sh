@@ -33,3 +33,10 @@ done
 "$BIN" table "$OUT"/fpfh-nn.json "$OUT"/fpfh-mutual.json \
     "$OUT"/oracle-{image,concat,noisy-or,noisy-and}.json \
     "$OUT"/builtin-{image,concat,noisy-or,noisy-and}.json | tee "$OUT/table.md"
+
+# The same fused rows with each source's nearest target (the selection of the FPFH-nn row), so
+# every row can be compared at equal selection.
+for f in image concat noisy-or noisy-and; do
+    run "oracle-$f-nn" --wfm oracle --fusion "$f" --selection nn
+done
+"$BIN" table "$OUT"/fpfh-nn.json "$OUT"/oracle-{image,concat,noisy-or,noisy-and}-nn.json | tee "$OUT/table-nn.md"

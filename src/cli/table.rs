@@ -54,6 +54,7 @@ fn row_label(path: &Path, params: &Value) -> Result<(String, String, String)> {
             };
             let vfm = match field(path, ib, "/vfm/kind")?.as_str() {
                 Some("xfeat") => "XFeat",
+                Some("mast3r") => "MASt3R (user's ONNX export)",
                 _ => "?",
             };
             let k = ib.get("k").and_then(Value::as_u64).unwrap_or(0);
@@ -76,6 +77,19 @@ fn fusion_name(mode: &str) -> String {
     }
 }
 
+/// The correspondence selection of a run (serde form of `fusion::Selection`).
+fn selection_name(params: &Value) -> String {
+    match params.pointer("/fusion/selection") {
+        Some(Value::String(s)) if s == "MutualNn" => "mutual NN".into(),
+        Some(Value::String(s)) if s == "RowNn" => "NN".into(),
+        Some(Value::Object(o)) => match o.get("TopK").and_then(Value::as_u64) {
+            Some(k) => format!("top-{k}"),
+            None => "?".into(),
+        },
+        _ => "?".into(),
+    }
+}
+
 fn pct(v: &Value, k: &str) -> String {
     v.get(k)
         .and_then(Value::as_f64)
@@ -92,8 +106,8 @@ fn num(v: &Value, k: &str, scale: f64) -> String {
 }
 
 pub fn run(a: TableArgs) -> Result<()> {
-    println!("| VFM (frames) | Geo. features | Fusion | split | pairs | RR % | RA@5° | RA@10° | RA@45° | RRE mean° | RRE med.° | TA@5cm | TA@10cm | TA@25cm | RTE mean cm | RTE med. cm | s/pair |");
-    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
+    println!("| VFM (frames) | Geo. features | Fusion | selection | split | pairs | RR % | RA@5° | RA@10° | RA@45° | RRE mean° | RRE med.° | TA@5cm | TA@10cm | TA@25cm | RTE mean cm | RTE med. cm | s/pair |");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
     for path in &a.files {
         let text = std::fs::read_to_string(path).map_err(|e| Error::Io {
             path: path.clone(),
@@ -107,7 +121,9 @@ pub fn run(a: TableArgs) -> Result<()> {
                 e.to_string(),
             )
         })?;
-        let (vfm, geo, fusion) = row_label(path, field(path, &v, "/params")?)?;
+        let params = field(path, &v, "/params")?;
+        let (vfm, geo, fusion) = row_label(path, params)?;
+        let selection = selection_name(params);
         let summaries = field(path, &v, "/summary")?.as_array().ok_or_else(|| {
             Error::format(
                 path,
@@ -125,7 +141,7 @@ pub fn run(a: TableArgs) -> Result<()> {
                 continue;
             }
             println!(
-                "| {vfm} | {geo} | {fusion} | {split} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {:.2} |",
+                "| {vfm} | {geo} | {fusion} | {selection} | {split} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {:.2} |",
                 s.get("n").and_then(Value::as_u64).unwrap_or(0),
                 pct(s, "recall"),
                 pct(s, "rot_acc_5"),
@@ -143,4 +159,52 @@ pub fn run(a: TableArgs) -> Result<()> {
         }
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::fusion::{FusionMode, Selection};
+    use crate::pipeline::{ImageBranchParams, RegisterParams, WfmSpec};
+
+    /// Labels come from the real serialised parameters (serde names are what the JSON holds).
+    #[test]
+    fn labels_from_serialised_params() {
+        let p = Path::new("x.json");
+        let geo = serde_json::to_value(RegisterParams::default()).unwrap();
+        assert_eq!(
+            row_label(p, &geo).unwrap(),
+            ("—".into(), "FPFH".into(), "—".into())
+        );
+        let mut r = RegisterParams::default();
+        r.image = Some(ImageBranchParams {
+            backend: WfmSpec::Oracle,
+            ..Default::default()
+        });
+        r.fusion.mode = FusionMode::NoisyOr;
+        r.fusion.selection = Selection::TopK(8000);
+        let v = serde_json::to_value(&r).unwrap();
+        assert_eq!(
+            row_label(p, &v).unwrap(),
+            (
+                "XFeat on oracle RGB, K=4".into(),
+                "FPFH".into(),
+                "Noisy-OR".into()
+            )
+        );
+        assert_eq!(selection_name(&v), "top-8000");
+        r.fusion.mode = FusionMode::ImageOnly;
+        r.fusion.selection = Selection::RowNn;
+        let v = serde_json::to_value(&r).unwrap();
+        assert_eq!(row_label(p, &v).unwrap().1, "—");
+        assert_eq!(selection_name(&v), "NN");
+        r.image.as_mut().unwrap().backend = WfmSpec::Builtin;
+        let v = serde_json::to_value(&r).unwrap();
+        assert!(row_label(p, &v).unwrap().0.contains("not a WFM"));
+        // Not a bench file: a clear error naming the field.
+        let e = row_label(p, &serde_json::json!({}))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("geo_features"), "{e}");
+    }
 }
