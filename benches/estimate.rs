@@ -11,17 +11,31 @@ use std::time::Instant;
 
 const RUNS: usize = 5;
 
-fn median_ms(mut f: impl FnMut() -> Estimate) -> (f64, Estimate) {
+/// CPU seconds of this process (all threads) so far.
+fn cpu_s() -> f64 {
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: clock_gettime writes one timespec into `ts`.
+    unsafe { libc::clock_gettime(libc::CLOCK_PROCESS_CPUTIME_ID, &mut ts) };
+    ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9
+}
+
+/// (median wall ms, minimum wall ms, mean CPU ms per run) and the last estimate.
+fn median_ms(mut f: impl FnMut() -> Estimate) -> ((f64, f64, f64), Estimate) {
     let mut times = Vec::with_capacity(RUNS);
     let mut last = None;
+    let c0 = cpu_s();
     for _ in 0..RUNS {
         let t0 = Instant::now();
         let e = f();
         times.push(t0.elapsed().as_secs_f64() * 1e3);
         last = Some(e);
     }
+    let cpu = (cpu_s() - c0) * 1e3 / RUNS as f64;
     times.sort_by(|a, b| a.total_cmp(b));
-    (times[RUNS / 2], last.expect("RUNS > 0"))
+    ((times[RUNS / 2], times[0], cpu), last.expect("RUNS > 0"))
 }
 
 fn main() {
@@ -29,8 +43,8 @@ fn main() {
         "threads: {} (rayon), runs per row: {RUNS}, median reported\n",
         rayon::current_num_threads()
     );
-    println!("| estimator | correspondences | true-match ratio | median time (ms) | RRE (deg) | RTE (cm) | inliers found |");
-    println!("|---|---:|---:|---:|---:|---:|---:|");
+    println!("| estimator | correspondences | true-match ratio | median ms | min ms | CPU ms | RRE (deg) | RTE (cm) | inliers found |");
+    println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|");
     let cases: [(&str, usize, f64); 6] = [
         ("sc2pcr", 2000, 0.2),
         ("sc2pcr", 5000, 0.2),
@@ -62,11 +76,17 @@ fn main() {
         };
         let gt = &data.target_from_source;
         println!(
-            "| {} | {n} | {ratio:.2} | {ms:.1} | {:.3} | {:.2} | {} |",
+            "| {} | {n} | {ratio:.2} | {:.1} | {:.1} | {:.1} | {:.3} | {:.2} | {} |",
             if name == "sc2pcr" { name } else { &est.method },
+            ms.0,
+            ms.1,
+            ms.2,
             rre_deg(&est.target_from_source, gt),
             rte_m(&est.target_from_source, gt) * 100.0,
             est.inliers.len()
         );
+    }
+    if let Ok(l) = std::fs::read_to_string("/proc/loadavg") {
+        println!("\nload average after the run: {}", l.trim());
     }
 }

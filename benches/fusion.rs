@@ -7,8 +7,8 @@
 use cgenreg::features::Features;
 use cgenreg::fusion::fuse::noisy_and_rank_keys;
 use cgenreg::fusion::{
-    calibrate, calibrate_in_place, cosine_similarity, fuse, match_then_fuse, select, Calibration,
-    DenseMatrix, FusionMode, FusionParams, Selection,
+    calibrate, calibrate_in_place, cosine_similarity, fuse, match_then_fuse,
+    match_then_fuse_select, select, Calibration, DenseMatrix, FusionMode, FusionParams, Selection,
 };
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -132,6 +132,13 @@ fn main() {
         .ok()
         .and_then(|v| v.parse().ok())
         .unwrap_or(20_000);
+    // Optional filter: `cargo bench --bench fusion -- paper` runs only the configurations whose
+    // name contains an argument ("stages" and "cosine" select those tables).
+    let filter: Vec<String> = std::env::args()
+        .skip(1)
+        .filter(|a| !a.starts_with('-'))
+        .collect();
+    let wanted = |name: &str| filter.is_empty() || filter.iter().any(|f| name.contains(f.as_str()));
     println!("threads: {}\n", rayon::current_num_threads());
     println!("| N = M | configuration | wall ms (median) | CPU ms / run | peak extra heap (MiB) | N x M f32 (MiB) | correct / found |");
     println!("|---|---|---|---|---|---|---|");
@@ -166,7 +173,9 @@ fn main() {
         let (s_geo, _) = planted(n, 2, 0.5);
         let runs = if n <= 5_000 { 7 } else { 3 };
         for (name, p) in &configs {
-            if n > 5_000 && !name.starts_with("paper") && !name.starts_with("reference") {
+            if n > 5_000 && !name.starts_with("paper") && !name.starts_with("reference")
+                || !wanted(name)
+            {
                 continue;
             }
             let (t, peak, out) = measure(runs, || {
@@ -186,10 +195,29 @@ fn main() {
                 out.correspondences.len()
             );
         }
+        let name = "paper, correspondences only (match_then_fuse_select: no N x M matrix)";
+        if wanted(name) {
+            let p = FusionParams::default();
+            let (t, peak, corr) = measure(runs, || {
+                match_then_fuse_select(Some((&s_img, None, None)), Some(&s_geo), &p).unwrap()
+            });
+            let ok = corr
+                .iter()
+                .filter(|c| perm[c.src as usize] == c.tgt as usize)
+                .count();
+            println!(
+                "| {n} | {name} | {:.1} | {} | {:.0} | {:.0} | {ok} / {} |",
+                t * 1e3,
+                cpu_ms(),
+                mib(peak),
+                mib(n * n * 4),
+                corr.len()
+            );
+        }
     }
 
     // Stage breakdown at 5k (one branch calibrated; fusion and selection on the results).
-    {
+    if wanted("stages") {
         let n = 5_000;
         let (s_img, _) = planted(n, 1, 0.5);
         let (s_geo, _) = planted(n, 2, 0.5);
@@ -252,6 +280,9 @@ fn main() {
         stage("top-8000", t, p);
     }
 
+    if !wanted("cosine") {
+        return;
+    }
     println!("\n| cosine similarity | wall ms (median) | CPU ms / run | peak extra heap (MiB) |");
     println!("|---|---|---|---|");
     for d in [33usize, 256] {
@@ -268,5 +299,8 @@ fn main() {
             cpu_ms(),
             mib(peak)
         );
+    }
+    if let Ok(l) = std::fs::read_to_string("/proc/loadavg") {
+        println!("\nload average after the run: {}", l.trim());
     }
 }

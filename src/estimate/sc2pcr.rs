@@ -101,11 +101,13 @@ pub fn sc2pcr(src: &[Point3<f32>], tgt: &[Point3<f32>], params: &Sc2PcrParams) -
     let g = Graph::build(&pts, p.d_thre, p.nms_radius);
     let conf = g.leading_eigenvector(p.num_iterations);
     let seeds = g.pick_seeds(&conf, num_seeds);
+    // Blocks of seeds share each tight row they load (8 seed rows stay in L1 at n = 8000).
     let sets = seeds
-        .par_iter()
-        .map(|&s| {
-            let knn = g.sc2_top_k(s, k1);
-            g.second_stage(&knn, k2)
+        .par_chunks(8)
+        .flat_map_iter(|block| {
+            g.sc2_top_k_block(block, k1)
+                .into_iter()
+                .map(|knn| g.second_stage(&knn, k2))
         })
         .collect::<Vec<_>>();
     let weights = seed_weights(&pts, &sets, p.d_thre, p.num_iterations);
@@ -231,12 +233,20 @@ impl Soa {
             .collect::<Vec<f32>>()
     }
     pub fn count_inliers(&self, t: &Isometry3<f64>, thr: f32) -> usize {
-        let (r, tr) = rt32(t);
-        let mut c = 0usize;
-        for i in 0..self.n {
-            c += (residual(&r, &tr, self, i) < thr) as usize;
+        let (r, t) = rt32(t);
+        let n = self.n;
+        // Over slices (no bounds checks) so that it vectorises; same arithmetic as `residual`.
+        let (sx, sy, sz) = (&self.sx[..n], &self.sy[..n], &self.sz[..n]);
+        let (tx, ty, tz) = (&self.tx[..n], &self.ty[..n], &self.tz[..n]);
+        let mut c = 0u32;
+        for i in 0..n {
+            let (x, y, z) = (sx[i], sy[i], sz[i]);
+            let dx = r[0] * x + r[1] * y + r[2] * z + t[0] - tx[i];
+            let dy = r[3] * x + r[4] * y + r[5] * z + t[1] - ty[i];
+            let dz = r[6] * x + r[7] * y + r[8] * z + t[2] - tz[i];
+            c += ((dx * dx + dy * dy + dz * dz).sqrt() < thr) as u32;
         }
-        c
+        c as usize
     }
 }
 
@@ -261,26 +271,39 @@ fn residual(r: &[f32; 9], t: &[f32; 3], p: &Soa, i: usize) -> f32 {
     (dx * dx + dy * dy + dz * dz).sqrt()
 }
 
-/// The compatibility graph: `hard`, `tight` and `near` bitsets (n rows of `words` u64 each,
+/// The compatibility graph: `hard`, `tight` and `near` bitsets (n rows of `stride` u64 each,
 /// so that the tight rows scanned by SC2 are contiguous) and SC values.
 pub(crate) struct Graph {
     pub n: usize,
-    words: usize,
+    /// u64 words per bitset row: ceil(n / 64) rounded up to a multiple of 8, zero-padded.
+    stride: usize,
     hard: Vec<u64>,
     tight: Vec<u64>,
     near: Vec<u64>,
-    /// `sc[i]`: (column, SC value) of row i, one per set bit of `hard[i]`, ascending.
-    sc: Vec<Vec<(u32, f32)>>,
+    /// The upper triangle of SC in compressed rows: row i holds (column j > i, SC value) for
+    /// every set bit of `hard[i]` with j > i, ascending.
+    sc_start: Vec<usize>,
+    sc_col: Vec<u32>,
+    sc_val: Vec<f32>,
+    /// Row ranges of the matvec's fixed partition (fixed so the f32 sums are deterministic).
+    parts: Vec<(usize, usize)>,
+    isa: Isa,
     /// `|tight[i]|`, an upper bound of every SC2 value in row or column i.
     tight_count: Vec<u32>,
+    /// Rows with `|tight[i]| > 0` by decreasing `|tight[i]|`, ties by index.
+    by_tight: Vec<u32>,
 }
 
+/// Computes words `w0..words` of row i (columns `64 w0..n`) of the three bitsets, and the SC
+/// values of the set `hard` bits with column > i (the upper triangle; SC is symmetric).
 #[inline(always)]
+#[allow(clippy::too_many_arguments)]
 fn build_row(
     p: &Soa,
     i: usize,
     d: f32,
     nms: f32,
+    w0: usize,
     words: usize,
     (hard, tight, near): (&mut [u64], &mut [u64], &mut [u64]),
     vals: &mut Vec<(u32, f32)>,
@@ -291,7 +314,7 @@ fn build_row(
     let mut ds = [0f32; 64];
     let (xi, yi, zi) = (p.sx[i], p.sy[i], p.sz[i]);
     let (ui, vi, wi) = (p.tx[i], p.ty[i], p.tz[i]);
-    for w in 0..words {
+    for w in w0..words {
         let base = w * 64;
         let len = (p.n - base).min(64);
         // Same arithmetic as `Soa::cross`, over slices so that it vectorises.
@@ -315,7 +338,12 @@ fn build_row(
         hard[w] = h;
         tight[w] = t;
         near[w] = r;
-        let mut m = h;
+        // Upper triangle only: columns > i.
+        let mut m = if w == i / 64 {
+            h & (u64::MAX << (i % 64)) & !(1u64 << (i % 64))
+        } else {
+            h
+        };
         while m != 0 {
             let k = m.trailing_zeros() as usize;
             vals.push(((base + k) as u32, (1.0 - c[k] * c[k] / d2).max(0.0)));
@@ -325,17 +353,35 @@ fn build_row(
 }
 
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
+#[target_feature(enable = "avx2,fma")]
+#[allow(clippy::too_many_arguments)]
 unsafe fn build_row_avx2(
     p: &Soa,
     i: usize,
     d: f32,
     nms: f32,
+    w0: usize,
     words: usize,
     rows: (&mut [u64], &mut [u64], &mut [u64]),
     vals: &mut Vec<(u32, f32)>,
 ) {
-    build_row(p, i, d, nms, words, rows, vals)
+    build_row(p, i, d, nms, w0, words, rows, vals)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512bw,avx512vl,avx2,fma")]
+#[allow(clippy::too_many_arguments)]
+unsafe fn build_row_avx512(
+    p: &Soa,
+    i: usize,
+    d: f32,
+    nms: f32,
+    w0: usize,
+    words: usize,
+    rows: (&mut [u64], &mut [u64], &mut [u64]),
+    vals: &mut Vec<(u32, f32)>,
+) {
+    build_row(p, i, d, nms, w0, words, rows, vals)
 }
 
 #[inline(always)]
@@ -349,16 +395,127 @@ unsafe fn and_popcount_avx2(a: &[u64], b: &[u64]) -> u32 {
     and_popcount(a, b)
 }
 
-fn has_avx2() -> bool {
-    #[cfg(target_arch = "x86_64")]
-    {
-        is_x86_feature_detected!("avx2") && is_x86_feature_detected!("popcnt")
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512vpopcntdq,popcnt")]
+unsafe fn and_popcount_avx512(a: &[u64], b: &[u64]) -> u32 {
+    // Wide u64 lanes so that the sum vectorises with vpopcntq.
+    let s: u64 = a
+        .iter()
+        .zip(b)
+        .map(|(x, y)| (x & y).count_ones() as u64)
+        .sum();
+    s as u32
+}
+
+/// `out[k] = |a & rows[k]|` for rows of a length that is a multiple of 8 words: each 512-bit
+/// chunk of `a` is loaded once for up to four rows.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512vpopcntdq")]
+unsafe fn and_popcount_many_avx512(a: &[u64], rows: &[&[u64]], out: &mut [u32]) {
+    debug_assert!(a.len().is_multiple_of(8) && rows.iter().all(|r| r.len() == a.len()));
+    let mut k = 0;
+    while k + 4 <= rows.len() {
+        let r = [rows[k], rows[k + 1], rows[k + 2], rows[k + 3]];
+        out[k..k + 4].copy_from_slice(&and_popcount_n::<4>(a, r));
+        k += 4;
     }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
-        false
+    for (r, o) in rows[k..].iter().zip(&mut out[k..]) {
+        *o = and_popcount_n::<1>(a, [r])[0];
     }
 }
+
+/// N rows against `a` with N accumulators held in registers.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512vpopcntdq")]
+#[inline]
+unsafe fn and_popcount_n<const N: usize>(a: &[u64], rows: [&[u64]; N]) -> [u32; N] {
+    use std::arch::x86_64::*;
+    let len = a.len();
+    let mut acc = [_mm512_setzero_si512(); N];
+    let mut w = 0;
+    while w < len {
+        // SAFETY: w + 8 <= len for every slice (lengths are equal multiples of 8).
+        let x = _mm512_loadu_si512(a.as_ptr().add(w) as *const __m512i);
+        for q in 0..N {
+            let y = _mm512_loadu_si512(rows[q].as_ptr().add(w) as *const __m512i);
+            acc[q] = _mm512_add_epi64(acc[q], _mm512_popcnt_epi64(_mm512_and_si512(x, y)));
+        }
+        w += 8;
+    }
+    let mut out = [0u32; N];
+    for q in 0..N {
+        out[q] = _mm512_reduce_add_epi64(acc[q]) as u32;
+    }
+    out
+}
+
+/// The widest vector extension the CPU offers, detected at run time.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Isa {
+    Avx512,
+    Avx2,
+    Scalar,
+}
+
+fn isa() -> Isa {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if is_x86_feature_detected!("avx512f")
+            && is_x86_feature_detected!("avx512bw")
+            && is_x86_feature_detected!("avx512vl")
+            && is_x86_feature_detected!("avx512vpopcntdq")
+            && is_x86_feature_detected!("popcnt")
+            && is_x86_feature_detected!("fma")
+        {
+            return Isa::Avx512;
+        }
+        if is_x86_feature_detected!("avx2")
+            && is_x86_feature_detected!("popcnt")
+            && is_x86_feature_detected!("fma")
+        {
+            return Isa::Avx2;
+        }
+    }
+    Isa::Scalar
+}
+
+#[inline(always)]
+fn and_popcount_isa(isa: Isa, a: &[u64], b: &[u64]) -> u32 {
+    #[cfg(target_arch = "x86_64")]
+    match isa {
+        // SAFETY: the CPU supports these features (checked at run time by `isa`).
+        Isa::Avx512 => return unsafe { and_popcount_avx512(a, b) },
+        Isa::Avx2 => return unsafe { and_popcount_avx2(a, b) },
+        Isa::Scalar => {}
+    }
+    let _ = isa;
+    and_popcount(a, b)
+}
+
+/// In-place transpose of a 64 x 64 bit matrix: bit c of `a[r]` becomes bit r of `a[c]`.
+fn transpose64(a: &mut [u64; 64]) {
+    let mut j = 32usize;
+    let mut m: u64 = 0x0000_0000_FFFF_FFFF;
+    while j != 0 {
+        let mut k = 0usize;
+        while k < 64 {
+            // Swap the high j bits of a[k] with the low j bits of a[k + j], per j-block.
+            let t = ((a[k] >> j) ^ a[k | j]) & m;
+            a[k] ^= t << j;
+            a[k | j] ^= t;
+            k = ((k | j) + 1) & !j;
+        }
+        j >>= 1;
+        m ^= m << j;
+    }
+}
+
+/// A raw pointer that may cross threads; every use documents why its accesses are disjoint.
+#[derive(Clone, Copy)]
+struct SharedMut(*mut u64);
+// SAFETY: only used for disjoint writes/reads described at the use site.
+unsafe impl Send for SharedMut {}
+unsafe impl Sync for SharedMut {}
 
 /// Indices of the set bits of a row, ascending.
 #[inline]
@@ -401,70 +558,174 @@ impl Graph {
     pub fn build(p: &Soa, d: f32, nms: f32) -> Graph {
         let n = p.n;
         let words = n.div_ceil(64);
-        let mut hard = vec![0u64; n * words];
-        let mut tight = vec![0u64; n * words];
-        let mut near = vec![0u64; n * words];
-        let avx2 = has_avx2();
-        let sc: Vec<Vec<(u32, f32)>> = hard
-            .par_chunks_mut(words)
-            .zip(tight.par_chunks_mut(words))
-            .zip(near.par_chunks_mut(words))
+        // Rows padded to whole 512-bit vectors (the padding stays 0).
+        let stride = words.div_ceil(8) * 8;
+        let mut hard = vec![0u64; n * stride];
+        let mut tight = vec![0u64; n * stride];
+        let mut near = vec![0u64; n * stride];
+        let isa = isa();
+        // Pass 1: the diagonal 64-column block and everything right of it (all three relations
+        // are symmetric: `cross(i, j)` and `cross(j, i)` are bit-identical).
+        let rows: Vec<Vec<(u32, f32)>> = hard
+            .par_chunks_mut(stride)
+            .zip(tight.par_chunks_mut(stride))
+            .zip(near.par_chunks_mut(stride))
             .enumerate()
             .map(|(i, ((h, t), r))| {
                 let row = (h, t, r);
-                let mut vals = Vec::with_capacity(n / 8 + 16);
-                #[cfg(target_arch = "x86_64")]
-                if avx2 {
-                    // SAFETY: the CPU supports AVX2 (checked at run time).
-                    unsafe { build_row_avx2(p, i, d, nms, words, row, &mut vals) };
-                    return vals;
+                let w0 = i / 64;
+                let mut vals = Vec::with_capacity((n - i) / 8 + 16);
+                match isa {
+                    #[cfg(target_arch = "x86_64")]
+                    // SAFETY: the CPU supports these features (checked at run time by `isa`).
+                    Isa::Avx512 => unsafe {
+                        build_row_avx512(p, i, d, nms, w0, words, row, &mut vals)
+                    },
+                    #[cfg(target_arch = "x86_64")]
+                    // SAFETY: as above.
+                    Isa::Avx2 => unsafe { build_row_avx2(p, i, d, nms, w0, words, row, &mut vals) },
+                    _ => build_row(p, i, d, nms, w0, words, row, &mut vals),
                 }
-                let _ = avx2;
-                build_row(p, i, d, nms, words, row, &mut vals);
                 vals
             })
             .collect();
-        let tight_count = tight
-            .chunks(words)
+        // Pass 2: the words left of the diagonal block, as 64 x 64 bit transposes of pass 1's.
+        let blocks = words;
+        let ptrs = [
+            SharedMut(hard.as_mut_ptr()),
+            SharedMut(tight.as_mut_ptr()),
+            SharedMut(near.as_mut_ptr()),
+        ];
+        (1..blocks).into_par_iter().for_each(|bi| {
+            let rows_i = (n - bi * 64).min(64);
+            let mut tile = [0u64; 64];
+            for ptr in ptrs {
+                for bj in 0..bi {
+                    // Block bj < bi is full (64 rows). Reads: word bi of rows in block bj,
+                    // written by pass 1 only. Writes: word bj < bi of rows in block bi, which
+                    // only this task touches and no task reads.
+                    for (a, t) in tile.iter_mut().enumerate() {
+                        // SAFETY: (bj * 64 + a) < n and bi < words: in bounds; see above.
+                        *t = unsafe { *ptr.0.add((bj * 64 + a) * stride + bi) };
+                    }
+                    transpose64(&mut tile);
+                    for (b, &t) in tile.iter().enumerate().take(rows_i) {
+                        // SAFETY: (bi * 64 + b) < n and bj < words: in bounds; see above.
+                        unsafe { *ptr.0.add((bi * 64 + b) * stride + bj) = t };
+                    }
+                }
+            }
+        });
+        let tight_count: Vec<u32> = tight
+            .chunks(stride)
             .map(|r| r.iter().map(|w| w.count_ones()).sum())
             .collect();
+        let mut by_tight: Vec<u32> = (0..n as u32)
+            .filter(|&j| tight_count[j as usize] > 0)
+            .collect();
+        by_tight.sort_unstable_by(|&a, &b| {
+            tight_count[b as usize]
+                .cmp(&tight_count[a as usize])
+                .then(a.cmp(&b))
+        });
+        let mut sc_start = Vec::with_capacity(n + 1);
+        sc_start.push(0);
+        for r in &rows {
+            sc_start.push(sc_start[sc_start.len() - 1] + r.len());
+        }
+        let nnz = sc_start[n];
+        let mut sc_col = Vec::with_capacity(nnz);
+        let mut sc_val = Vec::with_capacity(nnz);
+        for r in rows {
+            for (j, v) in r {
+                sc_col.push(j);
+                sc_val.push(v);
+            }
+        }
+        // About equal work per part: each entry is read once (gather) and written once
+        // (scatter), each row also costs a little.
+        const PARTS: usize = 16;
+        let cost = |i: usize| sc_start[i] + 8 * i;
+        let total = cost(n);
+        let mut parts = Vec::with_capacity(PARTS);
+        let mut lo = 0;
+        for k in 1..=PARTS {
+            let want = total * k / PARTS;
+            let mut hi = lo;
+            while hi < n && cost(hi) < want {
+                hi += 1;
+            }
+            if k == PARTS {
+                hi = n;
+            }
+            if hi > lo {
+                parts.push((lo, hi));
+            }
+            lo = hi;
+        }
         Graph {
             n,
-            words,
+            stride,
             hard,
             tight,
             near,
-            sc,
+            sc_start,
+            sc_col,
+            sc_val,
+            parts,
+            isa,
             tight_count,
+            by_tight,
         }
     }
 
     pub fn hard(&self, i: usize) -> &[u64] {
-        &self.hard[i * self.words..(i + 1) * self.words]
+        &self.hard[i * self.stride..(i + 1) * self.stride]
     }
     pub fn tight(&self, i: usize) -> &[u64] {
-        &self.tight[i * self.words..(i + 1) * self.words]
+        &self.tight[i * self.stride..(i + 1) * self.stride]
     }
     pub fn near(&self, i: usize) -> &[u64] {
-        &self.near[i * self.words..(i + 1) * self.words]
+        &self.near[i * self.stride..(i + 1) * self.stride]
     }
 
-    /// `y = SC x`, sparse by the hard bitset.
+    /// `y = SC x`, from the upper triangle: each part of rows gathers `SC[i, j>i] x_j` and
+    /// scatters `SC[i, j] x_i` into its own buffer; buffers are summed in a fixed order.
     fn matvec(&self, x: &[f32], y: &mut [f32]) {
-        y.par_iter_mut().enumerate().for_each(|(i, yi)| {
-            let row = &self.sc[i];
-            let mut acc = [0f32; 4];
-            let chunks = row.chunks_exact(4);
-            let rest = chunks.remainder();
-            for c in chunks {
-                for l in 0..4 {
-                    acc[l] += c[l].1 * x[c[l].0 as usize];
+        let n = self.n;
+        let partial: Vec<Vec<f32>> = self
+            .parts
+            .par_iter()
+            .map(|&(lo, hi)| {
+                let mut yl = vec![0f32; n];
+                for i in lo..hi {
+                    let r = self.sc_start[i]..self.sc_start[i + 1];
+                    let (cols, vals) = (&self.sc_col[r.clone()], &self.sc_val[r]);
+                    let xi = x[i];
+                    let mut acc = [0f32; 4];
+                    let (cc, vc) = (cols.chunks_exact(4), vals.chunks_exact(4));
+                    let (cr, vr) = (cc.remainder(), vc.remainder());
+                    for (c, v) in cc.zip(vc) {
+                        for l in 0..4 {
+                            let j = c[l] as usize;
+                            acc[l] += v[l] * x[j];
+                            yl[j] += v[l] * xi;
+                        }
+                    }
+                    for (&j, &v) in cr.iter().zip(vr) {
+                        acc[0] += v * x[j as usize];
+                        yl[j as usize] += v * xi;
+                    }
+                    yl[i] += (acc[0] + acc[1]) + (acc[2] + acc[3]);
                 }
+                yl
+            })
+            .collect();
+        y.par_chunks_mut(1024).enumerate().for_each(|(c, ys)| {
+            let base = c * 1024;
+            for (k, yv) in ys.iter_mut().enumerate() {
+                *yv = partial.iter().map(|p| p[base + k]).sum();
             }
-            for &(j, v) in rest {
-                acc[0] += v * x[j as usize];
-            }
-            *yi = (acc[0] + acc[1]) + (acc[2] + acc[3]);
         });
     }
 
@@ -509,61 +770,91 @@ impl Graph {
 
     /// Top-k1 correspondences of seed s by `SC2[s, j] = |tight[s] ∩ tight[j]| · hard[s, j]`,
     /// descending, ties by lower index; zero-valued entries fill the list in index order.
+    #[cfg(test)]
     pub fn sc2_top_k(&self, s: usize, k1: usize) -> Vec<usize> {
-        let ts = self.tight(s);
-        let avx2 = has_avx2();
-        // Candidates j with hard[s, j], visited by decreasing bound |tight[j]| so that the scan
-        // stops once no remaining j can enter the top-k1.
-        let mut cand: Vec<(u32, u32)> = Vec::with_capacity(self.sc[s].len());
-        for_each_bit(self.hard(s), |j| {
-            let b = self.tight_count[j].min(self.tight_count[s]);
-            if b > 0 {
-                cand.push((b, j as u32));
-            }
-        });
-        cand.sort_unstable_by(|a, b| b.0.cmp(&a.0).then(a.1.cmp(&b.1)));
+        self.sc2_top_k_block(&[s], k1).pop().unwrap_or_default()
+    }
+
+    /// [`sc2_top_k`](Self::sc2_top_k) for a block of seeds at once. Candidates j are visited
+    /// in the global order of decreasing `|tight[j]|` (ties by index), so for every seed the
+    /// bound `min(|tight[j]|, |tight[s]|)` never increases and its scan stops once nothing left
+    /// can enter its top-k1; the result does not depend on the visiting order. Each tight row
+    /// is loaded once per block instead of once per seed.
+    pub fn sc2_top_k_block(&self, seeds: &[usize], k1: usize) -> Vec<Vec<usize>> {
+        let tc = &self.tight_count;
         // (value, index) ordered by value desc, then index asc.
-        let mut top: Vec<(u32, usize)> = Vec::with_capacity(k1 + 1);
-        for &(bound, j) in &cand {
+        let mut tops: Vec<Vec<(u32, usize)>> = vec![Vec::with_capacity(k1 + 1); seeds.len()];
+        let mut active: Vec<bool> = seeds.iter().map(|&s| tc[s] > 0).collect();
+        let mut need: Vec<usize> = Vec::with_capacity(seeds.len());
+        let mut rows: Vec<&[u64]> = Vec::with_capacity(seeds.len());
+        let mut vals = vec![0u32; seeds.len()];
+        for &j in &self.by_tight {
             let j = j as usize;
-            if top.len() == k1 && bound < top[k1 - 1].0 {
+            let tj = self.tight(j);
+            let mut any = false;
+            need.clear();
+            rows.clear();
+            for (b, &s) in seeds.iter().enumerate() {
+                if !active[b] {
+                    continue;
+                }
+                let top = &tops[b];
+                let bound = tc[j].min(tc[s]);
+                if top.len() == k1 && bound < top[k1 - 1].0 {
+                    active[b] = false;
+                    continue;
+                }
+                any = true;
+                if bit(self.hard(s), j) {
+                    need.push(b);
+                    rows.push(self.tight(s));
+                }
+            }
+            if !any {
                 break;
             }
-            #[cfg(target_arch = "x86_64")]
-            let v = if avx2 {
-                // SAFETY: the CPU supports AVX2 and POPCNT (checked at run time).
-                unsafe { and_popcount_avx2(ts, self.tight(j)) }
-            } else {
-                and_popcount(ts, self.tight(j))
-            };
-            #[cfg(not(target_arch = "x86_64"))]
-            let v = {
-                let _ = avx2;
-                and_popcount(ts, self.tight(j))
-            };
-            if v == 0 {
-                continue;
-            }
-            let pos = top.partition_point(|&(tv, tj)| tv > v || (tv == v && tj < j));
-            if pos < k1 {
-                top.insert(pos, (v, j));
-                top.truncate(k1);
-            }
-        }
-        let mut knn: Vec<usize> = top.iter().map(|&(_, j)| j).collect();
-        if knn.len() < k1 {
-            let mut chosen = knn.clone();
-            chosen.sort_unstable();
-            for j in 0..self.n {
-                if knn.len() == k1 {
-                    break;
+            let vals = &mut vals[..need.len()];
+            match self.isa {
+                #[cfg(target_arch = "x86_64")]
+                // SAFETY: the CPU supports AVX-512F and VPOPCNTDQ (checked at run time by
+                // `isa`); rows are `stride` words, a multiple of 8.
+                Isa::Avx512 => unsafe { and_popcount_many_avx512(tj, &rows, vals) },
+                _ => {
+                    for (v, r) in vals.iter_mut().zip(&rows) {
+                        *v = and_popcount_isa(self.isa, r, tj);
+                    }
                 }
-                if chosen.binary_search(&j).is_err() {
-                    knn.push(j);
+            }
+            for (&b, &v) in need.iter().zip(vals.iter()) {
+                if v == 0 {
+                    continue;
+                }
+                let top = &mut tops[b];
+                let pos = top.partition_point(|&(tv, tl)| tv > v || (tv == v && tl < j));
+                if pos < k1 {
+                    top.insert(pos, (v, j));
+                    top.truncate(k1);
                 }
             }
         }
-        knn
+        tops.into_iter()
+            .map(|top| {
+                let mut knn: Vec<usize> = top.iter().map(|&(_, j)| j).collect();
+                if knn.len() < k1 {
+                    let mut chosen = knn.clone();
+                    chosen.sort_unstable();
+                    for j in 0..self.n {
+                        if knn.len() == k1 {
+                            break;
+                        }
+                        if chosen.binary_search(&j).is_err() {
+                            knn.push(j);
+                        }
+                    }
+                }
+                knn
+            })
+            .collect()
     }
 
     /// Second stage: within the k1 set, row 0 of `hard @ hard` (local hard from the global
@@ -758,6 +1049,62 @@ mod tests {
             let mut o2: Vec<usize> = (0..k1).collect();
             o2.sort_by(|&a, &b| row0[b].cmp(&row0[a]));
             o2[..k2].iter().map(|&k| knn[k]).collect()
+        }
+    }
+
+    #[test]
+    fn transpose64_matches_naive() {
+        let mut s = 0x1234_5678_9abc_def0u64;
+        let mut a = [0u64; 64];
+        for w in &mut a {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            *w = s;
+        }
+        let mut t = a;
+        transpose64(&mut t);
+        for r in 0..64 {
+            for c in 0..64 {
+                assert_eq!(t[c] >> r & 1, a[r] >> c & 1, "({r}, {c})");
+            }
+        }
+    }
+
+    #[test]
+    fn popcount_kernels_agree() {
+        let a: Vec<u64> = (0..131u64)
+            .map(|k| k.wrapping_mul(0x9e37_79b9_7f4a_7c15))
+            .collect();
+        let b: Vec<u64> = (0..131u64)
+            .map(|k| (k + 7).wrapping_mul(0xc2b2_ae3d_27d4_eb4f))
+            .collect();
+        let want = and_popcount(&a, &b);
+        for isa in [Isa::Scalar, isa()] {
+            assert_eq!(and_popcount_isa(isa, &a, &b), want);
+        }
+        #[cfg(target_arch = "x86_64")]
+        if isa() == Isa::Avx512 {
+            let pad = |v: &[u64]| {
+                let mut p = v.to_vec();
+                p.resize(136, 0);
+                p
+            };
+            let rows: Vec<Vec<u64>> = (0..6u64)
+                .map(|r| {
+                    pad(&b
+                        .iter()
+                        .map(|x| x.rotate_left(r as u32 * 7))
+                        .collect::<Vec<_>>())
+                })
+                .collect();
+            let refs: Vec<&[u64]> = rows.iter().map(|r| r.as_slice()).collect();
+            let mut out = vec![0u32; 6];
+            // SAFETY: checked AVX-512 support; rows are 136 = 17 x 8 words.
+            unsafe { and_popcount_many_avx512(&pad(&a), &refs, &mut out) };
+            for (o, r) in out.iter().zip(&rows) {
+                assert_eq!(*o, and_popcount(&pad(&a), r));
+            }
         }
     }
 

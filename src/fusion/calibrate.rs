@@ -111,19 +111,25 @@ fn row_softmax(m: &mut DenseMatrix, row_valid: Option<&[bool]>, bias: &[f32], it
             for (v, b) in row.iter_mut().zip(bias) {
                 *v += b;
             }
-            let mx = max_lanes(row);
-            if mx == f32::NEG_INFINITY {
-                row.fill(0.0);
-                return;
-            }
-            for v in row.iter_mut() {
-                *v = fast_exp((*v - mx) * it);
-            }
-            let inv = 1.0 / sum_lanes(row);
-            for v in row.iter_mut() {
-                *v *= inv;
-            }
+            softmax_tail(row, it);
         });
+}
+
+/// Row softmax of the biased logits already in `row`.
+#[inline(always)]
+fn softmax_tail(row: &mut [f32], it: f32) {
+    let mx = max_lanes(row);
+    if mx == f32::NEG_INFINITY {
+        row.fill(0.0);
+        return;
+    }
+    for v in row.iter_mut() {
+        *v = fast_exp((*v - mx) * it);
+    }
+    let inv = 1.0 / sum_lanes(row);
+    for v in row.iter_mut() {
+        *v *= inv;
+    }
 }
 
 fn dual_softmax(
@@ -246,7 +252,7 @@ fn dual_softmax(
 }
 
 /// Sum with 8 independent accumulators so the loop vectorises.
-#[inline]
+#[inline(always)]
 #[allow(clippy::needless_range_loop)]
 pub(crate) fn sum_lanes(x: &[f32]) -> f32 {
     let mut acc = [0.0f32; 8];
@@ -284,7 +290,7 @@ fn max_plus(row: &[f32], bias: &[f32]) -> f32 {
 }
 
 /// Maximum with 8 independent lanes (NaN entries are ignored).
-#[inline]
+#[inline(always)]
 #[allow(clippy::needless_range_loop)]
 pub(crate) fn max_lanes(x: &[f32]) -> f32 {
     let mut acc = [f32::NEG_INFINITY; 8];

@@ -19,8 +19,9 @@ impl DenseMatrix {
     /// A zero matrix; errors when `rows * cols` overflows.
     pub fn zeros(rows: usize, cols: usize) -> Result<Self> {
         let n = checked_len(rows, cols)?;
-        let mut data = big_vec(n);
-        data.resize(n, 0.0);
+        // Zeroed allocation: large ones come as fresh zero pages, so nothing is written here.
+        let data = vec![0.0f32; n];
+        advise_huge(&data);
         Ok(DenseMatrix { rows, cols, data })
     }
 
@@ -117,21 +118,29 @@ impl DenseMatrix {
 /// transparent huge pages: first-touch page faults on 4 KiB pages cost about as much as the
 /// softmax itself on a 100 MB matrix.
 pub(crate) fn big_vec(n: usize) -> Vec<f32> {
-    let v = Vec::with_capacity(n);
+    let mut v = Vec::with_capacity(n);
+    advise_huge(v.spare_capacity_mut());
+    v
+}
+
+/// Advises the kernel to back the pages inside `buf` with transparent huge pages (Linux,
+/// buffers of 4 MiB or more; elsewhere nothing).
+fn advise_huge<T>(buf: &[T]) {
     #[cfg(target_os = "linux")]
     {
-        let (addr, len) = (v.as_ptr() as usize, n * std::mem::size_of::<f32>());
+        let (addr, len) = (buf.as_ptr() as usize, std::mem::size_of_val(buf));
         let start = (addr + 4095) & !4095;
         let end = (addr + len) & !4095;
         if len >= 4 << 20 && end > start {
-            // SAFETY: advice on pages inside our own fresh allocation; it changes no contents
-            // and a failure is harmless.
+            // SAFETY: advice on pages inside our own allocation; it changes no contents and a
+            // failure is harmless.
             unsafe {
                 libc::madvise(start as *mut libc::c_void, end - start, libc::MADV_HUGEPAGE);
             }
         }
     }
-    v
+    #[cfg(not(target_os = "linux"))]
+    let _ = buf;
 }
 
 fn checked_len(rows: usize, cols: usize) -> Result<usize> {

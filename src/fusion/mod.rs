@@ -8,6 +8,7 @@
 
 pub mod calibrate;
 pub mod fuse;
+mod fused;
 pub mod matrix;
 pub mod select;
 pub mod similarity;
@@ -149,6 +150,19 @@ pub fn match_then_fuse(
         )));
     }
 
+    // The paper's default configuration in one pass (same results as the general path).
+    if let Some((a, b)) = one_pass_branches(sim_img, sim_geo, params) {
+        let out = fused::row_softmax_noisy_and(&a, &b, params.prior, params.selection, true)?;
+        let (p_img, p_geo, fused) = out.mats.ok_or_else(missing)?;
+        let peak_bytes = p_img.bytes() + p_geo.bytes() + fused.bytes();
+        return Ok(FusionOutput {
+            correspondences: out.correspondences,
+            p_img: Some(p_img),
+            p_geo: Some(p_geo),
+            fused,
+            peak_bytes,
+        });
+    }
     let p_img = sim_img
         .map(|(s, rv, cv)| calibrate(s, rv, cv, params.calibration_img))
         .transpose()?;
@@ -198,6 +212,84 @@ pub fn match_then_fuse(
         fused,
         peak_bytes,
     })
+}
+
+/// The branches of the configuration [`fused`] handles in one pass: both similarities, row
+/// softmax for both, stable Noisy-AND, mutual or row nearest neighbours.
+fn one_pass_branches<'a>(
+    sim_img: Option<ImageSimilarity<'a>>,
+    sim_geo: Option<&'a DenseMatrix>,
+    params: &FusionParams,
+) -> Option<(fused::Branch<'a>, fused::Branch<'a>)> {
+    match (
+        sim_img,
+        sim_geo,
+        params.calibration_img,
+        params.calibration_geo,
+        params.mode,
+        params.exact_reference,
+        params.selection,
+    ) {
+        (
+            Some((si, rv, cv)),
+            Some(sg),
+            Calibration::RowSoftmax { tau: ta },
+            Calibration::RowSoftmax { tau: tg },
+            FusionMode::NoisyAnd,
+            false,
+            Selection::MutualNn | Selection::RowNn,
+        ) => Some((
+            fused::Branch {
+                sim: si,
+                row_valid: rv,
+                col_valid: cv,
+                tau: ta,
+            },
+            fused::Branch {
+                sim: sg,
+                row_valid: None,
+                col_valid: None,
+                tau: tg,
+            },
+        )),
+        _ => None,
+    }
+}
+
+/// The correspondences [`match_then_fuse`] selects (identical, same order and scores),
+/// without returning the posterior matrices. For the paper's default configuration (row
+/// softmax, Noisy-AND, mutual or row nearest neighbours) no N x M matrix is formed at all:
+/// memory is O(N + M) and the inputs are read once. Other configurations fall back to
+/// [`match_then_fuse`].
+pub fn match_then_fuse_select(
+    sim_img: Option<ImageSimilarity<'_>>,
+    sim_geo: Option<&DenseMatrix>,
+    params: &FusionParams,
+) -> Result<Vec<Correspondence>> {
+    if let (Some((a, _, _)), Some(b)) = (sim_img, sim_geo) {
+        for (what, m) in [("image", a), ("geometric", b)] {
+            if m.data.len() != m.rows * m.cols {
+                return Err(Error::Invalid(format!(
+                    "match-then-fuse: {what} similarity holds {} values, expected {} x {}",
+                    m.data.len(),
+                    m.rows,
+                    m.cols
+                )));
+            }
+        }
+        if let Some((_, rv, cv)) = sim_img {
+            matrix::check_masks("match-then-fuse image validity", a.rows, a.cols, rv, cv)?;
+        }
+    }
+    match one_pass_branches(sim_img, sim_geo, params) {
+        Some((a, b)) => {
+            Ok(
+                fused::row_softmax_noisy_and(&a, &b, params.prior, params.selection, false)?
+                    .correspondences,
+            )
+        }
+        None => Ok(match_then_fuse(sim_img, sim_geo, params)?.correspondences),
+    }
 }
 
 fn missing() -> Error {

@@ -55,7 +55,7 @@ pub fn select(scores: &DenseMatrix, sel: Selection) -> Vec<Correspondence> {
     out
 }
 
-fn order(a: &Correspondence, b: &Correspondence) -> Ordering {
+pub(crate) fn order(a: &Correspondence, b: &Correspondence) -> Ordering {
     b.score
         .total_cmp(&a.score)
         .then(a.src.cmp(&b.src))

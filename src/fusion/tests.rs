@@ -166,3 +166,47 @@ fn params_round_trip_through_json() {
     assert_eq!(partial.mode, FusionMode::NoisyOr);
     assert_eq!(partial.selection, Selection::MutualNn);
 }
+
+/// The one-pass path of the default configuration gives exactly what the general path
+/// (calibrate x 2, rank keys, select, keys to posteriors) gives, with masks and ties.
+#[test]
+fn one_pass_default_equals_general_path() {
+    let (n, m) = (157, 211);
+    let mut rng = Rng(7);
+    let mut s_img = DenseMatrix::from_fn(n, m, |_, _| rng.normal() * 0.3).unwrap();
+    let s_geo = DenseMatrix::from_fn(n, m, |_, _| rng.normal() * 0.3).unwrap();
+    // Exact ties within a row and within a column.
+    s_img.data[5 * m + 3] = 3.0;
+    s_img.data[5 * m + 9] = 3.0;
+    s_img.data[8 * m + 3] = 3.0;
+    let rv: Vec<bool> = (0..n).map(|i| i % 7 != 2).collect();
+    let cv: Vec<bool> = (0..m).map(|j| j % 5 != 1).collect();
+    for sel in [Selection::MutualNn, Selection::RowNn] {
+        for (rvo, cvo) in [(None, None), (Some(&rv[..]), Some(&cv[..]))] {
+            for prior in [None, Some(1e-3)] {
+                let p = FusionParams {
+                    selection: sel,
+                    prior,
+                    calibration_geo: Calibration::RowSoftmax { tau: 0.07 },
+                    ..FusionParams::default()
+                };
+                let got = match_then_fuse(Some((&s_img, rvo, cvo)), Some(&s_geo), &p).unwrap();
+                let a = calibrate(&s_img, rvo, cvo, p.calibration_img).unwrap();
+                let b = calibrate(&s_geo, None, None, p.calibration_geo).unwrap();
+                let mut keys = fuse::noisy_and_rank_keys(&a, &b).unwrap();
+                let mut corr = select(&keys, sel);
+                fuse::rank_keys_to_posteriors(&mut keys, prior).unwrap();
+                for c in &mut corr {
+                    c.score = keys.get(c.src as usize, c.tgt as usize);
+                }
+                assert_eq!(got.p_img.as_ref(), Some(&a));
+                assert_eq!(got.p_geo.as_ref(), Some(&b));
+                assert_eq!(got.fused, keys);
+                assert_eq!(got.correspondences, corr, "{sel:?} masks {}", rvo.is_some());
+                let only = match_then_fuse_select(Some((&s_img, rvo, cvo)), Some(&s_geo), &p);
+                assert_eq!(only.unwrap(), corr);
+                assert!(!corr.is_empty());
+            }
+        }
+    }
+}

@@ -1,0 +1,428 @@
+//! The paper's default configuration (row softmax per branch, stable Noisy-AND, mutual or
+//! row nearest neighbours) in one pass over the rows instead of five passes over N x M
+//! matrices: per row, both softmaxes are written, the Noisy-AND rank keys are formed in a
+//! row-sized scratch buffer, the row argmax and the running column maxima are updated, and
+//! the fused posteriors are written. The outputs are bit-identical to the general path
+//! (`calibrate` x 2, `noisy_and_rank_keys`, `select`, `rank_keys_to_posteriors`): the same
+//! per-element formulas, the same per-row reductions, and the same tie rules (row ties to the
+//! lowest column, column ties to the lowest row).
+
+use super::calibrate::{fast_exp, max_lanes, sum_lanes};
+use super::fuse::{default_prior, noisy_and_rank_key};
+use super::matrix::{rows_per_task, DenseMatrix};
+use super::select::{order, Selection};
+use super::Correspondence;
+use crate::{Error, Result};
+use rayon::prelude::*;
+
+/// Row-softmax inputs for one branch: similarity, row validity, column validity.
+pub(crate) struct Branch<'a> {
+    pub sim: &'a DenseMatrix,
+    pub row_valid: Option<&'a [bool]>,
+    pub col_valid: Option<&'a [bool]>,
+    pub tau: f32,
+}
+
+/// The correspondences and, when asked for, the posteriors `(p_img, p_geo, fused)`.
+pub(crate) struct FusedOut {
+    pub mats: Option<(DenseMatrix, DenseMatrix, DenseMatrix)>,
+    pub correspondences: Vec<Correspondence>,
+}
+
+fn bias(cols: usize, valid: Option<&[bool]>) -> Vec<f32> {
+    match valid {
+        Some(c) => c
+            .iter()
+            .map(|&v| if v { 0.0 } else { f32::NEG_INFINITY })
+            .collect(),
+        None => vec![0.0; cols],
+    }
+}
+
+fn check_tau(tau: f32) -> Result<()> {
+    if tau.is_finite() && tau > 0.0 {
+        Ok(())
+    } else {
+        Err(Error::Invalid(format!(
+            "calibrate: temperature must be a positive finite number, found {tau}"
+        )))
+    }
+}
+
+/// Per band of rows: column maxima of the rank keys and their rows (`u32::MAX` = none).
+type ColBest = (Vec<f32>, Vec<u32>);
+
+struct Ctx<'a> {
+    cols: usize,
+    band: usize,
+    a: &'a Branch<'a>,
+    b: &'a Branch<'a>,
+    bias_a: &'a [f32],
+    bias_b: &'a [f32],
+    /// `(1 - pi) / pi`: posterior odds = key * c.
+    c: f64,
+    want_cols: bool,
+}
+
+/// `out = exp((src + bias - max) * it)`; returns `1 / sum` (the sum as `sum_lanes` forms it),
+/// or None when the row is invalid or nothing is finite (the softmax row is then all 0).
+/// `out * inv` is bit for bit the row `calibrate`'s row softmax gives.
+#[inline(always)]
+fn softmax_unnormalised(
+    out: &mut [f32],
+    src: &[f32],
+    bias: &[f32],
+    it: f32,
+    valid: bool,
+) -> Option<f32> {
+    if !valid {
+        return None;
+    }
+    for ((o, s), b) in out.iter_mut().zip(src).zip(bias) {
+        *o = s + b;
+    }
+    let mx = max_lanes(out);
+    if mx == f32::NEG_INFINITY {
+        return None;
+    }
+    for v in out.iter_mut() {
+        *v = fast_exp((*v - mx) * it);
+    }
+    Some(1.0 / sum_lanes(out))
+}
+
+/// First index of `m` in `x` (exact comparison), scanning 64-entry blocks vectorised.
+#[inline(always)]
+fn first_eq(x: &[f32], m: f32) -> Option<usize> {
+    for (q, c) in x.chunks(64).enumerate() {
+        let hit = c.iter().fold(false, |h, &v| h | (v == m));
+        if hit {
+            return c.iter().position(|&v| v == m).map(|k| q * 64 + k);
+        }
+    }
+    None
+}
+
+/// Row i: both softmaxes (normalised into `ra`, `rb` when `rf` is given, else left
+/// unnormalised there), the rank keys into `keys`, the column maxima updated, the posteriors
+/// into `rf` if given; returns the row's best target (first maximum of the keys, if > 0) with
+/// its key.
+#[inline(always)]
+fn row_step(
+    x: &Ctx<'_>,
+    i: usize,
+    ra: &mut [f32],
+    rb: &mut [f32],
+    rf: Option<&mut [f32]>,
+    keys: &mut [f32],
+    (cb, ci): &mut ColBest,
+) -> Option<(usize, f32)> {
+    let ok = |v: Option<&[bool]>| v.is_none_or(|r| r[i]);
+    let ia = softmax_unnormalised(
+        ra,
+        x.a.sim.row(i),
+        x.bias_a,
+        1.0 / x.a.tau,
+        ok(x.a.row_valid),
+    );
+    let ib = softmax_unnormalised(
+        rb,
+        x.b.sim.row(i),
+        x.bias_b,
+        1.0 / x.b.tau,
+        ok(x.b.row_valid),
+    );
+    let store = rf.is_some();
+    let (ia, ib) = match (ia, ib) {
+        (Some(ia), Some(ib)) => (ia, ib),
+        _ => {
+            // One branch is all 0 in this row: every key and posterior is 0.
+            if let Some(rf) = rf {
+                for (r, inv) in [(ra, ia), (rb, ib)] {
+                    match inv {
+                        Some(inv) => r.iter_mut().for_each(|v| *v *= inv),
+                        None => r.fill(0.0),
+                    }
+                }
+                rf.fill(0.0);
+            }
+            return None;
+        }
+    };
+    if store {
+        ra.iter_mut().for_each(|v| *v *= ia);
+        rb.iter_mut().for_each(|v| *v *= ib);
+        for ((k, &p), &q) in keys.iter_mut().zip(&*ra).zip(&*rb) {
+            *k = noisy_and_rank_key(p, q);
+        }
+    } else {
+        for ((k, &a), &b) in keys.iter_mut().zip(&*ra).zip(&*rb) {
+            *k = noisy_and_rank_key(a * ia, b * ib);
+        }
+    }
+    if x.want_cols {
+        let iu = i as u32;
+        for ((v, b), c) in keys.iter().zip(cb.iter_mut()).zip(ci.iter_mut()) {
+            let better = *v > *b;
+            *b = if better { *v } else { *b };
+            *c = if better { iu } else { *c };
+        }
+    }
+    let mx = max_lanes(keys);
+    let best = if mx > 0.0 {
+        first_eq(keys, mx).map(|j| (j, mx))
+    } else {
+        None
+    };
+    if let Some(rf) = rf {
+        for (f, &key) in rf.iter_mut().zip(&*keys) {
+            *f = posterior(key, x.c);
+        }
+    }
+    best
+}
+
+/// Noisy-AND posterior from a rank key, as `rank_keys_to_posteriors` computes it.
+#[inline(always)]
+fn posterior(key: f32, c: f64) -> f32 {
+    let o = key as f64 * c;
+    if o < f64::INFINITY {
+        (o / (1.0 + o)) as f32
+    } else {
+        1.0
+    }
+}
+
+/// One band of rows `t * band ..`. With `out = Some((pa, pb, pf))` the three output rows are
+/// written there; without, the softmax rows live in `tmp` and no posterior matrix is formed.
+#[inline(always)]
+fn band_kernel(
+    x: &Ctx<'_>,
+    t: usize,
+    out: BandOut<'_>,
+    best: &mut [Option<(usize, f32)>],
+    tmp: &mut Tmp,
+    cbi: &mut ColBest,
+) {
+    let cols = x.cols;
+    let Tmp { a, b, keys } = tmp;
+    match out {
+        Some((pa, pb, pf)) => {
+            let rows = pa.chunks_mut(cols).zip(pb.chunks_mut(cols));
+            for (k, ((ra, rb), rf)) in rows.zip(pf.chunks_mut(cols)).enumerate() {
+                best[k] = row_step(x, t * x.band + k, ra, rb, Some(rf), keys, cbi);
+            }
+        }
+        None => {
+            for (k, bt) in best.iter_mut().enumerate() {
+                *bt = row_step(x, t * x.band + k, a, b, None, keys, cbi);
+            }
+        }
+    }
+}
+
+/// The output rows of one band: `(p_img, p_geo, fused)`.
+type BandOut<'a> = Option<(&'a mut [f32], &'a mut [f32], &'a mut [f32])>;
+
+/// Row-sized scratch buffers of one task.
+struct Tmp {
+    a: Vec<f32>,
+    b: Vec<f32>,
+    keys: Vec<f32>,
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn band_kernel_avx2(
+    x: &Ctx<'_>,
+    t: usize,
+    out: BandOut<'_>,
+    best: &mut [Option<(usize, f32)>],
+    tmp: &mut Tmp,
+    cbi: &mut ColBest,
+) {
+    band_kernel(x, t, out, best, tmp, cbi)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512bw,avx512vl,avx512dq,avx2")]
+unsafe fn band_kernel_avx512(
+    x: &Ctx<'_>,
+    t: usize,
+    out: BandOut<'_>,
+    best: &mut [Option<(usize, f32)>],
+    tmp: &mut Tmp,
+    cbi: &mut ColBest,
+) {
+    band_kernel(x, t, out, best, tmp, cbi)
+}
+
+#[derive(Clone, Copy)]
+enum Isa {
+    Avx512,
+    Avx2,
+    Scalar,
+}
+
+fn isa() -> Isa {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if is_x86_feature_detected!("avx512f")
+            && is_x86_feature_detected!("avx512bw")
+            && is_x86_feature_detected!("avx512vl")
+            && is_x86_feature_detected!("avx512dq")
+        {
+            return Isa::Avx512;
+        }
+        if is_x86_feature_detected!("avx2") {
+            return Isa::Avx2;
+        }
+    }
+    Isa::Scalar
+}
+
+/// Row softmax of both branches, Noisy-AND (stable, prior `prior` or 1 / (N M)) and
+/// `selection` (MutualNn or RowNn; anything else is an error), in one pass. With
+/// `materialise` the posteriors `(p_img, p_geo, fused)` are returned as well; without, no
+/// N x M matrix is allocated (memory O(N + M) per task).
+pub(crate) fn row_softmax_noisy_and(
+    a: &Branch<'_>,
+    b: &Branch<'_>,
+    prior: Option<f64>,
+    selection: Selection,
+    materialise: bool,
+) -> Result<FusedOut> {
+    let want_cols = match selection {
+        Selection::MutualNn => true,
+        Selection::RowNn => false,
+        Selection::TopK(_) => {
+            return Err(Error::Invalid(
+                "fused row-softmax Noisy-AND: top-k selection is not supported here".into(),
+            ))
+        }
+    };
+    check_tau(a.tau)?;
+    check_tau(b.tau)?;
+    let (rows, cols) = a.sim.shape();
+    if b.sim.shape() != (rows, cols) {
+        return Err(Error::Invalid(format!(
+            "fusion: image similarity is {rows} x {cols}, geometric similarity is {} x {}",
+            b.sim.rows, b.sim.cols
+        )));
+    }
+    let mut mats = if materialise {
+        Some((
+            DenseMatrix::zeros(rows, cols)?,
+            DenseMatrix::zeros(rows, cols)?,
+            DenseMatrix::zeros(rows, cols)?,
+        ))
+    } else {
+        None
+    };
+    if rows == 0 || cols == 0 {
+        return Ok(FusedOut {
+            mats,
+            correspondences: Vec::new(),
+        });
+    }
+    let prior = prior.unwrap_or_else(|| default_prior(rows, cols));
+    if !(prior > 0.0 && prior < 1.0) {
+        return Err(Error::Invalid(format!(
+            "fusion prior must lie strictly between 0 and 1, found {prior}"
+        )));
+    }
+    let (bias_a, bias_b) = (bias(cols, a.col_valid), bias(cols, b.col_valid));
+    let band = rows_per_task(rows, cols, 1 << 16);
+    let c = (1.0 - prior) / prior;
+    let x = Ctx {
+        cols,
+        band,
+        a,
+        b,
+        bias_a: &bias_a,
+        bias_b: &bias_b,
+        c,
+        want_cols,
+    };
+    let isa = isa();
+    let mut best: Vec<Option<(usize, f32)>> = vec![None; rows];
+    let col_len = if want_cols { cols } else { 0 };
+    let init = || {
+        let tmp = Tmp {
+            a: vec![0.0f32; if materialise { 0 } else { cols }],
+            b: vec![0.0f32; if materialise { 0 } else { cols }],
+            keys: vec![0.0f32; cols],
+        };
+        ((vec![0.0f32; col_len], vec![u32::MAX; col_len]), tmp)
+    };
+    let step = |(mut cbi, mut tmp): (ColBest, Tmp),
+                (t, out, bt): (usize, BandOut<'_>, &mut [Option<(usize, f32)>])| {
+        match isa {
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: the CPU supports these features (checked at run time by `isa`).
+            Isa::Avx512 => unsafe { band_kernel_avx512(&x, t, out, bt, &mut tmp, &mut cbi) },
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: as above.
+            Isa::Avx2 => unsafe { band_kernel_avx2(&x, t, out, bt, &mut tmp, &mut cbi) },
+            _ => band_kernel(&x, t, out, bt, &mut tmp, &mut cbi),
+        }
+        (cbi, tmp)
+    };
+    // Folds cover consecutive bands and are reduced in order; only a strictly greater key
+    // replaces, so column ties go to the lowest row.
+    let merge = |(mut cb, mut ci): ColBest, (cb2, ci2): ColBest| {
+        for j in 0..cb.len() {
+            if cb2[j] > cb[j] {
+                cb[j] = cb2[j];
+                ci[j] = ci2[j];
+            }
+        }
+        (cb, ci)
+    };
+    let chunk = band * cols;
+    let (_, cidx) = match &mut mats {
+        Some((pa, pb, pf)) => pa
+            .data
+            .par_chunks_mut(chunk)
+            .zip(pb.data.par_chunks_mut(chunk))
+            .zip(pf.data.par_chunks_mut(chunk))
+            .zip(best.par_chunks_mut(band))
+            .enumerate()
+            .fold(init, |acc, (t, (((pa, pb), pf), bt))| {
+                step(acc, (t, Some((pa, pb, pf)), bt))
+            })
+            .map(|(cbi, _)| cbi)
+            .reduce_with(merge),
+        None => best
+            .par_chunks_mut(band)
+            .enumerate()
+            .fold(init, |acc, (t, bt)| step(acc, (t, None, bt)))
+            .map(|(cbi, _)| cbi)
+            .reduce_with(merge),
+    }
+    .unwrap_or_default();
+    // Sorted by key (as the general path ranks), then scored by the posterior.
+    let mut keyed: Vec<Correspondence> = best
+        .iter()
+        .enumerate()
+        .filter_map(|(i, b)| {
+            let (j, key) = (*b)?;
+            if want_cols && cidx[j] != i as u32 {
+                return None;
+            }
+            Some(Correspondence {
+                src: i as u32,
+                tgt: j as u32,
+                score: key,
+            })
+        })
+        .collect();
+    keyed.sort_unstable_by(order);
+    for k in &mut keyed {
+        k.score = posterior(k.score, c);
+    }
+    Ok(FusedOut {
+        mats,
+        correspondences: keyed,
+    })
+}
