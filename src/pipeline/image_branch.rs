@@ -486,6 +486,86 @@ pub fn register_with_image(
     ib: &ImageBranchParams,
     cache: Option<&Cache>,
 ) -> Result<RegistrationResult> {
+    register_with_image_keep(pair, params, ib, cache, true).map(|(r, _)| r)
+}
+
+/// Start of the error returned by [`register_with_image_keep`] when `generate` is false and the
+/// generation is not in the cache.
+pub const GENERATION_NOT_CACHED: &str = "generation not cached";
+
+/// Inputs of the in-memory stages (similarity onward): with them, a change of temperature,
+/// fusion mode, selection or estimator re-runs only [`fuse_and_finish`] (the GUI keeps them).
+#[derive(Clone, Debug)]
+pub struct FusionInputs {
+    pub source_geo: GeoBranch,
+    pub target_geo: GeoBranch,
+    /// Per-keypoint image descriptors with their validity (source, target); None: geometry only.
+    pub image: Option<(Features, Vec<bool>, Features, Vec<bool>)>,
+    /// Label of the image branch, as in `RegistrationResult::image_branch` (fusion mode aside).
+    pub image_label: Option<String>,
+}
+
+/// Similarity, calibration, fusion, selection and estimation from kept [`FusionInputs`]; the
+/// same computation as the tail of [`register_with_image`] (image branch present) or the
+/// geometric-only registration (image None: geometry-only fusion, streaming row-NN when the
+/// calibration allows it). `res.image` is left None: the caller re-attaches the views.
+pub fn fuse_and_finish(
+    pair: &ScanPair,
+    params: &RegisterParams,
+    inputs: &FusionInputs,
+) -> Result<RegistrationResult> {
+    let mut timer = Timer::new();
+    let (src, tgt) = (&inputs.source_geo, &inputs.target_geo);
+    let corr = match &inputs.image {
+        Some((f_src, v_src, f_tgt, v_tgt)) => {
+            let t = Instant::now();
+            let s_img = cosine_similarity(f_src, f_tgt)?;
+            let s_geo = cosine_similarity(&src.features, &tgt.features)?;
+            timer.record("similarity", t.elapsed(), false);
+            let t = Instant::now();
+            let fused = match_then_fuse(
+                Some((&s_img, Some(v_src), Some(v_tgt))),
+                Some(&s_geo),
+                &params.fusion,
+            )?;
+            timer.record("fusion", t.elapsed(), false);
+            fused.correspondences
+        }
+        None => {
+            let mut fusion = params.fusion;
+            fusion.mode = crate::fusion::FusionMode::GeometryOnly;
+            let t = Instant::now();
+            let c = match (fusion.selection, fusion.calibration_geo) {
+                (
+                    crate::fusion::Selection::RowNn,
+                    crate::fusion::Calibration::RowSoftmax { tau },
+                ) => crate::fusion::streaming::row_nn_posterior(&src.features, &tgt.features, tau)?,
+                _ => {
+                    let sim = cosine_similarity(&src.features, &tgt.features)?;
+                    match_then_fuse(None, Some(&sim), &fusion)?.correspondences
+                }
+            };
+            timer.record("similarity+fusion", t.elapsed(), false);
+            c
+        }
+    };
+    let label = inputs
+        .image_label
+        .as_ref()
+        .map(|l| format!("{l}; fusion {:?})", params.fusion.mode));
+    finish(pair, params, timer, src.clone(), tgt.clone(), corr, label)
+}
+
+/// [`register_with_image`] that also returns the [`FusionInputs`]. With `generate` false a
+/// generation missing from the cache is not produced: the call fails with an error starting
+/// with [`GENERATION_NOT_CACHED`] (the GUI then offers to run the generator).
+pub fn register_with_image_keep(
+    pair: &ScanPair,
+    params: &RegisterParams,
+    ib: &ImageBranchParams,
+    cache: Option<&Cache>,
+    generate: bool,
+) -> Result<(RegistrationResult, FusionInputs)> {
     if !matches!(params.geo_features, super::params::GeoFeatureSource::Fpfh) {
         return Err(Error::Invalid(
             "the image branch is wired to the FPFH geometric branch; learned geometric \
@@ -611,6 +691,13 @@ pub fn register_with_image(
             })
         },
         || {
+            if !generate {
+                return Err(Error::Invalid(format!(
+                    "{GENERATION_NOT_CACHED}: {backend_id}, prompt {}, seed {}",
+                    short_prompt(&ib.prompt),
+                    ib.seed
+                )));
+            }
             let depth_video = match video_frames.take() {
                 Some(f) => f,
                 None if is_oracle => Vec::new(),
@@ -814,34 +901,13 @@ pub fn register_with_image(
         },
     )?;
 
-    // Similarities, calibration, fusion, selection: in memory.
-    let t = Instant::now();
-    let s_img = cosine_similarity(&f_src, &f_tgt)?;
-    let s_geo = cosine_similarity(&src_geo.features, &tgt_geo.features)?;
-    ctx.timer.record("similarity", t.elapsed(), false);
-    let t = Instant::now();
-    let fused = match_then_fuse(
-        Some((&s_img, Some(&v_src), Some(&v_tgt))),
-        Some(&s_geo),
-        &params.fusion,
-    )?;
-    drop((s_img, s_geo));
-    ctx.timer.record("fusion", t.elapsed(), false);
-
     let n_valid = (
         v_src.iter().filter(|v| **v).count(),
         v_tgt.iter().filter(|v| **v).count(),
     );
     let label = format!(
-        "{} + {} (K={}, m={}, L={}; {} / {} source / target keypoints with a pixel; fusion {:?})",
-        gen.provenance.backend,
-        vfm_id,
-        ib.k,
-        ib.margin,
-        l,
-        n_valid.0,
-        n_valid.1,
-        params.fusion.mode
+        "{} + {} (K={}, m={}, L={}; {} / {} source / target keypoints with a pixel",
+        gen.provenance.backend, vfm_id, ib.k, ib.margin, l, n_valid.0, n_valid.1,
     );
     let view_label = format!(
         "{} | {} | cache {}",
@@ -871,19 +937,22 @@ pub fn register_with_image(
     let Ctx {
         timer, warnings, ..
     } = ctx;
-    let mut res = finish(
-        pair,
-        params,
-        timer,
-        src_geo,
-        tgt_geo,
-        fused.correspondences,
-        Some(label),
-    )?;
+    let inputs = FusionInputs {
+        source_geo: src_geo,
+        target_geo: tgt_geo,
+        image: Some((f_src, v_src, f_tgt, v_tgt)),
+        image_label: Some(label),
+    };
+    let mut res = fuse_and_finish(pair, params, &inputs)?;
+    // The cached stages' timings first, then the in-memory ones.
+    let mut timings = timer.timings;
+    timings.append(&mut res.timings);
+    res.timings = timings;
+    res.total_ms = timer.t0.elapsed().as_secs_f64() * 1e3;
     res.warnings.extend(warnings);
     res.warnings.extend(gen.provenance.warnings.iter().cloned());
     res.image = Some(output);
-    Ok(res)
+    Ok((res, inputs))
 }
 
 /// The default cache directory: `$CGENREG_CACHE`, else `~/.cache/cgenreg`.

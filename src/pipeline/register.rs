@@ -99,8 +99,8 @@ pub fn matrix_rows(t: &Isometry3<f64>) -> [[f64; 4]; 4] {
 }
 
 pub(crate) struct Timer {
-    timings: Vec<StageTiming>,
-    t0: Instant,
+    pub(crate) timings: Vec<StageTiming>,
+    pub(crate) t0: Instant,
 }
 
 impl Timer {
@@ -131,6 +131,7 @@ impl Timer {
 }
 
 /// Keypoints and their geometric features for one scan.
+#[derive(Clone, Debug)]
 pub struct GeoBranch {
     pub keypoints: PointCloud,
     pub features: Features,
