@@ -121,7 +121,14 @@ fn latency(
         stages = model
             .stages
             .iter()
-            .map(|s| format!("{}={:?}", s.name, s.state))
+            .map(|s| {
+                let st = match s.state {
+                    cgenreg::app::model::StageState::Cached => "cached",
+                    cgenreg::app::model::StageState::Done => "computed",
+                    _ => "other",
+                };
+                format!("{} {st} {:.0} ms", s.name, s.time_ms.unwrap_or(0.0))
+            })
             .collect::<Vec<_>>()
             .join(", ");
         r.app.set_model(*model);

@@ -299,13 +299,20 @@ pub fn result_to_model(
                                     .map(|l| [l.u as f32, l.v as f32])
                             })
                             .collect();
+                        // `v.label` is "backend | prompt | cache <hash>": keep the cache part
+                        let entry = v
+                            .label
+                            .rsplit(" | ")
+                            .next()
+                            .filter(|e| e.starts_with("cache"))
+                            .unwrap_or(v.label.as_str());
                         ViewImage {
                             label: ViewLabel {
-                                backend: format!("{} ({})", prov.backend, prov.model),
+                                backend: prov.model.clone(),
                                 prompt: prov.prompt.clone(),
                                 cache_entry: format!(
-                                    "{} · generated frame {} · depth frame {}",
-                                    v.label, v.generated_index, v.depth_index
+                                    "{entry} · generated frame {} · depth frame {}",
+                                    v.generated_index, v.depth_index
                                 ),
                             },
                             rgb: RgbImage {

@@ -222,6 +222,8 @@ pub fn run_screenshot(a: ScreenshotArgs) -> Result<()> {
                 MatchColors::Confidence => MatchColorMode::Confidence,
             };
             app.ui_state.match_count = count;
+            // the views get the whole height (the 3D overlay has its own screenshot)
+            app.ui_state.show_3d_below_views = false;
             app.ui_state.only_survivors = only;
             let p = app.view3d_prefs_mut();
             p.show_estimated = matches!(align, Alignment::Estimated | Alignment::All);
