@@ -490,8 +490,9 @@ pub fn controls_ui(
                 path_field(ui, "JSONL spec", &mut settings.wfm_spec);
             }
             ui.horizontal(|ui| {
-                ui.label("Seed");
-                ui.add(egui::DragValue::new(&mut settings.seed));
+                let l = ui.label("Seed");
+                ui.add(egui::DragValue::new(&mut settings.seed))
+                    .labelled_by(l.id);
             });
         });
     egui::CollapsingHeader::new("Views")

@@ -841,7 +841,10 @@ impl PipelineWorker {
                 .as_ref()
                 .map(|ib| ib.prompt.text())
                 .unwrap_or_default();
-            if img.provenance.prompt.trim() != asked.trim() {
+            // an empty provenance prompt: the backend used none (oracle)
+            if !img.provenance.prompt.trim().is_empty()
+                && img.provenance.prompt.trim() != asked.trim()
+            {
                 note = Some(format!(
                     "these views were generated with the prompt “{}”, not the one in the editor \
                      (the {} backend cannot regenerate them)",

@@ -83,7 +83,12 @@ pub fn view_label(ui: &mut egui::Ui, side: &str, k: usize, v: &ViewImage) {
         .strong(),
     )
     .on_hover_text(&v.label.prompt);
-    ui.label(egui::RichText::new(format!("“{prompt}”")).small().italics())
+    let prompt = if prompt.trim().is_empty() {
+        "no prompt (this backend does not use one)".to_string()
+    } else {
+        format!("“{prompt}”")
+    };
+    ui.label(egui::RichText::new(prompt).small().italics())
         .on_hover_text(&v.label.prompt);
 }
 
