@@ -1,12 +1,18 @@
 //! Frame time of the inspector's 3D panel rendered headless (surfaceless EGL; Mesa llvmpipe
-//! on machines without a GPU), with 100k and 300k points per cloud.
+//! on machines without a GPU), with 100k and 300k points per cloud; and the latency from a
+//! temperature change to the updated model (and to the first frame drawn with it) on real
+//! 3DMatch redkitchen pairs whose stages are cached (needs `$CGENREG_DATA`).
 //!
 //! Run: `cargo bench --bench gui`. Prints median / mean / p90 per configuration.
+//! `GUI_BENCH_ONLY=latency` (or `frames`) runs one part.
 
 use std::time::Instant;
 
 use cgenreg::app::headless::HeadlessRenderer;
-use cgenreg::app::{InspectorModel, Panel};
+use cgenreg::app::pipeline_worker::PipelineWorker;
+use cgenreg::app::{spawn_worker, Command, InspectorModel, Panel, WorkerEvent};
+use cgenreg::fusion::select::Selection;
+use cgenreg::pipeline::{ImageBranchParams, RegisterParams, WfmSpec};
 
 /// CPU time of the whole process (all threads, llvmpipe's included), ms: unlike wall time it
 /// barely moves when other processes compete for the cores.
@@ -61,7 +67,142 @@ fn run(
     Ok(())
 }
 
+/// Temperature change -> updated model, through the worker thread as the UI sees it, then one
+/// headless frame of the 3D panel with the new model.
+fn latency(
+    label: &str,
+    manifest: &str,
+    pair: Option<&str>,
+    params: RegisterParams,
+    reps: usize,
+) -> Result<(), String> {
+    let root = env!("CARGO_MANIFEST_DIR");
+    let path = std::path::Path::new(root).join(manifest);
+    let mut worker = PipelineWorker::open_manifest(&path, params).map_err(|e| e.to_string())?;
+    let id = match pair {
+        Some(p) => p.to_string(),
+        None => worker.pair_ids().first().cloned().ok_or("no pairs")?,
+    };
+    // cold in memory: the first run fills the stage cache (a no-op when already warm)
+    let t = Instant::now();
+    let m = worker.run_pair(&id).map_err(|e| e.to_string())?;
+    let first = t.elapsed().as_secs_f64() * 1e3;
+    let cached = m
+        .stages
+        .iter()
+        .filter(|s| s.state == cgenreg::app::model::StageState::Cached)
+        .count();
+    let views = m.source_views.len() + m.target_views.len();
+    let mut settings = worker.settings().clone();
+    let mut r = HeadlessRenderer::new(m, (1280, 800))?;
+    r.app.ui_state.tab = Panel::View3d;
+    r.frame(false)?;
+    let h = spawn_worker(Box::new(worker), None);
+    let (mut to_model, mut to_frame) = (Vec::new(), Vec::new());
+    let mut stages = String::new();
+    for i in 0..reps {
+        settings.geometry_calibration.temperature = if i % 2 == 0 { 0.12 } else { 0.1 };
+        settings.image_calibration.temperature = settings.geometry_calibration.temperature;
+        let t = Instant::now();
+        h.send(Command::ApplySettings(settings.clone()));
+        let model = loop {
+            if let Some(m) = h.poll().into_iter().find_map(|e| match e {
+                WorkerEvent::Model(m) => Some(m),
+                _ => None,
+            }) {
+                break m;
+            }
+            if t.elapsed().as_secs() > 120 {
+                return Err("no model within 120 s".into());
+            }
+            std::thread::sleep(std::time::Duration::from_micros(200));
+        };
+        to_model.push(t.elapsed().as_secs_f64() * 1e3);
+        stages = model
+            .stages
+            .iter()
+            .map(|s| {
+                let st = match s.state {
+                    cgenreg::app::model::StageState::Cached => "cached",
+                    cgenreg::app::model::StageState::Done => "computed",
+                    _ => "other",
+                };
+                format!("{} {st} {:.0} ms", s.name, s.time_ms.unwrap_or(0.0))
+            })
+            .collect::<Vec<_>>()
+            .join(", ");
+        r.app.set_model(*model);
+        r.frame(false)?;
+        to_frame.push(t.elapsed().as_secs_f64() * 1e3);
+    }
+    let (m1, a1, p1) = stats(to_model);
+    let (m2, a2, p2) = stats(to_frame);
+    println!(
+        "{label:<44} first run {first:7.0} ms ({cached} stages cached, {views} views) | tau change -> model: median {m1:6.1} mean {a1:6.1} p90 {p1:6.1} ms | -> 3D frame: median {m2:6.1} mean {a2:6.1} p90 {p2:6.1} ms"
+    );
+    eprintln!("  last stages: {stages}");
+    Ok(())
+}
+
+fn latency_part(reps: usize) {
+    if cgenreg::data_root().is_none() {
+        eprintln!("latency bench skipped: no $CGENREG_DATA");
+        return;
+    }
+    let geo = RegisterParams {
+        fusion: cgenreg::fusion::FusionParams {
+            selection: Selection::RowNn,
+            mode: cgenreg::fusion::FusionMode::GeometryOnly,
+            ..Default::default()
+        },
+        ..Default::default()
+    };
+    let oracle = RegisterParams {
+        image: Some(ImageBranchParams {
+            backend: WfmSpec::Oracle,
+            ..Default::default()
+        }),
+        ..Default::default()
+    };
+    let runs: [(&str, &str, Option<&str>, RegisterParams); 3] = [
+        (
+            "staged 3DMatch, geometry only (FPFH, nn)",
+            "assets/manifests/redkitchen-staged.toml",
+            None,
+            geo.clone(),
+        ),
+        (
+            "rgbd 0-1, geometry only (FPFH, nn)",
+            "assets/manifests/redkitchen-rgbd.toml",
+            Some("redkitchen-rgbd/0-1"),
+            geo,
+        ),
+        (
+            "rgbd 0-1, oracle + XFeat, Noisy-AND (mutual)",
+            "assets/manifests/redkitchen-rgbd.toml",
+            Some("redkitchen-rgbd/0-1"),
+            oracle,
+        ),
+    ];
+    for (label, manifest, pair, params) in runs {
+        if let Err(e) = latency(label, manifest, pair, params, reps) {
+            eprintln!("{label}: skipped: {e}");
+        }
+    }
+}
+
 fn main() {
+    let only = std::env::var("GUI_BENCH_ONLY").unwrap_or_default();
+    if only != "frames" {
+        let reps = std::env::var("GUI_BENCH_REPS")
+            .ok()
+            .and_then(|s| s.parse().ok())
+            .unwrap_or(10);
+        latency_part(reps);
+    }
+    if only == "latency" {
+        return;
+    }
     let size = (1280, 800);
     let frames = std::env::var("GUI_BENCH_FRAMES")
         .ok()

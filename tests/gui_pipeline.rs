@@ -201,3 +201,101 @@ fn worker_registers_on_the_worker_thread_and_reports_posteriors() {
     };
     assert!(dist(post.gt_target.unwrap()) <= dist(best) + 1e-9);
 }
+
+/// The image branch in the worker: oracle views on the demo pair through a fresh stage cache;
+/// a temperature change re-runs only fusion onward from memory; a new prompt whose generation
+/// is not cached shows no views and asks for the generator; a pair without enough frames falls
+/// back to the geometric branch with the reason.
+#[test]
+fn worker_runs_the_image_branch_from_the_cache_and_refuses_from_memory() {
+    use cgenreg::app::controls::WfmChoice;
+    use cgenreg::pipeline::{ImageBranchParams, WfmSpec};
+    let dir = tempfile::tempdir().unwrap();
+    let mut base = RegisterParams::default();
+    base.image = Some(ImageBranchParams {
+        backend: WfmSpec::Oracle,
+        frames_per_fragment: 8,
+        margin: 1,
+        k: 2,
+        ..Default::default()
+    });
+    let mut w = PipelineWorker::open_manifest(&demo_manifest(), base.clone()).unwrap();
+    w.set_cache(Some(
+        cgenreg::pipeline::cache::Cache::open(dir.path()).unwrap(),
+    ));
+    assert_eq!(w.settings().wfm, WfmChoice::Oracle);
+    let id = w.pair_ids()[0].clone();
+    let m = w.run_pair(&id).unwrap();
+    assert_eq!((m.source_views.len(), m.target_views.len()), (2, 2));
+    assert!(m.source_views[0].label.backend.contains("oracle"));
+    assert!(m.generation_missing.is_none());
+    assert!(m
+        .stages
+        .iter()
+        .any(|s| s.name == "generation" && s.state == StageState::Done));
+    // second full run: the image stages come from the cache
+    let m = w.run_pair(&id).unwrap();
+    assert!(m
+        .stages
+        .iter()
+        .any(|s| s.name == "generation" && s.state == StageState::Cached));
+    // temperature change: fusion onward from memory, views kept
+    let mut s = w.settings().clone();
+    s.geometry_calibration.temperature = 0.05;
+    w.set_settings(s.clone());
+    let m = w
+        .refuse()
+        .expect("same image settings: re-fuse from memory")
+        .unwrap();
+    assert_eq!(m.source_views.len(), 2);
+    assert!(m
+        .stages
+        .iter()
+        .any(|s| s.name == "fusion" && s.state == StageState::Done));
+    assert!(m
+        .stages
+        .iter()
+        .any(|s| s.name == "vfm source views" && s.state == StageState::Cached));
+    // posterior with the image branch: image row and pixels in the views
+    let src = m
+        .matches
+        .iter()
+        .find(|x| x.survived == Some(true))
+        .unwrap()
+        .src;
+    let m = w.inspect_point(src).unwrap();
+    let p = m.posterior_for(src).unwrap();
+    assert_eq!(p.image.len(), p.candidates.len());
+    assert!(p
+        .fused
+        .iter()
+        .all(|v| v.is_finite() && (0.0..=1.0).contains(v)));
+    // a new prompt: not generated without asking, no views from the old prompt
+    s.prompt_scene = "a snowy pine forest".into();
+    w.set_settings(s);
+    assert!(w.refuse().is_none(), "a new prompt needs the image stages");
+    let m = w.run_pair_with(&id, false).unwrap();
+    assert!(m.generation_missing.is_some());
+    assert!(m.source_views.is_empty() && m.target_views.is_empty());
+    assert!(m
+        .image_branch_note
+        .as_deref()
+        .unwrap()
+        .contains("Run the generator"));
+    assert!(
+        m.estimated.is_some(),
+        "the geometric branch still registers"
+    );
+    // the generator runs on request
+    let m = w.run_pair_with(&id, true).unwrap();
+    assert_eq!(m.source_views.len(), 2);
+    // too few frames for L: geometry only, with the reason
+    base.image.as_mut().unwrap().frames_per_fragment = 50;
+    let mut w = PipelineWorker::open_manifest(&demo_manifest(), base).unwrap();
+    w.set_cache(None);
+    let m = w.run_pair(&id).unwrap();
+    assert!(m.source_views.is_empty());
+    let note = m.image_branch_note.unwrap();
+    assert!(note.contains("fell back to the geometric branch"), "{note}");
+    assert!(m.estimated.is_some());
+}

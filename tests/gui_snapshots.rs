@@ -129,7 +129,7 @@ fn tabs_and_controls_drive_the_ui_and_the_worker() {
     let t0 = std::time::Instant::now();
     loop {
         let got = seen.lock().unwrap().iter().any(|c| {
-            matches!(c, Command::ApplySettings(s) if s.preset == PromptPreset::Minimal && s.prompt_scene == "An indoor scene.")
+            matches!(c, Command::ApplySettings(s) if s.preset == PromptPreset::Minimal && s.prompt_scene == cgenreg::wfm::PromptPreset::Minimal.default_scene())
         });
         if got {
             break;
@@ -144,6 +144,12 @@ fn tabs_and_controls_drive_the_ui_and_the_worker() {
     // other controls are reachable by label
     assert!(h.query_all_by_label("K views").next().is_some());
     h.get_by_label("Match colours");
+    // the image branch's generator is a control (geometry only by default)
+    h.get_by_label("WFM");
+    assert_eq!(
+        h.state().settings.wfm,
+        cgenreg::app::controls::WfmChoice::None
+    );
     assert!(h
         .query_all_by_label("Safeguard margin (frames)")
         .next()

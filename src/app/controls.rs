@@ -38,17 +38,48 @@ impl PromptPreset {
             Self::Wrong => "Wrong",
         }
     }
-    /// Scene text the preset puts in the editor (`scene_specific` is the pair's own).
+    /// The pipeline's preset (same scene texts as `cgenreg register --prompt-preset`, so the
+    /// GUI and the CLI share cache entries).
+    pub fn pipeline(self) -> crate::wfm::PromptPreset {
+        match self {
+            Self::SceneSpecific => crate::wfm::PromptPreset::SceneSpecific,
+            Self::General => crate::wfm::PromptPreset::General,
+            Self::Minimal => crate::wfm::PromptPreset::Minimal,
+            Self::Wrong => crate::wfm::PromptPreset::SemanticallyWrong,
+        }
+    }
+    /// Scene text the preset puts in the editor: the pipeline's preset text; for
+    /// scene-specific, `scene_specific` (the pair's own description) when one is known.
     pub fn scene_text(self, scene_specific: &str) -> String {
         match self {
-            Self::SceneSpecific => scene_specific.to_owned(),
-            Self::General => {
-                "An indoor room with furniture, walls and floor, lit by soft daylight. \
-                Complete the unseen parts with consistent materials and lighting."
-                    .into()
-            }
-            Self::Minimal => "An indoor scene.".into(),
-            Self::Wrong => "A sunny beach with palm trees and waves under a blue sky.".into(),
+            Self::SceneSpecific if !scene_specific.trim().is_empty() => scene_specific.to_owned(),
+            p => p.pipeline().default_scene().to_owned(),
+        }
+    }
+}
+
+/// Which generator produces the image branch's RGB views.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub enum WfmChoice {
+    /// Image branch off: the geometric branch alone.
+    #[default]
+    None,
+    /// The dataset's real colour frames ("C-GenReg (Oracle)").
+    Oracle,
+    /// `builtin-depthshade-v1`: shading of the depth video, not a world foundation model.
+    Builtin,
+    /// An existing Cosmos-Transfer1 output folder plus its JSONL batch spec.
+    CachedCosmos,
+}
+
+impl WfmChoice {
+    pub const ALL: [WfmChoice; 4] = [Self::None, Self::Oracle, Self::Builtin, Self::CachedCosmos];
+    pub fn label(self) -> &'static str {
+        match self {
+            Self::None => "none (geometry only)",
+            Self::Oracle => "oracle (real RGB)",
+            Self::Builtin => "built-in depth shading — NOT a WFM",
+            Self::CachedCosmos => "cached Cosmos output (folder + spec)",
         }
     }
 }
@@ -155,6 +186,20 @@ pub struct PipelineSettings {
     /// are dropped (reference §3).
     pub margin: usize,
     pub vfm: String,
+    /// Generator of the image branch's views (None: geometry only).
+    #[serde(default)]
+    pub wfm: WfmChoice,
+    /// Cosmos output folder and JSONL spec for [`WfmChoice::CachedCosmos`].
+    #[serde(default)]
+    pub wfm_dir: String,
+    #[serde(default)]
+    pub wfm_spec: String,
+    /// Generation seed.
+    #[serde(default)]
+    pub seed: u64,
+    /// XFeat ONNX file; empty = the default `models/xfeat.onnx`.
+    #[serde(default)]
+    pub vfm_model: String,
     pub image_calibration: BranchCalibration,
     pub geometry_calibration: BranchCalibration,
     pub fusion: FusionMode,
@@ -165,12 +210,17 @@ pub struct PipelineSettings {
 impl Default for PipelineSettings {
     fn default() -> Self {
         Self {
-            prompt_prefix: "A photorealistic".into(),
-            prompt_scene: String::new(),
+            prompt_prefix: crate::wfm::prompt::DEFAULT_PREFIX.into(),
+            prompt_scene: PromptPreset::SceneSpecific.scene_text(""),
             preset: PromptPreset::SceneSpecific,
             k: 4,
             margin: 3,
             vfm: "xfeat".into(),
+            wfm: WfmChoice::None,
+            wfm_dir: String::new(),
+            wfm_spec: String::new(),
+            seed: 0,
+            vfm_model: String::new(),
             image_calibration: BranchCalibration {
                 method: Calibration::Softmax,
                 temperature: 0.1,
@@ -187,13 +237,12 @@ impl Default for PipelineSettings {
 }
 
 impl PipelineSettings {
-    /// The full prompt sent to the generator.
+    /// The full prompt sent to the generator (as `crate::wfm::Prompt::text`).
     pub fn prompt(&self) -> String {
-        match (self.prompt_prefix.trim(), self.prompt_scene.trim()) {
-            ("", s) => s.to_owned(),
-            (p, "") => p.to_owned(),
-            (p, s) => format!("{p} {s}"),
-        }
+        self.wfm_prompt().text()
+    }
+    pub fn wfm_prompt(&self) -> crate::wfm::Prompt {
+        crate::wfm::Prompt::new(self.prompt_prefix.trim(), self.prompt_scene.trim())
     }
 }
 
@@ -412,7 +461,8 @@ pub fn controls_ui(
             });
             let l = ui.label("Shared prefix");
             ui.add(
-                egui::TextEdit::singleline(&mut settings.prompt_prefix)
+                egui::TextEdit::multiline(&mut settings.prompt_prefix)
+                    .desired_rows(2)
                     .desired_width(f32::INFINITY),
             )
             .labelled_by(l.id);
@@ -424,6 +474,27 @@ pub fn controls_ui(
             )
             .labelled_by(l.id);
         });
+    egui::CollapsingHeader::new("Image branch")
+        .default_open(true)
+        .show(ui, |ui| {
+            egui::ComboBox::from_label("WFM")
+                .selected_text(settings.wfm.label())
+                .width(220.0)
+                .show_ui(ui, |ui| {
+                    for w in WfmChoice::ALL {
+                        ui.selectable_value(&mut settings.wfm, w, w.label());
+                    }
+                });
+            if settings.wfm == WfmChoice::CachedCosmos {
+                path_field(ui, "Cosmos output folder", &mut settings.wfm_dir);
+                path_field(ui, "JSONL spec", &mut settings.wfm_spec);
+            }
+            ui.horizontal(|ui| {
+                let l = ui.label("Seed");
+                ui.add(egui::DragValue::new(&mut settings.seed))
+                    .labelled_by(l.id);
+            });
+        });
     egui::CollapsingHeader::new("Views")
         .default_open(true)
         .show(ui, |ui| {
@@ -434,10 +505,10 @@ pub fn controls_ui(
             egui::ComboBox::from_label("VFM")
                 .selected_text(settings.vfm.clone())
                 .show_ui(ui, |ui| {
-                    for v in ["xfeat", "mast3r"] {
-                        ui.selectable_value(&mut settings.vfm, v.to_owned(), v);
-                    }
+                    // MASt3R (pair-conditioned) is not wired into the registration pipeline
+                    ui.selectable_value(&mut settings.vfm, "xfeat".to_owned(), "xfeat");
                 });
+            path_field(ui, "XFeat model (empty: default)", &mut settings.vfm_model);
         });
     egui::CollapsingHeader::new("Calibration & fusion")
         .default_open(true)
@@ -485,6 +556,27 @@ pub fn controls_ui(
         });
     if *settings != before {
         out.push(Command::ApplySettings(settings.clone()));
+    }
+}
+
+/// A path text field that commits on Enter or when it loses focus (not per keystroke, so a
+/// half-typed path never re-runs the pipeline).
+fn path_field(ui: &mut egui::Ui, label: &str, value: &mut String) {
+    let id = ui.make_persistent_id(("path_field", label));
+    let mut buf: String = ui
+        .data_mut(|d| d.get_temp::<String>(id))
+        .unwrap_or_else(|| value.clone());
+    let l = ui.label(label);
+    let r = ui
+        .add(egui::TextEdit::singleline(&mut buf).desired_width(f32::INFINITY))
+        .labelled_by(l.id);
+    if r.lost_focus() || (r.has_focus() && ui.input(|i| i.key_pressed(egui::Key::Enter))) {
+        *value = buf.trim().to_owned();
+        ui.data_mut(|d| d.remove::<String>(id));
+    } else if r.has_focus() {
+        ui.data_mut(|d| d.insert_temp(id, buf));
+    } else {
+        ui.data_mut(|d| d.remove::<String>(id));
     }
 }
 
@@ -544,8 +636,14 @@ mod tests {
     fn prompt_joins_prefix_and_scene() {
         let mut s = PipelineSettings::default();
         s.prompt_scene = PromptPreset::Minimal.scene_text("x");
-        assert_eq!(s.prompt(), "A photorealistic An indoor scene.");
+        s.prompt_prefix = "A photorealistic".into();
+        assert_eq!(s.prompt(), "A photorealistic an indoor scene");
         s.prompt_prefix.clear();
-        assert_eq!(s.prompt(), "An indoor scene.");
+        assert_eq!(s.prompt(), "an indoor scene");
+        // the default prompt is the CLI's default (shared cache entries)
+        assert_eq!(
+            PipelineSettings::default().prompt(),
+            crate::wfm::Prompt::from_preset(crate::wfm::PromptPreset::SceneSpecific).text()
+        );
     }
 }

@@ -395,12 +395,11 @@ impl App {
         &mut self.view3d.prefs
     }
 
+    /// The pair's own scene description, when known. The views' labels carry full prompts
+    /// (prefix included), not descriptions, so none is known yet: the scene-specific preset
+    /// then uses the pipeline's text.
     fn scene_specific_prompt(&self) -> String {
-        self.model
-            .source_views
-            .first()
-            .map(|v| v.label.prompt.clone())
-            .unwrap_or_default()
+        String::new()
     }
 
     pub fn push_log(&mut self, level: LogLevel, text: impl Into<String>) {

@@ -1,6 +1,12 @@
-//! The inspector's pipeline worker: owns a dataset, runs [`register_pair`] for the selected
-//! pair with the UI's settings on the worker thread, and turns the result into an
-//! [`InspectorModel`].
+//! The inspector's pipeline worker: owns a dataset, registers the selected pair with the UI's
+//! settings on the worker thread (the image branch through the stage cache when a WFM is
+//! chosen), and turns the result into an [`InspectorModel`].
+//!
+//! What is kept in memory per pair: the geometric branch (keypoints + FPFH) and, after a run
+//! with the image branch, every input of the in-memory stages ([`FusionInputs`]) and the
+//! selected views. A change of temperature, calibration, fusion mode, selection or estimator
+//! then re-runs only similarity, fusion and estimation ([`fuse_and_finish`]); a change of
+//! prompt, seed, K, margin, VFM or backend re-runs the cached pipeline.
 //!
 //! Model conventions: `model.source` / `model.target` start with the registration keypoints
 //! (so `MatchInfo::src` / `tgt` are keypoint indices), followed by a strided subsample of the
@@ -9,13 +15,14 @@
 
 use std::collections::HashMap;
 use std::path::PathBuf;
+use std::sync::Arc;
 use std::time::Instant;
 
 use nalgebra::{Isometry3, Point3};
 
 use super::controls::{
     Calibration as UiCalibration, Command, Estimator, EventSink, FusionMode as UiFusion, LogLevel,
-    PipelineSettings, SelectionRule, Worker, WorkerEvent,
+    PipelineSettings, SelectionRule, WfmChoice, Worker, WorkerEvent,
 };
 use super::model::{
     Branch, InspectorModel, MatchInfo, PairEntry, PairStatus, PlotData, Posterior, PrCurve,
@@ -29,8 +36,15 @@ use crate::estimate::EstimatorKind;
 use crate::fusion::calibrate::Calibration;
 use crate::fusion::fuse::FusionMode;
 use crate::fusion::select::Selection;
+use crate::pipeline::cache::Cache;
+use crate::pipeline::image_branch::{
+    fuse_and_finish, register_with_image_keep, FusionInputs, GENERATION_NOT_CACHED,
+};
 use crate::pipeline::register::{fpfh_branch, GeoBranch};
-use crate::pipeline::{register_pair, RegisterParams, RegistrationResult};
+use crate::pipeline::{
+    register_pair, ImageBranchOutput, ImageBranchParams, RegisterParams, RegistrationResult,
+    VfmSpec, WfmSpec,
+};
 
 /// Inlier threshold of the GT flags on correspondences (metres).
 pub const GT_INLIER_M: f64 = 0.10;
@@ -41,13 +55,14 @@ const TOPK: usize = 8000;
 /// Candidates kept per posterior.
 const POSTERIOR_CANDIDATES: usize = 400;
 
-/// Why the image branch is not shown, when it is not.
-pub const IMAGE_BRANCH_OFF: &str = "image branch: not available for this pair/build — \
-register_pair ran the geometric branch only (no generated, oracle or built-in views were \
-produced), so there are no views to show and the fused posterior equals the geometric one";
+/// Why the image branch is not shown when no WFM is chosen.
+pub const IMAGE_BRANCH_OFF: &str = "image branch off (WFM: none) — the geometric branch ran \
+alone, so there are no views to show and the fused posterior equals the geometric one; choose \
+a WFM under “Image branch” (oracle needs a pair with RGB-D frames)";
 
 /// Maps the UI's settings onto the pipeline's parameters. `base` carries what the UI does not
-/// edit (voxel, geometric feature source, inlier threshold).
+/// edit (voxel, geometric feature source, inlier threshold, frames per fragment, lift radius,
+/// a Cosmos command).
 pub fn settings_to_params(s: &PipelineSettings, base: &RegisterParams) -> RegisterParams {
     let mut p = base.clone();
     let cal = |c: &super::controls::BranchCalibration| match c.method {
@@ -78,6 +93,35 @@ pub fn settings_to_params(s: &PipelineSettings, base: &RegisterParams) -> Regist
         Estimator::Sc2Pcr => EstimatorKind::Sc2Pcr(Sc2PcrParams::default()),
         Estimator::Ransac => EstimatorKind::Ransac(RansacParams::default()),
     };
+    let ib_base = base.image.clone().unwrap_or_default();
+    let backend = match s.wfm {
+        WfmChoice::None => None,
+        WfmChoice::Oracle => Some(WfmSpec::Oracle),
+        WfmChoice::Builtin => Some(WfmSpec::Builtin),
+        WfmChoice::CachedCosmos => match &ib_base.backend {
+            // a Cosmos command from the command line stays the configured generator
+            WfmSpec::Cosmos { .. } if s.wfm_dir.is_empty() => Some(ib_base.backend.clone()),
+            _ => Some(WfmSpec::Cached {
+                dir: PathBuf::from(&s.wfm_dir),
+                spec: PathBuf::from(&s.wfm_spec),
+            }),
+        },
+    };
+    p.image = backend.map(|backend| ImageBranchParams {
+        backend,
+        prompt: s.wfm_prompt(),
+        seed: s.seed,
+        vfm: if s.vfm_model.trim().is_empty() {
+            VfmSpec::default()
+        } else {
+            VfmSpec::Xfeat {
+                model: PathBuf::from(s.vfm_model.trim()),
+            }
+        },
+        k: s.k,
+        margin: s.margin,
+        ..ib_base
+    });
     p
 }
 
@@ -112,6 +156,33 @@ pub fn params_to_settings(p: &RegisterParams) -> PipelineSettings {
         EstimatorKind::Ransac(_) => Estimator::Ransac,
         _ => Estimator::Sc2Pcr,
     };
+    if let Some(ib) = &p.image {
+        s.wfm = match &ib.backend {
+            WfmSpec::Oracle => WfmChoice::Oracle,
+            WfmSpec::Builtin => WfmChoice::Builtin,
+            WfmSpec::Cached { dir, spec } => {
+                s.wfm_dir = dir.display().to_string();
+                s.wfm_spec = spec.display().to_string();
+                WfmChoice::CachedCosmos
+            }
+            WfmSpec::Cosmos { .. } => WfmChoice::CachedCosmos,
+        };
+        s.prompt_prefix = ib.prompt.prefix.clone();
+        s.prompt_scene = ib.prompt.scene.clone();
+        if let Some(pr) = super::controls::PromptPreset::ALL
+            .into_iter()
+            .find(|pr| pr.pipeline().default_scene() == ib.prompt.scene)
+        {
+            s.preset = pr;
+        }
+        s.seed = ib.seed;
+        s.k = ib.k;
+        s.margin = ib.margin;
+        let VfmSpec::Xfeat { model } = &ib.vfm;
+        if *model != crate::vfm::default_xfeat_path() {
+            s.vfm_model = model.display().to_string();
+        }
+    }
     s
 }
 
@@ -228,13 +299,20 @@ pub fn result_to_model(
                                     .map(|l| [l.u as f32, l.v as f32])
                             })
                             .collect();
+                        // `v.label` is "backend | prompt | cache <hash>": keep the cache part
+                        let entry = v
+                            .label
+                            .rsplit(" | ")
+                            .next()
+                            .filter(|e| e.starts_with("cache"))
+                            .unwrap_or(v.label.as_str());
                         ViewImage {
                             label: ViewLabel {
-                                backend: format!("{} ({})", prov.backend, prov.model),
+                                backend: prov.model.clone(),
                                 prompt: prov.prompt.clone(),
                                 cache_entry: format!(
-                                    "{} · generated frame {} · depth frame {}",
-                                    v.label, v.generated_index, v.depth_index
+                                    "{entry} · generated frame {} · depth frame {}",
+                                    v.generated_index, v.depth_index
                                 ),
                             },
                             rgb: RgbImage {
@@ -319,40 +397,113 @@ pub fn result_to_model(
     }
 }
 
-/// Geometric posterior of source keypoint `src` over the target keypoints: row softmax of the
-/// cosine similarities at temperature `tau`, the `POSTERIOR_CANDIDATES` most likely kept.
-/// With the image branch off, the fused posterior is the geometric one and the image row is
-/// empty.
-pub fn geometric_posterior(
-    src_branch: &GeoBranch,
-    tgt_branch: &GeoBranch,
+fn cos_row(f: &crate::features::Features, i: usize, g: &crate::features::Features) -> Vec<f32> {
+    let a = f.row(i);
+    let na = a.iter().map(|x| x * x).sum::<f32>().sqrt().max(1e-12);
+    (0..g.len())
+        .map(|j| {
+            let b = g.row(j);
+            let nb = b.iter().map(|x| x * x).sum::<f32>().sqrt().max(1e-12);
+            a.iter().zip(b).map(|(x, y)| x * y).sum::<f32>() / (na * nb)
+        })
+        .collect()
+}
+
+/// Row softmax of `sims` at temperature `tau` over the entries `valid` keeps (others 0).
+fn softmax_row(sims: &[f32], valid: Option<&[bool]>, tau: f32) -> Vec<f32> {
+    let ok = |j: usize| valid.is_none_or(|v| v.get(j).copied().unwrap_or(false));
+    let m = (0..sims.len())
+        .filter(|&j| ok(j))
+        .map(|j| sims[j])
+        .fold(f32::NEG_INFINITY, f32::max);
+    if !m.is_finite() {
+        return vec![0.0; sims.len()];
+    }
+    let e: Vec<f32> = (0..sims.len())
+        .map(|j| {
+            if ok(j) {
+                ((sims[j] - m) / tau.max(1e-4)).exp()
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    let z = e.iter().sum::<f32>().max(1e-30);
+    e.into_iter().map(|x| x / z).collect()
+}
+
+fn top_indices(v: &[f32], n: usize) -> Vec<usize> {
+    let mut idx: Vec<usize> = (0..v.len()).collect();
+    let n = n.min(idx.len());
+    if n == 0 {
+        return Vec::new();
+    }
+    idx.select_nth_unstable_by(n - 1, |&a, &b| v[b].total_cmp(&v[a]));
+    idx.truncate(n);
+    idx.sort_by(|&a, &b| v[b].total_cmp(&v[a]));
+    idx
+}
+
+/// Branch posteriors of source keypoint `src` over the target keypoints, from the kept
+/// [`FusionInputs`]: each branch's row softmax at its temperature (the row part of a dual
+/// softmax), fused per `fusion.mode` with the pipeline's formulas (Noisy-AND with its prior,
+/// Noisy-OR, concatenated cosine, or one branch). Points without a pixel have an image
+/// posterior of 0, as in the pipeline. Candidates: the most likely under the fused, image and
+/// geometric posteriors, plus the ground-truth target.
+pub fn point_posterior(
+    inputs: &FusionInputs,
+    image: Option<&ImageBranchOutput>,
+    fusion: &crate::fusion::FusionParams,
     src: usize,
-    tau: f32,
     gt: Option<&Isometry3<f64>>,
     survived: Option<bool>,
 ) -> Option<Posterior> {
-    if src >= src_branch.features.len() || tgt_branch.features.is_empty() {
+    let (sg, tg) = (&inputs.source_geo, &inputs.target_geo);
+    if src >= sg.features.len() || tg.features.is_empty() {
         return None;
     }
-    let sf = src_branch.features.row(src);
-    let ns = sf.iter().map(|x| x * x).sum::<f32>().sqrt().max(1e-12);
-    let sims: Vec<f32> = (0..tgt_branch.features.len())
-        .map(|j| {
-            let tf = tgt_branch.features.row(j);
-            let nt = tf.iter().map(|x| x * x).sum::<f32>().sqrt().max(1e-12);
-            sf.iter().zip(tf).map(|(a, b)| a * b).sum::<f32>() / (ns * nt)
-        })
-        .collect();
-    let m = sims.iter().cloned().fold(f32::NEG_INFINITY, f32::max);
-    let e: Vec<f32> = sims.iter().map(|s| ((s - m) / tau).exp()).collect();
-    let z: f32 = e.iter().sum::<f32>().max(1e-30);
-    let mut idx: Vec<usize> = (0..e.len()).collect();
-    idx.sort_by(|&a, &b| e[b].total_cmp(&e[a]));
-    idx.truncate(POSTERIOR_CANDIDATES);
+    let cos_geo = cos_row(&sg.features, src, &tg.features);
+    let p_geo = softmax_row(&cos_geo, None, fusion.calibration_geo.tau());
+    let img = inputs.image.as_ref().map(|im| {
+        let (vs, vt) = im.validity();
+        let cos = im.similarity_row(src);
+        let p = if vs.get(src).copied().unwrap_or(false) {
+            softmax_row(&cos, Some(vt.as_slice()), fusion.calibration_img.tau())
+        } else {
+            vec![0.0; cos.len()]
+        };
+        (cos, p)
+    });
+    let prior = fusion.prior.unwrap_or_else(|| {
+        crate::fusion::fuse::default_prior(sg.features.len(), tg.features.len())
+    });
+    let fused: Vec<f32> = match (&img, fusion.mode) {
+        (None, _) | (_, FusionMode::GeometryOnly) => p_geo.clone(),
+        (Some((_, pi)), FusionMode::ImageOnly) => pi.clone(),
+        (Some((_, pi)), FusionMode::NoisyAnd) => pi
+            .iter()
+            .zip(&p_geo)
+            .map(|(a, b)| crate::fusion::fuse::noisy_and(*a, *b, prior))
+            .collect(),
+        (Some((_, pi)), FusionMode::NoisyOr) => pi
+            .iter()
+            .zip(&p_geo)
+            .map(|(a, b)| crate::fusion::fuse::noisy_or(*a, *b))
+            .collect(),
+        (Some((ci, _)), FusionMode::Concat) => {
+            let w = fusion.concat_w_img;
+            let c: Vec<f32> = ci
+                .iter()
+                .zip(&cos_geo)
+                .map(|(a, b)| w * a + (1.0 - w) * b)
+                .collect();
+            softmax_row(&c, None, fusion.calibration_geo.tau())
+        }
+    };
     let gt_target = gt.map(|g| {
-        let q = g * src_branch.keypoints.points[src].cast::<f64>();
+        let q = g * sg.keypoints.points[src].cast::<f64>();
         let mut best = (0, f64::INFINITY);
-        for (j, t) in tgt_branch.keypoints.points.iter().enumerate() {
+        for (j, t) in tg.keypoints.points.iter().enumerate() {
             let d = (t.cast::<f64>() - q).norm_squared();
             if d < best.1 {
                 best = (j, d);
@@ -360,26 +511,69 @@ pub fn geometric_posterior(
         }
         best.0
     });
-    let mut candidates = idx.clone();
-    if let Some(g) = gt_target {
-        if !candidates.contains(&g) {
-            candidates.push(g);
+    let mut candidates = top_indices(&fused, POSTERIOR_CANDIDATES);
+    let mut seen: std::collections::HashSet<usize> = candidates.iter().copied().collect();
+    let extra = POSTERIOR_CANDIDATES / 4;
+    let mut more = top_indices(&p_geo, extra);
+    if let Some((_, pi)) = &img {
+        more.extend(top_indices(pi, extra));
+    }
+    more.extend(gt_target);
+    for j in more {
+        if seen.insert(j) {
+            candidates.push(j);
         }
     }
-    let geometric: Vec<f32> = candidates.iter().map(|&j| e[j] / z).collect();
+    let link =
+        |links: &[Option<crate::vfm::lift::PixelLink>], j: usize| links.get(j).copied().flatten();
+    let (source_view, source_pixel) = match image.and_then(|o| link(&o.source_links, src)) {
+        Some(l) => (l.view as usize, Some([l.u as f32, l.v as f32])),
+        None => (0, None),
+    };
+    // the target view of the ground-truth point, else of the most likely candidate
+    let target_view = image
+        .and_then(|o| {
+            gt_target
+                .into_iter()
+                .chain(candidates.first().copied())
+                .find_map(|j| link(&o.target_links, j))
+        })
+        .map_or(0, |l| l.view as usize);
+    let candidate_pixels = candidates
+        .iter()
+        .map(|&j| {
+            image
+                .and_then(|o| link(&o.target_links, j))
+                .filter(|l| l.view as usize == target_view)
+                .map(|l| [l.u as f32, l.v as f32])
+        })
+        .collect();
+    let pick = |v: &[f32]| candidates.iter().map(|&j| v[j]).collect::<Vec<f32>>();
     Some(Posterior {
         source_point: src,
-        source_pixel: None,
-        source_view: 0,
-        candidate_pixels: vec![None; candidates.len()],
+        source_pixel,
+        source_view,
+        image: img.as_ref().map(|(_, p)| pick(p)).unwrap_or_default(),
+        geometric: pick(&p_geo),
+        fused: pick(&fused),
         candidates,
-        image: Vec::new(),
-        fused: geometric.clone(),
-        geometric,
-        target_view: 0,
+        candidate_pixels,
+        target_view,
         gt_target,
         survived,
     })
+}
+
+/// What a run left in memory for fast re-runs of the stages after it.
+struct Kept {
+    /// The settings that produced `inputs` (image branch, voxel, features), as JSON.
+    signature: String,
+    inputs: Arc<FusionInputs>,
+    image: Option<ImageBranchOutput>,
+    /// Stages of that run (shown as cached when only fusion onward re-runs).
+    stages: Vec<StageInfo>,
+    note: Option<String>,
+    generation_missing: Option<String>,
 }
 
 /// A pair loaded and registered, kept for re-runs and posterior requests.
@@ -387,7 +581,11 @@ struct Current {
     pair: ScanPair,
     result: RegistrationResult,
     model: InspectorModel,
-    branches: Option<(GeoBranch, GeoBranch)>,
+    kept: Option<Kept>,
+}
+
+fn signature(p: &RegisterParams) -> String {
+    serde_json::to_string(&(p.voxel, &p.geo_features, &p.image)).unwrap_or_default()
 }
 
 /// The [`Worker`] behind `cgenreg inspect`.
@@ -399,10 +597,38 @@ pub struct PipelineWorker {
     current: Option<Current>,
     /// Loaded pairs by id (loading a fragment is the slowest step for real scans).
     loaded: HashMap<String, ScanPair>,
+    /// Geometric branch per (pair, voxel), so geometry-only re-runs skip FPFH.
+    geo: HashMap<(String, u64), Arc<FusionInputs>>,
+    /// The stage cache of the image branch (None: everything computed in memory).
+    cache: Option<Arc<Cache>>,
+    /// Why there is no cache, reported once.
+    cache_note: Option<String>,
 }
 
 impl PipelineWorker {
+    /// A worker on `dataset` with the default stage cache (`$CGENREG_CACHE` or
+    /// `~/.cache/cgenreg`).
     pub fn new(dataset: Dataset, base: RegisterParams) -> Self {
+        let dir = crate::pipeline::image_branch::default_cache_dir();
+        let (cache, cache_note) = match Cache::open(&dir) {
+            Ok(c) => (Some(Arc::new(c)), None),
+            Err(e) => (
+                None,
+                Some(format!(
+                    "stage cache {} unavailable ({e}); the image branch computes every stage in memory",
+                    dir.display()
+                )),
+            ),
+        };
+        Self::with_cache(dataset, base, cache, cache_note)
+    }
+
+    fn with_cache(
+        dataset: Dataset,
+        base: RegisterParams,
+        cache: Option<Arc<Cache>>,
+        cache_note: Option<String>,
+    ) -> Self {
         let pairs = dataset
             .pairs()
             .iter()
@@ -414,9 +640,10 @@ impl PipelineWorker {
             })
             .collect();
         let mut settings = params_to_settings(&base);
-        // register_pair runs the geometric branch only (it forces geometry-only fusion): show
-        // what actually ran
-        settings.fusion = UiFusion::GeometryOnly;
+        if base.image.is_none() {
+            // without the image branch only geometry-only fusion runs: show what ran
+            settings.fusion = UiFusion::GeometryOnly;
+        }
         Self {
             dataset,
             base,
@@ -424,7 +651,16 @@ impl PipelineWorker {
             pairs,
             current: None,
             loaded: HashMap::new(),
+            geo: HashMap::new(),
+            cache,
+            cache_note,
         }
+    }
+
+    /// Replaces the stage cache (None: compute every stage in memory, `--no-cache`).
+    pub fn set_cache(&mut self, cache: Option<Cache>) {
+        self.cache_note = None;
+        self.cache = cache.map(Arc::new);
     }
 
     /// Opens a manifest file.
@@ -451,7 +687,11 @@ impl PipelineWorker {
                 state: StageState::Running,
                 time_ms: None,
             }],
-            image_branch_note: Some(IMAGE_BRANCH_OFF.to_string()),
+            image_branch_note: Some(if self.base.image.is_some() {
+                "registering…".to_string()
+            } else {
+                IMAGE_BRANCH_OFF.to_string()
+            }),
             ..Default::default()
         }
     }
@@ -467,8 +707,59 @@ impl PipelineWorker {
         &self.settings
     }
 
-    /// Loads (or reuses) and registers one pair; returns the model. Synchronous.
+    /// Replaces the settings without running anything (the next run uses them).
+    pub fn set_settings(&mut self, s: PipelineSettings) {
+        self.settings = s;
+    }
+
+    /// Loads (or reuses) and registers one pair, generating views when needed; returns the
+    /// model. Synchronous.
     pub fn run_pair(&mut self, id: &str) -> crate::Result<InspectorModel> {
+        self.run_pair_with(id, true)
+    }
+
+    /// The geometric branch of `pair` from memory, or computed (FPFH) and kept.
+    fn geometry(
+        &mut self,
+        id: &str,
+        pair: &ScanPair,
+        voxel: f64,
+    ) -> crate::Result<(Arc<FusionInputs>, Vec<crate::pipeline::StageTiming>)> {
+        let key = (id.to_string(), voxel.to_bits());
+        if let Some(g) = self.geo.get(&key) {
+            let t = crate::pipeline::StageTiming {
+                stage: "fpfh source + target (in memory)".into(),
+                ms: 0.0,
+                status: "cached".into(),
+            };
+            return Ok((g.clone(), vec![t]));
+        }
+        let mut timings = Vec::new();
+        let mut branch = |name: &str, cloud| -> crate::Result<GeoBranch> {
+            let t = Instant::now();
+            let b = fpfh_branch(cloud, voxel)?;
+            timings.push(crate::pipeline::StageTiming {
+                stage: name.into(),
+                ms: t.elapsed().as_secs_f64() * 1e3,
+                status: "computed".into(),
+            });
+            Ok(b)
+        };
+        let s = branch("fpfh source", &pair.source.cloud)?;
+        let t = branch("fpfh target", &pair.target.cloud)?;
+        let g = Arc::new(FusionInputs {
+            source_geo: s,
+            target_geo: t,
+            image: None,
+            image_label: None,
+        });
+        self.geo.insert(key, g.clone());
+        Ok((g, timings))
+    }
+
+    /// [`run_pair`](Self::run_pair); with `generate` false a generation missing from the cache
+    /// is not produced: the model says so (`generation_missing`) and shows no views.
+    pub fn run_pair_with(&mut self, id: &str, generate: bool) -> crate::Result<InspectorModel> {
         let pair = match self.loaded.get(id) {
             Some(p) => p.clone(),
             None => {
@@ -478,31 +769,182 @@ impl PipelineWorker {
             }
         };
         let params = settings_to_params(&self.settings, &self.base);
-        let result = register_pair(&pair, &params)?;
-        let label = match &result.image_branch {
-            Some(b) => format!("{} · {b}", self.settings.fusion.label()),
-            None => format!("geometry only ({}; image branch off)", result.geo_features),
+        let sig = signature(&params);
+        let mut note: Option<String> = None;
+        let mut missing: Option<String> = None;
+        let mut with_image: Option<(RegistrationResult, FusionInputs)> = None;
+        if let Some(ib) = &params.image {
+            if let Some(n) = self.cache_note.take() {
+                note = Some(n);
+            }
+            let cache = self.cache.clone();
+            let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                register_with_image_keep(&pair, &params, ib, cache.as_deref(), generate)
+            }));
+            match r {
+                Ok(Ok(x)) => with_image = Some(x),
+                Ok(Err(e)) if e.to_string().contains(GENERATION_NOT_CACHED) => {
+                    missing = Some(ib.prompt.text());
+                    note = Some(format!(
+                        "No cached generation for this prompt ({e}). Press “Run the generator” \
+                         to make it; until then the geometric branch runs alone and no views are \
+                         shown (never views generated from another prompt)."
+                    ));
+                }
+                Ok(Err(e)) => {
+                    note = Some(format!(
+                        "image branch unavailable for {id}: {e} — fell back to the geometric \
+                         branch alone"
+                    ))
+                }
+                Err(_) => {
+                    note = Some(format!(
+                        "image branch failed (panic) on {id} — fell back to the geometric branch \
+                         alone"
+                    ))
+                }
+            }
+        }
+        let (result, inputs) = match with_image {
+            Some((r, i)) => {
+                // keep its geometric branch for geometry-only runs of this pair
+                self.geo
+                    .entry((id.to_string(), params.voxel.to_bits()))
+                    .or_insert_with(|| {
+                        Arc::new(FusionInputs {
+                            source_geo: i.source_geo.clone(),
+                            target_geo: i.target_geo.clone(),
+                            image: None,
+                            image_label: None,
+                        })
+                    });
+                (r, Some(Arc::new(i)))
+            }
+            None => {
+                let mut gp = params.clone();
+                gp.image = None;
+                if gp.geo_features == crate::pipeline::params::GeoFeatureSource::Fpfh {
+                    let t0 = Instant::now();
+                    let (g, mut timings) = self.geometry(id, &pair, gp.voxel)?;
+                    let mut r = fuse_and_finish(&pair, &gp, &g)?;
+                    timings.append(&mut r.timings);
+                    r.timings = timings;
+                    r.total_ms = t0.elapsed().as_secs_f64() * 1e3;
+                    (r, Some(g))
+                } else {
+                    (register_pair(&pair, &gp)?, None)
+                }
+            }
         };
-        let model = result_to_model(&pair, &result, &label, self.pairs.clone());
+        if let Some(img) = &result.image {
+            let asked = params
+                .image
+                .as_ref()
+                .map(|ib| ib.prompt.text())
+                .unwrap_or_default();
+            // an empty provenance prompt: the backend used none (oracle)
+            if !img.provenance.prompt.trim().is_empty()
+                && img.provenance.prompt.trim() != asked.trim()
+            {
+                note = Some(format!(
+                    "these views were generated with the prompt “{}”, not the one in the editor \
+                     (the {} backend cannot regenerate them)",
+                    img.provenance.prompt, img.provenance.backend
+                ));
+            }
+        }
+        let label = self.fusion_label(&result);
+        let mut model = result_to_model(&pair, &result, &label, self.pairs.clone());
+        if params.image.is_some() {
+            model.image_branch_note = note.clone();
+        }
+        model.generation_missing = missing.clone();
         self.pairs = model.pairs.clone();
+        let kept = inputs.map(|inputs| Kept {
+            signature: sig,
+            inputs,
+            image: result.image.clone(),
+            stages: model.stages.clone(),
+            note: model.image_branch_note.clone(),
+            generation_missing: missing,
+        });
         self.current = Some(Current {
             pair,
             result,
             model: model.clone(),
-            branches: None,
+            kept,
         });
         Ok(model)
     }
 
-    /// Adds the geometric posterior of source keypoint `src` to the current model.
-    pub fn inspect_point(&mut self, src: usize) -> crate::Result<InspectorModel> {
-        let tau = match settings_to_params(&self.settings, &self.base)
-            .fusion
-            .calibration_geo
-        {
-            Calibration::RowSoftmax { tau } | Calibration::DualSoftmax { tau } => tau,
+    fn fusion_label(&self, result: &RegistrationResult) -> String {
+        match &result.image_branch {
+            Some(_) => self.settings.fusion.label().to_string(),
+            None => format!("geometry only ({}; image branch off)", result.geo_features),
+        }
+    }
+
+    /// Re-runs similarity, fusion and estimation from memory when the current pair was run with
+    /// the same image-branch settings (only calibration, fusion, selection or estimator
+    /// changed). None: a full (cached) run is needed.
+    pub fn refuse(&mut self) -> Option<crate::Result<InspectorModel>> {
+        let params = settings_to_params(&self.settings, &self.base);
+        let sig = signature(&params);
+        let label_settings = self.settings.fusion;
+        let cur = self.current.as_mut()?;
+        let kept = cur.kept.as_ref()?;
+        if kept.signature != sig {
+            return None;
+        }
+        let t0 = Instant::now();
+        let mut result = match fuse_and_finish(&cur.pair, &params, &kept.inputs) {
+            Ok(r) => r,
+            Err(e) => return Some(Err(e)),
         };
-        let voxel = self.base.voxel;
+        result.image = kept.image.clone();
+        let label = match &result.image_branch {
+            Some(_) => label_settings.label().to_string(),
+            None => format!("geometry only ({}; image branch off)", result.geo_features),
+        };
+        let mut model = result_to_model(&cur.pair, &result, &label, self.pairs.clone());
+        let mut stages: Vec<StageInfo> = kept
+            .stages
+            .iter()
+            .filter(|s| {
+                !matches!(
+                    s.name.as_str(),
+                    "similarity" | "fusion" | "estimate" | "similarity+fusion"
+                )
+            })
+            .map(|s| StageInfo {
+                name: s.name.clone(),
+                state: StageState::Cached,
+                time_ms: Some(0.0),
+            })
+            .collect();
+        stages.append(&mut model.stages);
+        stages.insert(
+            0,
+            StageInfo {
+                name: "re-fuse from memory".into(),
+                state: StageState::Done,
+                time_ms: Some(t0.elapsed().as_secs_f64() * 1e3),
+            },
+        );
+        model.stages = stages;
+        if result.image.is_some() || kept.note.is_some() {
+            model.image_branch_note = kept.note.clone();
+        }
+        model.generation_missing = kept.generation_missing.clone();
+        self.pairs = model.pairs.clone();
+        cur.model = model.clone();
+        cur.result = result;
+        Some(Ok(model))
+    }
+
+    /// Adds the branch posteriors of source keypoint `src` to the current model.
+    pub fn inspect_point(&mut self, src: usize) -> crate::Result<InspectorModel> {
+        let fusion = settings_to_params(&self.settings, &self.base).fusion;
         let cur = self
             .current
             .as_mut()
@@ -513,30 +955,26 @@ impl PipelineWorker {
                 cur.result.source_keypoints.len()
             )));
         }
-        if cur.branches.is_none() {
-            if self.base.geo_features != crate::pipeline::params::GeoFeatureSource::Fpfh {
-                return Err(crate::Error::Invalid(
-                    "posteriors are computed for FPFH features only in this build".into(),
-                ));
-            }
-            let s = fpfh_branch(&cur.pair.source.cloud, voxel)?;
-            let t = fpfh_branch(&cur.pair.target.cloud, voxel)?;
-            cur.branches = Some((s, t));
-        }
-        let Some((s, t)) = cur.branches.as_ref() else {
-            return Err(crate::Error::Invalid("features unavailable".into()));
-        };
+        let kept = cur.kept.as_ref().ok_or_else(|| {
+            crate::Error::Invalid(
+                "posteriors are computed for FPFH features only in this build".into(),
+            )
+        })?;
         let survived = cur
             .model
             .matches
             .iter()
             .find(|m| m.src == src)
             .and_then(|m| m.survived);
-        let post = geometric_posterior(
-            s,
-            t,
+        let mut fusion = fusion;
+        if kept.inputs.image.is_none() {
+            fusion.mode = FusionMode::GeometryOnly;
+        }
+        let post = point_posterior(
+            &kept.inputs,
+            kept.image.as_ref(),
+            &fusion,
             src,
-            tau,
             cur.pair.gt_target_from_source.as_ref(),
             survived,
         )
@@ -546,55 +984,58 @@ impl PipelineWorker {
         Ok(cur.model.clone())
     }
 
-    fn run_and_report(&mut self, id: &str, events: &EventSink) {
-        events.send(WorkerEvent::Stage(StageInfo {
-            name: "load + register".into(),
-            state: StageState::Running,
-            time_ms: None,
-        }));
-        if let Some(p) = self.pairs.iter_mut().find(|p| p.id == id) {
-            p.status = PairStatus::Running;
-        }
-        let t = Instant::now();
-        match self.run_pair(id) {
+    fn report(
+        &mut self,
+        id: &str,
+        t: Instant,
+        r: crate::Result<InspectorModel>,
+        stage: &str,
+        events: &EventSink,
+    ) {
+        match r {
             Ok(mut model) => {
                 let ms = t.elapsed().as_secs_f64() * 1e3;
-                model.stages.insert(
-                    0,
-                    StageInfo {
-                        name: "load + register".into(),
-                        state: StageState::Done,
-                        time_ms: Some(ms),
-                    },
-                );
-                let msg = match (model.current_pair.and_then(|i| model.pairs.get(i)), ms) {
-                    (
-                        Some(PairEntry {
-                            rre_deg: Some(r),
-                            rte_m: Some(e),
-                            ..
-                        }),
-                        ms,
-                    ) => format!(
-                        "{id}: RRE {r:.2}° RTE {:.1} cm, {} matches, {ms:.0} ms",
+                if !model.stages.first().is_some_and(|s| s.name == stage) {
+                    model.stages.insert(
+                        0,
+                        StageInfo {
+                            name: stage.into(),
+                            state: StageState::Done,
+                            time_ms: Some(ms),
+                        },
+                    );
+                }
+                let msg = match model.current_pair.and_then(|i| model.pairs.get(i)) {
+                    Some(PairEntry {
+                        rre_deg: Some(r),
+                        rte_m: Some(e),
+                        ..
+                    }) => format!(
+                        "{id}: RRE {r:.2}° RTE {:.1} cm, {} matches, {ms:.0} ms ({stage})",
                         e * 100.0,
                         model.matches.len()
                     ),
                     _ => format!(
-                        "{id}: registered, {} matches, {ms:.0} ms",
+                        "{id}: registered, {} matches, {ms:.0} ms ({stage})",
                         model.matches.len()
                     ),
                 };
                 if let Some(c) = self.current.as_mut() {
                     c.model = model.clone();
+                    for w in &c.result.warnings {
+                        events.log(LogLevel::Warn, format!("{id}: {w}"));
+                    }
                 }
                 events.log(LogLevel::Info, msg);
-                if self
-                    .current
-                    .as_ref()
-                    .is_some_and(|c| c.result.image.is_none())
-                {
-                    events.log(LogLevel::Info, IMAGE_BRANCH_OFF);
+                if let Some(n) = &model.image_branch_note {
+                    let level = if model.generation_missing.is_some()
+                        || model.source_views.is_empty() && self.settings.wfm != WfmChoice::None
+                    {
+                        LogLevel::Warn
+                    } else {
+                        LogLevel::Info
+                    };
+                    events.log(level, n.clone());
                 }
                 events.send(WorkerEvent::Model(Box::new(model)));
             }
@@ -609,83 +1050,129 @@ impl PipelineWorker {
                     model.pairs[i].status = PairStatus::Failed(e.to_string());
                 }
                 model.stages = vec![StageInfo {
-                    name: "load + register".into(),
+                    name: stage.into(),
                     state: StageState::Failed(e.to_string()),
                     time_ms: Some(t.elapsed().as_secs_f64() * 1e3),
                 }];
+                model.image_branch_note = Some(format!("registration failed: {e}"));
                 self.current = None;
                 events.send(WorkerEvent::Model(Box::new(model)));
                 events.log(LogLevel::Error, msg);
             }
         }
     }
+
+    fn run_and_report(&mut self, id: &str, generate: bool, events: &EventSink) {
+        events.send(WorkerEvent::Stage(StageInfo {
+            name: "load + register".into(),
+            state: StageState::Running,
+            time_ms: None,
+        }));
+        if let Some(p) = self.pairs.iter_mut().find(|p| p.id == id) {
+            p.status = PairStatus::Running;
+        }
+        let t = Instant::now();
+        let r = self.run_pair_with(id, generate);
+        self.report(id, t, r, "load + register", events);
+    }
 }
 
 impl Worker for PipelineWorker {
     fn handle(&mut self, command: Command, events: &EventSink) {
         match command {
-            Command::SelectPair(id) => self.run_and_report(&id, events),
+            Command::SelectPair(id) => self.run_and_report(&id, true, events),
             Command::ApplySettings(s) => {
-                let image_changed = s.prompt() != self.settings.prompt()
-                    || s.k != self.settings.k
-                    || s.margin != self.settings.margin
-                    || s.vfm != self.settings.vfm;
+                // a new prompt or seed is not generated without asking (the button)
+                let generate = s.prompt() == self.settings.prompt() && s.seed == self.settings.seed;
                 self.settings = s;
-                if image_changed {
-                    events.log(LogLevel::Warn, IMAGE_BRANCH_OFF);
-                }
-                match self.current.as_ref().map(|c| c.result.pair_id.clone()) {
-                    Some(id) => self.run_and_report(&id, events),
-                    None => events.log(LogLevel::Info, "settings stored; no pair selected yet"),
+                let Some(id) = self.current.as_ref().map(|c| c.result.pair_id.clone()) else {
+                    events.log(LogLevel::Info, "settings stored; no pair selected yet");
+                    return;
+                };
+                let t = Instant::now();
+                match self.refuse() {
+                    Some(r) => self.report(&id, t, r, "re-fuse from memory", events),
+                    None => self.run_and_report(&id, generate, events),
                 }
             }
             Command::InspectSourcePoint(i) => match self.inspect_point(i) {
                 Ok(m) => events.send(WorkerEvent::Model(Box::new(m))),
                 Err(e) => events.log(LogLevel::Warn, format!("posterior of point {i}: {e}")),
             },
-            Command::Open { kind, paths } => {
-                let manifest = paths.first().cloned().unwrap_or_else(PathBuf::new);
-                let is_manifest = matches!(kind, super::OpenKind::Manifest | super::OpenKind::Auto)
-                    && paths.len() == 1
-                    && manifest
-                        .extension()
-                        .is_some_and(|e| e == "toml" || e == "json" || e == "txt");
-                if !is_manifest {
+            Command::Open { kind, paths } => self.open(kind, paths, events),
+            Command::RunGenerator { prompt } => {
+                if self.settings.wfm == WfmChoice::None {
                     events.log(
-                        LogLevel::Error,
-                        format!(
-                            "opening {} is not supported by this worker yet; open a dataset manifest (.toml) or use `cgenreg inspect --manifest`",
-                            kind.label()
-                        ),
+                        LogLevel::Warn,
+                        "no generator configured: choose a WFM under “Image branch”",
                     );
                     return;
                 }
-                match Dataset::load(&manifest) {
-                    Ok(d) => {
-                        let base = self.base.clone();
-                        let settings = self.settings.clone();
-                        *self = Self::new(d, base);
-                        self.settings = settings;
+                if prompt.trim() != self.settings.prompt().trim() {
+                    events.log(
+                        LogLevel::Warn,
+                        "the prompt changed since the request; generating for the prompt in the editor",
+                    );
+                }
+                match self.current.as_ref().map(|c| c.result.pair_id.clone()) {
+                    Some(id) => {
                         events.log(
                             LogLevel::Info,
-                            format!("opened {} ({} pairs)", manifest.display(), self.pairs.len()),
+                            format!(
+                                "{id}: running the generator ({})",
+                                self.settings.wfm.label()
+                            ),
                         );
-                        match self.pairs.first().map(|p| p.id.clone()) {
-                            Some(id) => self.run_and_report(&id, events),
-                            None => events.log(LogLevel::Warn, "the manifest lists no pairs"),
-                        }
+                        self.run_and_report(&id, true, events)
                     }
-                    Err(e) => events.log(LogLevel::Error, format!("{}: {e}", manifest.display())),
+                    None => events.log(LogLevel::Warn, "select a pair first"),
                 }
             }
-            Command::RunGenerator { prompt } => events.log(
-                LogLevel::Warn,
-                format!("cannot generate views for “{prompt}”: {IMAGE_BRANCH_OFF}"),
-            ),
             Command::Cancel => events.log(
                 LogLevel::Info,
                 "cancel: registrations run to completion (nothing queued was dropped)",
             ),
+        }
+    }
+}
+
+impl PipelineWorker {
+    fn open(&mut self, kind: super::OpenKind, paths: Vec<PathBuf>, events: &EventSink) {
+        let manifest = paths.first().cloned().unwrap_or_default();
+        let is_manifest = matches!(kind, super::OpenKind::Manifest | super::OpenKind::Auto)
+            && paths.len() == 1
+            && manifest
+                .extension()
+                .is_some_and(|e| e == "toml" || e == "json" || e == "txt");
+        if !is_manifest {
+            events.log(
+                LogLevel::Error,
+                format!(
+                    "opening {} is not supported by this worker yet; open a dataset manifest (.toml) or use `cgenreg inspect --manifest`",
+                    kind.label()
+                ),
+            );
+            return;
+        }
+        match Dataset::load(&manifest) {
+            Ok(d) => self.replace_dataset(d, &manifest.display().to_string(), events),
+            Err(e) => events.log(LogLevel::Error, format!("{}: {e}", manifest.display())),
+        }
+    }
+
+    fn replace_dataset(&mut self, d: Dataset, what: &str, events: &EventSink) {
+        let base = self.base.clone();
+        let settings = self.settings.clone();
+        let cache = self.cache.take();
+        *self = Self::with_cache(d, base, cache, None);
+        self.settings = settings;
+        events.log(
+            LogLevel::Info,
+            format!("opened {what} ({} pairs)", self.pairs.len()),
+        );
+        match self.pairs.first().map(|p| p.id.clone()) {
+            Some(id) => self.run_and_report(&id, true, events),
+            None => events.log(LogLevel::Warn, "the dataset lists no pairs"),
         }
     }
 }

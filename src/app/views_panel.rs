@@ -67,8 +67,10 @@ pub fn to_screen(rect: egui::Rect, img_w: u32, img_h: u32, px: [f32; 2]) -> egui
 
 /// Label under a view: backend, prompt and cache entry, never omitted.
 pub fn view_label(ui: &mut egui::Ui, side: &str, k: usize, v: &ViewImage) {
-    let prompt: String = if v.label.prompt.chars().count() > 60 {
-        v.label.prompt.chars().take(57).collect::<String>() + "…"
+    // the end of a prompt is its scene description (the start is the shared prefix)
+    let n = v.label.prompt.chars().count();
+    let prompt: String = if n > 60 {
+        "…".to_string() + &v.label.prompt.chars().skip(n - 57).collect::<String>()
     } else {
         v.label.prompt.clone()
     };
@@ -81,7 +83,12 @@ pub fn view_label(ui: &mut egui::Ui, side: &str, k: usize, v: &ViewImage) {
         .strong(),
     )
     .on_hover_text(&v.label.prompt);
-    ui.label(egui::RichText::new(format!("“{prompt}”")).small().italics())
+    let prompt = if prompt.trim().is_empty() {
+        "no prompt (this backend does not use one)".to_string()
+    } else {
+        format!("“{prompt}”")
+    };
+    ui.label(egui::RichText::new(prompt).small().italics())
         .on_hover_text(&v.label.prompt);
 }
 
@@ -120,7 +127,7 @@ pub fn views_panel(
     state.show_depth.resize(k, false);
     let shown = shared.shown_matches();
     let highlight = shared.highlight();
-    let row_h = ((max_height - 8.0) / k as f32 - 44.0).max(60.0);
+    let row_h = ((max_height - 8.0) / k as f32 - 64.0).max(60.0);
     let gap = 36.0;
     egui::ScrollArea::vertical()
         .id_salt("views_scroll")
@@ -258,7 +265,7 @@ pub fn views_panel(
                     }
                 }
                 ui.horizontal(|ui| {
-                    ui.allocate_ui(egui::vec2(half.x, 30.0), |ui| {
+                    ui.allocate_ui(egui::vec2(half.x, 44.0), |ui| {
                         ui.vertical(|ui| {
                             if let Some(v) = sv {
                                 view_label(ui, "source", row, v);
@@ -266,7 +273,7 @@ pub fn views_panel(
                         });
                     });
                     ui.add_space(gap);
-                    ui.allocate_ui(egui::vec2(half.x, 30.0), |ui| {
+                    ui.allocate_ui(egui::vec2(half.x, 44.0), |ui| {
                         ui.vertical(|ui| {
                             if let Some(v) = tv {
                                 view_label(ui, "target", row, v);

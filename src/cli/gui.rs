@@ -1,7 +1,7 @@
 //! `cgenreg inspect` and `cgenreg screenshot`: the inspector on a dataset pair, in a window or
 //! rendered headless to a PNG.
 
-use super::args::PipelineArgs;
+use super::args::{ImageArgs, PipelineArgs};
 use crate::app::pipeline_worker::PipelineWorker;
 use crate::app::{Command, MatchColorMode, Panel};
 use crate::error::{Error, Result};
@@ -18,6 +18,10 @@ pub struct InspectArgs {
     pub pair: Option<String>,
     #[command(flatten)]
     pub pipeline: Option<PipelineArgs>,
+    /// Image branch (WFM backend, prompt, VFM, K, margin) and stage cache; the controls
+    /// start from these.
+    #[command(flatten)]
+    pub image: Option<ImageArgs>,
 }
 
 #[derive(Args, Debug)]
@@ -57,6 +61,9 @@ pub struct ScreenshotArgs {
     pub all_pairs: bool,
     #[command(flatten)]
     pub pipeline: PipelineArgs,
+    /// Image branch (--wfm oracle|builtin|cached, prompt, VFM, K, margin) and stage cache.
+    #[command(flatten)]
+    pub image: ImageArgs,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, clap::ValueEnum)]
@@ -88,11 +95,15 @@ fn open(
     manifest: Option<&Path>,
     pair: Option<&str>,
     pipeline: &PipelineArgs,
+    image: &ImageArgs,
 ) -> Result<(PipelineWorker, String)> {
     let manifest = manifest
         .map(Path::to_path_buf)
         .unwrap_or_else(demo_manifest);
-    let worker = PipelineWorker::open_manifest(&manifest, pipeline.to_params(false))?;
+    let mut params = pipeline.to_params(image.wfm.is_some());
+    params.image = image.to_image_params()?;
+    let mut worker = PipelineWorker::open_manifest(&manifest, params)?;
+    worker.set_cache(image.open_cache()?);
     let ids = worker.pair_ids();
     let id = match pair {
         Some(p) if ids.iter().any(|i| i == p) => p.to_string(),
@@ -113,19 +124,24 @@ fn open(
     Ok((worker, id))
 }
 
-fn default_pipeline() -> PipelineArgs {
+fn default_args() -> (PipelineArgs, ImageArgs) {
     use clap::Parser;
     #[derive(Parser)]
     struct P {
         #[command(flatten)]
         p: PipelineArgs,
+        #[command(flatten)]
+        i: ImageArgs,
     }
-    P::parse_from(["cgenreg"]).p
+    let p = P::parse_from(["cgenreg"]);
+    (p.p, p.i)
 }
 
 pub fn run_inspect(a: InspectArgs) -> Result<()> {
-    let pipeline = a.pipeline.unwrap_or_else(default_pipeline);
-    let (worker, id) = open(a.manifest.as_deref(), a.pair.as_deref(), &pipeline)?;
+    let (dp, di) = default_args();
+    let pipeline = a.pipeline.unwrap_or(dp);
+    let image = a.image.unwrap_or(di);
+    let (worker, id) = open(a.manifest.as_deref(), a.pair.as_deref(), &pipeline, &image)?;
     let model = worker.initial_model(Some(&id));
     crate::app::run_gui_with(model, Box::new(worker), vec![Command::SelectPair(id)])
         .map_err(Error::Invalid)
@@ -138,7 +154,12 @@ pub fn run_screenshot(a: ScreenshotArgs) -> Result<()> {
             a.panel
         ))
     })?;
-    let (mut worker, id) = open(a.manifest.as_deref(), a.pair.as_deref(), &a.pipeline)?;
+    let (mut worker, id) = open(
+        a.manifest.as_deref(),
+        a.pair.as_deref(),
+        &a.pipeline,
+        &a.image,
+    )?;
     if a.all_pairs {
         for other in worker.pair_ids() {
             if other != id {
@@ -201,6 +222,8 @@ pub fn run_screenshot(a: ScreenshotArgs) -> Result<()> {
                 MatchColors::Confidence => MatchColorMode::Confidence,
             };
             app.ui_state.match_count = count;
+            // the views get the whole height (the 3D overlay has its own screenshot)
+            app.ui_state.show_3d_below_views = false;
             app.ui_state.only_survivors = only;
             let p = app.view3d_prefs_mut();
             p.show_estimated = matches!(align, Alignment::Estimated | Alignment::All);

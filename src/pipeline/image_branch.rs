@@ -23,7 +23,7 @@ use super::RegistrationResult;
 use crate::dataset::{FrameSet, Scan, ScanPair};
 use crate::error::{Error, Result};
 use crate::features::Features;
-use crate::fusion::{cosine_similarity, match_then_fuse};
+use crate::fusion::{cosine_similarity, match_then_fuse, match_then_fuse_select};
 use crate::geometry::PointCloud;
 use crate::vfm::lift::{lift_views, LiftView, PixelLink};
 use crate::vfm::pair_similarity::{pair_point_descriptors, PairPointDescriptors};
@@ -580,6 +580,141 @@ pub fn register_with_image(
     ib: &ImageBranchParams,
     cache: Option<&Cache>,
 ) -> Result<RegistrationResult> {
+    register_with_image_keep(pair, params, ib, cache, true).map(|(r, _)| r)
+}
+
+/// Start of the error returned by [`register_with_image_keep`] when `generate` is false and the
+/// generation is not in the cache.
+pub const GENERATION_NOT_CACHED: &str = "generation not cached";
+
+/// Inputs of the in-memory stages (similarity onward): with them, a change of temperature,
+/// fusion mode, selection or estimator re-runs only [`fuse_and_finish`] (the GUI keeps them).
+#[derive(Clone, Debug)]
+pub struct FusionInputs {
+    pub source_geo: GeoBranch,
+    pub target_geo: GeoBranch,
+    /// The image branch's per-point descriptors; None: geometry only.
+    pub image: Option<ImageInputs>,
+    /// Label of the image branch, as in `RegistrationResult::image_branch` (fusion mode aside).
+    pub image_label: Option<String>,
+}
+
+/// Per-point image descriptors, as the image similarity needs them.
+#[derive(Clone, Debug)]
+pub enum ImageInputs {
+    /// One unit descriptor per keypoint and its validity: (source, valid, target, valid).
+    PerImage(Features, Vec<bool>, Features, Vec<bool>),
+    /// Pair-conditioned descriptors (MASt3R): one per keypoint and partner view.
+    PairConditioned(PairPointDescriptors),
+}
+
+impl ImageInputs {
+    /// Which source / target keypoints have an image descriptor.
+    pub fn validity(&self) -> (Vec<bool>, Vec<bool>) {
+        match self {
+            ImageInputs::PerImage(_, vs, _, vt) => (vs.clone(), vt.clone()),
+            ImageInputs::PairConditioned(d) => (
+                d.src_view.iter().map(Option::is_some).collect(),
+                d.tgt_view.iter().map(Option::is_some).collect(),
+            ),
+        }
+    }
+
+    /// The N x M image similarity with its row / column validity.
+    pub fn similarity(&self) -> Result<(crate::fusion::matrix::DenseMatrix, Vec<bool>, Vec<bool>)> {
+        match self {
+            ImageInputs::PerImage(fs, vs, ft, vt) => {
+                Ok((cosine_similarity(fs, ft)?, vs.clone(), vt.clone()))
+            }
+            ImageInputs::PairConditioned(d) => d.similarity(),
+        }
+    }
+
+    /// Row `i` of [`Self::similarity`] (the GUI's posterior inspector), without the matrix.
+    pub fn similarity_row(&self, i: usize) -> Vec<f32> {
+        match self {
+            ImageInputs::PerImage(fs, _, ft, _) => {
+                let norm = |v: &[f32]| dot(v, v).sqrt().max(1e-12);
+                let a = fs.row(i);
+                let na = norm(a);
+                (0..ft.len())
+                    .map(|j| {
+                        let b = ft.row(j);
+                        dot(a, b) / (na * norm(b))
+                    })
+                    .collect()
+            }
+            ImageInputs::PairConditioned(d) => d.similarity_row(i),
+        }
+    }
+}
+
+fn dot(a: &[f32], b: &[f32]) -> f32 {
+    a.iter().zip(b).map(|(x, y)| x * y).sum()
+}
+
+/// Similarity, calibration, fusion, selection and estimation from kept [`FusionInputs`]; the
+/// same computation as the tail of [`register_with_image`] (image branch present) or the
+/// geometric-only registration (image None: geometry-only fusion, streaming row-NN when the
+/// calibration allows it). `res.image` is left None: the caller re-attaches the views.
+pub fn fuse_and_finish(
+    pair: &ScanPair,
+    params: &RegisterParams,
+    inputs: &FusionInputs,
+) -> Result<RegistrationResult> {
+    let mut timer = Timer::new();
+    let (src, tgt) = (&inputs.source_geo, &inputs.target_geo);
+    let corr = match &inputs.image {
+        Some(image) => {
+            let t = Instant::now();
+            let (s_img, v_src, v_tgt) = image.similarity()?;
+            let s_geo = cosine_similarity(&src.features, &tgt.features)?;
+            timer.record("similarity", t.elapsed(), false);
+            let t = Instant::now();
+            // Same correspondences as `match_then_fuse`, without its N x M outputs.
+            let corr = match_then_fuse_select(
+                Some((&s_img, Some(&v_src), Some(&v_tgt))),
+                Some(&s_geo),
+                &params.fusion,
+            )?;
+            timer.record("fusion", t.elapsed(), false);
+            corr
+        }
+        None => {
+            let mut fusion = params.fusion;
+            fusion.mode = crate::fusion::FusionMode::GeometryOnly;
+            let t = Instant::now();
+            let c = match (fusion.selection, fusion.calibration_geo) {
+                (
+                    crate::fusion::Selection::RowNn,
+                    crate::fusion::Calibration::RowSoftmax { tau },
+                ) => crate::fusion::streaming::row_nn_posterior(&src.features, &tgt.features, tau)?,
+                _ => {
+                    let sim = cosine_similarity(&src.features, &tgt.features)?;
+                    match_then_fuse_select(None, Some(&sim), &fusion)?
+                }
+            };
+            timer.record("similarity+fusion", t.elapsed(), false);
+            c
+        }
+    };
+    let label = inputs
+        .image_label
+        .as_ref()
+        .map(|l| format!("{l}; fusion {:?})", params.fusion.mode));
+    finish(pair, params, timer, src.clone(), tgt.clone(), corr, label)
+}
+
+/// [`register_with_image`] that also returns the [`FusionInputs`]. With `generate` false a
+/// generation missing from the cache is not produced: the call fails with an error starting
+/// with [`GENERATION_NOT_CACHED`] (the GUI then offers to run the generator).
+pub fn register_with_image_keep(
+    pair: &ScanPair,
+    params: &RegisterParams,
+    ib: &ImageBranchParams,
+    cache: Option<&Cache>,
+    generate: bool,
+) -> Result<(RegistrationResult, FusionInputs)> {
     if !matches!(params.geo_features, super::params::GeoFeatureSource::Fpfh) {
         return Err(Error::Invalid(
             "the image branch is wired to the FPFH geometric branch; learned geometric \
@@ -705,6 +840,13 @@ pub fn register_with_image(
             })
         },
         || {
+            if !generate {
+                return Err(Error::Invalid(format!(
+                    "{GENERATION_NOT_CACHED}: {backend_id}, prompt {}, seed {}",
+                    short_prompt(&ib.prompt),
+                    ib.seed
+                )));
+            }
             let depth_video = match video_frames.take() {
                 Some(f) => f,
                 None if is_oracle => Vec::new(),
@@ -880,8 +1022,8 @@ pub fn register_with_image(
         image_size,
     )?;
 
-    // Per-keypoint image descriptors, then the image similarity.
-    let (s_img, v_src, v_tgt, t) = if pair_conditioned {
+    // Per-keypoint image descriptors (per-image models) or per-pair descriptors (pair models).
+    let image_inputs: ImageInputs = if pair_conditioned {
         let mut pk: Vec<&str> = vec![&src_lift_key.hash, &tgt_lift_key.hash, &gen_key.hash];
         pk.push(&vfm_id);
         let pkey = CacheKey::new(
@@ -949,9 +1091,7 @@ pub fn register_with_image(
         } else {
             format!("{vfm_id} (pair descriptors from the cache)")
         };
-        let t = Instant::now();
-        let (s_img, vs, vt) = d.similarity()?;
-        (s_img, vs, vt, t)
+        ImageInputs::PairConditioned(d)
     } else {
         let (f_src, v_src, f_tgt, v_tgt) = per_image_point_features(
             &mut ctx,
@@ -960,34 +1100,17 @@ pub fn register_with_image(
             (&src_links, &tgt_links),
             (&src_grids, &tgt_grids),
         )?;
-        let t = Instant::now();
-        (cosine_similarity(&f_src, &f_tgt)?, v_src, v_tgt, t)
+        ImageInputs::PerImage(f_src, v_src, f_tgt, v_tgt)
     };
-    let s_geo = cosine_similarity(&src_geo.features, &tgt_geo.features)?;
-    ctx.timer.record("similarity", t.elapsed(), false);
-    let t = Instant::now();
-    let fused = match_then_fuse(
-        Some((&s_img, Some(&v_src), Some(&v_tgt))),
-        Some(&s_geo),
-        &params.fusion,
-    )?;
-    drop((s_img, s_geo));
-    ctx.timer.record("fusion", t.elapsed(), false);
+    let (v_src, v_tgt) = image_inputs.validity();
 
     let n_valid = (
         v_src.iter().filter(|v| **v).count(),
         v_tgt.iter().filter(|v| **v).count(),
     );
     let label = format!(
-        "{} + {} (K={}, m={}, L={}; {} / {} source / target keypoints with a pixel; fusion {:?})",
-        gen.provenance.backend,
-        vfm_id,
-        ib.k,
-        ib.margin,
-        l,
-        n_valid.0,
-        n_valid.1,
-        params.fusion.mode
+        "{} + {} (K={}, m={}, L={}; {} / {} source / target keypoints with a pixel",
+        gen.provenance.backend, vfm_id, ib.k, ib.margin, l, n_valid.0, n_valid.1,
     );
     let view_label = format!(
         "{} | {} | cache {}",
@@ -1017,19 +1140,22 @@ pub fn register_with_image(
     let Ctx {
         timer, warnings, ..
     } = ctx;
-    let mut res = finish(
-        pair,
-        params,
-        timer,
-        src_geo,
-        tgt_geo,
-        fused.correspondences,
-        Some(label),
-    )?;
+    let inputs = FusionInputs {
+        source_geo: src_geo,
+        target_geo: tgt_geo,
+        image: Some(image_inputs),
+        image_label: Some(label),
+    };
+    let mut res = fuse_and_finish(pair, params, &inputs)?;
+    // The cached stages' timings first, then the in-memory ones.
+    let mut timings = timer.timings;
+    timings.append(&mut res.timings);
+    res.timings = timings;
+    res.total_ms = timer.t0.elapsed().as_secs_f64() * 1e3;
     res.warnings.extend(warnings);
     res.warnings.extend(gen.provenance.warnings.iter().cloned());
     res.image = Some(output);
-    Ok(res)
+    Ok((res, inputs))
 }
 
 /// The default cache directory: `$CGENREG_CACHE`, else `~/.cache/cgenreg`.

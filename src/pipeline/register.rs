@@ -8,7 +8,7 @@ use crate::error::{Error, Result};
 use crate::estimate::{estimate_pose, Estimate};
 use crate::features::fpfh::{compute_fpfh, FpfhParams};
 use crate::features::Features;
-use crate::fusion::{match_then_fuse, Correspondence};
+use crate::fusion::{match_then_fuse_select, Correspondence};
 use crate::geometry::knn::KdIndex;
 use crate::geometry::normals::{estimate_normals, orient_towards_viewpoint};
 use crate::geometry::voxel::voxel_downsample;
@@ -99,8 +99,8 @@ pub fn matrix_rows(t: &Isometry3<f64>) -> [[f64; 4]; 4] {
 }
 
 pub(crate) struct Timer {
-    timings: Vec<StageTiming>,
-    t0: Instant,
+    pub(crate) timings: Vec<StageTiming>,
+    pub(crate) t0: Instant,
 }
 
 impl Timer {
@@ -131,6 +131,7 @@ impl Timer {
 }
 
 /// Keypoints and their geometric features for one scan.
+#[derive(Clone, Debug)]
 pub struct GeoBranch {
     pub keypoints: PointCloud,
     pub features: Features,
@@ -256,11 +257,9 @@ fn register_geometry(pair: &ScanPair, params: &RegisterParams) -> Result<Registr
             let sim = timer.stage("similarity", || {
                 crate::fusion::similarity::cosine_similarity(&src.features, &tgt.features)
             })?;
-            timer
-                .stage("calibrate+select", || {
-                    match_then_fuse(None, Some(&sim), &fusion)
-                })?
-                .correspondences
+            timer.stage("calibrate+select", || {
+                match_then_fuse_select(None, Some(&sim), &fusion)
+            })?
         }
     };
     finish(pair, params, timer, src, tgt, corr, None)

@@ -102,6 +102,26 @@ pub fn pair_point_descriptors(
 }
 
 impl PairPointDescriptors {
+    /// Row `i` of [`Self::similarity`].
+    pub fn similarity_row(&self, i: usize) -> Vec<f32> {
+        let m = self.tgt_view.len();
+        let d = self.dim;
+        let Some(Some(si)) = self.src_view.get(i).copied() else {
+            return vec![0.0; m];
+        };
+        let a = &self.src[i * self.k_tgt * d..(i + 1) * self.k_tgt * d];
+        (0..m)
+            .map(|j| match self.tgt_view[j] {
+                Some(tj) => {
+                    let x = &a[tj as usize * d..(tj as usize + 1) * d];
+                    let o = (j * self.k_src + si as usize) * d;
+                    x.iter().zip(&self.tgt[o..o + d]).map(|(p, q)| p * q).sum()
+                }
+                None => 0.0,
+            })
+            .collect()
+    }
+
     /// The dense N x M similarity and the validity of each row / column.
     pub fn similarity(&self) -> Result<(DenseMatrix, Vec<bool>, Vec<bool>)> {
         let (n, m, d) = (self.src_view.len(), self.tgt_view.len(), self.dim);
@@ -162,6 +182,9 @@ mod tests {
         ];
         let d = pair_point_descriptors(&pairs, ks, kt, &src, &tgt).unwrap();
         let (s, vs, vt) = d.similarity().unwrap();
+        for i in 0..src.len() {
+            assert_eq!(d.similarity_row(i), s.row(i).to_vec());
+        }
         assert_eq!(vs, vec![true, false, true, true]);
         assert_eq!(vt, vec![true, true, false, true, true]);
         for (i, a) in src.iter().enumerate() {
