@@ -505,8 +505,13 @@ pub fn controls_ui(
             egui::ComboBox::from_label("VFM")
                 .selected_text(settings.vfm.clone())
                 .show_ui(ui, |ui| {
-                    // MASt3R (pair-conditioned) is not wired into the registration pipeline
+                    // MASt3R needs the user's own export in the model field below
                     ui.selectable_value(&mut settings.vfm, "xfeat".to_owned(), "xfeat");
+                    ui.selectable_value(
+                        &mut settings.vfm,
+                        "mast3r".to_owned(),
+                        "mast3r (your ONNX export)",
+                    );
                 });
             path_field(ui, "XFeat model (empty: default)", &mut settings.vfm_model);
         });

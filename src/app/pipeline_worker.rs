@@ -111,12 +111,16 @@ pub fn settings_to_params(s: &PipelineSettings, base: &RegisterParams) -> Regist
         backend,
         prompt: s.wfm_prompt(),
         seed: s.seed,
-        vfm: if s.vfm_model.trim().is_empty() {
-            VfmSpec::default()
-        } else {
-            VfmSpec::Xfeat {
-                model: PathBuf::from(s.vfm_model.trim()),
-            }
+        vfm: match (s.vfm.as_str(), s.vfm_model.trim()) {
+            // No MASt3R weights ship with cgenreg: an empty path reaches the pipeline, which
+            // reports the missing model (and the inspector falls back to geometry).
+            ("mast3r", m) => VfmSpec::Mast3r {
+                model: PathBuf::from(m),
+            },
+            (_, "") => VfmSpec::default(),
+            (_, m) => VfmSpec::Xfeat {
+                model: PathBuf::from(m),
+            },
         },
         k: s.k,
         margin: s.margin,
@@ -178,9 +182,9 @@ pub fn params_to_settings(p: &RegisterParams) -> PipelineSettings {
         s.seed = ib.seed;
         s.k = ib.k;
         s.margin = ib.margin;
-        let VfmSpec::Xfeat { model } = &ib.vfm;
-        if *model != crate::vfm::default_xfeat_path() {
-            s.vfm_model = model.display().to_string();
+        s.vfm = ib.vfm.name().to_string();
+        if ib.vfm.model() != crate::vfm::default_xfeat_path() {
+            s.vfm_model = ib.vfm.model().display().to_string();
         }
     }
     s

@@ -23,7 +23,7 @@ use super::RegistrationResult;
 use crate::dataset::{FrameSet, Scan, ScanPair};
 use crate::error::{Error, Result};
 use crate::features::Features;
-use crate::fusion::{cosine_similarity, match_then_fuse, match_then_fuse_select};
+use crate::fusion::{cosine_similarity, match_then_fuse_select};
 use crate::geometry::PointCloud;
 use crate::vfm::lift::{lift_views, LiftView, PixelLink};
 use crate::vfm::pair_similarity::{pair_point_descriptors, PairPointDescriptors};
