@@ -38,7 +38,8 @@ use crate::fusion::fuse::FusionMode;
 use crate::fusion::select::Selection;
 use crate::pipeline::cache::Cache;
 use crate::pipeline::image_branch::{
-    fuse_and_finish, register_with_image_keep, FusionInputs, GENERATION_NOT_CACHED,
+    fuse_and_finish, fuse_and_finish_with, register_with_image_keep, similarities, FusionInputs,
+    Similarities, GENERATION_NOT_CACHED,
 };
 use crate::pipeline::register::{fpfh_branch, GeoBranch};
 use crate::pipeline::{
@@ -573,6 +574,9 @@ struct Kept {
     /// The settings that produced `inputs` (image branch, voxel, features), as JSON.
     signature: String,
     inputs: Arc<FusionInputs>,
+    /// Both similarity matrices (about 2 x 200 MB at 7k keypoints, for the current pair only):
+    /// a temperature change then costs fusion + estimate only.
+    sims: Option<Arc<Similarities>>,
     image: Option<ImageBranchOutput>,
     /// Stages of that run (shown as cached when only fusion onward re-runs).
     stages: Vec<StageInfo>,
@@ -866,6 +870,7 @@ impl PipelineWorker {
         self.pairs = model.pairs.clone();
         let kept = inputs.map(|inputs| Kept {
             signature: sig,
+            sims: similarities(&inputs).ok().map(Arc::new),
             inputs,
             image: result.image.clone(),
             stages: model.stages.clone(),
@@ -901,7 +906,11 @@ impl PipelineWorker {
             return None;
         }
         let t0 = Instant::now();
-        let mut result = match fuse_and_finish(&cur.pair, &params, &kept.inputs) {
+        let run = match &kept.sims {
+            Some(s) => fuse_and_finish_with(&cur.pair, &params, &kept.inputs, s),
+            None => fuse_and_finish(&cur.pair, &params, &kept.inputs),
+        };
+        let mut result = match run {
             Ok(r) => r,
             Err(e) => return Some(Err(e)),
         };

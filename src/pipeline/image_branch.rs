@@ -653,6 +653,66 @@ fn dot(a: &[f32], b: &[f32]) -> f32 {
     a.iter().zip(b).map(|(x, y)| x * y).sum()
 }
 
+/// The similarity matrices of [`FusionInputs`]: they do not depend on temperature, fusion
+/// mode, selection or estimator, so the GUI keeps them between re-fusions (2 x N x M f32).
+#[derive(Debug)]
+pub struct Similarities {
+    /// Image similarity with its row / column validity (None: geometry only).
+    pub image: Option<(crate::fusion::matrix::DenseMatrix, Vec<bool>, Vec<bool>)>,
+    pub geo: crate::fusion::matrix::DenseMatrix,
+}
+
+/// Both similarity matrices of `inputs`.
+pub fn similarities(inputs: &FusionInputs) -> Result<Similarities> {
+    let geo = cosine_similarity(&inputs.source_geo.features, &inputs.target_geo.features)?;
+    let image = match &inputs.image {
+        Some(im) => Some(im.similarity()?),
+        None => None,
+    };
+    Ok(Similarities { image, geo })
+}
+
+/// [`fuse_and_finish`] from similarities computed before (see [`similarities`]); the same
+/// result, without the similarity stage.
+pub fn fuse_and_finish_with(
+    pair: &ScanPair,
+    params: &RegisterParams,
+    inputs: &FusionInputs,
+    sims: &Similarities,
+) -> Result<RegistrationResult> {
+    let mut timer = Timer::new();
+    let (src, tgt) = (&inputs.source_geo, &inputs.target_geo);
+    if sims.image.is_some() {
+        // kept in memory: shown as a hit, like the stage cache's entries
+        timer.record("similarity", std::time::Duration::ZERO, true);
+    }
+    let t = Instant::now();
+    let corr = match (&sims.image, &inputs.image) {
+        (Some((s_img, vs, vt)), Some(_)) => {
+            let c = match_then_fuse_select(Some((s_img, Some(vs), Some(vt))), Some(&sims.geo), &params.fusion)?;
+            timer.record("fusion", t.elapsed(), false);
+            c
+        }
+        (None, None) => {
+            let mut fusion = params.fusion;
+            fusion.mode = crate::fusion::FusionMode::GeometryOnly;
+            let c = match_then_fuse_select(None, Some(&sims.geo), &fusion)?;
+            timer.record("similarity+fusion", t.elapsed(), false);
+            c
+        }
+        _ => {
+            return Err(Error::Invalid(
+                "kept similarities do not match the fusion inputs (image branch on one, off on the other)".into(),
+            ))
+        }
+    };
+    let label = inputs
+        .image_label
+        .as_ref()
+        .map(|l| format!("{l}; fusion {:?})", params.fusion.mode));
+    finish(pair, params, timer, src.clone(), tgt.clone(), corr, label)
+}
+
 /// Similarity, calibration, fusion, selection and estimation from kept [`FusionInputs`]; the
 /// same computation as the tail of [`register_with_image`] (image branch present) or the
 /// geometric-only registration (image None: geometry-only fusion, streaming row-NN when the
