@@ -90,6 +90,52 @@ pub fn row_nn_posterior(src: &Features, tgt: &Features, tau: f32) -> Result<Vec<
     Ok(out)
 }
 
+/// [`row_nn_posterior`] from a similarity matrix computed before (the inspector keeps it): each
+/// row's best target with its row-softmax probability, in one pass, without another matrix.
+pub fn row_nn_from_similarity(
+    sim: &super::matrix::DenseMatrix,
+    tau: f32,
+) -> Result<Vec<Correspondence>> {
+    if !(tau > 0.0 && tau.is_finite()) {
+        return Err(Error::Invalid(format!(
+            "row-nn: temperature must be > 0, got {tau}"
+        )));
+    }
+    let m = sim.cols;
+    if sim.rows == 0 || m == 0 {
+        return Ok(Vec::new());
+    }
+    let it = 1.0 / tau;
+    Ok(sim
+        .data
+        .par_chunks(m)
+        .enumerate()
+        .filter_map(|(i, row)| {
+            let mx = row.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+            if !mx.is_finite() {
+                return None;
+            }
+            let j = row.iter().position(|&v| v == mx)?;
+            let z: f32 = row.iter().map(|&v| fast_exp((v - mx) * it)).sum();
+            Some(Correspondence {
+                src: i as u32,
+                tgt: j as u32,
+                score: 1.0 / z,
+            })
+        })
+        .collect::<Vec<_>>())
+    .map(|mut out| {
+        // the same order as row_nn_posterior
+        out.sort_unstable_by(|a, b| {
+            b.score
+                .total_cmp(&a.score)
+                .then(a.src.cmp(&b.src))
+                .then(a.tgt.cmp(&b.tgt))
+        });
+        out
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -127,7 +173,13 @@ mod tests {
             let dense = match_then_fuse(None, Some(&sim), &p)
                 .unwrap()
                 .correspondences;
+            let kept = row_nn_from_similarity(&sim, tau).unwrap();
             assert_eq!(fast.len(), dense.len());
+            assert_eq!(kept.len(), dense.len());
+            for (x, y) in kept.iter().zip(&dense) {
+                assert_eq!((x.src, x.tgt), (y.src, y.tgt));
+                assert!((x.score - y.score).abs() <= 1e-5 * y.score.max(1e-6));
+            }
             for (x, y) in fast.iter().zip(&dense) {
                 assert_eq!((x.src, x.tgt), (y.src, y.tgt));
                 assert!(
@@ -142,6 +194,8 @@ mod tests {
     fn rejects_bad_input() {
         assert!(row_nn_posterior(&feats(3, 4, 1), &feats(3, 5, 1), 0.1).is_err());
         assert!(row_nn_posterior(&feats(3, 4, 1), &feats(3, 4, 1), 0.0).is_err());
+        let sim = crate::fusion::matrix::DenseMatrix::zeros(2, 2).unwrap();
+        assert!(row_nn_from_similarity(&sim, f32::NAN).is_err());
         assert!(
             row_nn_posterior(&Features::new(4, vec![]), &feats(3, 4, 1), 0.1)
                 .unwrap()

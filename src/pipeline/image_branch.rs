@@ -696,7 +696,13 @@ pub fn fuse_and_finish_with(
         (None, None) => {
             let mut fusion = params.fusion;
             fusion.mode = crate::fusion::FusionMode::GeometryOnly;
-            let c = match_then_fuse_select(None, Some(&sims.geo), &fusion)?;
+            let c = match (fusion.selection, fusion.calibration_geo) {
+                (
+                    crate::fusion::Selection::RowNn,
+                    crate::fusion::Calibration::RowSoftmax { tau },
+                ) => crate::fusion::streaming::row_nn_from_similarity(&sims.geo, tau)?,
+                _ => match_then_fuse_select(None, Some(&sims.geo), &fusion)?,
+            };
             timer.record("similarity+fusion", t.elapsed(), false);
             c
         }
