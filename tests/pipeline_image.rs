@@ -23,18 +23,19 @@ const CACHED: &[&str] = &[
 ];
 
 fn params() -> RegisterParams {
-    let mut p = RegisterParams::default();
-    // The demo room is small and dense (fragment voxel 1 cm).
-    p.voxel = 0.05;
-    p.image = Some(ImageBranchParams {
-        backend: WfmSpec::Builtin,
-        // The demo has 8 frames per sequence: L = 8, m = 1, K = 2 views ([0, 3] / [1, 4]).
-        frames_per_fragment: 8,
-        margin: 1,
-        k: 2,
+    RegisterParams {
+        // The demo room is small and dense (fragment voxel 1 cm).
+        voxel: 0.05,
+        image: Some(ImageBranchParams {
+            backend: WfmSpec::Builtin,
+            // The demo has 8 frames per sequence: L = 8, m = 1, K = 2 views ([0, 3] / [1, 4]).
+            frames_per_fragment: 8,
+            margin: 1,
+            k: 2,
+            ..Default::default()
+        }),
         ..Default::default()
-    });
-    p
+    }
 }
 
 fn status(r: &cgenreg::pipeline::RegistrationResult, stage: &str) -> String {

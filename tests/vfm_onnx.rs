@@ -223,8 +223,7 @@ fn xfeat_matches_agree_with_depth_and_poses_on_real_frames() {
     let ba: Vec<usize> = (0..n).into_par_iter().map(|j| best(&db, &da, j)).collect();
     let (mut matches, mut good) = (0, 0);
     let w = da.width as usize;
-    for i in 0..n {
-        let j = ab[i];
+    for (i, &j) in ab.iter().enumerate().take(n) {
         if ba[j] != i {
             continue;
         }

@@ -639,9 +639,11 @@ mod tests {
 
     #[test]
     fn prompt_joins_prefix_and_scene() {
-        let mut s = PipelineSettings::default();
-        s.prompt_scene = PromptPreset::Minimal.scene_text("x");
-        s.prompt_prefix = "A photorealistic".into();
+        let mut s = PipelineSettings {
+            prompt_scene: PromptPreset::Minimal.scene_text("x"),
+            prompt_prefix: "A photorealistic".into(),
+            ..Default::default()
+        };
         assert_eq!(s.prompt(), "A photorealistic an indoor scene");
         s.prompt_prefix.clear();
         assert_eq!(s.prompt(), "an indoor scene");

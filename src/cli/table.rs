@@ -176,11 +176,13 @@ mod tests {
             row_label(p, &geo).unwrap(),
             ("—".into(), "FPFH".into(), "—".into())
         );
-        let mut r = RegisterParams::default();
-        r.image = Some(ImageBranchParams {
-            backend: WfmSpec::Oracle,
+        let mut r = RegisterParams {
+            image: Some(ImageBranchParams {
+                backend: WfmSpec::Oracle,
+                ..Default::default()
+            }),
             ..Default::default()
-        });
+        };
         r.fusion.mode = FusionMode::NoisyOr;
         r.fusion.selection = Selection::TopK(8000);
         let v = serde_json::to_value(&r).unwrap();

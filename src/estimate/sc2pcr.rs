@@ -1064,9 +1064,9 @@ mod tests {
         }
         let mut t = a;
         transpose64(&mut t);
-        for r in 0..64 {
-            for c in 0..64 {
-                assert_eq!(t[c] >> r & 1, a[r] >> c & 1, "({r}, {c})");
+        for (r, ar) in a.iter().enumerate() {
+            for (c, tc) in t.iter().enumerate() {
+                assert_eq!(tc >> r & 1, ar >> c & 1, "({r}, {c})");
             }
         }
     }

@@ -388,6 +388,8 @@ struct GridMeta {
 type Link = Option<(u16, u32, u32)>;
 
 /// One view of the lift stage's inputs: its depth file hash, pose and intrinsics.
+// The inputs are the stage's cache key parts; bundling them in a struct would only rename them.
+#[allow(clippy::too_many_arguments)]
 fn lift_stage(
     ctx: &mut Ctx,
     name: &str,

@@ -55,6 +55,8 @@ pub struct SceneFrame {
     pub scene_lines: LineData,
     pub point_size: f32,
     pub background: [f32; 4],
+    /// At most this many points per cloud (the camera is moving); None draws every point.
+    pub point_budget: Option<u32>,
 }
 
 // Points: colours as normalised bytes (three-d bound them as integer attributes), and one VAO
@@ -114,22 +116,32 @@ impl GpuCloud {
         }
     }
     /// Uploads only when the contents' id changed.
+    /// Uploads in a scattered order ([`scatter_order`]) so that any prefix of the buffer is a
+    /// uniform subsample: a point budget then just draws fewer vertices. Lines keep their order.
     fn sync(&mut self, gl: &glow::Context, id: u64, pos: &[[f32; 3]], colors: &[[u8; 4]]) {
+        self.sync_ordered(gl, id, pos, colors, true)
+    }
+
+    fn sync_ordered(
+        &mut self,
+        gl: &glow::Context,
+        id: u64,
+        pos: &[[f32; 3]],
+        colors: &[[u8; 4]],
+        scatter: bool,
+    ) {
         if self.id != Some(id) {
             let n = pos.len().min(colors.len());
+            let (p, c): (Vec<[f32; 3]>, Vec<[u8; 4]>) = if scatter {
+                scatter_order(n).map(|i| (pos[i], colors[i])).unzip()
+            } else {
+                (pos[..n].to_vec(), colors[..n].to_vec())
+            };
             unsafe {
                 gl.bind_buffer(glow::ARRAY_BUFFER, Some(self.positions));
-                gl.buffer_data_u8_slice(
-                    glow::ARRAY_BUFFER,
-                    bytemuck_f32(&pos[..n]),
-                    glow::STATIC_DRAW,
-                );
+                gl.buffer_data_u8_slice(glow::ARRAY_BUFFER, bytemuck_f32(&p), glow::STATIC_DRAW);
                 gl.bind_buffer(glow::ARRAY_BUFFER, Some(self.colors));
-                gl.buffer_data_u8_slice(
-                    glow::ARRAY_BUFFER,
-                    colors[..n].as_flattened(),
-                    glow::STATIC_DRAW,
-                );
+                gl.buffer_data_u8_slice(glow::ARRAY_BUFFER, c.as_flattened(), glow::STATIC_DRAW);
                 gl.bind_buffer(glow::ARRAY_BUFFER, None);
             }
             self.count = n as u32;
@@ -143,6 +155,16 @@ impl GpuCloud {
             gl.delete_buffer(self.colors);
         }
     }
+}
+
+/// A permutation of 0..n (i -> i * P mod n with P a prime that does not divide n) whose every
+/// prefix is spread evenly over the input order, which for our clouds is spatially coherent.
+pub fn scatter_order(n: usize) -> impl Iterator<Item = usize> {
+    let p = [1_000_003usize, 999_983, 1_000_033]
+        .into_iter()
+        .find(|p| !n.is_multiple_of(*p))
+        .unwrap_or(1);
+    (0..n).map(move |i| (i * p) % n.max(1))
 }
 
 fn bytemuck_f32(v: &[[f32; 3]]) -> &[u8] {
@@ -346,17 +368,19 @@ pub fn paint(
             &frame.target.positions,
             &frame.target.colors,
         );
-        gpu.overlay.sync(
+        gpu.overlay.sync_ordered(
             gl,
             frame.overlay_lines.id,
             &frame.overlay_lines.positions,
             &frame.overlay_lines.colors,
+            false,
         );
-        gpu.scene_lines.sync(
+        gpu.scene_lines.sync_ordered(
             gl,
             frame.scene_lines.id,
             &frame.scene_lines.positions,
             &frame.scene_lines.colors,
+            false,
         );
         let prog = &gpu.prog;
         unsafe {
@@ -372,7 +396,9 @@ pub fn paint(
             let n = if mode == glow::LINES {
                 cloud.count / 2 * 2
             } else {
-                cloud.count
+                frame
+                    .point_budget
+                    .map_or(cloud.count, |b| cloud.count.min(b))
             };
             if n == 0 {
                 return;
@@ -406,4 +432,30 @@ pub fn paint(
         }
         Ok(())
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::scatter_order;
+
+    #[test]
+    fn scatter_order_is_a_permutation_with_even_prefixes() {
+        for n in [0usize, 1, 2, 7, 1000, 999_983 * 2, 123_457] {
+            let v: Vec<usize> = scatter_order(n).collect();
+            let mut s = v.clone();
+            s.sort_unstable();
+            assert_eq!(s, (0..n).collect::<Vec<_>>(), "n = {n}");
+            if n >= 1000 {
+                // the first 10 % covers every tenth of the input about equally
+                let k = n / 10;
+                let mut bins = [0usize; 10];
+                for &i in &v[..k] {
+                    bins[i * 10 / n] += 1;
+                }
+                for b in bins {
+                    assert!(b.abs_diff(k / 10) <= k / 50 + 2, "n = {n}: {bins:?}");
+                }
+            }
+        }
+    }
 }
