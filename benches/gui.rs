@@ -35,6 +35,7 @@ fn run(
     panel: Panel,
     size: (u32, u32),
     frames: usize,
+    orbit: bool,
 ) -> Result<(), String> {
     let mut r = HeadlessRenderer::new(model, size)?;
     r.app.ui_state.tab = panel;
@@ -53,7 +54,10 @@ fn run(
     let mut times = Vec::with_capacity(frames);
     let cpu0 = cpu_ms();
     for _ in 0..frames {
-        r.app.orbit_3d(3.0, 0.0);
+        // orbiting: the camera moves every frame (the point budget applies); still: it does not
+        if orbit {
+            r.app.orbit_3d(3.0, 0.0);
+        }
         let t = Instant::now();
         r.frame(false)?;
         times.push(t.elapsed().as_secs_f64() * 1e3);
@@ -215,6 +219,7 @@ fn main() {
             Panel::Stages,
             size,
             frames,
+            false,
         )?;
         for n in [100_000usize, 300_000] {
             let t = Instant::now();
@@ -224,11 +229,20 @@ fn main() {
                 t.elapsed().as_secs_f64() * 1e3
             );
             run(
-                &format!("3D panel, {}k points/cloud", n / 1000),
+                &format!("3D panel, {}k points/cloud, orbiting", n / 1000),
                 model.clone(),
                 Panel::View3d,
                 size,
                 frames,
+                true,
+            )?;
+            run(
+                &format!("3D panel, {}k points/cloud, still", n / 1000),
+                model.clone(),
+                Panel::View3d,
+                size,
+                frames,
+                false,
             )?;
             run(
                 &format!("views + 3D, {}k points/cloud", n / 1000),
@@ -236,6 +250,7 @@ fn main() {
                 Panel::Views,
                 size,
                 frames,
+                true,
             )?;
         }
         Ok(())

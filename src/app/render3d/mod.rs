@@ -157,14 +157,22 @@ impl GpuCloud {
     }
 }
 
-/// A permutation of 0..n (i -> i * P mod n with P a prime that does not divide n) whose every
-/// prefix is spread evenly over the input order, which for our clouds is spatially coherent.
+/// A permutation of 0..n, i -> i * s mod n with s near n / golden ratio and coprime with n, so
+/// that every prefix is spread evenly over the input order (which for our clouds is spatially
+/// coherent).
 pub fn scatter_order(n: usize) -> impl Iterator<Item = usize> {
-    let p = [1_000_003usize, 999_983, 1_000_033]
-        .into_iter()
-        .find(|p| !n.is_multiple_of(*p))
-        .unwrap_or(1);
-    (0..n).map(move |i| (i * p) % n.max(1))
+    fn gcd(a: usize, b: usize) -> usize {
+        if b == 0 {
+            a
+        } else {
+            gcd(b, a % b)
+        }
+    }
+    let mut step = ((n as f64 * 0.618_033_988_7) as usize).max(1);
+    while n > 1 && gcd(step, n) != 1 {
+        step += 1;
+    }
+    (0..n).map(move |i| ((i as u128 * step as u128) % n.max(1) as u128) as usize)
 }
 
 fn bytemuck_f32(v: &[[f32; 3]]) -> &[u8] {
@@ -440,7 +448,17 @@ mod tests {
 
     #[test]
     fn scatter_order_is_a_permutation_with_even_prefixes() {
-        for n in [0usize, 1, 2, 7, 1000, 999_983 * 2, 123_457] {
+        for n in [
+            0usize,
+            1,
+            2,
+            7,
+            1000,
+            100_000,
+            300_000,
+            150_000 + 7_133,
+            123_457,
+        ] {
             let v: Vec<usize> = scatter_order(n).collect();
             let mut s = v.clone();
             s.sort_unstable();
