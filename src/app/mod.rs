@@ -973,5 +973,52 @@ mod tests {
             classify_drop(&[seq.path().to_path_buf()]),
             OpenKind::RgbdSequence
         );
+        let frags = tempfile::tempdir().unwrap();
+        assert_eq!(
+            classify_drop(&[frags.path().to_path_buf()]),
+            OpenKind::ThreeDMatchFolder
+        );
+        // two clouds plus a GT file, in any order
+        assert_eq!(
+            classify_drop(&["gt.txt".into(), "a.ply".into(), "b.pcd".into()]),
+            OpenKind::TwoClouds
+        );
+        assert_eq!(
+            classify_drop(&["src.npy".into(), "ref.npy".into(), "gt.npy".into()]),
+            OpenKind::TwoClouds
+        );
+        assert_eq!(
+            classify_drop(&["a.ply".into(), "b.jpg".into()]),
+            OpenKind::Auto
+        );
+        assert_eq!(classify_drop(&["a.ply".into()]), OpenKind::Auto);
+    }
+
+    #[test]
+    fn two_clouds_split_into_source_target_gt() {
+        let p = |v: &[&str]| v.iter().map(PathBuf::from).collect::<Vec<_>>();
+        let (s, t, g) = split_two_clouds(&p(&["a.ply", "b.ply"])).unwrap();
+        assert_eq!((s, t, g), ("a.ply".into(), "b.ply".into(), None));
+        // names win over the order
+        let (s, t, g) = split_two_clouds(&p(&["tgt.ply", "gt.txt", "src.ply"])).unwrap();
+        assert_eq!(
+            (s, t, g),
+            ("src.ply".into(), "tgt.ply".into(), Some("gt.txt".into()))
+        );
+        let (s, t, g) = split_two_clouds(&p(&["ref.npy", "src.npy", "gt.npy"])).unwrap();
+        assert_eq!(
+            (s, t, g),
+            ("src.npy".into(), "ref.npy".into(), Some("gt.npy".into()))
+        );
+        let e = split_two_clouds(&p(&["a.ply", "b.ply", "c.ply"])).unwrap_err();
+        assert!(
+            e.contains("c.ply") && e.contains("two point-cloud files"),
+            "{e}"
+        );
+        let e = split_two_clouds(&p(&["a.ply", "notes.doc"])).unwrap_err();
+        assert!(
+            e.contains("notes.doc") && e.contains("point-cloud file"),
+            "{e}"
+        );
     }
 }
