@@ -152,5 +152,18 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("gt.npy"), "{e}");
+        // a 4x4 .npy ground truth, row-major
+        let mut m = [0f32; 16];
+        for k in 0..4 {
+            m[k * 5] = 1.0;
+        }
+        m[3] = 0.5;
+        let npy = d.path().join("gt.npy");
+        std::fs::write(&npy, crate::io::npy::encode_npy_f32(&[4, 4], &m)).unwrap();
+        let p = pair_from_files(&s, &t, Some(&npy)).unwrap();
+        assert_eq!(p.gt_target_from_source.unwrap().translation.vector.x, 0.5);
+        std::fs::write(&npy, crate::io::npy::encode_npy_f32(&[3, 4], &m[..12])).unwrap();
+        let e = read_gt_matrix(&npy).unwrap_err().to_string();
+        assert!(e.contains("gt.npy") && e.contains("4x4"), "{e}");
     }
 }
