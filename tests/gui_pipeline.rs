@@ -146,10 +146,12 @@ fn worker_registers_on_the_worker_thread_and_reports_posteriors() {
                 WorkerEvent::Log(cgenreg::app::LogLevel::Error, t) => {
                     error_logged |= t.contains("nope/1-2")
                 }
-                WorkerEvent::Model(m) if m.current_pair.is_some_and(|i| m.pairs[i].id == id) => {
-                    if m.pairs[m.current_pair.unwrap()].status == PairStatus::Done {
-                        model = Some(m)
-                    }
+                WorkerEvent::Model(m)
+                    if m.current_pair.is_some_and(|i| {
+                        m.pairs[i].id == id && m.pairs[i].status == PairStatus::Done
+                    }) =>
+                {
+                    model = Some(m)
                 }
                 _ => {}
             }
@@ -211,14 +213,16 @@ fn worker_runs_the_image_branch_from_the_cache_and_refuses_from_memory() {
     use cgenreg::app::controls::WfmChoice;
     use cgenreg::pipeline::{ImageBranchParams, WfmSpec};
     let dir = tempfile::tempdir().unwrap();
-    let mut base = RegisterParams::default();
-    base.image = Some(ImageBranchParams {
-        backend: WfmSpec::Oracle,
-        frames_per_fragment: 8,
-        margin: 1,
-        k: 2,
+    let mut base = RegisterParams {
+        image: Some(ImageBranchParams {
+            backend: WfmSpec::Oracle,
+            frames_per_fragment: 8,
+            margin: 1,
+            k: 2,
+            ..Default::default()
+        }),
         ..Default::default()
-    });
+    };
     let mut w = PipelineWorker::open_manifest(&demo_manifest(), base.clone()).unwrap();
     w.set_cache(Some(
         cgenreg::pipeline::cache::Cache::open(dir.path()).unwrap(),
@@ -507,7 +511,7 @@ fn open_a_threedmatch_folder() {
     assert!(logs.last().unwrap().1.contains("cloud_bin_"), "{logs:?}");
     // dropped folder: classified, opened, first pair registered with the gt.log GT
     assert_eq!(
-        cgenreg::app::classify_drop(&[scene.clone()]),
+        cgenreg::app::classify_drop(std::slice::from_ref(&scene)),
         OpenKind::ThreeDMatchFolder
     );
     open(&handle, OpenKind::Auto, vec![scene.clone()]);
@@ -539,11 +543,14 @@ fn open_an_rgbd_sequence() {
         return;
     };
     let seq = root.join("7scenes-redkitchen-rgbd");
-    let ds = cgenreg::app::pipeline_worker::open_dataset(OpenKind::RgbdSequence, &[seq.clone()])
-        .unwrap()
-        .with_fragment_cache(Some(
-            cgenreg::pipeline::image_branch::default_cache_dir().join("fragments"),
-        ));
+    let ds = cgenreg::app::pipeline_worker::open_dataset(
+        OpenKind::RgbdSequence,
+        std::slice::from_ref(&seq),
+    )
+    .unwrap()
+    .with_fragment_cache(Some(
+        cgenreg::pipeline::image_branch::default_cache_dir().join("fragments"),
+    ));
     let n = ds.pairs().len();
     assert_eq!(n, 9, "500 frames: 10 fragments, 9 neighbouring pairs");
     let spec = &ds.pairs()[0];
@@ -566,7 +573,7 @@ fn open_an_rgbd_sequence() {
 
     // through the worker (the fragments now come from the fragment cache)
     assert_eq!(
-        cgenreg::app::classify_drop(&[seq.clone()]),
+        cgenreg::app::classify_drop(std::slice::from_ref(&seq)),
         OpenKind::RgbdSequence
     );
     let worker = PipelineWorker::open_manifest(&demo_manifest(), params()).unwrap();

@@ -1008,7 +1008,7 @@ impl PipelineWorker {
         match r {
             Ok(mut model) => {
                 let ms = t.elapsed().as_secs_f64() * 1e3;
-                if !model.stages.first().is_some_and(|s| s.name == stage) {
+                if model.stages.first().is_none_or(|s| s.name != stage) {
                     model.stages.insert(
                         0,
                         StageInfo {
