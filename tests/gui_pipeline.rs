@@ -146,10 +146,12 @@ fn worker_registers_on_the_worker_thread_and_reports_posteriors() {
                 WorkerEvent::Log(cgenreg::app::LogLevel::Error, t) => {
                     error_logged |= t.contains("nope/1-2")
                 }
-                WorkerEvent::Model(m) if m.current_pair.is_some_and(|i| m.pairs[i].id == id) => {
-                    if m.pairs[m.current_pair.unwrap()].status == PairStatus::Done {
-                        model = Some(m)
-                    }
+                WorkerEvent::Model(m)
+                    if m.current_pair.is_some_and(|i| {
+                        m.pairs[i].id == id && m.pairs[i].status == PairStatus::Done
+                    }) =>
+                {
+                    model = Some(m)
                 }
                 _ => {}
             }
@@ -211,14 +213,16 @@ fn worker_runs_the_image_branch_from_the_cache_and_refuses_from_memory() {
     use cgenreg::app::controls::WfmChoice;
     use cgenreg::pipeline::{ImageBranchParams, WfmSpec};
     let dir = tempfile::tempdir().unwrap();
-    let mut base = RegisterParams::default();
-    base.image = Some(ImageBranchParams {
-        backend: WfmSpec::Oracle,
-        frames_per_fragment: 8,
-        margin: 1,
-        k: 2,
+    let mut base = RegisterParams {
+        image: Some(ImageBranchParams {
+            backend: WfmSpec::Oracle,
+            frames_per_fragment: 8,
+            margin: 1,
+            k: 2,
+            ..Default::default()
+        }),
         ..Default::default()
-    });
+    };
     let mut w = PipelineWorker::open_manifest(&demo_manifest(), base.clone()).unwrap();
     w.set_cache(Some(
         cgenreg::pipeline::cache::Cache::open(dir.path()).unwrap(),
@@ -298,4 +302,290 @@ fn worker_runs_the_image_branch_from_the_cache_and_refuses_from_memory() {
     let note = m.image_branch_note.unwrap();
     assert!(note.contains("fell back to the geometric branch"), "{note}");
     assert!(m.estimated.is_some());
+}
+
+// ---- opening data through Command::Open (file dialogs and drag-and-drop end here) ----
+
+use cgenreg::app::controls::WorkerHandle;
+use cgenreg::app::model::InspectorModel;
+use cgenreg::app::{LogLevel, OpenKind};
+
+/// Events until a model whose current pair finished (done or failed) or an error log.
+fn wait_for_result(
+    handle: &WorkerHandle,
+    secs: u64,
+) -> (Vec<(LogLevel, String)>, Option<Box<InspectorModel>>) {
+    let t0 = Instant::now();
+    let mut logs = Vec::new();
+    while t0.elapsed() < Duration::from_secs(secs) {
+        for e in handle.poll() {
+            match e {
+                WorkerEvent::Log(l, t) => {
+                    let err = l == LogLevel::Error;
+                    logs.push((l, t));
+                    if err {
+                        return (logs, None);
+                    }
+                }
+                WorkerEvent::Model(m) => {
+                    let st = m.current_pair.map(|i| m.pairs[i].status.clone());
+                    if matches!(st, Some(PairStatus::Done) | Some(PairStatus::Failed(_))) {
+                        return (logs, Some(m));
+                    }
+                }
+                _ => {}
+            }
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    panic!("no result from the worker in {secs} s; log: {logs:?}");
+}
+
+fn open(handle: &WorkerHandle, kind: OpenKind, paths: Vec<std::path::PathBuf>) {
+    assert!(handle.send(Command::Open { kind, paths }));
+}
+
+fn rot_deg(a: &nalgebra::Isometry3<f64>, b: &nalgebra::Isometry3<f64>) -> f64 {
+    (a.rotation.inverse() * b.rotation).angle().to_degrees()
+}
+
+/// The demo target fragment saved as `tgt.ply`, a transformed copy as `src.ply` (p_tgt = T
+/// p_src) and T as `gt.txt`.
+fn write_two_clouds(dir: &Path) -> nalgebra::Isometry3<f64> {
+    let ds = Dataset::load(&demo_manifest()).unwrap();
+    let id = ds.pairs()[0].target.clone();
+    let target = ds.load_fragment(&id).unwrap().cloud;
+    let t = nalgebra::Isometry3::new(
+        nalgebra::Vector3::new(0.3, -0.2, 0.15),
+        nalgebra::Vector3::new(0.1, 0.35, -0.05),
+    );
+    let inv = t.inverse().cast::<f32>();
+    let mut source = target.clone();
+    for p in source.points.iter_mut() {
+        *p = inv * *p;
+    }
+    source.normals = None;
+    cgenreg::io::cloud::save_cloud(&dir.join("tgt.ply"), &target).unwrap();
+    cgenreg::io::cloud::save_cloud(&dir.join("src.ply"), &source).unwrap();
+    cgenreg::io::camera_txt::write_pose(&dir.join("gt.txt"), &t).unwrap();
+    t
+}
+
+#[test]
+fn open_two_cloud_files_registers_them_against_the_gt() {
+    let dir = tempfile::tempdir().unwrap();
+    let t = write_two_clouds(dir.path());
+    let worker = PipelineWorker::open_manifest(&demo_manifest(), params()).unwrap();
+    let handle = spawn_worker(Box::new(worker), None);
+    // a drop in arbitrary order: names decide source and target, the .txt is the GT
+    let paths = vec![
+        dir.path().join("tgt.ply"),
+        dir.path().join("gt.txt"),
+        dir.path().join("src.ply"),
+    ];
+    assert_eq!(cgenreg::app::classify_drop(&paths), OpenKind::TwoClouds);
+    open(&handle, OpenKind::Auto, paths);
+    let (logs, m) = wait_for_result(&handle, 300);
+    let m = m.unwrap_or_else(|| panic!("open failed: {logs:?}"));
+    assert_eq!(m.pairs.len(), 1);
+    assert_eq!(m.pairs[0].id, "files/tgt-src");
+    assert_eq!(m.pairs[0].status, PairStatus::Done);
+    let gt = m.ground_truth.expect("GT from gt.txt");
+    assert!(
+        rot_deg(&gt, &t) < 1e-6 && (gt.translation.vector - t.translation.vector).norm() < 1e-6
+    );
+    let est = m.estimated.expect("an estimate");
+    let (rre, rte) = (
+        rot_deg(&est, &t),
+        (est.translation.vector - t.translation.vector).norm(),
+    );
+    assert!(rre < 2.0 && rte < 0.05, "RRE {rre}° RTE {rte} m");
+    assert_eq!(
+        m.pairs[0].rre_deg.map(|r| (r - rre).abs() < 1e-6),
+        Some(true)
+    );
+}
+
+#[test]
+fn a_bad_open_is_logged_and_keeps_the_previous_dataset() {
+    let dir = tempfile::tempdir().unwrap();
+    write_two_clouds(dir.path());
+    let bad = dir.path().join("broken.ply");
+    std::fs::write(
+        &bad,
+        b"ply\nformat ascii 1.0\nelement vertex 3\nend_header\n1 2\n",
+    )
+    .unwrap();
+    let empty = tempfile::tempdir().unwrap();
+    let worker = PipelineWorker::open_manifest(&demo_manifest(), params()).unwrap();
+    let old = worker.pair_ids();
+    let handle = spawn_worker(Box::new(worker), None);
+    let cases: Vec<(OpenKind, Vec<std::path::PathBuf>, Vec<&str>)> = vec![
+        (
+            OpenKind::TwoClouds,
+            vec![bad.clone(), dir.path().join("tgt.ply")],
+            vec!["broken.ply", "previous dataset stays open"],
+        ),
+        (
+            OpenKind::TwoClouds,
+            vec![dir.path().join("missing.ply"), dir.path().join("tgt.ply")],
+            vec!["missing.ply", "point-cloud file"],
+        ),
+        (
+            OpenKind::TwoClouds,
+            vec![
+                dir.path().join("src.ply"),
+                dir.path().join("tgt.ply"),
+                dir.path().join("broken.txt"),
+            ],
+            vec!["broken.txt"],
+        ),
+        (
+            OpenKind::ThreeDMatchFolder,
+            vec![empty.path().to_path_buf()],
+            vec!["cloud_bin_"],
+        ),
+        (
+            OpenKind::RgbdSequence,
+            vec![empty.path().to_path_buf()],
+            vec!["camera-intrinsics.txt"],
+        ),
+        (
+            OpenKind::Manifest,
+            vec![dir.path().join("gt.txt")],
+            vec!["gt.txt", "manifest"],
+        ),
+        (
+            OpenKind::Auto,
+            vec![dir.path().join("src.ply")],
+            vec!["src.ply", "two cloud files"],
+        ),
+    ];
+    std::fs::write(dir.path().join("broken.txt"), "1 0 0\n").unwrap();
+    for (kind, paths, want) in cases {
+        open(&handle, kind, paths.clone());
+        let (logs, m) = wait_for_result(&handle, 120);
+        assert!(m.is_none(), "{kind:?} {paths:?} gave a model");
+        let (l, text) = logs.last().unwrap();
+        assert_eq!(*l, LogLevel::Error);
+        for w in want {
+            assert!(text.contains(w), "{kind:?}: {text:?} lacks {w:?}");
+        }
+        assert!(!text.contains("panicked"), "{text}");
+    }
+    // the demo dataset is still the one loaded
+    handle.send(Command::SelectPair(old[0].clone()));
+    let (logs, m) = wait_for_result(&handle, 300);
+    let m = m.unwrap_or_else(|| panic!("old pair did not run: {logs:?}"));
+    assert_eq!(
+        m.pairs.iter().map(|p| p.id.clone()).collect::<Vec<_>>(),
+        old
+    );
+    assert_eq!(m.pairs[m.current_pair.unwrap()].status, PairStatus::Done);
+}
+
+/// The staged 3DMatch files are spread over folders named after their source repositories;
+/// a 3DMatch-style folder is assembled from links (no copies) to fragments 0 and 5 and gt.log.
+#[test]
+fn open_a_threedmatch_folder() {
+    let Some(root) = cgenreg::test_data_root() else {
+        return;
+    };
+    let m3 = root.join("3dmatch-redkitchen");
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("redkitchen");
+    std::fs::create_dir(&scene).unwrap();
+    for (link, to) in [
+        ("cloud_bin_0.pth", "regtr/cloud_bin_0.pth"),
+        ("cloud_bin_5.pth", "regtr/cloud_bin_5.pth"),
+        ("gt.log", "benchmark/3DMatch/gt.log"),
+    ] {
+        std::os::unix::fs::symlink(m3.join(to), scene.join(link)).unwrap();
+    }
+    let worker = PipelineWorker::open_manifest(&demo_manifest(), params()).unwrap();
+    let handle = spawn_worker(Box::new(worker), None);
+    // the staged folder itself is not 3DMatch-style: a clear error
+    open(&handle, OpenKind::ThreeDMatchFolder, vec![m3.clone()]);
+    let (logs, m) = wait_for_result(&handle, 60);
+    assert!(m.is_none());
+    assert!(logs.last().unwrap().1.contains("cloud_bin_"), "{logs:?}");
+    // dropped folder: classified, opened, first pair registered with the gt.log GT
+    assert_eq!(
+        cgenreg::app::classify_drop(std::slice::from_ref(&scene)),
+        OpenKind::ThreeDMatchFolder
+    );
+    open(&handle, OpenKind::Auto, vec![scene.clone()]);
+    let (logs, m) = wait_for_result(&handle, 300);
+    let m = m.unwrap_or_else(|| panic!("open failed: {logs:?}"));
+    let row = &m.pairs[m.current_pair.unwrap()];
+    assert_eq!(m.pairs.len(), 1);
+    assert_eq!(row.id, "redkitchen/0-5");
+    assert_eq!(row.status, PairStatus::Done);
+    let log = cgenreg::io::gtlog::read_gt_log(&m3.join("benchmark/3DMatch/gt.log")).unwrap();
+    let e = log.iter().find(|e| (e.target, e.source) == (0, 5)).unwrap();
+    let gt = m.ground_truth.unwrap();
+    assert!(rot_deg(&gt, &e.target_from_source) < 1e-9);
+    // 3DMatch's success thresholds (measured: about 1.5° / 5 cm)
+    assert!(row.rre_deg.unwrap() < 15.0 && row.rte_m.unwrap() < 0.3);
+    eprintln!(
+        "3DMatch 0-5: RRE {:?} RTE {:?}, {} matches",
+        row.rre_deg,
+        row.rte_m,
+        m.matches.len()
+    );
+}
+
+/// A raw RGB-D sequence: fragments of 50 frames, neighbouring fragments paired, GT from the
+/// poses (equal to 3DMatch's gt.log `0 1`, as the data's INDEX.md states).
+#[test]
+fn open_an_rgbd_sequence() {
+    let Some(root) = cgenreg::test_data_root() else {
+        return;
+    };
+    let seq = root.join("7scenes-redkitchen-rgbd");
+    let ds = cgenreg::app::pipeline_worker::open_dataset(
+        OpenKind::RgbdSequence,
+        std::slice::from_ref(&seq),
+    )
+    .unwrap()
+    .with_fragment_cache(Some(
+        cgenreg::pipeline::image_branch::default_cache_dir().join("fragments"),
+    ));
+    let n = ds.pairs().len();
+    assert_eq!(n, 9, "500 frames: 10 fragments, 9 neighbouring pairs");
+    let spec = &ds.pairs()[0];
+    assert_eq!(spec.id, "7scenes-redkitchen-rgbd/0-1");
+    let pair = ds.load_pair(&spec.id).unwrap();
+    for (scan, first) in [(&pair.target, 0), (&pair.source, 50)] {
+        let f = scan.frames.as_ref().expect("frames of the fragment");
+        assert_eq!(f.frames.len(), 50);
+        assert_eq!(f.frames[0].index, first);
+        assert!(f.frames[0].color_path.is_some());
+        assert!(scan.cloud.len() > 10_000, "{} points", scan.cloud.len());
+    }
+    let gt = pair.gt_target_from_source.unwrap();
+    let log =
+        cgenreg::io::gtlog::read_gt_log(&root.join("3dmatch-redkitchen/benchmark/3DMatch/gt.log"))
+            .unwrap();
+    let e = log.iter().find(|e| (e.target, e.source) == (0, 1)).unwrap();
+    assert!(rot_deg(&gt, &e.target_from_source) < 1e-4);
+    assert!((gt.translation.vector - e.target_from_source.translation.vector).norm() < 1e-4);
+
+    // through the worker (the fragments now come from the fragment cache)
+    assert_eq!(
+        cgenreg::app::classify_drop(std::slice::from_ref(&seq)),
+        OpenKind::RgbdSequence
+    );
+    let worker = PipelineWorker::open_manifest(&demo_manifest(), params()).unwrap();
+    let handle = spawn_worker(Box::new(worker), None);
+    open(&handle, OpenKind::Auto, vec![seq]);
+    let (logs, m) = wait_for_result(&handle, 600);
+    let m = m.unwrap_or_else(|| panic!("open failed: {logs:?}"));
+    assert_eq!(m.pairs.len(), n);
+    let row = &m.pairs[m.current_pair.unwrap()];
+    assert_eq!(row.id, spec.id);
+    assert_eq!(row.status, PairStatus::Done);
+    assert!(rot_deg(&m.ground_truth.unwrap(), &gt) < 1e-9);
+    assert!(row.rre_deg.unwrap() < 15.0 && row.rte_m.unwrap() < 0.3);
+    eprintln!("7-Scenes 0-1: RRE {:?} RTE {:?}", row.rre_deg, row.rte_m);
 }

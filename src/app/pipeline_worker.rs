@@ -1008,7 +1008,7 @@ impl PipelineWorker {
         match r {
             Ok(mut model) => {
                 let ms = t.elapsed().as_secs_f64() * 1e3;
-                if !model.stages.first().is_some_and(|s| s.name == stage) {
+                if model.stages.first().is_none_or(|s| s.name != stage) {
                     model.stages.insert(
                         0,
                         StageInfo {
@@ -1150,35 +1150,68 @@ impl Worker for PipelineWorker {
 }
 
 impl PipelineWorker {
+    /// Turns what was opened into a dataset, loads its first pair (so a bad file fails here,
+    /// with the previous dataset still loaded), then replaces the dataset and registers it.
     fn open(&mut self, kind: super::OpenKind, paths: Vec<PathBuf>, events: &EventSink) {
-        let manifest = paths.first().cloned().unwrap_or_default();
-        let is_manifest = matches!(kind, super::OpenKind::Manifest | super::OpenKind::Auto)
-            && paths.len() == 1
-            && manifest
-                .extension()
-                .is_some_and(|e| e == "toml" || e == "json" || e == "txt");
-        if !is_manifest {
-            events.log(
+        let what = paths
+            .iter()
+            .map(|p| p.display().to_string())
+            .collect::<Vec<_>>()
+            .join(", ");
+        let t = Instant::now();
+        match open_dataset(kind, &paths) {
+            Ok(d) => {
+                let d = d.with_fragment_cache(Some(
+                    crate::pipeline::image_branch::default_cache_dir().join("fragments"),
+                ));
+                let first = d.pairs().first().map(|p| p.id.clone());
+                let pre = match &first {
+                    Some(id) => match d.load_pair(id) {
+                        Ok(p) => Some(p),
+                        Err(e) => {
+                            events.log(
+                                LogLevel::Error,
+                                format!(
+                                    "{what}: {e} (loading pair {id}; the previous dataset stays open)"
+                                ),
+                            );
+                            return;
+                        }
+                    },
+                    None => None,
+                };
+                events.log(
+                    LogLevel::Info,
+                    format!(
+                        "loaded {} in {:.0} ms",
+                        first.as_deref().unwrap_or("(no pairs)"),
+                        t.elapsed().as_secs_f64() * 1e3
+                    ),
+                );
+                self.replace_dataset(d, pre, &what, events)
+            }
+            Err(e) => events.log(
                 LogLevel::Error,
-                format!(
-                    "opening {} is not supported by this worker yet; open a dataset manifest (.toml) or use `cgenreg inspect --manifest`",
-                    kind.label()
-                ),
-            );
-            return;
-        }
-        match Dataset::load(&manifest) {
-            Ok(d) => self.replace_dataset(d, &manifest.display().to_string(), events),
-            Err(e) => events.log(LogLevel::Error, format!("{}: {e}", manifest.display())),
+                format!("{e} (the previous dataset stays open)"),
+            ),
         }
     }
 
-    fn replace_dataset(&mut self, d: Dataset, what: &str, events: &EventSink) {
+    fn replace_dataset(
+        &mut self,
+        d: Dataset,
+        first: Option<ScanPair>,
+        what: &str,
+        events: &EventSink,
+    ) {
         let base = self.base.clone();
         let settings = self.settings.clone();
         let cache = self.cache.take();
         *self = Self::with_cache(d, base, cache, None);
         self.settings = settings;
+        if let Some(p) = first {
+            self.loaded.insert(p.id.clone(), p);
+        }
         events.log(
             LogLevel::Info,
             format!("opened {what} ({} pairs)", self.pairs.len()),
@@ -1187,5 +1220,77 @@ impl PipelineWorker {
             Some(id) => self.run_and_report(&id, true, events),
             None => events.log(LogLevel::Warn, "the dataset lists no pairs"),
         }
+    }
+}
+
+/// Frames per fragment when an RGB-D sequence is opened (3DMatch's fragment length).
+pub const SEQUENCE_FRAGMENT_LEN: usize = crate::dataset::fragment::FRAGMENT_LEN;
+
+/// The dataset behind an open request (`Auto` is decided by [`super::classify_drop`]). Errors
+/// name the path and what was expected there.
+pub fn open_dataset(kind: super::OpenKind, paths: &[PathBuf]) -> crate::Result<Dataset> {
+    use super::OpenKind;
+    use crate::Error;
+    let kind = match kind {
+        OpenKind::Auto => super::classify_drop(paths),
+        k => k,
+    };
+    let one = |expected: &str| -> crate::Result<&PathBuf> {
+        match paths {
+            [p] => Ok(p),
+            _ => Err(Error::Invalid(format!(
+                "{}: expected {expected}, got {} paths",
+                paths
+                    .iter()
+                    .map(|p| p.display().to_string())
+                    .collect::<Vec<_>>()
+                    .join(", "),
+                paths.len()
+            ))),
+        }
+    };
+    let folder = |expected: &str| -> crate::Result<&PathBuf> {
+        let p = one(expected)?;
+        if !p.is_dir() {
+            return Err(Error::format(p, "folder", expected, "not a folder"));
+        }
+        Ok(p)
+    };
+    match kind {
+        OpenKind::Manifest => Dataset::load(one("one dataset manifest (.toml)")?),
+        OpenKind::ThreeDMatchFolder => crate::dataset::threedmatch::open_folder(folder(
+            "a 3DMatch-style folder (cloud_bin_<k>.ply + gt.log)",
+        )?),
+        OpenKind::RgbdSequence => {
+            let mut dir = folder(
+                "an RGB-D sequence folder (camera-intrinsics.txt + frame-XXXXXX.depth.png)",
+            )?
+            .clone();
+            // 3DMatch's raw layout keeps the frames in seq-01/
+            if !dir.join("camera-intrinsics.txt").is_file()
+                && dir.join("seq-01/camera-intrinsics.txt").is_file()
+            {
+                dir = dir.join("seq-01");
+            }
+            Dataset::from_rgbd_sequence(&dir, SEQUENCE_FRAGMENT_LEN)
+        }
+        OpenKind::TwoClouds => {
+            let (s, t, gt) = super::split_two_clouds(paths).map_err(Error::Invalid)?;
+            Dataset::from_two_files(&s, &t, gt.as_deref())
+        }
+        OpenKind::CosmosOutput => Err(Error::Invalid(format!(
+            "{}: opening a Cosmos output folder is not supported yet; open the dataset it was \
+             generated for (its generations are read from the stage cache)",
+            one("one folder")?.display()
+        ))),
+        OpenKind::Auto => Err(Error::Invalid(format!(
+            "cannot tell what {} is: expected a dataset manifest (.toml), a 3DMatch folder, an \
+             RGB-D sequence folder, or two cloud files (+ an optional 4x4 GT .txt/.npy)",
+            paths
+                .iter()
+                .map(|p| p.display().to_string())
+                .collect::<Vec<_>>()
+                .join(", ")
+        ))),
     }
 }

@@ -52,21 +52,33 @@ pub struct ScanPair {
 }
 
 /// Read a 4x4 ground-truth matrix `target_from_source` (p_target = T * p_source) from a text
-/// file (16 whitespace-separated numbers, row-major). `.npy` files are read with
-/// `crate::io::npy` once that reader is in place.
+/// file (16 whitespace-separated numbers, row-major) or a `.npy` array of shape (4, 4).
 pub fn read_gt_matrix(path: &Path) -> Result<Isometry3<f64>> {
     let is_npy = path
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("npy"));
-    if is_npy {
+    if !is_npy {
+        return crate::io::camera_txt::read_pose(path);
+    }
+    let a = crate::io::npy::read_npy(path)?;
+    let v = a.to_f64();
+    if a.rows_cols() != Some((4, 4)) || v.len() != 16 {
         return Err(Error::format(
             path,
-            "format",
-            "a 4x4 text matrix (.npy ground truth needs the NumPy reader, not built in yet)",
-            ".npy",
+            "shape",
+            "a 4x4 matrix",
+            format!("{:?} ({} values)", a.rows_cols(), v.len()),
         ));
     }
-    crate::io::camera_txt::read_pose(path)
+    crate::geometry::transform::isometry_from_matrix(&nalgebra::Matrix4::from_row_slice(&v))
+        .ok_or_else(|| {
+            Error::format(
+                path,
+                "matrix",
+                "a finite rigid 4x4 transform (last row 0 0 0 1)",
+                "a non-rigid matrix",
+            )
+        })
 }
 
 /// A pair from two point-cloud files, with optional ground truth `target_from_source`.
@@ -140,5 +152,18 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("gt.npy"), "{e}");
+        // a 4x4 .npy ground truth, row-major
+        let mut m = [0f32; 16];
+        for k in 0..4 {
+            m[k * 5] = 1.0;
+        }
+        m[3] = 0.5;
+        let npy = d.path().join("gt.npy");
+        std::fs::write(&npy, crate::io::npy::encode_npy_f32(&[4, 4], &m)).unwrap();
+        let p = pair_from_files(&s, &t, Some(&npy)).unwrap();
+        assert_eq!(p.gt_target_from_source.unwrap().translation.vector.x, 0.5);
+        std::fs::write(&npy, crate::io::npy::encode_npy_f32(&[3, 4], &m[..12])).unwrap();
+        let e = read_gt_matrix(&npy).unwrap_err().to_string();
+        assert!(e.contains("gt.npy") && e.contains("4x4"), "{e}");
     }
 }
