@@ -16,6 +16,7 @@ fn median(mut v: Vec<f64>) -> f64 {
     v[v.len() / 2]
 }
 
+#[cfg_attr(not(feature = "onnx"), allow(dead_code))]
 fn frames_960x704() -> Vec<image::RgbImage> {
     let seq = cgenreg::data_root()
         .map(|r| r.join("7scenes-redkitchen-rgbd"))
@@ -159,6 +160,7 @@ fn bench_lift() {
 }
 
 fn main() {
+    #[cfg_attr(not(feature = "onnx"), allow(unused_variables))]
     let args: Vec<String> = std::env::args().skip(1).collect();
     #[cfg(feature = "onnx")]
     {

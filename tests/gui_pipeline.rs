@@ -1,5 +1,6 @@
 //! The inspector on a real registration: the bundled synthetic demo pair is registered by
 //! `register_pair`, converted into the model, checked against brute force, and rendered.
+#![cfg(feature = "gui")]
 
 use std::path::Path;
 use std::time::{Duration, Instant};
