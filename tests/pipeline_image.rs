@@ -271,3 +271,39 @@ fn fuse_from_kept_similarities_equals_full_tail() {
         }
     }
 }
+
+/// A pair given only as point clouds: the image branch renders depth frames from a virtual
+/// pinhole trajectory (cached), then runs as usual, and says so.
+#[test]
+fn cloud_only_pair_renders_virtual_depth_frames() {
+    let manifest = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/demo/demo.toml");
+    let ds = Dataset::load(&manifest).unwrap();
+    let mut pair = ds.load_pair(&ds.pairs()[0].id.clone()).unwrap();
+    pair.source.frames = None;
+    pair.target.frames = None;
+    let dir = tempfile::tempdir().unwrap();
+    let cache = Cache::open(dir.path()).unwrap();
+    let p = params();
+    let r = register_pair_cached(&pair, &p, Some(&cache)).unwrap();
+    assert!(
+        r.warnings.iter().any(|w| w.contains("virtual pinhole")),
+        "{:?}",
+        r.warnings
+    );
+    let img = r.image.as_ref().unwrap();
+    assert_eq!(img.source_views.len(), 2);
+    let linked = img.source_links.iter().filter(|l| l.is_some()).count();
+    // rendered depth back-projects onto the cloud: most keypoints get a pixel
+    assert!(
+        linked * 2 > img.source_links.len(),
+        "{linked}/{}",
+        img.source_links.len()
+    );
+    let frames: Vec<_> = std::fs::read_dir(dir.path().join("virtual-frames"))
+        .unwrap()
+        .collect();
+    assert_eq!(frames.len(), 2, "one folder per scan");
+    // Second run: same frames from disk, same pose.
+    let r2 = register_pair_cached(&pair, &p, Some(&cache)).unwrap();
+    assert_eq!(r.target_from_source, r2.target_from_source);
+}

@@ -30,7 +30,7 @@ use crate::vfm::pair_similarity::{pair_point_descriptors, PairPointDescriptors};
 use crate::vfm::{DenseDescriptors, PairModel, PerImageModel};
 use crate::wfm::backend::{GenerateRequest, Provenance, WfmBackend};
 use image::RgbImage;
-use nalgebra::Point3;
+use nalgebra::{Isometry3, Point3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use serde_json::json;
@@ -783,6 +783,22 @@ pub fn register_with_image_keep(
     cache: Option<&Cache>,
     generate: bool,
 ) -> Result<(RegistrationResult, FusionInputs)> {
+    // Point-cloud-only scans: render their depth frames from a virtual pinhole trajectory.
+    if pair.source.frames.is_none() || pair.target.frames.is_none() {
+        let root = match cache {
+            Some(c) => c.root().join("virtual-frames"),
+            None => std::env::temp_dir().join("cgenreg-virtual-frames"),
+        };
+        let mut p2 = pair.clone();
+        for scan in [&mut p2.source, &mut p2.target] {
+            if scan.frames.is_none() {
+                scan.frames = Some(render_virtual_frames(scan, ib.frames_per_fragment, &root)?);
+            }
+        }
+        let (mut r, inputs) = register_with_image_keep(&p2, params, ib, cache, generate)?;
+        r.warnings.push(VIRTUAL_FRAMES_NOTE.to_string());
+        return Ok((r, inputs));
+    }
     if !matches!(params.geo_features, super::params::GeoFeatureSource::Fpfh) {
         return Err(Error::Invalid(
             "the image branch is wired to the FPFH geometric branch; learned geometric \
@@ -1224,6 +1240,94 @@ pub fn register_with_image_keep(
     res.warnings.extend(gen.provenance.warnings.iter().cloned());
     res.image = Some(output);
     Ok((res, inputs))
+}
+
+/// Said with every result whose depth frames were rendered, not sensed.
+pub const VIRTUAL_FRAMES_NOTE: &str = "depth frames rendered from a virtual pinhole trajectory \
+(the scan had no sensor frames): 640x480, fx = fy = 585, 30° sweep, half the fit-to-view distance";
+
+/// Depth frames of a point-cloud-only scan: `l` views along a virtual pinhole arc around the
+/// cloud ([`crate::camera::trajectory::virtual_trajectory`], default options: OpenCV axes with
+/// y down), z-buffered splats written as 16-bit millimetre PNGs under `root/<hash>/`, where the
+/// hash covers the points and the frame count. The folder is complete once `poses.json` is
+/// there (written last), so an interrupted run is redone, never half-used.
+pub fn render_virtual_frames(scan: &Scan, l: usize, root: &Path) -> Result<FrameSet> {
+    use crate::camera::trajectory::{virtual_trajectory, TrajectoryOptions};
+    // Half the automatic distance: the scan over-fills the view, but its depths stay mostly
+    // inside the depth video's 4 m clip (reference §1.2) instead of all beyond it.
+    let opts = TrajectoryOptions {
+        distance_scale: 0.5,
+        ..Default::default()
+    };
+    let key = blake3::hash(
+        format!(
+            "virtual-frames-v1|{}|{l}|{:?}",
+            cloud_hash(&scan.cloud),
+            opts
+        )
+        .as_bytes(),
+    )
+    .to_hex()
+    .to_string();
+    let dir = root.join(&key[..32]);
+    let poses_file = dir.join("poses.json");
+    let name = |i: usize| dir.join(format!("frame-{i:06}.depth.png"));
+    let poses: Vec<Isometry3<f64>> = match std::fs::read(&poses_file)
+        .ok()
+        .and_then(|b| serde_json::from_slice::<Vec<[f64; 16]>>(&b).ok())
+    {
+        Some(m) if m.len() == l && (0..l).all(|i| name(i).is_file()) => m
+            .iter()
+            .map(|a| {
+                crate::geometry::transform::isometry_from_matrix(
+                    &nalgebra::Matrix4::from_column_slice(a),
+                )
+                .ok_or_else(|| {
+                    Error::format(&poses_file, "poses", "rigid 4x4 matrices", "not rigid")
+                })
+            })
+            .collect::<Result<_>>()?,
+        _ => {
+            let poses = virtual_trajectory(&scan.cloud, l, &opts)?;
+            std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
+            poses
+                .par_iter()
+                .enumerate()
+                .try_for_each(|(i, scan_from_camera)| {
+                    let d = crate::camera::render::render_depth(
+                        &scan.cloud.points,
+                        &opts.intrinsics,
+                        &scan_from_camera.inverse(),
+                    );
+                    crate::io::depth_png::write_depth_png(&name(i), &d)
+                })?;
+            let m: Vec<[f64; 16]> = poses
+                .iter()
+                .map(|p| {
+                    let mut a = [0.0; 16];
+                    a.copy_from_slice(p.to_homogeneous().as_slice());
+                    a
+                })
+                .collect();
+            let bytes = serde_json::to_vec(&m)
+                .map_err(|e| Error::Invalid(format!("virtual poses: {e}")))?;
+            crate::error::write_atomic(&poses_file, &bytes)?;
+            poses
+        }
+    };
+    Ok(FrameSet {
+        intrinsics: opts.intrinsics,
+        frames: poses
+            .into_iter()
+            .enumerate()
+            .map(|(i, scan_from_camera)| crate::dataset::RgbdFrame {
+                index: i,
+                depth_path: name(i),
+                color_path: None,
+                scan_from_camera,
+            })
+            .collect(),
+    })
 }
 
 /// The default cache directory: `$CGENREG_CACHE`, else `~/.cache/cgenreg`.
