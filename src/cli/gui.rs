@@ -138,7 +138,15 @@ fn default_args() -> (PipelineArgs, ImageArgs) {
 }
 
 pub fn run_inspect(a: InspectArgs) -> Result<()> {
-    let (dp, di) = default_args();
+    let (dp, mut di) = default_args();
+    if a.manifest.is_none() {
+        // The bundled demo (8 frames per sequence) runs the whole method out of the box: the
+        // built-in generator (NOT a WFM) + XFeat, with L = 8, m = 1 and K = 2 views per side.
+        di.wfm = Some(super::args::WfmArg::Builtin);
+        di.frames = 8;
+        di.margin = 1;
+        di.k = 2;
+    }
     let pipeline = a.pipeline.unwrap_or(dp);
     let image = a.image.unwrap_or(di);
     let (worker, id) = open(a.manifest.as_deref(), a.pair.as_deref(), &pipeline, &image)?;
