@@ -295,6 +295,21 @@ impl ImageArgs {
     }
 
     /// The stage cache, None with --no-cache.
+    /// The run's parameters (pipeline options + this image branch) and, when the image branch
+    /// is on, its stage cache.
+    pub fn params_and_cache(
+        &self,
+        pipeline: &PipelineArgs,
+    ) -> crate::Result<(crate::pipeline::RegisterParams, Option<Cache>)> {
+        let mut params = pipeline.to_params(self.wfm.is_some());
+        params.image = self.to_image_params()?;
+        let cache = match params.image {
+            Some(_) => self.open_cache()?,
+            None => None,
+        };
+        Ok((params, cache))
+    }
+
     /// Where fragments rebuilt from raw RGB-D frames are cached (None with `--no-cache`).
     pub fn fragment_cache_dir(&self) -> Option<PathBuf> {
         if self.no_cache {

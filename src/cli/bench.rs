@@ -1,5 +1,5 @@
 use super::args::{ImageArgs, PipelineArgs};
-use crate::dataset::fragment_cache::FragmentCacheStatus;
+use crate::dataset::fragment_cache::pair_summary;
 use crate::dataset::manifest::Dataset;
 use crate::error::{Error, Result};
 use crate::metrics::{PairMetrics, Summary};
@@ -87,13 +87,7 @@ pub fn run(a: BenchArgs) -> Result<()> {
             a.manifest.display()
         )));
     }
-    let mut params = a.pipeline.to_params(a.image.wfm.is_some());
-    params.image = a.image.to_image_params()?;
-    let cache = if params.image.is_some() {
-        a.image.open_cache()?
-    } else {
-        None
-    };
+    let (params, cache) = a.image.params_and_cache(&a.pipeline)?;
     let (mut n_cached, mut n_computed) = (0usize, 0usize);
     let mut stage_ms: Vec<(String, f64, usize, usize)> = Vec::new();
     let mut warnings = 0usize;
@@ -108,17 +102,15 @@ pub fn run(a: BenchArgs) -> Result<()> {
         let t = std::time::Instant::now();
         let res = ds.load_pair_status(&spec.id).and_then(|(pair, st)| {
             let load_ms = t.elapsed().as_secs_f64() * 1e3;
-            for s in st.iter().flatten() {
-                if let FragmentCacheStatus::Rebuilt(why) = s {
-                    bar.println(format!(
-                        "{}: warning: fragment cache: {why} (rebuilt)",
-                        spec.id
-                    ));
-                    warnings += 1;
-                }
+            let (hit, rebuilt) = pair_summary(&st);
+            for why in rebuilt {
+                bar.println(format!(
+                    "{}: warning: fragment cache: {why} (rebuilt)",
+                    spec.id
+                ));
+                warnings += 1;
             }
-            let loaded = st.iter().flatten().all(|s| *s == FragmentCacheStatus::Hit)
-                && st.iter().any(|s| s.is_some());
+            let loaded = hit == Some(true);
             let mut r = register_pair_cached(&pair, &params, cache.as_ref())?;
             r.timings.insert(
                 0,

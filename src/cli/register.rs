@@ -1,5 +1,5 @@
 use super::args::{ImageArgs, PipelineArgs};
-use crate::dataset::fragment_cache::FragmentCacheStatus;
+use crate::dataset::fragment_cache::pair_summary;
 use crate::dataset::manifest::Dataset;
 use crate::dataset::ScanPair;
 use crate::error::{Error, Result};
@@ -43,13 +43,10 @@ pub(crate) fn load_pair(a: &RegisterArgs) -> Result<(ScanPair, Option<bool>)> {
             let (p, st) = Dataset::load(m)?
                 .with_fragment_cache(a.image.fragment_cache_dir())
                 .load_pair_status(id)?;
-            for s in st.iter().flatten() {
-                if let FragmentCacheStatus::Rebuilt(why) = s {
-                    eprintln!("warning: fragment cache: {why} (rebuilt)");
-                }
+            let (hit, rebuilt) = pair_summary(&st);
+            for why in rebuilt {
+                eprintln!("warning: fragment cache: {why} (rebuilt)");
             }
-            let hit = (st.iter().any(|s| s.is_some()))
-                .then(|| st.iter().flatten().all(|s| *s == FragmentCacheStatus::Hit));
             Ok((p, hit))
         }
         _ => Err(Error::Invalid(
@@ -62,13 +59,7 @@ pub fn run(a: RegisterArgs) -> Result<()> {
     let t0 = std::time::Instant::now();
     let (pair, load_hit) = load_pair(&a)?;
     let load_ms = t0.elapsed().as_secs_f64() * 1e3;
-    let mut params = a.pipeline.to_params(a.image.wfm.is_some());
-    params.image = a.image.to_image_params()?;
-    let cache = if params.image.is_some() {
-        a.image.open_cache()?
-    } else {
-        None
-    };
+    let (params, cache) = a.image.params_and_cache(&a.pipeline)?;
     let mut res = register_pair_cached(&pair, &params, cache.as_ref())?;
     res.timings.insert(
         0,

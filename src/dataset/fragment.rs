@@ -78,6 +78,22 @@ impl FragmentOptions {
     }
 }
 
+/// Frame `idx` of the fragment `first .. first+count`, or an error naming the missing file.
+pub(super) fn fragment_frame(
+    seq: &RgbdSequence,
+    idx: usize,
+    first: usize,
+    count: usize,
+) -> Result<&crate::io::rgbd_sequence::SequenceFrame> {
+    seq.frame(idx).ok_or_else(|| {
+        Error::Invalid(format!(
+            "{}: fragment frames {first}..{} need frame-{idx:06}.depth.png, which is missing",
+            seq.dir.display(),
+            first + count - 1
+        ))
+    })
+}
+
 /// The frames `first .. first+count` of `seq` with their poses in the first frame's
 /// coordinates (`scan_from_camera = inv(P_first) * P_f`).
 pub fn fragment_frames(seq: &RgbdSequence, first: usize, count: usize) -> Result<FrameSet> {
@@ -93,13 +109,7 @@ pub fn fragment_frames(seq: &RgbdSequence, first: usize, count: usize) -> Result
     let frames = (first..first + count)
         .into_par_iter()
         .map(|idx| {
-            let f = seq.frame(idx).ok_or_else(|| {
-                Error::Invalid(format!(
-                    "{}: fragment frames {first}..{} need frame-{idx:06}.depth.png, which is missing",
-                    seq.dir.display(),
-                    first + count - 1
-                ))
-            })?;
+            let f = fragment_frame(seq, idx, first, count)?;
             Ok(RgbdFrame {
                 index: idx,
                 depth_path: f.depth.clone(),

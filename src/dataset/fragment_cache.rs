@@ -27,6 +27,21 @@ pub enum FragmentCacheStatus {
     Rebuilt(String),
 }
 
+/// How the fragment cache served a pair's scans: whether all of them were hits (None: no
+/// fragment came through the cache), and why any entry had to be rebuilt.
+pub fn pair_summary(st: &[Option<FragmentCacheStatus>]) -> (Option<bool>, Vec<&str>) {
+    let used: Vec<&FragmentCacheStatus> = st.iter().flatten().collect();
+    let all_hit = (!used.is_empty()).then(|| used.iter().all(|s| **s == FragmentCacheStatus::Hit));
+    let rebuilt = used
+        .iter()
+        .filter_map(|s| match s {
+            FragmentCacheStatus::Rebuilt(why) => Some(why.as_str()),
+            _ => None,
+        })
+        .collect();
+    (all_hit, rebuilt)
+}
+
 fn read(path: &Path) -> Result<Vec<u8>> {
     std::fs::read(path).map_err(|e| Error::io(path, e))
 }
@@ -40,13 +55,7 @@ pub fn fragment_key(
 ) -> Result<String> {
     let mut files: Vec<PathBuf> = vec![seq.intrinsics_path.clone()];
     for idx in first..first + count {
-        let f = seq.frame(idx).ok_or_else(|| {
-            Error::Invalid(format!(
-                "{}: fragment frames {first}..{} need frame-{idx:06}.depth.png, which is missing",
-                seq.dir.display(),
-                first + count - 1
-            ))
-        })?;
+        let f = super::fragment::fragment_frame(seq, idx, first, count)?;
         files.push(f.depth.clone());
         if let Some(p) = &f.pose {
             files.push(p.clone());

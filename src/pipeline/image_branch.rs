@@ -289,49 +289,45 @@ fn make_backend(spec: &WfmSpec) -> Result<Box<dyn WfmBackend>> {
     })
 }
 
-type ModelMap = HashMap<PathBuf, Arc<dyn PerImageModel>>;
+/// Models stay loaded for the process (bench registers many pairs with one model): `load`
+/// runs once per model file and kind.
+fn memoized<T: ?Sized>(
+    models: &OnceLock<Mutex<HashMap<PathBuf, Arc<T>>>>,
+    model: &Path,
+    load: impl FnOnce(&Path) -> Result<Arc<T>>,
+) -> Result<Arc<T>> {
+    let map = models.get_or_init(|| Mutex::new(HashMap::new()));
+    let mut g = map
+        .lock()
+        .map_err(|_| Error::Invalid("VFM model cache poisoned".into()))?;
+    if let Some(m) = g.get(model) {
+        return Ok(m.clone());
+    }
+    let m = load(model)?;
+    g.insert(model.to_path_buf(), m.clone());
+    Ok(m)
+}
 
-/// Models stay loaded for the process (bench registers many pairs with one model).
 fn load_vfm(spec: &VfmSpec) -> Result<Arc<dyn PerImageModel>> {
-    static MODELS: OnceLock<Mutex<ModelMap>> = OnceLock::new();
+    static MODELS: OnceLock<Mutex<HashMap<PathBuf, Arc<dyn PerImageModel>>>> = OnceLock::new();
     let VfmSpec::Xfeat { model } = spec else {
         return Err(Error::Invalid(format!(
             "{} is a pair-conditioned model, not a per-image one",
             spec.model().display()
         )));
     };
-    let map = MODELS.get_or_init(|| Mutex::new(HashMap::new()));
-    let mut g = map
-        .lock()
-        .map_err(|_| Error::Invalid("VFM model cache poisoned".into()))?;
-    if let Some(m) = g.get(model) {
-        return Ok(m.clone());
-    }
-    let m = load_xfeat(model)?;
-    g.insert(model.clone(), m.clone());
-    Ok(m)
+    memoized(&MODELS, model, load_xfeat)
 }
 
-type PairModelMap = HashMap<PathBuf, Arc<dyn PairModel>>;
-
 fn load_pair_vfm(spec: &VfmSpec) -> Result<Arc<dyn PairModel>> {
-    static MODELS: OnceLock<Mutex<PairModelMap>> = OnceLock::new();
+    static MODELS: OnceLock<Mutex<HashMap<PathBuf, Arc<dyn PairModel>>>> = OnceLock::new();
     let VfmSpec::Mast3r { model } = spec else {
         return Err(Error::Invalid(format!(
             "{} is a per-image model, not a pair-conditioned one",
             spec.model().display()
         )));
     };
-    let map = MODELS.get_or_init(|| Mutex::new(HashMap::new()));
-    let mut g = map
-        .lock()
-        .map_err(|_| Error::Invalid("VFM model cache poisoned".into()))?;
-    if let Some(m) = g.get(model) {
-        return Ok(m.clone());
-    }
-    let m = load_mast3r(model)?;
-    g.insert(model.clone(), m.clone());
-    Ok(m)
+    memoized(&MODELS, model, load_mast3r)
 }
 
 #[cfg(feature = "onnx")]
