@@ -94,6 +94,19 @@ pub struct FusionOutput {
 /// The image-branch similarity with its source (row) and target (column) validity.
 pub type ImageSimilarity<'a> = (&'a DenseMatrix, Option<&'a [bool]>, Option<&'a [bool]>);
 
+/// A similarity matrix must hold exactly rows x cols values.
+fn check_filled(what: &str, m: &DenseMatrix) -> Result<()> {
+    if m.data.len() != m.rows * m.cols {
+        return Err(Error::Invalid(format!(
+            "match-then-fuse: {what} similarity holds {} values, expected {} x {}",
+            m.data.len(),
+            m.rows,
+            m.cols
+        )));
+    }
+    Ok(())
+}
+
 /// Calibrates the given branch similarities, fuses them per `params.mode` and selects
 /// correspondences. `sim_img` carries the image branch's row (source) and column (target)
 /// validity: entry (i, j) is valid iff both points have a pixel. The geometric branch is valid
@@ -120,14 +133,7 @@ pub fn match_then_fuse(
     };
     for (what, m) in [("image", sim_img.map(|s| s.0)), ("geometric", sim_geo)] {
         if let Some(m) = m {
-            if m.data.len() != m.rows * m.cols {
-                return Err(Error::Invalid(format!(
-                    "match-then-fuse: {what} similarity holds {} values, expected {} x {}",
-                    m.data.len(),
-                    m.rows,
-                    m.cols
-                )));
-            }
+            check_filled(what, m)?;
         }
     }
     if let Some((_, rv, cv)) = sim_img {
@@ -267,16 +273,8 @@ pub fn match_then_fuse_select(
     params: &FusionParams,
 ) -> Result<Vec<Correspondence>> {
     if let (Some((a, _, _)), Some(b)) = (sim_img, sim_geo) {
-        for (what, m) in [("image", a), ("geometric", b)] {
-            if m.data.len() != m.rows * m.cols {
-                return Err(Error::Invalid(format!(
-                    "match-then-fuse: {what} similarity holds {} values, expected {} x {}",
-                    m.data.len(),
-                    m.rows,
-                    m.cols
-                )));
-            }
-        }
+        check_filled("image", a)?;
+        check_filled("geometric", b)?;
         if let Some((_, rv, cv)) = sim_img {
             matrix::check_masks("match-then-fuse image validity", a.rows, a.cols, rv, cv)?;
         }
