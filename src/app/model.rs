@@ -7,7 +7,7 @@
 
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion};
 
-use crate::camera::Intrinsics;
+use crate::camera::{CameraModel, Intrinsics};
 
 /// State of one scan pair in the pair browser.
 #[derive(Clone, Debug, PartialEq)]
@@ -105,7 +105,8 @@ pub struct ViewLabel {
 pub struct ViewCamera {
     /// Camera pose: p_cloud = cloud_from_camera * p_camera (OpenCV axes).
     pub cloud_from_camera: Isometry3<f64>,
-    pub intrinsics: Intrinsics,
+    /// Pinhole or f-theta (the LiDAR virtual camera).
+    pub camera: CameraModel,
 }
 
 /// One of the K views of a scan.
@@ -116,6 +117,9 @@ pub struct ViewImage {
     /// The depth frame the view was generated from, already colour-mapped for display.
     pub depth: Option<RgbImage>,
     pub camera: Option<ViewCamera>,
+    /// Per display point of this view's scan ([`InspectorModel::source`] or `target`): 0 outside
+    /// the view, 1 inside it but occluded, 2 visible. Empty when the camera is unknown.
+    pub point_state: Vec<u8>,
     /// Per correspondence (index into `InspectorModel::matches`): the pixel of this scan's
     /// endpoint in this view, when it is visible.
     pub match_pixels: Vec<Option<[f32; 2]>>,
@@ -373,8 +377,7 @@ mod demo {
         cam: &ViewCamera,
         tint: [f32; 3],
     ) -> (RgbImage, RgbImage, Vec<f32>) {
-        let k = &cam.intrinsics;
-        let (w, h) = (k.width, k.height);
+        let (w, h) = cam.camera.size();
         let mut img = RgbImage::new(w, h);
         // background gradient so empty pixels read as "generated sky", not black holes
         for y in 0..h {
@@ -387,7 +390,7 @@ mod demo {
         let camera_from_cloud = cam.cloud_from_camera.inverse();
         for (p, c) in pts {
             let pc = camera_from_cloud * to_f64(*p);
-            if let Some((u, v)) = k.project(&pc) {
+            if let Some((u, v)) = cam.camera.project(&pc) {
                 let r = (5.0 / pc.z).clamp(1.0, 4.0) as i64;
                 let (ui, vi) = (u as i64, v as i64);
                 for dy in -r..=r {
@@ -424,12 +427,12 @@ mod demo {
 
     fn pixel_of(cam: &ViewCamera, p: [f32; 3], zbuf: &[f32]) -> Option<[f32; 2]> {
         let pc = cam.cloud_from_camera.inverse() * to_f64(p);
-        let (u, v) = cam.intrinsics.project(&pc)?;
-        let k = &cam.intrinsics;
-        if u < 0.0 || v < 0.0 || u >= k.width as f64 || v >= k.height as f64 {
+        let (u, v) = cam.camera.project(&pc)?;
+        let (w, h) = cam.camera.size();
+        if u < 0.0 || v < 0.0 || u >= w as f64 || v >= h as f64 {
             return None;
         }
-        let z = zbuf[(v as u32 * k.width + u as u32) as usize];
+        let z = zbuf[(v as u32 * w + u as u32) as usize];
         // occluded points have no pixel
         (pc.z as f32 <= z + 0.05).then_some([u as f32, v as f32])
     }
@@ -567,7 +570,7 @@ mod demo {
                             Translation3::from(eye),
                             UnitQuaternion::from_rotation_matrix(&rot),
                         ),
-                        intrinsics: intr,
+                        camera: CameraModel::Pinhole(intr),
                     };
                     let (rgb, depth, zbuf) = render_view(pts, &cam, tint);
                     let match_pixels = matches
@@ -587,6 +590,7 @@ mod demo {
                         rgb,
                         depth: Some(depth),
                         camera: Some(cam),
+                        point_state: Vec::new(),
                         match_pixels,
                     }
                 })
@@ -634,7 +638,7 @@ mod demo {
                 .map(|(i, _)| {
                     let cam = cam.as_ref()?;
                     let pc = cam.cloud_from_camera.inverse() * to_f64(target[*i]);
-                    let (u, v) = cam.intrinsics.project(&pc)?;
+                    let (u, v) = cam.camera.project(&pc)?;
                     (u >= 0.0 && v >= 0.0 && u < intr.width as f64 && v < intr.height as f64)
                         .then_some([u as f32, v as f32])
                 })

@@ -26,7 +26,7 @@ use super::controls::{
 };
 use super::model::{
     Branch, InspectorModel, MatchInfo, PairEntry, PairStatus, PlotData, Posterior, PrCurve,
-    RgbImage, StageInfo, StageState, ViewImage, ViewLabel,
+    RgbImage, StageInfo, StageState, ViewCamera, ViewImage, ViewLabel,
 };
 use crate::dataset::manifest::Dataset;
 use crate::dataset::ScanPair;
@@ -230,6 +230,90 @@ pub fn pr_curve(name: &str, matches: &[MatchInfo]) -> Option<PrCurve> {
     })
 }
 
+/// The depth frame of a view as the WFM saw it (the depth video's grey inverse depth) and, per
+/// display point of its scan, 0 outside the view, 1 occluded, 2 visible. Memoised: a re-fusion
+/// (temperature, fusion mode) shows the same views and must not redo this.
+type ViewExtras = Arc<(RgbImage, Vec<u8>)>;
+fn view_depth_and_visibility(
+    depth_path: &std::path::Path,
+    cam: &ViewCamera,
+    cloud: &[[f32; 3]],
+) -> Option<ViewExtras> {
+    static MEMO: std::sync::OnceLock<std::sync::Mutex<Vec<(blake3::Hash, ViewExtras)>>> =
+        std::sync::OnceLock::new();
+    let mut h = blake3::Hasher::new();
+    h.update(depth_path.as_os_str().as_encoded_bytes());
+    for x in cam.cloud_from_camera.to_homogeneous().iter() {
+        h.update(&x.to_le_bytes());
+    }
+    h.update(format!("{:?}", cam.camera).as_bytes());
+    for p in cloud {
+        for c in p {
+            h.update(&c.to_le_bytes());
+        }
+    }
+    let key = h.finalize();
+    let memo = MEMO.get_or_init(Default::default);
+    if let Some(hit) = memo
+        .lock()
+        .ok()?
+        .iter()
+        .find(|(k, _)| *k == key)
+        .map(|(_, v)| v.clone())
+    {
+        return Some(hit);
+    }
+    // A missing or unreadable depth frame leaves the view without its depth toggle; the
+    // pipeline already read the same file, so this is not expected.
+    let d = crate::io::depth_png::read_depth_png(depth_path).ok()?;
+    let clip = match cam.camera {
+        crate::camera::CameraModel::FTheta(_) => 65.0,
+        crate::camera::CameraModel::Pinhole(_) => crate::wfm::depth_video::CLIP_METERS,
+    };
+    let g = crate::wfm::depth_video::gray_to_rgb(
+        &crate::wfm::depth_video::encode_depth_frame_clip(&d, clip),
+    );
+    let pts: Vec<Point3<f32>> = cloud
+        .iter()
+        .map(|p| Point3::new(p[0], p[1], p[2]))
+        .collect();
+    let camera_from_cloud = cam.cloud_from_camera.inverse();
+    let visible = cam.camera.visibility(&pts, &camera_from_cloud);
+    let (w, h) = cam.camera.size();
+    let state = pts
+        .iter()
+        .zip(&visible)
+        .map(|(p, &vis)| {
+            if vis {
+                return 2;
+            }
+            let inside = cam
+                .camera
+                .project(&(camera_from_cloud * p.cast::<f64>()))
+                .is_some_and(|(u, v)| {
+                    u >= -0.5 && v >= -0.5 && u < w as f64 - 0.5 && v < h as f64 - 0.5
+                });
+            // Behind a pinhole camera nothing projects; in front and inside but not seen: occluded.
+            u8::from(inside)
+        })
+        .collect();
+    let out: ViewExtras = Arc::new((
+        RgbImage {
+            width: g.width(),
+            height: g.height(),
+            pixels: g.into_raw(),
+        },
+        state,
+    ));
+    if let Ok(mut m) = memo.lock() {
+        if m.len() >= 16 {
+            m.remove(0);
+        }
+        m.push((key, out.clone()));
+    }
+    Some(out)
+}
+
 /// Converts a registration result and its pair into the inspector's model. `pairs` is the
 /// pair browser (the current pair's row is updated here).
 pub fn result_to_model(
@@ -311,6 +395,16 @@ pub fn result_to_model(
                             .next()
                             .filter(|e| e.starts_with("cache"))
                             .unwrap_or(v.label.as_str());
+                        let cam = v.scan_from_camera.map(|pose| ViewCamera {
+                            cloud_from_camera: pose,
+                            camera: v.camera.clone(),
+                        });
+                        let cloud = if is_src { &source } else { &target };
+                        let shown = v
+                            .depth_path
+                            .as_deref()
+                            .zip(cam.as_ref())
+                            .and_then(|(p, c)| view_depth_and_visibility(p, c, cloud));
                         ViewImage {
                             label: ViewLabel {
                                 backend: prov.model.clone(),
@@ -325,8 +419,9 @@ pub fn result_to_model(
                                 height: v.image.height(),
                                 pixels: v.image.as_raw().clone(),
                             },
-                            depth: None,
-                            camera: None,
+                            depth: shown.as_ref().map(|d| d.0.clone()),
+                            camera: cam,
+                            point_state: shown.map(|d| d.1.clone()).unwrap_or_default(),
                             match_pixels,
                         }
                     })

@@ -22,15 +22,18 @@ pub enum CloudColorMode {
     ResidualEstimate,
     ResidualGroundTruth,
     Branch,
+    /// Seen by the image branch's K views: visible, occluded inside a view, or outside all.
+    Visibility,
 }
 
 impl CloudColorMode {
-    pub const ALL: [CloudColorMode; 5] = [
+    pub const ALL: [CloudColorMode; 6] = [
         Self::Fixed,
         Self::FusedScore,
         Self::ResidualEstimate,
         Self::ResidualGroundTruth,
         Self::Branch,
+        Self::Visibility,
     ];
     pub fn label(self) -> &'static str {
         match self {
@@ -39,9 +42,14 @@ impl CloudColorMode {
             Self::ResidualEstimate => "Residual (estimate)",
             Self::ResidualGroundTruth => "Residual (ground truth)",
             Self::Branch => "Proposing branch",
+            Self::Visibility => "Seen by the K views",
         }
     }
 }
+
+/// "Seen by the K views": visible in at least one view, inside a view but hidden.
+pub const VISIBLE_RGB: [u8; 3] = [90, 235, 110];
+pub const OCCLUDED_RGB: [u8; 3] = [235, 90, 70];
 
 /// Residuals saturate the colormap at this distance (metres).
 pub const RESIDUAL_CAP_M: f32 = 0.1;
@@ -180,6 +188,29 @@ pub fn cloud_colors(model: &InspectorModel, is_source: bool, mode: CloudColorMod
     let dim = |c: [u8; 3]| rgba([c[0] / 3 + 40, c[1] / 3 + 40, c[2] / 3 + 40]);
     match mode {
         CloudColorMode::Fixed => vec![rgba(base); pts.len()],
+        CloudColorMode::Visibility => {
+            let views = if is_source {
+                &model.source_views
+            } else {
+                &model.target_views
+            };
+            // Best state over the views: visible beats occluded beats outside.
+            let mut state = vec![None::<u8>; pts.len()];
+            for v in views.iter().filter(|v| v.point_state.len() == pts.len()) {
+                for (s, &x) in state.iter_mut().zip(&v.point_state) {
+                    *s = Some(s.map_or(x, |y| y.max(x)));
+                }
+            }
+            state
+                .into_iter()
+                .map(|s| match s {
+                    Some(2) => rgba(VISIBLE_RGB),
+                    Some(1) => rgba(OCCLUDED_RGB),
+                    Some(_) => dim(base),
+                    None => rgba([128, 128, 128]),
+                })
+                .collect()
+        }
         CloudColorMode::FusedScore | CloudColorMode::Branch => {
             let mut out = vec![dim(base); pts.len()];
             for m in &model.matches {
@@ -249,32 +280,50 @@ fn frustum_lines(
     pos: &mut Vec<[f32; 3]>,
     col: &mut Vec<[u8; 4]>,
 ) {
+    // Frusta scale with the scene: 35 cm in a room, metres around a LiDAR scan.
+    let range = frustum_range(&model.target);
     let mut add = |views: &[super::model::ViewImage], xf: &Isometry3<f64>, c: [u8; 3]| {
         for v in views {
             let Some(cam) = &v.camera else { continue };
-            let k = &cam.intrinsics;
-            let depth = 0.35;
-            let corners = [
-                (0.0, 0.0),
-                (k.width as f64, 0.0),
-                (k.width as f64, k.height as f64),
-                (0.0, k.height as f64),
-            ]
-            .map(|(u, v)| {
-                let p = k.backproject(u, v, depth);
-                let w = xf * (cam.cloud_from_camera * p);
-                [w.x as f32, w.y as f32, w.z as f32]
-            });
-            let o = xf * (cam.cloud_from_camera * Point3::origin());
-            let o = [o.x as f32, o.y as f32, o.z as f32];
-            for i in 0..4 {
-                pos.extend_from_slice(&[o, corners[i], corners[i], corners[(i + 1) % 4]]);
-                col.extend_from_slice(&[rgba(c); 4]);
+            let f = cam.camera.frustum(&cam.cloud_from_camera.inverse(), range);
+            let w = |p: &Point3<f64>| {
+                let q = xf * p;
+                [q.x as f32, q.y as f32, q.z as f32]
+            };
+            let o = w(&f.apex);
+            for corner in &f.corners {
+                pos.extend_from_slice(&[o, w(corner)]);
             }
+            // The border is sampled (curved for f-theta): a closed polyline.
+            let n = f.border.len();
+            for i in 0..n {
+                pos.extend_from_slice(&[w(&f.border[i]), w(&f.border[(i + 1) % n])]);
+            }
+            col.resize(pos.len(), rgba(c));
         }
     };
     add(&model.source_views, src_xf, [255, 230, 120]);
     add(&model.target_views, &Isometry3::identity(), [140, 190, 255]);
+}
+
+/// Frustum depth for display: a tenth of the cloud's bounding-box diagonal, 0.2-5 m.
+fn frustum_range(cloud: &[[f32; 3]]) -> f64 {
+    let (lo, hi) = cloud.iter().fold(
+        ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]),
+        |(mut lo, mut hi), p| {
+            for i in 0..3 {
+                lo[i] = lo[i].min(p[i]);
+                hi[i] = hi[i].max(p[i]);
+            }
+            (lo, hi)
+        },
+    );
+    let d = (0..3).map(|i| (hi[i] - lo[i]).powi(2)).sum::<f32>().sqrt() as f64;
+    if d.is_finite() {
+        (0.1 * d).clamp(0.2, 5.0)
+    } else {
+        0.35
+    }
 }
 
 fn point_segment_distance(p: egui::Pos2, a: egui::Pos2, b: egui::Pos2) -> f32 {

@@ -260,6 +260,35 @@ impl FThetaCamera {
     }
 }
 
+/// Close the gaps a spinning LiDAR leaves between its rings: in each column, a run of at most
+/// `max_gap` empty pixels between two valid ones whose ranges differ by at most `rel_tol`
+/// (relative) is filled by linear interpolation. Runs across a depth edge stay empty, so
+/// foreground and background are never bridged. A world model conditioned on depth expects a
+/// dense map, not a stripe pattern.
+pub fn fill_ring_gaps(d: &mut DepthImage, max_gap: u32, rel_tol: f32) {
+    let (w, h) = (d.width as usize, d.height as usize);
+    for x in 0..w {
+        let mut last: Option<(usize, u16)> = None;
+        for y in 0..h {
+            let v = d.data[y * w + x];
+            if v == 0 {
+                continue;
+            }
+            if let Some((ly, lv)) = last {
+                let gap = y - ly - 1;
+                let (a, b) = (lv as f32, v as f32);
+                if gap > 0 && gap <= max_gap as usize && (a - b).abs() <= rel_tol * a.min(b) {
+                    for g in 1..=gap {
+                        let t = g as f32 / (gap + 1) as f32;
+                        d.data[(ly + g) * w + x] = (a + t * (b - a)).round() as u16;
+                    }
+                }
+            }
+            last = Some((y, v));
+        }
+    }
+}
+
 /// Free-function form of [`FThetaCamera::render_depth`] with default splat options.
 pub fn render_depth_ftheta(
     points: &[Point3<f32>],
@@ -423,6 +452,31 @@ mod tests {
         assert!(
             (left_mid - Point3::new(0.0, 10.0, 0.0)).norm() < 0.1,
             "{left_mid}"
+        );
+    }
+
+    #[test]
+    fn ring_gaps_fill_only_within_a_surface() {
+        // Column 0: rings at rows 0, 5 (same surface, 4 m) then a far ring at row 9 (12 m).
+        let mut d = DepthImage {
+            width: 2,
+            height: 12,
+            data: vec![0; 24],
+        };
+        d.data[0] = 4000;
+        d.data[5 * 2] = 4200;
+        d.data[9 * 2] = 12000;
+        // Column 1: a gap longer than the limit.
+        d.data[1] = 3000;
+        d.data[11 * 2 + 1] = 3000;
+        fill_ring_gaps(&mut d, 8, 0.1);
+        let col0: Vec<u16> = (0..12).map(|y| d.data[y * 2]).collect();
+        assert_eq!(&col0[..6], &[4000, 4040, 4080, 4120, 4160, 4200]);
+        assert_eq!(&col0[6..9], &[0, 0, 0], "no bridge across the depth edge");
+        assert_eq!(col0[9], 12000);
+        assert!(
+            (1..11).all(|y| d.data[y * 2 + 1] == 0),
+            "gap of 10 > 8 stays"
         );
     }
 }

@@ -14,6 +14,14 @@ use crate::wfm::{Prompt, PromptPreset};
 use clap::{Args, ValueEnum};
 use std::path::PathBuf;
 
+/// `--virtual-camera`.
+#[derive(Clone, Copy, Debug, ValueEnum)]
+pub enum VirtualCameraArg {
+    Auto,
+    Pinhole,
+    Ftheta,
+}
+
 #[derive(Clone, Copy, Debug, ValueEnum)]
 pub enum CalibrationArg {
     /// The paper's row softmax over target points (eq. 5).
@@ -217,6 +225,10 @@ pub struct ImageArgs {
     /// Lifting radius in metres.
     #[arg(long, default_value_t = 0.05)]
     pub lift_radius: f32,
+    /// Virtual camera for scans with no depth frames: f-theta for LiDAR-like clouds (they
+    /// carry intensity) and a pinhole trajectory otherwise (auto), or force one.
+    #[arg(long, value_enum, default_value_t = VirtualCameraArg::Auto)]
+    pub virtual_camera: VirtualCameraArg,
     /// Stage cache directory (default: $CGENREG_CACHE or ~/.cache/cgenreg).
     #[arg(long)]
     pub cache_dir: Option<PathBuf>,
@@ -291,6 +303,11 @@ impl ImageArgs {
             margin: self.margin,
             frames_per_fragment: self.frames,
             lift_radius: self.lift_radius,
+            virtual_camera: match self.virtual_camera {
+                VirtualCameraArg::Auto => crate::pipeline::params::VirtualCamera::Auto,
+                VirtualCameraArg::Pinhole => crate::pipeline::params::VirtualCamera::Pinhole,
+                VirtualCameraArg::Ftheta => crate::pipeline::params::VirtualCamera::Ftheta,
+            },
         }))
     }
 

@@ -118,7 +118,10 @@ pub fn fragment_frames(seq: &RgbdSequence, first: usize, count: usize) -> Result
             })
         })
         .collect::<Result<Vec<_>>>()?;
-    Ok(FrameSet { intrinsics, frames })
+    Ok(FrameSet {
+        camera: intrinsics.into(),
+        frames,
+    })
 }
 
 /// Back-project one frame into the fragment's coordinates.
@@ -127,7 +130,13 @@ fn backproject_frame(
     frame: &RgbdFrame,
     opts: &FragmentOptions,
 ) -> Result<FramePoints> {
-    let k = &fs.intrinsics;
+    let k = fs.camera.as_pinhole().ok_or_else(|| {
+        Error::Invalid(format!(
+            "{}: fragments are fused from pinhole RGB-D frames, this frame set has an {} camera",
+            frame.depth_path.display(),
+            fs.camera.name()
+        ))
+    })?;
     let depth = read_depth_png(&frame.depth_path)?;
     if depth.width != k.width || depth.height != k.height {
         return Err(Error::format(

@@ -8,7 +8,7 @@ pub mod threedmatch;
 
 pub use manifest::{Dataset, FragmentSource, FragmentSpec, PairSpec};
 
-use crate::camera::Intrinsics;
+use crate::camera::CameraModel;
 use crate::error::{Error, Result};
 use crate::geometry::PointCloud;
 use nalgebra::Isometry3;
@@ -28,7 +28,9 @@ pub struct RgbdFrame {
 /// The frames a scan was fused from, when the source provides them.
 #[derive(Clone, Debug)]
 pub struct FrameSet {
-    pub intrinsics: Intrinsics,
+    /// The camera of every frame: pinhole for RGB-D sensors and virtual pinhole trajectories,
+    /// f-theta for the virtual camera of a LiDAR scan.
+    pub camera: CameraModel,
     pub frames: Vec<RgbdFrame>,
 }
 

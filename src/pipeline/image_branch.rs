@@ -41,6 +41,18 @@ use std::time::Instant;
 
 /// Depth clip used when lifting (reference §4: 5 m).
 const LIFT_MAX_DEPTH: f32 = 5.0;
+/// Range limit for f-theta (LiDAR) frames, in lifting and in the depth video: the reference's
+/// indoor clips (5 m, 4 m) would flatten a LiDAR scan, so only the 16-bit millimetre range of
+/// the depth PNGs limits them.
+const LIDAR_MAX_RANGE: f32 = 65.0;
+
+/// Lifting clip for frames of `camera`.
+fn lift_max_depth(camera: &crate::camera::CameraModel) -> f32 {
+    match camera {
+        crate::camera::CameraModel::Pinhole(_) => LIFT_MAX_DEPTH,
+        crate::camera::CameraModel::FTheta(_) => LIDAR_MAX_RANGE,
+    }
+}
 
 struct Ctx<'a> {
     cache: Option<&'a Cache>,
@@ -268,9 +280,15 @@ fn encode_png_fast(img: &RgbImage) -> Result<Vec<u8>> {
     Ok(buf)
 }
 
-fn make_backend(spec: &WfmSpec) -> Result<Box<dyn WfmBackend>> {
+/// The backend for `spec`; the built-in generator renders LiDAR pairs at the outdoor
+/// resolution of the paper (appendix C: 1280x640), RGB-D pairs at 960x704.
+fn make_backend(spec: &WfmSpec, lidar: bool) -> Result<Box<dyn WfmBackend>> {
     Ok(match spec {
         WfmSpec::Oracle => Box::new(crate::wfm::oracle::OracleBackend::default()),
+        WfmSpec::Builtin if lidar => Box::new(crate::wfm::builtin::DepthShadeBackend {
+            width: 1280,
+            height: 640,
+        }),
         WfmSpec::Builtin => Box::new(crate::wfm::builtin::DepthShadeBackend::default()),
         WfmSpec::Cached { dir, spec } => {
             Box::new(crate::wfm::cached::CachedBackend::open(dir, spec)?)
@@ -411,7 +429,7 @@ fn lift_stage(
         .collect::<Result<_>>()?;
     let mut inputs: Vec<&str> = vec![geo_key.hash.as_str()];
     inputs.extend(hashes.iter().map(String::as_str));
-    let k = &fs.intrinsics;
+    let max_depth = lift_max_depth(&fs.camera);
     let poses: Vec<Vec<f64>> = depth_idx
         .iter()
         .map(|&i| {
@@ -428,8 +446,8 @@ fn lift_stage(
         &inputs,
         &json!({
             "views": depth_idx, "radius": radius, "image_size": image_size,
-            "max_depth": LIFT_MAX_DEPTH, "poses": poses,
-            "intrinsics": [k.fx, k.fy, k.cx, k.cy, k.width as f64, k.height as f64],
+            "max_depth": max_depth, "poses": poses,
+            "intrinsics": fs.camera.key(),
         }),
     )?;
     let links: Vec<Link> = ctx.stage(
@@ -448,22 +466,33 @@ fn lift_stage(
             Ok(l)
         },
         || {
-            let depths: Vec<crate::io::depth_png::DepthImage> = paths
+            // A view that repeats an earlier one (same depth bytes and pose: the frames of a
+            // static f-theta camera) adds only ties, which go to the earlier view; skip it.
+            let mut unique: Vec<usize> = Vec::new();
+            for j in 0..depth_idx.len() {
+                if !unique
+                    .iter()
+                    .any(|&u| hashes[u] == hashes[j] && poses[u] == poses[j])
+                {
+                    unique.push(j);
+                }
+            }
+            let depths: Vec<crate::io::depth_png::DepthImage> = unique
                 .par_iter()
-                .map(|p| crate::io::depth_png::read_depth_png(p))
+                .map(|&j| crate::io::depth_png::read_depth_png(paths[j]))
                 .collect::<Result<_>>()?;
             let views: Vec<LiftView> = depths
                 .iter()
-                .zip(depth_idx)
-                .map(|(d, &i)| LiftView {
+                .zip(&unique)
+                .map(|(d, &j)| LiftView {
                     depth: d,
-                    scan_from_camera: fs.frames[i].scan_from_camera,
-                    intrinsics: *k,
+                    scan_from_camera: fs.frames[depth_idx[j]].scan_from_camera,
+                    camera: &fs.camera,
                 })
                 .collect();
-            let l = lift_views(&views, keypoints, radius, image_size, LIFT_MAX_DEPTH)?;
+            let l = lift_views(&views, keypoints, radius, image_size, max_depth)?;
             Ok(l.into_iter()
-                .map(|o| o.map(|p| (p.view, p.u, p.v)))
+                .map(|o| o.map(|p| (unique[p.view as usize] as u16, p.u, p.v)))
                 .collect())
         },
         |l, c, k| {
@@ -786,13 +815,27 @@ pub fn register_with_image_keep(
             None => std::env::temp_dir().join("cgenreg-virtual-frames"),
         };
         let mut p2 = pair.clone();
+        let mut notes = Vec::new();
         for scan in [&mut p2.source, &mut p2.target] {
             if scan.frames.is_none() {
-                scan.frames = Some(render_virtual_frames(scan, ib.frames_per_fragment, &root)?);
+                let cam = ib.virtual_camera.resolve(&scan.cloud);
+                scan.frames = Some(render_virtual_frames_with(
+                    scan,
+                    ib.frames_per_fragment,
+                    &root,
+                    cam,
+                )?);
+                let note = match cam {
+                    super::params::VirtualCamera::Ftheta => VIRTUAL_FTHETA_NOTE,
+                    _ => VIRTUAL_FRAMES_NOTE,
+                };
+                if !notes.contains(&note) {
+                    notes.push(note);
+                }
             }
         }
         let (mut r, inputs) = register_with_image_keep(&p2, params, ib, cache, generate)?;
-        r.warnings.push(VIRTUAL_FRAMES_NOTE.to_string());
+        r.warnings.extend(notes.iter().map(|n| n.to_string()));
         return Ok((r, inputs));
     }
     if !matches!(params.geo_features, super::params::GeoFeatureSource::Fpfh) {
@@ -834,13 +877,28 @@ pub fn register_with_image_keep(
         .map(|p| hash_file(p))
         .collect::<Result<_>>()?;
     let dh: Vec<&str> = depth_hashes.iter().map(String::as_str).collect();
-    let video_key = CacheKey::new("depth-video", 1, &dh, &json!({ "L": l }))?;
+    // LiDAR (f-theta) frames keep their range; RGB-D frames get the reference's 4 m clip.
+    let lidar = [src_fs, tgt_fs]
+        .iter()
+        .any(|fs| matches!(fs.camera, crate::camera::CameraModel::FTheta(_)));
+    let clip = if lidar {
+        LIDAR_MAX_RANGE as f64
+    } else {
+        crate::wfm::depth_video::CLIP_METERS
+    };
+    let video_params = if lidar {
+        json!({ "L": l, "clip": clip })
+    } else {
+        json!({ "L": l })
+    };
+    let video_key = CacheKey::new("depth-video", 1, &dh, &video_params)?;
     let mut video_frames: Option<Vec<RgbImage>> = None;
     let (vmeta, hit) = ctx.cached(
         &video_key,
         |e| e.read_json::<VideoMeta>("video.json"),
         || {
-            let frames = crate::wfm::depth_video::pair_video_from_files(&src_paths, &tgt_paths)?;
+            let frames =
+                crate::wfm::depth_video::pair_video_from_files_clip(&src_paths, &tgt_paths, clip)?;
             let mut h = blake3::Hasher::new();
             for f in &frames {
                 h.update(&f.width().to_le_bytes());
@@ -869,7 +927,7 @@ pub fn register_with_image_keep(
     ctx.timer.record("depth video", t.elapsed(), hit);
 
     // Generation.
-    let backend = make_backend(&ib.backend)?;
+    let backend = make_backend(&ib.backend, lidar)?;
     let backend_id = backend.id();
     let is_oracle = matches!(ib.backend, WfmSpec::Oracle);
     let colour = |fs: &FrameSet| -> Option<Vec<PathBuf>> {
@@ -930,7 +988,9 @@ pub fn register_with_image_keep(
             let depth_video = match video_frames.take() {
                 Some(f) => f,
                 None if is_oracle => Vec::new(),
-                None => crate::wfm::depth_video::pair_video_from_files(&src_paths, &tgt_paths)?,
+                None => crate::wfm::depth_video::pair_video_from_files_clip(
+                    &src_paths, &tgt_paths, clip,
+                )?,
             };
             let req = GenerateRequest {
                 pair_id: pair.id.clone(),
@@ -1198,7 +1258,11 @@ pub fn register_with_image_keep(
         short_prompt(&ib.prompt),
         &gen_key.hash[..8]
     );
-    let views = |imgs: Vec<RgbImage>, gen_idx: &[usize], depth_idx: &[usize]| -> Vec<ViewInfo> {
+    let views = |imgs: Vec<RgbImage>,
+                 gen_idx: &[usize],
+                 depth_idx: &[usize],
+                 fs: &FrameSet|
+     -> Vec<ViewInfo> {
         imgs.into_iter()
             .zip(gen_idx.iter().zip(depth_idx))
             .map(|(image, (&g, &d))| ViewInfo {
@@ -1206,12 +1270,15 @@ pub fn register_with_image_keep(
                 generated_index: g,
                 depth_index: d,
                 label: view_label.clone(),
+                depth_path: fs.frames.get(d).map(|f| f.depth_path.clone()),
+                scan_from_camera: fs.frames.get(d).map(|f| f.scan_from_camera),
+                camera: fs.camera.clone(),
             })
             .collect()
     };
     let output = ImageBranchOutput {
-        source_views: views(src_imgs, &sel.src_generated, &sel.src_depth),
-        target_views: views(tgt_imgs, &sel.tgt_generated, &sel.tgt_depth),
+        source_views: views(src_imgs, &sel.src_generated, &sel.src_depth, src_fs),
+        target_views: views(tgt_imgs, &sel.tgt_generated, &sel.tgt_depth, tgt_fs),
         source_links: src_links,
         target_links: tgt_links,
         provenance: gen.provenance.clone(),
@@ -1241,6 +1308,82 @@ pub fn register_with_image_keep(
 /// Said with every result whose depth frames were rendered, not sensed.
 pub const VIRTUAL_FRAMES_NOTE: &str = "depth frames rendered from a virtual pinhole trajectory \
 (the scan had no sensor frames): 640x480, fx = fy = 585, 30° sweep, half the fit-to-view distance";
+
+/// Largest ring gap (pixels, vertical) closed in f-theta range images.
+const FTHETA_RING_GAP_PX: u32 = 24;
+
+/// Said with every result whose depth frames come from the virtual f-theta camera.
+pub const VIRTUAL_FTHETA_NOTE: &str = "depth frames rendered from a virtual f-theta camera \
+(LiDAR, appendix B.3): 1280x640, equidistant, 180° horizontal field of view, at the scan's \
+origin looking along +x (the sensor is assumed at the origin); range in the depth frames, \
+no 4 m clip; gaps of up to 24 px between LiDAR rings on one surface filled by interpolation";
+
+/// Depth frames for a point-cloud-only scan from the chosen virtual camera: the pinhole
+/// trajectory of [`render_virtual_frames`], or for LiDAR one forward-facing f-theta camera at
+/// the sensor origin (the paper's Waymo setup: "a single forward-facing virtual camera"). That camera does
+/// not move, so its one range image stands for all `l` frames of the depth video.
+pub fn render_virtual_frames_with(
+    scan: &Scan,
+    l: usize,
+    root: &Path,
+    camera: super::params::VirtualCamera,
+) -> Result<FrameSet> {
+    use crate::camera::ftheta::{lidar_front_camera_from_scan, FThetaCamera};
+    if camera.resolve(&scan.cloud) != super::params::VirtualCamera::Ftheta {
+        return render_virtual_frames(scan, l, root);
+    }
+    if l == 0 {
+        return Err(Error::Invalid(
+            "virtual frames: L must be at least 1".into(),
+        ));
+    }
+    let cam = FThetaCamera::default();
+    let camera_from_scan = lidar_front_camera_from_scan(0.0);
+    let key = blake3::hash(
+        format!(
+            "virtual-ftheta-v2|gap{FTHETA_RING_GAP_PX}|{}|{:?}|{:?}",
+            cloud_hash(&scan.cloud),
+            cam,
+            camera_from_scan.to_homogeneous().as_slice()
+        )
+        .as_bytes(),
+    )
+    .to_hex()
+    .to_string();
+    let dir = root.join(&key[..32]);
+    let path = dir.join("range.depth.png");
+    if !path.is_file() {
+        let mut d = cam.render_depth(
+            &scan.cloud.points,
+            &camera_from_scan,
+            &crate::camera::render::SplatOptions::default(),
+        );
+        // Rings of a spinning LiDAR are a few degrees apart: about 2-20 px at 1280x640.
+        crate::camera::ftheta::fill_ring_gaps(&mut d, FTHETA_RING_GAP_PX, 0.1);
+        if d.data.iter().all(|&v| v == 0) {
+            return Err(Error::Invalid(format!(
+                "{}: no point is in front of the virtual f-theta camera (origin, looking along \
+                 +x); is this a LiDAR scan in its sensor frame?",
+                scan.name
+            )));
+        }
+        std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
+        // write_depth_png is atomic: the file exists only once complete.
+        crate::io::depth_png::write_depth_png(&path, &d)?;
+    }
+    let scan_from_camera = camera_from_scan.inverse();
+    Ok(FrameSet {
+        camera: crate::camera::CameraModel::FTheta(cam),
+        frames: (0..l)
+            .map(|i| crate::dataset::RgbdFrame {
+                index: i,
+                depth_path: path.clone(),
+                color_path: None,
+                scan_from_camera,
+            })
+            .collect(),
+    })
+}
 
 /// Depth frames of a point-cloud-only scan: `l` views along a virtual pinhole arc around the
 /// cloud ([`crate::camera::trajectory::virtual_trajectory`], default options: OpenCV axes with
@@ -1312,7 +1455,7 @@ pub fn render_virtual_frames(scan: &Scan, l: usize, root: &Path) -> Result<Frame
         }
     };
     Ok(FrameSet {
-        intrinsics: opts.intrinsics,
+        camera: opts.intrinsics.into(),
         frames: poses
             .into_iter()
             .enumerate()

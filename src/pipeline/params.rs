@@ -114,6 +114,34 @@ pub struct ImageBranchParams {
     pub frames_per_fragment: usize,
     /// Lifting radius (m): a point with no valid pixel this close gets no image feature.
     pub lift_radius: f32,
+    /// The virtual camera that renders depth frames for scans that have none.
+    #[serde(default)]
+    pub virtual_camera: VirtualCamera,
+}
+
+/// How depth frames are made for a scan that is only a point cloud (paper §3.1, appendix B.3).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum VirtualCamera {
+    /// f-theta for LiDAR-like scans (the cloud carries intensity, as LiDAR formats do),
+    /// pinhole trajectory otherwise.
+    #[default]
+    Auto,
+    /// A pinhole camera moving along an arc around the cloud (RGB-D-like scans).
+    Pinhole,
+    /// One forward-facing f-theta camera at the sensor origin, 1280x640, 180 degrees (LiDAR).
+    Ftheta,
+}
+
+impl VirtualCamera {
+    /// The camera this choice gives for `cloud`.
+    pub fn resolve(self, cloud: &crate::geometry::PointCloud) -> VirtualCamera {
+        match self {
+            VirtualCamera::Auto if cloud.intensity.is_some() => VirtualCamera::Ftheta,
+            VirtualCamera::Auto => VirtualCamera::Pinhole,
+            v => v,
+        }
+    }
 }
 
 impl Default for ImageBranchParams {
@@ -127,6 +155,7 @@ impl Default for ImageBranchParams {
             margin: 3,
             frames_per_fragment: 50,
             lift_radius: 0.05,
+            virtual_camera: VirtualCamera::Auto,
         }
     }
 }

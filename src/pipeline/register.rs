@@ -36,6 +36,12 @@ pub struct ViewInfo {
     pub depth_index: usize,
     /// Backend, prompt and cache entry, e.g. "oracle (real RGB) | cache 3f2a..".
     pub label: String,
+    /// The sensor (or virtual) depth frame the view was generated from.
+    pub depth_path: Option<std::path::PathBuf>,
+    /// Its camera pose in the scan: p_scan = scan_from_camera * p_camera.
+    pub scan_from_camera: Option<Isometry3<f64>>,
+    /// Its camera model (depth in this model's convention: z or range).
+    pub camera: crate::camera::CameraModel,
 }
 
 /// What the image branch produced for one pair (None in `RegistrationResult` when it was off).

@@ -14,20 +14,21 @@
 //! distinct depth pixel once, linked to the first (smallest row, then column) image pixel that
 //! copies it; the reference leaves that tie to cKDTree's internals.
 
-use crate::camera::Intrinsics;
+use crate::camera::CameraModel;
 use crate::error::{Error, Result};
 use crate::io::depth_png::DepthImage;
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use nalgebra::{Isometry3, Point3};
 use rayon::prelude::*;
 
-/// One view to lift: sensor depth, its intrinsics, and its pose in the fragment's frame.
+/// One view to lift: sensor depth, its camera, and its pose in the fragment's frame.
 #[derive(Clone, Copy, Debug)]
 pub struct LiftView<'a> {
     pub depth: &'a DepthImage,
     /// p_scan = scan_from_camera · p_camera.
     pub scan_from_camera: Isometry3<f64>,
-    pub intrinsics: Intrinsics,
+    /// Pinhole (depth = z) or f-theta (depth = range along the ray).
+    pub camera: &'a CameraModel,
 }
 
 /// A pixel of the generated image of view `view` (column u, row v).
@@ -83,7 +84,7 @@ pub fn lifted_pixels(
             }
             let cols = nearest_first(d.width, image_size.0);
             let rows = nearest_first(d.height, image_size.1);
-            let k = &view.intrinsics;
+            let cam = view.camera;
             let t = view.scan_from_camera;
             let mut out = Vec::with_capacity(cols.len() * rows.len());
             for &(dv, sv) in &rows {
@@ -93,11 +94,9 @@ pub fn lifted_pixels(
                         continue;
                     }
                     let z = (raw as f32 / 1000.0).min(max_depth) as f64;
-                    let pc = Point3::new(
-                        (su as f64 - k.cx) * z / k.fx,
-                        (sv as f64 - k.cy) * z / k.fy,
-                        z,
-                    );
+                    let Some(pc) = cam.backproject(su as f64, sv as f64, z) else {
+                        continue;
+                    };
                     let p = t * pc;
                     let p = [p.x as f32, p.y as f32, p.z as f32];
                     // The reference marks invalid pixels by p == 0 after the transform.
@@ -154,6 +153,7 @@ pub fn lift_views(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::camera::Intrinsics;
     use nalgebra::{Translation3, UnitQuaternion, Vector3};
 
     fn intr() -> Intrinsics {
@@ -220,13 +220,14 @@ mod tests {
     #[test]
     fn lift_matches_brute_force() {
         let depths: Vec<DepthImage> = (0..4).map(depth).collect();
+        let cam = CameraModel::Pinhole(intr());
         let views: Vec<LiftView> = depths
             .iter()
             .enumerate()
             .map(|(i, d)| LiftView {
                 depth: d,
                 scan_from_camera: pose(i),
-                intrinsics: intr(),
+                camera: &cam,
             })
             .collect();
         let pixels = lifted_pixels(&views, (960, 704), 5.0).unwrap();
@@ -267,7 +268,7 @@ mod tests {
     #[test]
     fn synthetic_scene_links_points_to_their_pixels() {
         // Camera at the origin of the fragment, looking at a fronto-parallel wall at 2 m.
-        let k = intr();
+        let k = CameraModel::Pinhole(intr());
         let d = DepthImage {
             width: 640,
             height: 480,
@@ -281,13 +282,13 @@ mod tests {
             LiftView {
                 depth: &d,
                 scan_from_camera: Isometry3::identity(),
-                intrinsics: k,
+                camera: &k,
             },
             // looks the other way: its wall is at z = -2 in the fragment
             LiftView {
                 depth: &d,
                 scan_from_camera: second,
-                intrinsics: k,
+                camera: &k,
             },
         ];
         // exact back-projection of depth pixel (su, sv) of view 0
@@ -333,7 +334,7 @@ mod tests {
 
     #[test]
     fn depth_is_clipped_and_zero_is_invalid() {
-        let k = intr();
+        let k = CameraModel::Pinhole(intr());
         let mut data = vec![0u16; 640 * 480];
         data[240 * 640 + 320] = 9000; // 9 m -> clipped to 5 m
         data[240 * 640 + 321] = u16::MAX; // kept, clipped to 5 m (reference behaviour)
@@ -345,7 +346,7 @@ mod tests {
         let v = [LiftView {
             depth: &d,
             scan_from_camera: Isometry3::identity(),
-            intrinsics: k,
+            camera: &k,
         }];
         let px = lifted_pixels(&v, (640, 480), 5.0).unwrap();
         assert_eq!(px.len(), 2);
@@ -359,11 +360,68 @@ mod tests {
         let v = [LiftView {
             depth: &empty,
             scan_from_camera: Isometry3::identity(),
-            intrinsics: k,
+            camera: &k,
         }];
         assert_eq!(
             lift_views(&v, &[Point3::origin()], 0.05, (960, 704), 5.0).unwrap(),
             vec![None]
         );
+    }
+
+    #[test]
+    fn ftheta_range_lifts_along_the_ray() {
+        use crate::camera::ftheta::{lidar_front_camera_from_scan, FThetaCamera};
+        // A LiDAR-like scan: points on a cylinder of radius 6 m around the sensor (x forward,
+        // z up), rendered into the f-theta camera and lifted back.
+        let mut pts = Vec::new();
+        for a in 0..720 {
+            let yaw = (a as f64 / 720.0 - 0.5) * std::f64::consts::PI * 1.6;
+            for h in 0..60 {
+                let z = -1.5 + 3.0 * h as f64 / 60.0;
+                pts.push(Point3::new(
+                    (6.0 * yaw.cos()) as f32,
+                    (6.0 * yaw.sin()) as f32,
+                    z as f32,
+                ));
+            }
+        }
+        let cam = CameraModel::FTheta(FThetaCamera::equidistant(320, 160, 180.0));
+        let camera_from_scan = lidar_front_camera_from_scan(0.0);
+        let d = cam.render_depth(&pts, &camera_from_scan);
+        let views = [LiftView {
+            depth: &d,
+            scan_from_camera: camera_from_scan.inverse(),
+            camera: &cam,
+        }];
+        let px = lifted_pixels(&views, (320, 160), 65.0).unwrap();
+        assert!(px.len() > 3000, "{} pixels", px.len());
+        // Every lifted pixel lies on the cylinder (range stored along the ray, not z).
+        for (p, _) in &px {
+            let r = (p[0] * p[0] + p[1] * p[1]).sqrt();
+            assert!((r - 6.0).abs() < 0.08, "radius {r} at {p:?}");
+            assert!(p[2].abs() < 1.6, "height {}", p[2]);
+        }
+        // Points beside the sensor (90 degrees off the axis) are lifted too: wide field of view.
+        assert!(px.iter().any(|(p, _)| p[0].abs() < 1.0 && p[1] > 5.0));
+        let got = lift_views(&views, &pts, 0.05, (320, 160), 65.0).unwrap();
+        // In front (within 80 degrees of the axis) nearly all points get a pixel; behind, none.
+        let front: Vec<bool> = pts
+            .iter()
+            .map(|p| p.y.atan2(p.x).abs() < 80f32.to_radians())
+            .collect();
+        let linked = |f: bool| {
+            got.iter()
+                .zip(&front)
+                .filter(|(l, &ff)| ff == f && l.is_some())
+                .count()
+        };
+        let n_front = front.iter().filter(|&&f| f).count();
+        assert!(
+            linked(true) * 10 > n_front * 9,
+            "{} of {n_front}",
+            linked(true)
+        );
+        let behind: Vec<bool> = pts.iter().map(|p| p.x < -0.5).collect();
+        assert!(got.iter().zip(&behind).all(|(l, &b)| !b || l.is_none()));
     }
 }

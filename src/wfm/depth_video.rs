@@ -29,12 +29,17 @@ pub const FPS: u32 = 30;
 
 /// Encode one depth frame as the reference's 8-bit inverse-depth grey image.
 pub fn encode_depth_frame(depth: &DepthImage) -> GrayImage {
+    encode_depth_frame_clip(depth, CLIP_METERS)
+}
+
+/// [`encode_depth_frame`] with another clip distance (metres): LiDAR frames keep their range.
+pub fn encode_depth_frame_clip(depth: &DepthImage, clip_m: f64) -> GrayImage {
     let inv: Vec<f64> = depth
         .data
         .iter()
         .map(|&raw| {
             let raw = if raw == u16::MAX { 0 } else { raw };
-            let m = (raw as f64 / 1000.0).clamp(0.0, CLIP_METERS);
+            let m = (raw as f64 / 1000.0).clamp(0.0, clip_m);
             if m > 0.0 {
                 1.0 / (m + EPS)
             } else {
@@ -74,15 +79,29 @@ pub fn gray_to_rgb(g: &GrayImage) -> RgbImage {
 
 /// The pair video: encoded `src` frames then encoded `tgt` frames, grey in three channels.
 pub fn build_pair_video(src: &[DepthImage], tgt: &[DepthImage]) -> Vec<RgbImage> {
+    build_pair_video_clip(src, tgt, CLIP_METERS)
+}
+
+/// [`build_pair_video`] with another clip distance.
+pub fn build_pair_video_clip(src: &[DepthImage], tgt: &[DepthImage], clip_m: f64) -> Vec<RgbImage> {
     src.par_iter()
         .chain(tgt.par_iter())
-        .map(|d| gray_to_rgb(&encode_depth_frame(d)))
+        .map(|d| gray_to_rgb(&encode_depth_frame_clip(d, clip_m)))
         .collect()
 }
 
 /// Read the depth PNGs of both fragments and build the pair video. All frames must have the
 /// same size (one video); the first mismatching file is named in the error.
 pub fn pair_video_from_files<P: AsRef<Path> + Sync>(src: &[P], tgt: &[P]) -> Result<Vec<RgbImage>> {
+    pair_video_from_files_clip(src, tgt, CLIP_METERS)
+}
+
+/// [`pair_video_from_files`] with another clip distance.
+pub fn pair_video_from_files_clip<P: AsRef<Path> + Sync>(
+    src: &[P],
+    tgt: &[P],
+    clip_m: f64,
+) -> Result<Vec<RgbImage>> {
     let read = |ps: &[P]| -> Result<Vec<DepthImage>> {
         ps.par_iter().map(|p| read_depth_png(p.as_ref())).collect()
     };
@@ -104,7 +123,7 @@ pub fn pair_video_from_files<P: AsRef<Path> + Sync>(src: &[P], tgt: &[P]) -> Res
             }
         }
     }
-    Ok(build_pair_video(&s, &t))
+    Ok(build_pair_video_clip(&s, &t, clip_m))
 }
 
 /// The reference's 3DMatch video name (§1.3):
