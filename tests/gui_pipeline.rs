@@ -234,6 +234,26 @@ fn worker_runs_the_image_branch_from_the_cache_and_refuses_from_memory() {
     assert_eq!((m.source_views.len(), m.target_views.len()), (2, 2));
     assert!(m.source_views[0].label.backend.contains("oracle"));
     assert!(m.generation_missing.is_none());
+    // Each view carries the depth frame it came from, its camera and what it sees.
+    for (views, cloud) in [(&m.source_views, &m.source), (&m.target_views, &m.target)] {
+        for v in views {
+            let d = v.depth.as_ref().expect("depth frame a click away");
+            assert_eq!((d.width, d.height), (640, 480), "the sensor depth frame");
+            let cam = v.camera.as_ref().expect("view camera");
+            assert_eq!(cam.camera.name(), "pinhole");
+            assert_eq!(v.point_state.len(), cloud.len());
+            let seen = v.point_state.iter().filter(|&&s| s == 2).count();
+            // The view's own scan is fused from its frames: a good part of it is in sight.
+            assert!(seen * 10 > cloud.len(), "{seen} of {} visible", cloud.len());
+            // A visible point projects inside the image, in front of the camera.
+            let i = v.point_state.iter().position(|&s| s == 2).unwrap();
+            let p = cloud[i];
+            let pc = cam.cloud_from_camera.inverse()
+                * nalgebra::Point3::new(p[0] as f64, p[1] as f64, p[2] as f64);
+            let (u, vv) = cam.camera.project(&pc).unwrap();
+            assert!(pc.z > 0.0 && u > -1.0 && vv > -1.0 && u < 641.0 && vv < 481.0);
+        }
+    }
     assert!(m
         .stages
         .iter()

@@ -463,6 +463,16 @@ impl App {
         &mut self.view3d.prefs
     }
 
+    /// Show the depth frame instead of the generated view in every row of the views panel.
+    pub fn show_depth_frames(&mut self, on: bool) {
+        let rows = self
+            .model
+            .source_views
+            .len()
+            .max(self.model.target_views.len());
+        self.views.show_depth = vec![on; rows];
+    }
+
     /// The pair's own scene description, when known. The views' labels carry full prompts
     /// (prefix included), not descriptions, so none is known yet: the scene-specific preset
     /// then uses the pipeline's text.

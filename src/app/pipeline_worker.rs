@@ -410,8 +410,10 @@ pub fn result_to_model(
                                 backend: prov.model.clone(),
                                 prompt: prov.prompt.clone(),
                                 cache_entry: format!(
-                                    "{entry} · generated frame {} · depth frame {}",
-                                    v.generated_index, v.depth_index
+                                    "{entry} · generated frame {} · depth frame {} ({})",
+                                    v.generated_index,
+                                    v.depth_index,
+                                    v.camera.name()
                                 ),
                             },
                             rgb: RgbImage {

@@ -306,7 +306,7 @@ fn frustum_lines(
     add(&model.target_views, &Isometry3::identity(), [140, 190, 255]);
 }
 
-/// Frustum depth for display: a tenth of the cloud's bounding-box diagonal, 0.2-5 m.
+/// Frustum depth for display: a tenth of the cloud's bounding-box diagonal, 0.2-15 m.
 fn frustum_range(cloud: &[[f32; 3]]) -> f64 {
     let (lo, hi) = cloud.iter().fold(
         ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]),
@@ -320,7 +320,7 @@ fn frustum_range(cloud: &[[f32; 3]]) -> f64 {
     );
     let d = (0..3).map(|i| (hi[i] - lo[i]).powi(2)).sum::<f32>().sqrt() as f64;
     if d.is_finite() {
-        (0.1 * d).clamp(0.2, 5.0)
+        (0.1 * d).clamp(0.2, 15.0)
     } else {
         0.35
     }
@@ -608,6 +608,27 @@ fn legend(painter: &egui::Painter, rect: egui::Rect, model: &InspectorModel, p: 
     }
     if p.show_target {
         rows.push(("target".into(), TARGET_RGB));
+    }
+    if p.source_mode == CloudColorMode::Visibility || p.target_mode == CloudColorMode::Visibility {
+        let cams: Vec<&str> = model
+            .source_views
+            .iter()
+            .chain(&model.target_views)
+            .filter_map(|v| v.camera.as_ref().map(|c| c.camera.name()))
+            .fold(Vec::new(), |mut a, n| {
+                if !a.contains(&n) {
+                    a.push(n);
+                }
+                a
+            });
+        let cams = if cams.is_empty() {
+            "no view cameras".to_string()
+        } else {
+            format!("{} camera", cams.join(" + "))
+        };
+        rows.push((format!("visible in a view ({cams})"), VISIBLE_RGB));
+        rows.push(("in a view, occluded".into(), OCCLUDED_RGB));
+        rows.push(("outside every view: dimmed".into(), [110, 110, 110]));
     }
     let mut y = rect.top() + 8.0;
     for (text, c) in rows {

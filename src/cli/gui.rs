@@ -55,6 +55,12 @@ pub struct ScreenshotArgs {
     /// Draw only the correspondences the estimator kept (SC2-PCR inliers).
     #[arg(long)]
     pub only_survivors: bool,
+    /// Colour mode of both clouds in the 3D view.
+    #[arg(long, value_enum, default_value_t = CloudColors::Fixed)]
+    pub cloud_colors: CloudColors,
+    /// Show each view's depth frame (as the WFM saw it) instead of the generated view.
+    #[arg(long)]
+    pub depth_frames: bool,
     /// Register every pair of the manifest first (fills the pair browser and the RRE/RTE
     /// plot; failing pairs are listed as failed), then show --pair.
     #[arg(long)]
@@ -64,6 +70,17 @@ pub struct ScreenshotArgs {
     /// Image branch (--wfm oracle|builtin|cached, prompt, VFM, K, margin) and stage cache.
     #[command(flatten)]
     pub image: ImageArgs,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, clap::ValueEnum)]
+pub enum CloudColors {
+    Fixed,
+    Score,
+    ResidualEstimate,
+    ResidualGt,
+    Branch,
+    /// Visible / occluded / outside the image branch's K views.
+    Visibility,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, clap::ValueEnum)]
@@ -217,6 +234,7 @@ pub fn run_screenshot(a: ScreenshotArgs) -> Result<()> {
     }
     let settings = worker.settings().clone();
     let (mode, count, only, align) = (a.match_colors, a.matches, a.only_survivors, a.alignment);
+    let (cloud_mode, depth_frames) = (a.cloud_colors, a.depth_frames);
     crate::app::headless::render_screenshot_with(
         &model,
         panel,
@@ -237,6 +255,17 @@ pub fn run_screenshot(a: ScreenshotArgs) -> Result<()> {
             p.show_estimated = matches!(align, Alignment::Estimated | Alignment::All);
             p.show_ground_truth = matches!(align, Alignment::Gt | Alignment::All);
             p.show_initial = matches!(align, Alignment::Initial | Alignment::All);
+            use crate::app::view3d::CloudColorMode as M;
+            let m = match cloud_mode {
+                CloudColors::Fixed => M::Fixed,
+                CloudColors::Score => M::FusedScore,
+                CloudColors::ResidualEstimate => M::ResidualEstimate,
+                CloudColors::ResidualGt => M::ResidualGroundTruth,
+                CloudColors::Branch => M::Branch,
+                CloudColors::Visibility => M::Visibility,
+            };
+            (p.source_mode, p.target_mode) = (m, m);
+            app.show_depth_frames(depth_frames);
         },
     )
     .map_err(|e| Error::Invalid(format!("cannot render the screenshot headless: {e}")))?;
