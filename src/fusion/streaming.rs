@@ -65,17 +65,11 @@ pub fn row_nn_posterior(src: &Features, tgt: &Features, tau: f32) -> Result<Vec<
             let base = t * BAND;
             (0..rows)
                 .filter_map(|r| {
-                    let row = &s[r * m..(r + 1) * m];
-                    let mx = row.iter().copied().fold(f32::NEG_INFINITY, f32::max);
-                    if !mx.is_finite() {
-                        return None;
-                    }
-                    let j = row.iter().position(|&v| v == mx)?;
-                    let z: f32 = row.iter().map(|&v| fast_exp((v - mx) * it)).sum();
+                    let (j, score) = row_best(&s[r * m..(r + 1) * m], it)?;
                     Some(Correspondence {
                         src: (base + r) as u32,
                         tgt: j as u32,
-                        score: 1.0 / z,
+                        score,
                     })
                 })
                 .collect::<Vec<_>>()
@@ -88,6 +82,29 @@ pub fn row_nn_posterior(src: &Features, tgt: &Features, tau: f32) -> Result<Vec<
             .then(a.tgt.cmp(&b.tgt))
     });
     Ok(out)
+}
+
+/// A row's first argmax and its row-softmax probability 1 / sum_j exp((s_j - max) / tau), with
+/// `it` = 1/tau. Max and sum run in 8 independent lanes so they vectorise (the sequential
+/// fold/sum were most of the time); both streaming paths share it, so they agree bit for bit.
+#[inline]
+#[allow(clippy::needless_range_loop)]
+fn row_best(row: &[f32], it: f32) -> Option<(usize, f32)> {
+    let mx = super::calibrate::max_lanes(row);
+    if !mx.is_finite() {
+        return None;
+    }
+    let j = row.iter().position(|&v| v == mx)?;
+    let mut acc = [0.0f32; 8];
+    let chunks = row.chunks_exact(8);
+    let rem = chunks.remainder();
+    for c in chunks {
+        for k in 0..8 {
+            acc[k] += fast_exp((c[k] - mx) * it);
+        }
+    }
+    let z = acc.iter().sum::<f32>() + rem.iter().map(|&v| fast_exp((v - mx) * it)).sum::<f32>();
+    Some((j, 1.0 / z))
 }
 
 /// [`row_nn_posterior`] from a similarity matrix computed before (the inspector keeps it): each
@@ -111,16 +128,11 @@ pub fn row_nn_from_similarity(
         .par_chunks(m)
         .enumerate()
         .filter_map(|(i, row)| {
-            let mx = row.iter().copied().fold(f32::NEG_INFINITY, f32::max);
-            if !mx.is_finite() {
-                return None;
-            }
-            let j = row.iter().position(|&v| v == mx)?;
-            let z: f32 = row.iter().map(|&v| fast_exp((v - mx) * it)).sum();
+            let (j, score) = row_best(row, it)?;
             Some(Correspondence {
                 src: i as u32,
                 tgt: j as u32,
-                score: 1.0 / z,
+                score,
             })
         })
         .collect::<Vec<_>>())
