@@ -534,6 +534,88 @@ fn softmax_row(sims: &[f32], valid: Option<&[bool]>, tau: f32) -> Vec<f32> {
     e.into_iter().map(|x| x / z).collect()
 }
 
+/// Column softmax statistics of `sim / tau` over the valid rows: per column its maximum and
+/// sum_i exp((s_ij - max_j) / tau) (max -inf and sum 0 for a column with no valid row). With a
+/// row's softmax they give that row of the reference's dual softmax without an N x M copy.
+fn column_stats(
+    sim: &crate::fusion::matrix::DenseMatrix,
+    row_valid: Option<&[bool]>,
+    tau: f32,
+) -> (Vec<f32>, Vec<f32>) {
+    use rayon::prelude::*;
+    let m = sim.cols;
+    let ok = |i: usize| row_valid.is_none_or(|v| v.get(i).copied().unwrap_or(false));
+    let rows = || {
+        sim.data
+            .par_chunks(m.max(1))
+            .enumerate()
+            .filter(|(i, _)| ok(*i))
+    };
+    let mx = rows()
+        .fold(
+            || vec![f32::NEG_INFINITY; m],
+            |mut a, (_, r)| {
+                for (x, &v) in a.iter_mut().zip(r) {
+                    *x = x.max(v);
+                }
+                a
+            },
+        )
+        .reduce(
+            || vec![f32::NEG_INFINITY; m],
+            |mut a, b| {
+                for (x, y) in a.iter_mut().zip(b) {
+                    *x = x.max(y);
+                }
+                a
+            },
+        );
+    let it = 1.0 / tau.max(1e-4);
+    let sum = rows()
+        .fold(
+            || vec![0.0f32; m],
+            |mut a, (_, r)| {
+                for ((x, &v), &c) in a.iter_mut().zip(r).zip(&mx) {
+                    *x += ((v - c) * it).exp();
+                }
+                a
+            },
+        )
+        .reduce(
+            || vec![0.0f32; m],
+            |mut a, b| {
+                for (x, y) in a.iter_mut().zip(b) {
+                    *x += y;
+                }
+                a
+            },
+        );
+    (mx, sum)
+}
+
+/// Row `i` of the dual softmax sqrt(Pr * Pc + 1e-9) (reference §8.3) from the row softmax
+/// `p_row` of that row, its similarities and the column statistics; invalid entries 0.
+fn dual_row(
+    p_row: &[f32],
+    sims: &[f32],
+    col_valid: Option<&[bool]>,
+    stats: &(Vec<f32>, Vec<f32>),
+    tau: f32,
+) -> Vec<f32> {
+    let it = 1.0 / tau.max(1e-4);
+    (0..sims.len())
+        .map(|j| {
+            let ok = col_valid.is_none_or(|v| v.get(j).copied().unwrap_or(false));
+            let (c, z) = (stats.0[j], stats.1[j]);
+            if !ok || z == 0.0 || !c.is_finite() {
+                return 0.0;
+            }
+            let pc = ((sims[j] - c) * it).exp() / z;
+            (p_row[j] * pc + crate::fusion::calibrate::DUAL_SOFTMAX_EPS).sqrt()
+        })
+        .collect()
+}
+
 fn top_indices(v: &[f32], n: usize) -> Vec<usize> {
     let mut idx: Vec<usize> = (0..v.len()).collect();
     let n = n.min(idx.len());
@@ -547,13 +629,15 @@ fn top_indices(v: &[f32], n: usize) -> Vec<usize> {
 }
 
 /// Branch posteriors of source keypoint `src` over the target keypoints, from the kept
-/// [`FusionInputs`]: each branch's row softmax at its temperature (the row part of a dual
-/// softmax), fused per `fusion.mode` with the pipeline's formulas (Noisy-AND with its prior,
-/// Noisy-OR, concatenated cosine, or one branch). Points without a pixel have an image
-/// posterior of 0, as in the pipeline. Candidates: the most likely under the fused, image and
-/// geometric posteriors, plus the ground-truth target.
+/// [`FusionInputs`]: each branch's calibration at its temperature (row softmax; the dual
+/// softmax needs the column statistics of the whole kept similarity `sims`, and without it
+/// falls back to the row part), fused per `fusion.mode` with the pipeline's formulas
+/// (Noisy-AND with its prior, Noisy-OR, concatenated cosine, or one branch). Points without a
+/// pixel have an image posterior of 0, as in the pipeline. Candidates: the most likely under
+/// the fused, image and geometric posteriors, plus the ground-truth target.
 pub fn point_posterior(
     inputs: &FusionInputs,
+    sims: Option<&crate::pipeline::image_branch::Similarities>,
     image: Option<&ImageBranchOutput>,
     fusion: &crate::fusion::FusionParams,
     src: usize,
@@ -564,13 +648,27 @@ pub fn point_posterior(
     if src >= sg.features.len() || tg.features.is_empty() {
         return None;
     }
+    use crate::fusion::Calibration;
     let cos_geo = cos_row(&sg.features, src, &tg.features);
-    let p_geo = softmax_row(&cos_geo, None, fusion.calibration_geo.tau());
+    let tau_geo = fusion.calibration_geo.tau();
+    let mut p_geo = softmax_row(&cos_geo, None, tau_geo);
+    if let (Calibration::DualSoftmax { .. }, Some(s)) = (fusion.calibration_geo, sims) {
+        let stats = column_stats(&s.geo, None, tau_geo);
+        p_geo = dual_row(&p_geo, &cos_geo, None, &stats, tau_geo);
+    }
     let img = inputs.image.as_ref().map(|im| {
         let (vs, vt) = im.validity();
         let cos = im.similarity_row(src);
+        let tau = fusion.calibration_img.tau();
         let p = if vs.get(src).copied().unwrap_or(false) {
-            softmax_row(&cos, Some(vt.as_slice()), fusion.calibration_img.tau())
+            let p = softmax_row(&cos, Some(vt.as_slice()), tau);
+            match (fusion.calibration_img, sims.and_then(|s| s.image.as_ref())) {
+                (Calibration::DualSoftmax { .. }, Some((sim, rv, cv))) => {
+                    let stats = column_stats(sim, Some(rv), tau);
+                    dual_row(&p, &cos, Some(cv), &stats, tau)
+                }
+                _ => p,
+            }
         } else {
             vec![0.0; cos.len()]
         };
@@ -1082,6 +1180,7 @@ impl PipelineWorker {
         }
         let post = point_posterior(
             &kept.inputs,
+            kept.sims.as_deref(),
             kept.image.as_ref(),
             &fusion,
             src,
@@ -1389,5 +1488,54 @@ pub fn open_dataset(kind: super::OpenKind, paths: &[PathBuf]) -> crate::Result<D
                 .collect::<Vec<_>>()
                 .join(", ")
         ))),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::fusion::matrix::DenseMatrix;
+    use crate::fusion::Calibration;
+
+    /// The inspector's dual-softmax row equals that row of the pipeline's calibrated matrix,
+    /// masks included.
+    #[test]
+    fn dual_row_equals_the_calibrated_matrix() {
+        let (n, m, tau) = (37, 53, 0.07f32);
+        let mut x = 12345u64;
+        let data: Vec<f32> = (0..n * m)
+            .map(|_| {
+                x = x
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                ((x >> 40) as f32 / (1u64 << 24) as f32) * 2.0 - 1.0
+            })
+            .collect();
+        let sim = DenseMatrix::from_vec(n, m, data).unwrap();
+        let rv: Vec<bool> = (0..n).map(|i| i % 7 != 3).collect();
+        let cv: Vec<bool> = (0..m).map(|j| j % 5 != 1).collect();
+        for masks in [false, true] {
+            let (r, c) = if masks {
+                (Some(rv.as_slice()), Some(cv.as_slice()))
+            } else {
+                (None, None)
+            };
+            let want =
+                crate::fusion::calibrate::calibrate(&sim, r, c, Calibration::DualSoftmax { tau })
+                    .unwrap();
+            let stats = column_stats(&sim, r, tau);
+            for i in (0..n).filter(|&i| r.is_none_or(|r| r[i])) {
+                let row = &sim.data[i * m..(i + 1) * m];
+                let got = dual_row(&softmax_row(row, c, tau), row, c, &stats, tau);
+                for j in 0..m {
+                    let w = want.data[i * m + j];
+                    assert!(
+                        (got[j] - w).abs() <= 1e-5 * w.max(1e-3),
+                        "masks {masks} ({i}, {j}): {} vs {w}",
+                        got[j]
+                    );
+                }
+            }
+        }
     }
 }
