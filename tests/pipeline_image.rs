@@ -372,6 +372,32 @@ fn lidar_pair_goes_through_the_ftheta_camera() {
         .filter(|p| p.extension().is_some_and(|e| e == "png"))
         .collect();
     assert_eq!(pngs.len(), 2, "{pngs:?}");
+
+    // Two cameras back to back (appendix B.3's 360° extension), one view each: nearly every
+    // keypoint of the 360° scans gets a pixel.
+    let mut p2 = p.clone();
+    if let Some(ib) = p2.image.as_mut() {
+        ib.lidar_cameras = 2;
+        ib.k = 2;
+    }
+    let r2 = register_pair_cached(&pair, &p2, Some(&cache)).unwrap();
+    assert!(r2.warnings.iter().any(|w| w.contains("2 such cameras")));
+    let img2 = r2.image.as_ref().unwrap();
+    let poses: Vec<_> = img2
+        .source_views
+        .iter()
+        .map(|v| v.scan_from_camera.unwrap())
+        .collect();
+    let forward = |t: &nalgebra::Isometry3<f64>| t.rotation * nalgebra::Vector3::z();
+    assert!(
+        forward(&poses[0]).dot(&forward(&poses[1])) < -0.99,
+        "opposite yaws"
+    );
+    for links in [&img2.source_links, &img2.target_links] {
+        let linked = links.iter().filter(|l| l.is_some()).count();
+        assert!(linked * 100 > links.len() * 85, "{linked}/{}", links.len());
+    }
+    assert!(r2.metrics.as_ref().unwrap().success);
 }
 
 fn walk(d: &Path) -> Vec<std::path::PathBuf> {

@@ -229,6 +229,10 @@ pub struct ImageArgs {
     /// carry intensity) and a pinhole trajectory otherwise (auto), or force one.
     #[arg(long, value_enum, default_value_t = VirtualCameraArg::Auto)]
     pub virtual_camera: VirtualCameraArg,
+    /// f-theta cameras per LiDAR scan, evenly spaced in yaw (1 = the paper's single forward
+    /// camera; 2 or more cover a 360° scan).
+    #[arg(long, default_value_t = 1)]
+    pub lidar_cameras: usize,
     /// Stage cache directory (default: $CGENREG_CACHE or ~/.cache/cgenreg).
     #[arg(long)]
     pub cache_dir: Option<PathBuf>,
@@ -308,6 +312,7 @@ impl ImageArgs {
                 VirtualCameraArg::Pinhole => crate::pipeline::params::VirtualCamera::Pinhole,
                 VirtualCameraArg::Ftheta => crate::pipeline::params::VirtualCamera::Ftheta,
             },
+            lidar_cameras: self.lidar_cameras,
         }))
     }
 

@@ -824,10 +824,17 @@ pub fn register_with_image_keep(
                     ib.frames_per_fragment,
                     &root,
                     cam,
+                    ib.lidar_cameras,
                 )?);
                 let note = match cam {
-                    super::params::VirtualCamera::Ftheta => VIRTUAL_FTHETA_NOTE,
-                    _ => VIRTUAL_FRAMES_NOTE,
+                    super::params::VirtualCamera::Ftheta if ib.lidar_cameras > 1 => format!(
+                        "{VIRTUAL_FTHETA_NOTE}; {} such cameras, {:.0}° apart in yaw, shown one \
+                         after the other in the depth video",
+                        ib.lidar_cameras,
+                        360.0 / ib.lidar_cameras as f64
+                    ),
+                    super::params::VirtualCamera::Ftheta => VIRTUAL_FTHETA_NOTE.to_string(),
+                    _ => VIRTUAL_FRAMES_NOTE.to_string(),
                 };
                 if !notes.contains(&note) {
                     notes.push(note);
@@ -835,7 +842,7 @@ pub fn register_with_image_keep(
             }
         }
         let (mut r, inputs) = register_with_image_keep(&p2, params, ib, cache, generate)?;
-        r.warnings.extend(notes.iter().map(|n| n.to_string()));
+        r.warnings.extend(notes);
         return Ok((r, inputs));
     }
     if !matches!(params.geo_features, super::params::GeoFeatureSource::Fpfh) {
@@ -1319,26 +1326,69 @@ origin looking along +x (the sensor is assumed at the origin); range in the dept
 no 4 m clip; gaps of up to 24 px between LiDAR rings on one surface filled by interpolation";
 
 /// Depth frames for a point-cloud-only scan from the chosen virtual camera: the pinhole
-/// trajectory of [`render_virtual_frames`], or for LiDAR one forward-facing f-theta camera at
-/// the sensor origin (the paper's Waymo setup: "a single forward-facing virtual camera"). That camera does
-/// not move, so its one range image stands for all `l` frames of the depth video.
+/// trajectory of [`render_virtual_frames`], or for LiDAR f-theta cameras at the sensor origin:
+/// one facing forward by default (the paper's Waymo setup: "a single forward-facing virtual
+/// camera"), or `cameras` evenly spaced in yaw to cover a 360° scan (appendix B.3). A camera
+/// does not move, so its one range image stands for its run of the `l` frames (frame i shows
+/// camera floor(i * cameras / l)).
 pub fn render_virtual_frames_with(
     scan: &Scan,
     l: usize,
     root: &Path,
     camera: super::params::VirtualCamera,
+    cameras: usize,
 ) -> Result<FrameSet> {
     use crate::camera::ftheta::{lidar_front_camera_from_scan, FThetaCamera};
     if camera.resolve(&scan.cloud) != super::params::VirtualCamera::Ftheta {
         return render_virtual_frames(scan, l, root);
     }
-    if l == 0 {
-        return Err(Error::Invalid(
-            "virtual frames: L must be at least 1".into(),
-        ));
+    if l == 0 || cameras == 0 || cameras > l {
+        return Err(Error::Invalid(format!(
+            "virtual f-theta frames: {cameras} cameras for L = {l} frames; need 1 <= cameras <= L"
+        )));
     }
     let cam = FThetaCamera::default();
-    let camera_from_scan = lidar_front_camera_from_scan(0.0);
+    let mut paths = Vec::with_capacity(cameras);
+    let mut poses = Vec::with_capacity(cameras);
+    for c in 0..cameras {
+        let yaw = std::f64::consts::TAU * c as f64 / cameras as f64;
+        let camera_from_scan = lidar_front_camera_from_scan(yaw);
+        // With one camera an empty image means the scan is not in its sensor frame; with
+        // several, a camera facing away from a partial scan may see nothing.
+        paths.push(ftheta_range_image(
+            scan,
+            &cam,
+            &camera_from_scan,
+            root,
+            cameras == 1,
+        )?);
+        poses.push(camera_from_scan.inverse());
+    }
+    Ok(FrameSet {
+        camera: crate::camera::CameraModel::FTheta(cam),
+        frames: (0..l)
+            .map(|i| {
+                let c = i * cameras / l;
+                crate::dataset::RgbdFrame {
+                    index: i,
+                    depth_path: paths[c].clone(),
+                    color_path: None,
+                    scan_from_camera: poses[c],
+                }
+            })
+            .collect(),
+    })
+}
+
+/// One f-theta range image of `scan` seen with pose `camera_from_scan`, cached under `root`
+/// by content; returns its path.
+fn ftheta_range_image(
+    scan: &Scan,
+    cam: &crate::camera::ftheta::FThetaCamera,
+    camera_from_scan: &Isometry3<f64>,
+    root: &Path,
+    empty_is_error: bool,
+) -> Result<PathBuf> {
     let key = blake3::hash(
         format!(
             "virtual-ftheta-v2|gap{FTHETA_RING_GAP_PX}|{}|{:?}|{:?}",
@@ -1355,15 +1405,15 @@ pub fn render_virtual_frames_with(
     if !path.is_file() {
         let mut d = cam.render_depth(
             &scan.cloud.points,
-            &camera_from_scan,
+            camera_from_scan,
             &crate::camera::render::SplatOptions::default(),
         );
         // Rings of a spinning LiDAR are a few degrees apart: about 2-20 px at 1280x640.
         crate::camera::ftheta::fill_ring_gaps(&mut d, FTHETA_RING_GAP_PX, 0.1);
-        if d.data.iter().all(|&v| v == 0) {
+        if empty_is_error && d.data.iter().all(|&v| v == 0) {
             return Err(Error::Invalid(format!(
-                "{}: no point is in front of the virtual f-theta camera (origin, looking along \
-                 +x); is this a LiDAR scan in its sensor frame?",
+                "{}: no point is in view of the virtual f-theta camera (at the origin, looking \
+                 along +x); is this a LiDAR scan in its sensor frame?",
                 scan.name
             )));
         }
@@ -1371,18 +1421,7 @@ pub fn render_virtual_frames_with(
         // write_depth_png is atomic: the file exists only once complete.
         crate::io::depth_png::write_depth_png(&path, &d)?;
     }
-    let scan_from_camera = camera_from_scan.inverse();
-    Ok(FrameSet {
-        camera: crate::camera::CameraModel::FTheta(cam),
-        frames: (0..l)
-            .map(|i| crate::dataset::RgbdFrame {
-                index: i,
-                depth_path: path.clone(),
-                color_path: None,
-                scan_from_camera,
-            })
-            .collect(),
-    })
+    Ok(path)
 }
 
 /// Depth frames of a point-cloud-only scan: `l` views along a virtual pinhole arc around the

@@ -117,6 +117,15 @@ pub struct ImageBranchParams {
     /// The virtual camera that renders depth frames for scans that have none.
     #[serde(default)]
     pub virtual_camera: VirtualCamera,
+    /// f-theta cameras per LiDAR scan, evenly spaced in yaw (1: the paper's single forward
+    /// camera; 2 or more cover a 360° scan, appendix B.3's extension). The depth video shows
+    /// them one after the other, L / n frames each.
+    #[serde(default = "one")]
+    pub lidar_cameras: usize,
+}
+
+fn one() -> usize {
+    1
 }
 
 /// How depth frames are made for a scan that is only a point cloud (paper §3.1, appendix B.3).
@@ -156,6 +165,7 @@ impl Default for ImageBranchParams {
             frames_per_fragment: 50,
             lift_radius: 0.05,
             virtual_camera: VirtualCamera::Auto,
+            lidar_cameras: 1,
         }
     }
 }

@@ -12,7 +12,10 @@ pub struct CappedNearest {
 
 impl CappedNearest {
     pub fn new(points: &[[f32; 3]], cap: f32) -> Self {
-        let pts: Vec<Point3<f32>> = points.iter().map(|p| Point3::new(p[0], p[1], p[2])).collect();
+        let pts: Vec<Point3<f32>> = points
+            .iter()
+            .map(|p| Point3::new(p[0], p[1], p[2]))
+            .collect();
         Self {
             cap: cap.max(1e-6),
             index: KdIndex::new(&pts),
