@@ -120,13 +120,14 @@ fn lift_inputs() -> (
 
 fn bench_lift() {
     let (depths, poses, k) = lift_inputs();
+    let cam = cgenreg::camera::CameraModel::Pinhole(k);
     let views: Vec<LiftView> = depths
         .iter()
         .zip(&poses)
         .map(|(d, p)| LiftView {
             depth: d,
             scan_from_camera: *p,
-            intrinsics: k,
+            camera: &cam,
         })
         .collect();
     // ~5k geometric points: every 61st valid pixel of view 0, jittered by up to 3 cm.

@@ -1527,12 +1527,10 @@ mod tests {
             for i in (0..n).filter(|&i| r.is_none_or(|r| r[i])) {
                 let row = &sim.data[i * m..(i + 1) * m];
                 let got = dual_row(&softmax_row(row, c, tau), row, c, &stats, tau);
-                for j in 0..m {
-                    let w = want.data[i * m + j];
+                for (j, (g, w)) in got.iter().zip(&want.data[i * m..(i + 1) * m]).enumerate() {
                     assert!(
-                        (got[j] - w).abs() <= 1e-5 * w.max(1e-3),
-                        "masks {masks} ({i}, {j}): {} vs {w}",
-                        got[j]
+                        (g - w).abs() <= 1e-5 * w.max(1e-3),
+                        "masks {masks} ({i}, {j}): {g} vs {w}"
                     );
                 }
             }
