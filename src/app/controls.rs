@@ -294,7 +294,19 @@ pub enum Command {
     },
     /// Compute branch posteriors for a source point (posterior inspector).
     InspectSourcePoint(usize),
+    /// Run a parameter study over the open dataset's pairs with the current settings.
+    RunStudy(StudyRequest),
     Cancel,
+}
+
+/// Which study the plots panel asked for.
+#[derive(Clone, Debug, PartialEq)]
+pub enum StudyRequest {
+    /// RRE/RTE against K (figure 6) for these K values.
+    K(Vec<usize>),
+    /// RRE/RTE per prompt category (figure 4): the four presets with the editor's prefix,
+    /// plus the editor's scene description as "custom" when it is none of the presets.
+    Prompt,
 }
 
 impl Command {
@@ -326,6 +338,8 @@ pub enum WorkerEvent {
     Model(Box<InspectorModel>),
     /// One stage changed state (the stage panel updates without a full model).
     Stage(StageInfo),
+    /// A long task's progress: (what, done, total).
+    Progress(String, usize, usize),
     Log(LogLevel, String),
 }
 

@@ -25,8 +25,8 @@ use eframe::egui;
 use serde::{Deserialize, Serialize};
 
 pub use controls::{
-    spawn_worker, Command, EventSink, LogLevel, LogOnlyWorker, OpenKind, PipelineSettings, Worker,
-    WorkerEvent, WorkerHandle,
+    spawn_worker, Command, EventSink, LogLevel, LogOnlyWorker, OpenKind, PipelineSettings,
+    StudyRequest, Worker, WorkerEvent, WorkerHandle,
 };
 pub use model::InspectorModel;
 
@@ -366,6 +366,7 @@ pub struct App {
     view3d: View3dState,
     views: ViewsState,
     posterior: PosteriorState,
+    pub plots: plots_panel::PlotsState,
     worker: Option<WorkerHandle>,
     pub log: Vec<LogLine>,
     show_log: bool,
@@ -392,6 +393,7 @@ impl App {
             view3d: View3dState::default(),
             views: ViewsState::default(),
             posterior: PosteriorState::default(),
+            plots: plots_panel::PlotsState::default(),
             worker,
             log: Vec::new(),
             show_log: false,
@@ -510,6 +512,9 @@ impl App {
                     }
                 }
                 WorkerEvent::Log(l, t) => self.push_log(l, t),
+                WorkerEvent::Progress(what, done, total) => {
+                    self.model.plots.study_progress = (done < total).then_some((what, done, total));
+                }
             }
         }
         if let Some(rx) = &self.dialog {
@@ -767,7 +772,9 @@ impl App {
                     &mut self.views,
                     &mut self.posterior,
                 ),
-                Panel::Plots => plots_panel::plots_panel(ui, &self.model),
+                Panel::Plots => {
+                    plots_panel::plots_panel(ui, shared.model, &mut self.plots, shared.commands)
+                }
                 Panel::Stages => stages_panel::stages_panel(ui, &self.model),
             }
         });

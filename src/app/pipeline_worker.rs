@@ -22,7 +22,7 @@ use nalgebra::{Isometry3, Point3};
 
 use super::controls::{
     Calibration as UiCalibration, Command, Estimator, EventSink, FusionMode as UiFusion, LogLevel,
-    PipelineSettings, SelectionRule, WfmChoice, Worker, WorkerEvent,
+    PipelineSettings, SelectionRule, StudyRequest, WfmChoice, Worker, WorkerEvent,
 };
 use super::model::{
     Branch, InspectorModel, MatchInfo, PairEntry, PairStatus, PlotData, Posterior, PrCurve,
@@ -42,6 +42,9 @@ use crate::pipeline::image_branch::{
     Similarities, GENERATION_NOT_CACHED,
 };
 use crate::pipeline::register::{fpfh_branch, GeoBranch};
+use crate::pipeline::study::{
+    k_settings, prompt_settings, run_study_with, StudyReport, StudySetting,
+};
 use crate::pipeline::{
     register_pair, ImageBranchOutput, ImageBranchParams, RegisterParams, RegistrationResult,
     VfmSpec, WfmSpec,
@@ -380,8 +383,7 @@ pub fn result_to_model(
 
     let plots = PlotData {
         pr_curves: pr_curve(fusion_label, &matches).into_iter().collect(),
-        vs_k: Vec::new(),
-        prompt_study: Vec::new(),
+        ..Default::default()
     };
     InspectorModel {
         pairs,
@@ -611,6 +613,57 @@ pub struct PipelineWorker {
     cache: Option<Arc<Cache>>,
     /// Why there is no cache, reported once.
     cache_note: Option<String>,
+    /// Results of the last K sweep / prompt study on this dataset (kept in every model).
+    studies: StudyPlots,
+}
+
+/// What the plots panel shows of the studies run on the open dataset.
+#[derive(Clone, Debug, Default)]
+struct StudyPlots {
+    vs_k: Vec<super::model::KPoint>,
+    vs_k_source: String,
+    prompt: Vec<super::model::PromptBar>,
+    prompt_source: String,
+}
+
+impl StudyPlots {
+    fn fill(&self, plots: &mut PlotData) {
+        plots.vs_k = self.vs_k.clone();
+        plots.vs_k_source = self.vs_k_source.clone();
+        plots.prompt_study = self.prompt.clone();
+        plots.prompt_source = self.prompt_source.clone();
+        plots.study_progress = None;
+    }
+}
+
+/// The plots of a study report: one point / bar per setting that ran at least one pair.
+fn study_plots(rep: &StudyReport) -> (Vec<super::model::KPoint>, Vec<super::model::PromptBar>) {
+    let ran = || {
+        rep.rows
+            .iter()
+            .filter(|r| r.setting_skipped.is_none() && r.pairs_run > 0)
+    };
+    let k = ran()
+        .map(|r| super::model::KPoint {
+            k: r.k,
+            rre_deg: r.rre_mean_deg.unwrap_or(f64::NAN),
+            rte_m: r.rte_mean_m.unwrap_or(f64::NAN),
+            pairs: r.pairs_run,
+            skipped: r.skipped.len() + r.failed.len(),
+            recall: r.recall,
+        })
+        .collect();
+    let p = ran()
+        .map(|r| super::model::PromptBar {
+            category: r.setting.clone(),
+            rre_deg: r.rre_mean_deg.unwrap_or(f64::NAN),
+            rte_m: r.rte_mean_m.unwrap_or(f64::NAN),
+            pairs: r.pairs_run,
+            skipped: r.skipped.len() + r.failed.len(),
+            recall: r.recall,
+        })
+        .collect();
+    (k, p)
 }
 
 impl PipelineWorker {
@@ -662,6 +715,7 @@ impl PipelineWorker {
             geo: HashMap::new(),
             cache,
             cache_note,
+            studies: StudyPlots::default(),
         }
     }
 
@@ -867,6 +921,7 @@ impl PipelineWorker {
             model.image_branch_note = note.clone();
         }
         model.generation_missing = missing.clone();
+        self.studies.fill(&mut model.plots);
         self.pairs = model.pairs.clone();
         let kept = inputs.map(|inputs| Kept {
             signature: sig,
@@ -949,6 +1004,7 @@ impl PipelineWorker {
             model.image_branch_note = kept.note.clone();
         }
         model.generation_missing = kept.generation_missing.clone();
+        self.studies.fill(&mut model.plots);
         self.pairs = model.pairs.clone();
         cur.model = model.clone();
         cur.result = result;
@@ -1007,6 +1063,7 @@ impl PipelineWorker {
     ) {
         match r {
             Ok(mut model) => {
+                self.studies.fill(&mut model.plots);
                 let ms = t.elapsed().as_secs_f64() * 1e3;
                 if model.stages.first().is_none_or(|s| s.name != stage) {
                     model.stages.insert(
@@ -1108,6 +1165,7 @@ impl Worker for PipelineWorker {
                     None => self.run_and_report(&id, generate, events),
                 }
             }
+            Command::RunStudy(req) => self.study(req, events),
             Command::InspectSourcePoint(i) => match self.inspect_point(i) {
                 Ok(m) => events.send(WorkerEvent::Model(Box::new(m))),
                 Err(e) => events.log(LogLevel::Warn, format!("posterior of point {i}: {e}")),
@@ -1150,6 +1208,151 @@ impl Worker for PipelineWorker {
 }
 
 impl PipelineWorker {
+    /// The settings of a study request: K values, or the four prompt presets with the editor's
+    /// prefix plus the editor's scene as "custom" when it is none of the presets.
+    pub fn study_settings(&self, req: &StudyRequest) -> Vec<StudySetting> {
+        match req {
+            StudyRequest::K(ks) => k_settings(ks),
+            StudyRequest::Prompt => {
+                let scene = self.settings.prompt_scene.trim();
+                let custom = (!crate::wfm::PromptPreset::ALL
+                    .iter()
+                    .any(|p| p.default_scene() == scene))
+                .then_some(scene);
+                prompt_settings(self.settings.prompt_prefix.trim(), custom)
+            }
+        }
+    }
+
+    /// Runs a study over every pair of the open dataset with the current settings (through
+    /// the stage cache; a generation is produced when missing except for a Cosmos command),
+    /// reporting progress, and keeps its plots. Synchronous (the worker thread).
+    pub fn run_study(
+        &mut self,
+        req: &StudyRequest,
+        progress: &mut dyn FnMut(usize, usize),
+    ) -> crate::Result<StudyReport> {
+        let params = settings_to_params(&self.settings, &self.base);
+        let settings = self.study_settings(req);
+        let generate = !matches!(
+            params.image.as_ref().map(|i| &i.backend),
+            Some(WfmSpec::Cosmos { .. })
+        );
+        let ids = self.pair_ids();
+        let (loaded, dataset) = (&self.loaded, &self.dataset);
+        let rep = run_study_with(
+            &ids,
+            &mut |id| match loaded.get(id) {
+                Some(p) => Ok(p.clone()),
+                None => dataset.load_pair(id),
+            },
+            &params,
+            &settings,
+            self.cache.as_deref(),
+            generate,
+            &mut |p| progress(p.done, p.total),
+        )?;
+        let (k, p) = study_plots(&rep);
+        let runs: usize = rep.rows.iter().map(|r| r.pairs_run).sum();
+        let source = format!("{} · {} pairs", rep.label(), rep.pairs.len());
+        match req {
+            StudyRequest::K(_) => {
+                self.studies.vs_k = k;
+                self.studies.vs_k_source = if runs == 0 {
+                    format!("no pair ran ({source})")
+                } else {
+                    source
+                };
+            }
+            StudyRequest::Prompt => {
+                self.studies.prompt = p;
+                self.studies.prompt_source = if runs == 0 {
+                    format!("no pair ran ({source})")
+                } else {
+                    source
+                };
+            }
+        }
+        Ok(rep)
+    }
+
+    fn study(&mut self, req: StudyRequest, events: &EventSink) {
+        let what = match &req {
+            StudyRequest::K(_) => "K sweep",
+            StudyRequest::Prompt => "prompt study",
+        };
+        if self.settings.wfm == WfmChoice::None {
+            events.log(
+                LogLevel::Warn,
+                format!("{what}: choose a WFM under “Image branch” first (a study needs the image branch)"),
+            );
+            return;
+        }
+        events.log(
+            LogLevel::Info,
+            format!(
+                "{what}: {} pairs with the current settings…",
+                self.pairs.len()
+            ),
+        );
+        let t = Instant::now();
+        let r = self.run_study(&req, &mut |done, total| {
+            events.send(WorkerEvent::Progress(what.to_string(), done, total))
+        });
+        match r {
+            Ok(rep) => {
+                for row in &rep.rows {
+                    if let Some(why) = &row.setting_skipped {
+                        events.log(
+                            LogLevel::Warn,
+                            format!("{what}: {} skipped: {why}", row.setting),
+                        );
+                    }
+                    for n in row.skipped.iter().chain(&row.failed) {
+                        events.log(
+                            LogLevel::Warn,
+                            format!("{what}: {} · {}: {}", row.setting, n.pair_id, n.reason),
+                        );
+                    }
+                    if let (Some(r), Some(e)) = (row.rre_mean_deg, row.rte_mean_m) {
+                        events.log(
+                            LogLevel::Info,
+                            format!(
+                                "{what}: {}: mean RRE {r:.2}° RTE {:.1} cm over {} pairs",
+                                row.setting,
+                                e * 100.0,
+                                row.pairs_run
+                            ),
+                        );
+                    }
+                }
+                for n in &rep.notes {
+                    events.log(LogLevel::Warn, format!("{what}: {n}"));
+                }
+                events.log(
+                    LogLevel::Info,
+                    format!(
+                        "{what} done in {:.1} s ({})",
+                        t.elapsed().as_secs_f64(),
+                        rep.label()
+                    ),
+                );
+            }
+            Err(e) => events.log(LogLevel::Error, format!("{what}: {e}")),
+        }
+        events.send(WorkerEvent::Progress(what.to_string(), 1, 1));
+        let mut model = match &self.current {
+            Some(c) => c.model.clone(),
+            None => InspectorModel::default(),
+        };
+        model.pairs = self.pairs.clone();
+        self.studies.fill(&mut model.plots);
+        if let Some(c) = self.current.as_mut() {
+            c.model = model.clone();
+        }
+        events.send(WorkerEvent::Model(Box::new(model)));
+    }
+
     /// Turns what was opened into a dataset, loads its first pair (so a bad file fails here,
     /// with the previous dataset still loaded), then replaces the dataset and registers it.
     fn open(&mut self, kind: super::OpenKind, paths: Vec<PathBuf>, events: &EventSink) {
