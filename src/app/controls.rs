@@ -296,6 +296,13 @@ pub enum Command {
     InspectSourcePoint(usize),
     /// Run a parameter study over the open dataset's pairs with the current settings.
     RunStudy(StudyRequest),
+    /// Open data (the last opened, at start); if that fails, log why and register
+    /// `fallback_pair` of the dataset already loaded (the bundled demo).
+    OpenOrFallback {
+        kind: OpenKind,
+        paths: Vec<PathBuf>,
+        fallback_pair: String,
+    },
     Cancel,
 }
 
@@ -340,6 +347,9 @@ pub enum WorkerEvent {
     Stage(StageInfo),
     /// A long task's progress: (what, done, total).
     Progress(String, usize, usize),
+    /// The worker changed the settings (e.g. opening a Cosmos output folder switched the image
+    /// branch): the controls show these from now on.
+    Settings(Box<PipelineSettings>),
     Log(LogLevel, String),
 }
 

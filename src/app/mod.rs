@@ -216,6 +216,21 @@ pub fn default_settings_path() -> Option<PathBuf> {
     Some(base.join("cgenreg").join("inspector.json"))
 }
 
+/// The first commands of an inspector started without an explicit dataset: reopen the data
+/// persisted as last opened in `settings_path` (falling back to `fallback_pair` of the
+/// dataset already loaded when that fails), else register `fallback_pair`.
+pub fn startup_commands(settings_path: Option<&Path>, fallback_pair: &str) -> Vec<Command> {
+    let last = settings_path.and_then(|p| load_persisted(p).0.last_opened);
+    match last {
+        Some((kind, paths)) if !paths.is_empty() => vec![Command::OpenOrFallback {
+            kind,
+            paths,
+            fallback_pair: fallback_pair.to_string(),
+        }],
+        _ => vec![Command::SelectPair(fallback_pair.to_string())],
+    }
+}
+
 /// Reads persisted settings; a missing or unreadable file gives defaults and a message.
 pub fn load_persisted(path: &Path) -> (Persisted, Option<String>) {
     match std::fs::read(path) {
@@ -512,6 +527,7 @@ impl App {
                     }
                 }
                 WorkerEvent::Log(l, t) => self.push_log(l, t),
+                WorkerEvent::Settings(s) => self.settings = *s,
                 WorkerEvent::Progress(what, done, total) => {
                     self.model.plots.study_progress = (done < total).then_some((what, done, total));
                 }

@@ -14,7 +14,7 @@
 //! `ground_truth` are target_from_source.
 
 use std::collections::HashMap;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -1170,7 +1170,26 @@ impl Worker for PipelineWorker {
                 Ok(m) => events.send(WorkerEvent::Model(Box::new(m))),
                 Err(e) => events.log(LogLevel::Warn, format!("posterior of point {i}: {e}")),
             },
-            Command::Open { kind, paths } => self.open(kind, paths, events),
+            Command::Open { kind, paths } => {
+                self.open(kind, paths, events);
+            }
+            Command::OpenOrFallback {
+                kind,
+                paths,
+                fallback_pair,
+            } => {
+                events.log(
+                    LogLevel::Info,
+                    format!("reopening the last opened data: {paths:?}"),
+                );
+                if !self.open(kind, paths, events) {
+                    events.log(
+                        LogLevel::Error,
+                        format!("could not reopen the last opened data; showing {fallback_pair}"),
+                    );
+                    self.run_and_report(&fallback_pair, true, events);
+                }
+            }
             Command::RunGenerator { prompt } => {
                 if self.settings.wfm == WfmChoice::None {
                     events.log(
@@ -1355,12 +1374,20 @@ impl PipelineWorker {
 
     /// Turns what was opened into a dataset, loads its first pair (so a bad file fails here,
     /// with the previous dataset still loaded), then replaces the dataset and registers it.
-    fn open(&mut self, kind: super::OpenKind, paths: Vec<PathBuf>, events: &EventSink) {
+    /// False when nothing was opened (the error is logged).
+    fn open(&mut self, kind: super::OpenKind, paths: Vec<PathBuf>, events: &EventSink) -> bool {
         let what = paths
             .iter()
             .map(|p| p.display().to_string())
             .collect::<Vec<_>>()
             .join(", ");
+        let kind = match kind {
+            super::OpenKind::Auto => super::classify_drop(&paths),
+            k => k,
+        };
+        if kind == super::OpenKind::CosmosOutput {
+            return self.open_cosmos_output(&paths, events);
+        }
         let t = Instant::now();
         match open_dataset(kind, &paths) {
             Ok(d) => {
@@ -1378,7 +1405,7 @@ impl PipelineWorker {
                                     "{what}: {e} (loading pair {id}; the previous dataset stays open)"
                                 ),
                             );
-                            return;
+                            return false;
                         }
                     },
                     None => None,
@@ -1391,13 +1418,63 @@ impl PipelineWorker {
                         t.elapsed().as_secs_f64() * 1e3
                     ),
                 );
-                self.replace_dataset(d, pre, &what, events)
+                self.replace_dataset(d, pre, &what, events);
+                true
             }
-            Err(e) => events.log(
-                LogLevel::Error,
-                format!("{e} (the previous dataset stays open)"),
-            ),
+            Err(e) => {
+                events.log(
+                    LogLevel::Error,
+                    format!("{e} (the previous dataset stays open)"),
+                );
+                false
+            }
         }
+    }
+
+    /// A Cosmos output folder: the image branch switches to it (cached Cosmos backend, the
+    /// folder + its JSONL spec, as the Image-branch controls set them), the dataset stays, and
+    /// the current pair re-runs. False (logged) when the folder or its spec is unusable.
+    fn open_cosmos_output(&mut self, paths: &[PathBuf], events: &EventSink) -> bool {
+        let r = match paths {
+            [dir] => cosmos_output_settings(&self.settings, dir).and_then(|s| {
+                // the spec must parse (positional mapping) before the settings change
+                crate::wfm::cached::CachedBackend::open(dir, Path::new(&s.wfm_spec))?;
+                Ok(s)
+            }),
+            _ => Err(crate::Error::Invalid(format!(
+                "expected one Cosmos output folder, got {} paths",
+                paths.len()
+            ))),
+        };
+        let s = match r {
+            Ok(s) => s,
+            Err(e) => {
+                events.log(
+                    LogLevel::Error,
+                    format!("{e} (the image branch settings stay as they were)"),
+                );
+                return false;
+            }
+        };
+        events.log(
+            LogLevel::Info,
+            format!(
+                "image branch: cached Cosmos output {} with spec {} (dataset unchanged)",
+                s.wfm_dir, s.wfm_spec
+            ),
+        );
+        self.settings = s.clone();
+        events.send(WorkerEvent::Settings(Box::new(s)));
+        let id = self
+            .current
+            .as_ref()
+            .map(|c| c.result.pair_id.clone())
+            .or_else(|| self.pairs.first().map(|p| p.id.clone()));
+        match id {
+            Some(id) => self.run_and_report(&id, true, events),
+            None => events.log(LogLevel::Warn, "the dataset lists no pairs"),
+        }
+        true
     }
 
     fn replace_dataset(
@@ -1424,6 +1501,146 @@ impl PipelineWorker {
             None => events.log(LogLevel::Warn, "the dataset lists no pairs"),
         }
     }
+}
+
+/// Whether `p` is a Cosmos batch spec: a `.jsonl` file, or a `.json` file whose first line is a
+/// batch line (an object with `prompt` and `control_overrides`, like the authors'
+/// `generation_specs/3dmatch_test.json`) rather than a single JSON document.
+fn is_batch_spec(p: &Path) -> bool {
+    use std::io::BufRead;
+    let ext = p
+        .extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase())
+        .unwrap_or_default();
+    if !p.is_file() {
+        return false;
+    }
+    match ext.as_str() {
+        "jsonl" => true,
+        "json" => {
+            let Ok(f) = std::fs::File::open(p) else {
+                return false;
+            };
+            let mut line = String::new();
+            let mut r = std::io::BufReader::new(f);
+            while line.trim().is_empty() {
+                line.clear();
+                if r.read_line(&mut line).map_or(true, |n| n == 0) {
+                    return false;
+                }
+            }
+            serde_json::from_str::<serde_json::Value>(line.trim())
+                .is_ok_and(|v| v.get("prompt").is_some() && v.get("control_overrides").is_some())
+        }
+        _ => false,
+    }
+}
+
+/// The JSONL batch spec of a Cosmos output folder, searched in the folder, its parent, and the
+/// authors' published layout (`generation_specs/` next to `generated_videos/`). Where one place
+/// holds several specs, the one named like the folder wins (`3dmatch_rgb_gen_vids` ->
+/// `3dmatch_test.json`); none or several left is an error naming the places and files.
+pub fn find_cosmos_spec(dir: &Path) -> crate::Result<PathBuf> {
+    use crate::Error;
+    if !dir.is_dir() {
+        return Err(Error::format(
+            dir,
+            "folder",
+            "a Cosmos output folder (video_<i>/output.mp4)",
+            "not a folder",
+        ));
+    }
+    let has_videos = std::fs::read_dir(dir)
+        .map_err(|e| Error::io(dir, e))?
+        .flatten()
+        .any(|e| e.file_name().to_string_lossy().starts_with("video_") && e.path().is_dir());
+    if !has_videos {
+        return Err(Error::format(
+            dir,
+            "video_<i>/ folders",
+            "a Cosmos output folder (video_<i>/output.mp4)",
+            "no video_<i> folder",
+        ));
+    }
+    let specs_in = |d: &Path| -> Vec<PathBuf> {
+        let mut v: Vec<PathBuf> = std::fs::read_dir(d)
+            .map(|rd| {
+                rd.flatten()
+                    .map(|e| e.path())
+                    .filter(|p| is_batch_spec(p))
+                    .collect()
+            })
+            .unwrap_or_default();
+        v.sort();
+        v
+    };
+    let names = |v: &[PathBuf]| {
+        v.iter()
+            .map(|p| p.display().to_string())
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    // "3dmatch_rgb_gen_vids" -> "3dmatch"
+    let word = dir
+        .file_name()
+        .map(|n| n.to_string_lossy().to_ascii_lowercase())
+        .and_then(|n| n.split(['_', '-', '.']).next().map(str::to_owned))
+        .unwrap_or_default();
+    let mut places = vec![dir.to_path_buf()];
+    if let Some(parent) = dir.parent() {
+        places.push(parent.to_path_buf());
+        places.push(parent.join("generation_specs"));
+        if let Some(gp) = parent.parent() {
+            places.push(gp.join("generation_specs"));
+        }
+    }
+    places.dedup();
+    for d in &places {
+        let found = specs_in(d);
+        match found.as_slice() {
+            [] => continue,
+            [one] => return Ok(one.clone()),
+            many => {
+                let named: Vec<PathBuf> = many
+                    .iter()
+                    .filter(|p| {
+                        !word.is_empty()
+                            && p.file_name().is_some_and(|n| {
+                                n.to_string_lossy().to_ascii_lowercase().starts_with(&word)
+                            })
+                    })
+                    .cloned()
+                    .collect();
+                if let [one] = named.as_slice() {
+                    return Ok(one.clone());
+                }
+                return Err(Error::Invalid(format!(
+                    "{}: several JSONL batch specs ({}), none named like {}; choose one under \
+                     Image branch → JSONL spec",
+                    d.display(),
+                    names(many),
+                    dir.display()
+                )));
+            }
+        }
+    }
+    Err(Error::Invalid(format!(
+        "no JSONL batch spec (*.jsonl, or a .json of JSON lines) for the Cosmos output folder \
+         {}: looked in {}; put the spec there or choose it under Image branch → JSONL spec",
+        dir.display(),
+        names(&places)
+    )))
+}
+
+/// `s` with the image branch switched to the cached Cosmos output in `dir` and its spec
+/// ([`find_cosmos_spec`]); everything else unchanged.
+pub fn cosmos_output_settings(s: &PipelineSettings, dir: &Path) -> crate::Result<PipelineSettings> {
+    let spec = find_cosmos_spec(dir)?;
+    let mut s = s.clone();
+    s.wfm = WfmChoice::CachedCosmos;
+    s.wfm_dir = dir.display().to_string();
+    s.wfm_spec = spec.display().to_string();
+    Ok(s)
 }
 
 /// Frames per fragment when an RGB-D sequence is opened (3DMatch's fragment length).
@@ -1482,8 +1699,8 @@ pub fn open_dataset(kind: super::OpenKind, paths: &[PathBuf]) -> crate::Result<D
             Dataset::from_two_files(&s, &t, gt.as_deref())
         }
         OpenKind::CosmosOutput => Err(Error::Invalid(format!(
-            "{}: opening a Cosmos output folder is not supported yet; open the dataset it was \
-             generated for (its generations are read from the stage cache)",
+            "{}: a Cosmos output folder holds generated frames, not scans: it is opened as the \
+             image branch's cached Cosmos backend for the open dataset",
             one("one folder")?.display()
         ))),
         OpenKind::Auto => Err(Error::Invalid(format!(

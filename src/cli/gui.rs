@@ -158,8 +158,14 @@ pub fn run_inspect(a: InspectArgs) -> Result<()> {
     let image = a.image.unwrap_or(di);
     let (worker, id) = open(a.manifest.as_deref(), a.pair.as_deref(), &pipeline, &image)?;
     let model = worker.initial_model(Some(&id));
-    crate::app::run_gui_with(model, Box::new(worker), vec![Command::SelectPair(id)])
-        .map_err(Error::Invalid)
+    // Without an explicit dataset, the data opened last time comes back (the demo when that
+    // fails); `screenshot` and the tests never read the settings file.
+    let initial = if a.manifest.is_none() {
+        crate::app::startup_commands(crate::app::default_settings_path().as_deref(), &id)
+    } else {
+        vec![Command::SelectPair(id)]
+    };
+    crate::app::run_gui_with(model, Box::new(worker), initial).map_err(Error::Invalid)
 }
 
 pub fn run_screenshot(a: ScreenshotArgs) -> Result<()> {
