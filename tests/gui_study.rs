@@ -300,12 +300,13 @@ fn opening_a_cosmos_folder_switches_the_image_branch_and_keeps_the_dataset() {
             match e {
                 WorkerEvent::Settings(s) => settings = Some(s),
                 WorkerEvent::Log(l, t) => logs.push((l, t)),
-                WorkerEvent::Model(m) if settings.is_some() => {
-                    if m.current_pair
-                        .is_some_and(|i| m.pairs[i].status == cgenreg::app::model::PairStatus::Done)
-                    {
-                        model = Some(m)
-                    }
+                WorkerEvent::Model(m)
+                    if settings.is_some()
+                        && m.current_pair.is_some_and(|i| {
+                            m.pairs[i].status == cgenreg::app::model::PairStatus::Done
+                        }) =>
+                {
+                    model = Some(m)
                 }
                 _ => {}
             }
