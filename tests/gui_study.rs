@@ -127,6 +127,13 @@ fn startup_reopens_the_last_data_or_falls_back_to_the_demo() {
     );
     assert_eq!(startup_commands(None, "demo/0-1"), vec![demo.clone()]);
     save_persisted(&path, &Persisted::default()).unwrap();
+    assert_eq!(startup_commands(Some(&path), "demo/0-1"), vec![demo.clone()]);
+    // a Cosmos output folder is an image-branch setting, not data to reopen
+    let p = Persisted {
+        last_opened: Some((OpenKind::CosmosOutput, vec![dir.path().to_path_buf()])),
+        ..Default::default()
+    };
+    save_persisted(&path, &p).unwrap();
     assert_eq!(startup_commands(Some(&path), "demo/0-1"), vec![demo]);
     // a persisted last-opened entry is reopened, with the demo pair as the fallback
     let missing = dir.path().join("gone.toml");

@@ -222,11 +222,13 @@ pub fn default_settings_path() -> Option<PathBuf> {
 pub fn startup_commands(settings_path: Option<&Path>, fallback_pair: &str) -> Vec<Command> {
     let last = settings_path.and_then(|p| load_persisted(p).0.last_opened);
     match last {
-        Some((kind, paths)) if !paths.is_empty() => vec![Command::OpenOrFallback {
-            kind,
-            paths,
-            fallback_pair: fallback_pair.to_string(),
-        }],
+        Some((kind, paths)) if !paths.is_empty() && kind != OpenKind::CosmosOutput => {
+            vec![Command::OpenOrFallback {
+                kind,
+                paths,
+                fallback_pair: fallback_pair.to_string(),
+            }]
+        }
         _ => vec![Command::SelectPair(fallback_pair.to_string())],
     }
 }
@@ -501,7 +503,15 @@ impl App {
 
     fn send(&mut self, c: Command) {
         if let Command::Open { kind, paths } = &c {
-            self.last_opened = Some((*kind, paths.clone()));
+            let k = match kind {
+                OpenKind::Auto => classify_drop(paths),
+                k => *k,
+            };
+            // a Cosmos output folder changes the image branch (persisted with the settings),
+            // not the data
+            if k != OpenKind::CosmosOutput {
+                self.last_opened = Some((*kind, paths.clone()));
+            }
         }
         let ok = self.worker.as_ref().map(|w| w.send(c.clone()));
         match ok {
