@@ -127,7 +127,10 @@ fn startup_reopens_the_last_data_or_falls_back_to_the_demo() {
     );
     assert_eq!(startup_commands(None, "demo/0-1"), vec![demo.clone()]);
     save_persisted(&path, &Persisted::default()).unwrap();
-    assert_eq!(startup_commands(Some(&path), "demo/0-1"), vec![demo.clone()]);
+    assert_eq!(
+        startup_commands(Some(&path), "demo/0-1"),
+        vec![demo.clone()]
+    );
     // a Cosmos output folder is an image-branch setting, not data to reopen
     let p = Persisted {
         last_opened: Some((OpenKind::CosmosOutput, vec![dir.path().to_path_buf()])),
