@@ -294,7 +294,26 @@ pub enum Command {
     },
     /// Compute branch posteriors for a source point (posterior inspector).
     InspectSourcePoint(usize),
+    /// Run a parameter study over the open dataset's pairs with the current settings.
+    RunStudy(StudyRequest),
+    /// Open data (the last opened, at start); if that fails, log why and register
+    /// `fallback_pair` of the dataset already loaded (the bundled demo).
+    OpenOrFallback {
+        kind: OpenKind,
+        paths: Vec<PathBuf>,
+        fallback_pair: String,
+    },
     Cancel,
+}
+
+/// Which study the plots panel asked for.
+#[derive(Clone, Debug, PartialEq)]
+pub enum StudyRequest {
+    /// RRE/RTE against K (figure 6) for these K values.
+    K(Vec<usize>),
+    /// RRE/RTE per prompt category (figure 4): the four presets with the editor's prefix,
+    /// plus the editor's scene description as "custom" when it is none of the presets.
+    Prompt,
 }
 
 impl Command {
@@ -326,6 +345,11 @@ pub enum WorkerEvent {
     Model(Box<InspectorModel>),
     /// One stage changed state (the stage panel updates without a full model).
     Stage(StageInfo),
+    /// A long task's progress: (what, done, total).
+    Progress(String, usize, usize),
+    /// The worker changed the settings (e.g. opening a Cosmos output folder switched the image
+    /// branch): the controls show these from now on.
+    Settings(Box<PipelineSettings>),
     Log(LogLevel, String),
 }
 

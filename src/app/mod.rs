@@ -25,8 +25,8 @@ use eframe::egui;
 use serde::{Deserialize, Serialize};
 
 pub use controls::{
-    spawn_worker, Command, EventSink, LogLevel, LogOnlyWorker, OpenKind, PipelineSettings, Worker,
-    WorkerEvent, WorkerHandle,
+    spawn_worker, Command, EventSink, LogLevel, LogOnlyWorker, OpenKind, PipelineSettings,
+    StudyRequest, Worker, WorkerEvent, WorkerHandle,
 };
 pub use model::InspectorModel;
 
@@ -216,6 +216,23 @@ pub fn default_settings_path() -> Option<PathBuf> {
     Some(base.join("cgenreg").join("inspector.json"))
 }
 
+/// The first commands of an inspector started without an explicit dataset: reopen the data
+/// persisted as last opened in `settings_path` (falling back to `fallback_pair` of the
+/// dataset already loaded when that fails), else register `fallback_pair`.
+pub fn startup_commands(settings_path: Option<&Path>, fallback_pair: &str) -> Vec<Command> {
+    let last = settings_path.and_then(|p| load_persisted(p).0.last_opened);
+    match last {
+        Some((kind, paths)) if !paths.is_empty() && kind != OpenKind::CosmosOutput => {
+            vec![Command::OpenOrFallback {
+                kind,
+                paths,
+                fallback_pair: fallback_pair.to_string(),
+            }]
+        }
+        _ => vec![Command::SelectPair(fallback_pair.to_string())],
+    }
+}
+
 /// Reads persisted settings; a missing or unreadable file gives defaults and a message.
 pub fn load_persisted(path: &Path) -> (Persisted, Option<String>) {
     match std::fs::read(path) {
@@ -366,6 +383,7 @@ pub struct App {
     view3d: View3dState,
     views: ViewsState,
     posterior: PosteriorState,
+    pub plots: plots_panel::PlotsState,
     worker: Option<WorkerHandle>,
     pub log: Vec<LogLine>,
     show_log: bool,
@@ -392,6 +410,7 @@ impl App {
             view3d: View3dState::default(),
             views: ViewsState::default(),
             posterior: PosteriorState::default(),
+            plots: plots_panel::PlotsState::default(),
             worker,
             log: Vec::new(),
             show_log: false,
@@ -494,7 +513,15 @@ impl App {
 
     fn send(&mut self, c: Command) {
         if let Command::Open { kind, paths } = &c {
-            self.last_opened = Some((*kind, paths.clone()));
+            let k = match kind {
+                OpenKind::Auto => classify_drop(paths),
+                k => *k,
+            };
+            // a Cosmos output folder changes the image branch (persisted with the settings),
+            // not the data
+            if k != OpenKind::CosmosOutput {
+                self.last_opened = Some((*kind, paths.clone()));
+            }
         }
         let ok = self.worker.as_ref().map(|w| w.send(c.clone()));
         match ok {
@@ -520,6 +547,10 @@ impl App {
                     }
                 }
                 WorkerEvent::Log(l, t) => self.push_log(l, t),
+                WorkerEvent::Settings(s) => self.settings = *s,
+                WorkerEvent::Progress(what, done, total) => {
+                    self.model.plots.study_progress = (done < total).then_some((what, done, total));
+                }
             }
         }
         if let Some(rx) = &self.dialog {
@@ -777,7 +808,9 @@ impl App {
                     &mut self.views,
                     &mut self.posterior,
                 ),
-                Panel::Plots => plots_panel::plots_panel(ui, &self.model),
+                Panel::Plots => {
+                    plots_panel::plots_panel(ui, shared.model, &mut self.plots, shared.commands)
+                }
                 Panel::Stages => stages_panel::stages_panel(ui, &self.model),
             }
         });

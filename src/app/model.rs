@@ -170,22 +170,31 @@ pub struct PrCurve {
     pub points: Vec<[f64; 2]>,
 }
 
-/// RRE/RTE at one K (figure 6).
+/// Mean RRE/RTE at one K over the pairs that ran (figure 6).
 #[derive(Clone, Debug, PartialEq)]
 pub struct KPoint {
     pub k: usize,
     pub rre_deg: f64,
     pub rte_m: f64,
+    /// Pairs that entered the means.
+    pub pairs: usize,
+    /// Pairs left out (generation not available, no ground truth) or failed.
+    pub skipped: usize,
+    /// Registration recall (RRE <= 15 deg, RTE <= 30 cm) over the pairs run or failed.
+    pub recall: Option<f64>,
 }
 
-/// RRE/RTE per prompt category (figure 4).
+/// Mean RRE/RTE per prompt category (figure 4).
 #[derive(Clone, Debug, PartialEq)]
 pub struct PromptBar {
     pub category: String,
     pub rre_deg: f64,
     pub rte_m: f64,
-    /// Pairs with cached generations that entered the mean.
+    /// Pairs with generations for this prompt that entered the mean.
     pub pairs: usize,
+    /// Pairs left out (generation not available, no ground truth) or failed.
+    pub skipped: usize,
+    pub recall: Option<f64>,
 }
 
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -193,6 +202,11 @@ pub struct PlotData {
     pub pr_curves: Vec<PrCurve>,
     pub vs_k: Vec<KPoint>,
     pub prompt_study: Vec<PromptBar>,
+    /// What produced `vs_k` / `prompt_study`: backend ids, VFM, fusion and pair counts.
+    pub vs_k_source: String,
+    pub prompt_source: String,
+    /// A study running on the worker: (what, runs done, runs in all).
+    pub study_progress: Option<(String, usize, usize)>,
 }
 
 /// Everything the inspector shows. Plain data, cheap to read every frame.
@@ -723,6 +737,9 @@ mod demo {
                     k,
                     rre_deg: 4.0 / k as f64 + 0.8,
                     rte_m: 0.12 / k as f64 + 0.03,
+                    pairs: 8,
+                    skipped: 0,
+                    recall: Some(1.0),
                 })
                 .collect(),
             prompt_study: [
@@ -738,8 +755,13 @@ mod demo {
                 rre_deg: r,
                 rte_m: t,
                 pairs: 8,
+                skipped: 0,
+                recall: Some(1.0),
             })
             .collect(),
+            vs_k_source: "synthetic UI fixture (made-up values)".into(),
+            prompt_source: "synthetic UI fixture (made-up values)".into(),
+            study_progress: None,
         };
 
         InspectorModel {

@@ -14,7 +14,7 @@
 //! `ground_truth` are target_from_source.
 
 use std::collections::HashMap;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -22,7 +22,7 @@ use nalgebra::{Isometry3, Point3};
 
 use super::controls::{
     Calibration as UiCalibration, Command, Estimator, EventSink, FusionMode as UiFusion, LogLevel,
-    PipelineSettings, SelectionRule, WfmChoice, Worker, WorkerEvent,
+    PipelineSettings, SelectionRule, StudyRequest, WfmChoice, Worker, WorkerEvent,
 };
 use super::model::{
     Branch, InspectorModel, MatchInfo, PairEntry, PairStatus, PlotData, Posterior, PrCurve,
@@ -42,6 +42,9 @@ use crate::pipeline::image_branch::{
     Similarities, GENERATION_NOT_CACHED,
 };
 use crate::pipeline::register::{fpfh_branch, GeoBranch};
+use crate::pipeline::study::{
+    k_settings, prompt_settings, run_study_with, StudyReport, StudySetting,
+};
 use crate::pipeline::{
     register_pair, ImageBranchOutput, ImageBranchParams, RegisterParams, RegistrationResult,
     VfmSpec, WfmSpec,
@@ -477,8 +480,7 @@ pub fn result_to_model(
 
     let plots = PlotData {
         pr_curves: pr_curve(fusion_label, &matches).into_iter().collect(),
-        vs_k: Vec::new(),
-        prompt_study: Vec::new(),
+        ..Default::default()
     };
     InspectorModel {
         pairs,
@@ -806,6 +808,57 @@ pub struct PipelineWorker {
     cache: Option<Arc<Cache>>,
     /// Why there is no cache, reported once.
     cache_note: Option<String>,
+    /// Results of the last K sweep / prompt study on this dataset (kept in every model).
+    studies: StudyPlots,
+}
+
+/// What the plots panel shows of the studies run on the open dataset.
+#[derive(Clone, Debug, Default)]
+struct StudyPlots {
+    vs_k: Vec<super::model::KPoint>,
+    vs_k_source: String,
+    prompt: Vec<super::model::PromptBar>,
+    prompt_source: String,
+}
+
+impl StudyPlots {
+    fn fill(&self, plots: &mut PlotData) {
+        plots.vs_k = self.vs_k.clone();
+        plots.vs_k_source = self.vs_k_source.clone();
+        plots.prompt_study = self.prompt.clone();
+        plots.prompt_source = self.prompt_source.clone();
+        plots.study_progress = None;
+    }
+}
+
+/// The plots of a study report: one point / bar per setting that ran at least one pair.
+fn study_plots(rep: &StudyReport) -> (Vec<super::model::KPoint>, Vec<super::model::PromptBar>) {
+    let ran = || {
+        rep.rows
+            .iter()
+            .filter(|r| r.setting_skipped.is_none() && r.pairs_run > 0)
+    };
+    let k = ran()
+        .map(|r| super::model::KPoint {
+            k: r.k,
+            rre_deg: r.rre_mean_deg.unwrap_or(f64::NAN),
+            rte_m: r.rte_mean_m.unwrap_or(f64::NAN),
+            pairs: r.pairs_run,
+            skipped: r.skipped.len() + r.failed.len(),
+            recall: r.recall,
+        })
+        .collect();
+    let p = ran()
+        .map(|r| super::model::PromptBar {
+            category: r.setting.clone(),
+            rre_deg: r.rre_mean_deg.unwrap_or(f64::NAN),
+            rte_m: r.rte_mean_m.unwrap_or(f64::NAN),
+            pairs: r.pairs_run,
+            skipped: r.skipped.len() + r.failed.len(),
+            recall: r.recall,
+        })
+        .collect();
+    (k, p)
 }
 
 impl PipelineWorker {
@@ -857,6 +910,7 @@ impl PipelineWorker {
             geo: HashMap::new(),
             cache,
             cache_note,
+            studies: StudyPlots::default(),
         }
     }
 
@@ -1062,6 +1116,7 @@ impl PipelineWorker {
             model.image_branch_note = note.clone();
         }
         model.generation_missing = missing.clone();
+        self.studies.fill(&mut model.plots);
         self.pairs = model.pairs.clone();
         let kept = inputs.map(|inputs| Kept {
             signature: sig,
@@ -1144,6 +1199,7 @@ impl PipelineWorker {
             model.image_branch_note = kept.note.clone();
         }
         model.generation_missing = kept.generation_missing.clone();
+        self.studies.fill(&mut model.plots);
         self.pairs = model.pairs.clone();
         cur.model = model.clone();
         cur.result = result;
@@ -1203,6 +1259,7 @@ impl PipelineWorker {
     ) {
         match r {
             Ok(mut model) => {
+                self.studies.fill(&mut model.plots);
                 let ms = t.elapsed().as_secs_f64() * 1e3;
                 if model.stages.first().is_none_or(|s| s.name != stage) {
                     model.stages.insert(
@@ -1304,11 +1361,31 @@ impl Worker for PipelineWorker {
                     None => self.run_and_report(&id, generate, events),
                 }
             }
+            Command::RunStudy(req) => self.study(req, events),
             Command::InspectSourcePoint(i) => match self.inspect_point(i) {
                 Ok(m) => events.send(WorkerEvent::Model(Box::new(m))),
                 Err(e) => events.log(LogLevel::Warn, format!("posterior of point {i}: {e}")),
             },
-            Command::Open { kind, paths } => self.open(kind, paths, events),
+            Command::Open { kind, paths } => {
+                self.open(kind, paths, events);
+            }
+            Command::OpenOrFallback {
+                kind,
+                paths,
+                fallback_pair,
+            } => {
+                events.log(
+                    LogLevel::Info,
+                    format!("reopening the last opened data: {paths:?}"),
+                );
+                if !self.open(kind, paths, events) {
+                    events.log(
+                        LogLevel::Error,
+                        format!("could not reopen the last opened data; showing {fallback_pair}"),
+                    );
+                    self.run_and_report(&fallback_pair, true, events);
+                }
+            }
             Command::RunGenerator { prompt } => {
                 if self.settings.wfm == WfmChoice::None {
                     events.log(
@@ -1346,14 +1423,167 @@ impl Worker for PipelineWorker {
 }
 
 impl PipelineWorker {
+    /// The settings of a study request: K values, or the four prompt presets with the editor's
+    /// prefix plus the editor's scene as "custom" when it is none of the presets.
+    pub fn study_settings(&self, req: &StudyRequest) -> Vec<StudySetting> {
+        match req {
+            StudyRequest::K(ks) => k_settings(ks),
+            StudyRequest::Prompt => {
+                let scene = self.settings.prompt_scene.trim();
+                let custom = (!crate::wfm::PromptPreset::ALL
+                    .iter()
+                    .any(|p| p.default_scene() == scene))
+                .then_some(scene);
+                prompt_settings(self.settings.prompt_prefix.trim(), custom)
+            }
+        }
+    }
+
+    /// Runs a study over every pair of the open dataset with the current settings (through
+    /// the stage cache; a generation is produced when missing except for a Cosmos command),
+    /// reporting progress, and keeps its plots. Synchronous (the worker thread).
+    pub fn run_study(
+        &mut self,
+        req: &StudyRequest,
+        progress: &mut dyn FnMut(usize, usize),
+    ) -> crate::Result<StudyReport> {
+        let params = settings_to_params(&self.settings, &self.base);
+        let settings = self.study_settings(req);
+        let generate = !matches!(
+            params.image.as_ref().map(|i| &i.backend),
+            Some(WfmSpec::Cosmos { .. })
+        );
+        let ids = self.pair_ids();
+        let (loaded, dataset) = (&self.loaded, &self.dataset);
+        let rep = run_study_with(
+            &ids,
+            &mut |id| match loaded.get(id) {
+                Some(p) => Ok(p.clone()),
+                None => dataset.load_pair(id),
+            },
+            &params,
+            &settings,
+            self.cache.as_deref(),
+            generate,
+            &mut |p| progress(p.done, p.total),
+        )?;
+        let (k, p) = study_plots(&rep);
+        let runs: usize = rep.rows.iter().map(|r| r.pairs_run).sum();
+        let source = format!("{} · {} pairs", rep.label(), rep.pairs.len());
+        match req {
+            StudyRequest::K(_) => {
+                self.studies.vs_k = k;
+                self.studies.vs_k_source = if runs == 0 {
+                    format!("no pair ran ({source})")
+                } else {
+                    source
+                };
+            }
+            StudyRequest::Prompt => {
+                self.studies.prompt = p;
+                self.studies.prompt_source = if runs == 0 {
+                    format!("no pair ran ({source})")
+                } else {
+                    source
+                };
+            }
+        }
+        Ok(rep)
+    }
+
+    fn study(&mut self, req: StudyRequest, events: &EventSink) {
+        let what = match &req {
+            StudyRequest::K(_) => "K sweep",
+            StudyRequest::Prompt => "prompt study",
+        };
+        if self.settings.wfm == WfmChoice::None {
+            events.log(
+                LogLevel::Warn,
+                format!("{what}: choose a WFM under “Image branch” first (a study needs the image branch)"),
+            );
+            return;
+        }
+        events.log(
+            LogLevel::Info,
+            format!(
+                "{what}: {} pairs with the current settings…",
+                self.pairs.len()
+            ),
+        );
+        let t = Instant::now();
+        let r = self.run_study(&req, &mut |done, total| {
+            events.send(WorkerEvent::Progress(what.to_string(), done, total))
+        });
+        match r {
+            Ok(rep) => {
+                for row in &rep.rows {
+                    if let Some(why) = &row.setting_skipped {
+                        events.log(
+                            LogLevel::Warn,
+                            format!("{what}: {} skipped: {why}", row.setting),
+                        );
+                    }
+                    for n in row.skipped.iter().chain(&row.failed) {
+                        events.log(
+                            LogLevel::Warn,
+                            format!("{what}: {} · {}: {}", row.setting, n.pair_id, n.reason),
+                        );
+                    }
+                    if let (Some(r), Some(e)) = (row.rre_mean_deg, row.rte_mean_m) {
+                        events.log(
+                            LogLevel::Info,
+                            format!(
+                                "{what}: {}: mean RRE {r:.2}° RTE {:.1} cm over {} pairs",
+                                row.setting,
+                                e * 100.0,
+                                row.pairs_run
+                            ),
+                        );
+                    }
+                }
+                for n in &rep.notes {
+                    events.log(LogLevel::Warn, format!("{what}: {n}"));
+                }
+                events.log(
+                    LogLevel::Info,
+                    format!(
+                        "{what} done in {:.1} s ({})",
+                        t.elapsed().as_secs_f64(),
+                        rep.label()
+                    ),
+                );
+            }
+            Err(e) => events.log(LogLevel::Error, format!("{what}: {e}")),
+        }
+        events.send(WorkerEvent::Progress(what.to_string(), 1, 1));
+        let mut model = match &self.current {
+            Some(c) => c.model.clone(),
+            None => InspectorModel::default(),
+        };
+        model.pairs = self.pairs.clone();
+        self.studies.fill(&mut model.plots);
+        if let Some(c) = self.current.as_mut() {
+            c.model = model.clone();
+        }
+        events.send(WorkerEvent::Model(Box::new(model)));
+    }
+
     /// Turns what was opened into a dataset, loads its first pair (so a bad file fails here,
     /// with the previous dataset still loaded), then replaces the dataset and registers it.
-    fn open(&mut self, kind: super::OpenKind, paths: Vec<PathBuf>, events: &EventSink) {
+    /// False when nothing was opened (the error is logged).
+    fn open(&mut self, kind: super::OpenKind, paths: Vec<PathBuf>, events: &EventSink) -> bool {
         let what = paths
             .iter()
             .map(|p| p.display().to_string())
             .collect::<Vec<_>>()
             .join(", ");
+        let kind = match kind {
+            super::OpenKind::Auto => super::classify_drop(&paths),
+            k => k,
+        };
+        if kind == super::OpenKind::CosmosOutput {
+            return self.open_cosmos_output(&paths, events);
+        }
         let t = Instant::now();
         match open_dataset(kind, &paths) {
             Ok(d) => {
@@ -1371,7 +1601,7 @@ impl PipelineWorker {
                                     "{what}: {e} (loading pair {id}; the previous dataset stays open)"
                                 ),
                             );
-                            return;
+                            return false;
                         }
                     },
                     None => None,
@@ -1384,13 +1614,63 @@ impl PipelineWorker {
                         t.elapsed().as_secs_f64() * 1e3
                     ),
                 );
-                self.replace_dataset(d, pre, &what, events)
+                self.replace_dataset(d, pre, &what, events);
+                true
             }
-            Err(e) => events.log(
-                LogLevel::Error,
-                format!("{e} (the previous dataset stays open)"),
-            ),
+            Err(e) => {
+                events.log(
+                    LogLevel::Error,
+                    format!("{e} (the previous dataset stays open)"),
+                );
+                false
+            }
         }
+    }
+
+    /// A Cosmos output folder: the image branch switches to it (cached Cosmos backend, the
+    /// folder + its JSONL spec, as the Image-branch controls set them), the dataset stays, and
+    /// the current pair re-runs. False (logged) when the folder or its spec is unusable.
+    fn open_cosmos_output(&mut self, paths: &[PathBuf], events: &EventSink) -> bool {
+        let r = match paths {
+            [dir] => cosmos_output_settings(&self.settings, dir).and_then(|s| {
+                // the spec must parse (positional mapping) before the settings change
+                crate::wfm::cached::CachedBackend::open(dir, Path::new(&s.wfm_spec))?;
+                Ok(s)
+            }),
+            _ => Err(crate::Error::Invalid(format!(
+                "expected one Cosmos output folder, got {} paths",
+                paths.len()
+            ))),
+        };
+        let s = match r {
+            Ok(s) => s,
+            Err(e) => {
+                events.log(
+                    LogLevel::Error,
+                    format!("{e} (the image branch settings stay as they were)"),
+                );
+                return false;
+            }
+        };
+        events.log(
+            LogLevel::Info,
+            format!(
+                "image branch: cached Cosmos output {} with spec {} (dataset unchanged)",
+                s.wfm_dir, s.wfm_spec
+            ),
+        );
+        self.settings = s.clone();
+        events.send(WorkerEvent::Settings(Box::new(s)));
+        let id = self
+            .current
+            .as_ref()
+            .map(|c| c.result.pair_id.clone())
+            .or_else(|| self.pairs.first().map(|p| p.id.clone()));
+        match id {
+            Some(id) => self.run_and_report(&id, true, events),
+            None => events.log(LogLevel::Warn, "the dataset lists no pairs"),
+        }
+        true
     }
 
     fn replace_dataset(
@@ -1417,6 +1697,146 @@ impl PipelineWorker {
             None => events.log(LogLevel::Warn, "the dataset lists no pairs"),
         }
     }
+}
+
+/// Whether `p` is a Cosmos batch spec: a `.jsonl` file, or a `.json` file whose first line is a
+/// batch line (an object with `prompt` and `control_overrides`, like the authors'
+/// `generation_specs/3dmatch_test.json`) rather than a single JSON document.
+fn is_batch_spec(p: &Path) -> bool {
+    use std::io::BufRead;
+    let ext = p
+        .extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase())
+        .unwrap_or_default();
+    if !p.is_file() {
+        return false;
+    }
+    match ext.as_str() {
+        "jsonl" => true,
+        "json" => {
+            let Ok(f) = std::fs::File::open(p) else {
+                return false;
+            };
+            let mut line = String::new();
+            let mut r = std::io::BufReader::new(f);
+            while line.trim().is_empty() {
+                line.clear();
+                if r.read_line(&mut line).map_or(true, |n| n == 0) {
+                    return false;
+                }
+            }
+            serde_json::from_str::<serde_json::Value>(line.trim())
+                .is_ok_and(|v| v.get("prompt").is_some() && v.get("control_overrides").is_some())
+        }
+        _ => false,
+    }
+}
+
+/// The JSONL batch spec of a Cosmos output folder, searched in the folder, its parent, and the
+/// authors' published layout (`generation_specs/` next to `generated_videos/`). Where one place
+/// holds several specs, the one named like the folder wins (`3dmatch_rgb_gen_vids` ->
+/// `3dmatch_test.json`); none or several left is an error naming the places and files.
+pub fn find_cosmos_spec(dir: &Path) -> crate::Result<PathBuf> {
+    use crate::Error;
+    if !dir.is_dir() {
+        return Err(Error::format(
+            dir,
+            "folder",
+            "a Cosmos output folder (video_<i>/output.mp4)",
+            "not a folder",
+        ));
+    }
+    let has_videos = std::fs::read_dir(dir)
+        .map_err(|e| Error::io(dir, e))?
+        .flatten()
+        .any(|e| e.file_name().to_string_lossy().starts_with("video_") && e.path().is_dir());
+    if !has_videos {
+        return Err(Error::format(
+            dir,
+            "video_<i>/ folders",
+            "a Cosmos output folder (video_<i>/output.mp4)",
+            "no video_<i> folder",
+        ));
+    }
+    let specs_in = |d: &Path| -> Vec<PathBuf> {
+        let mut v: Vec<PathBuf> = std::fs::read_dir(d)
+            .map(|rd| {
+                rd.flatten()
+                    .map(|e| e.path())
+                    .filter(|p| is_batch_spec(p))
+                    .collect()
+            })
+            .unwrap_or_default();
+        v.sort();
+        v
+    };
+    let names = |v: &[PathBuf]| {
+        v.iter()
+            .map(|p| p.display().to_string())
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    // "3dmatch_rgb_gen_vids" -> "3dmatch"
+    let word = dir
+        .file_name()
+        .map(|n| n.to_string_lossy().to_ascii_lowercase())
+        .and_then(|n| n.split(['_', '-', '.']).next().map(str::to_owned))
+        .unwrap_or_default();
+    let mut places = vec![dir.to_path_buf()];
+    if let Some(parent) = dir.parent() {
+        places.push(parent.to_path_buf());
+        places.push(parent.join("generation_specs"));
+        if let Some(gp) = parent.parent() {
+            places.push(gp.join("generation_specs"));
+        }
+    }
+    places.dedup();
+    for d in &places {
+        let found = specs_in(d);
+        match found.as_slice() {
+            [] => continue,
+            [one] => return Ok(one.clone()),
+            many => {
+                let named: Vec<PathBuf> = many
+                    .iter()
+                    .filter(|p| {
+                        !word.is_empty()
+                            && p.file_name().is_some_and(|n| {
+                                n.to_string_lossy().to_ascii_lowercase().starts_with(&word)
+                            })
+                    })
+                    .cloned()
+                    .collect();
+                if let [one] = named.as_slice() {
+                    return Ok(one.clone());
+                }
+                return Err(Error::Invalid(format!(
+                    "{}: several JSONL batch specs ({}), none named like {}; choose one under \
+                     Image branch → JSONL spec",
+                    d.display(),
+                    names(many),
+                    dir.display()
+                )));
+            }
+        }
+    }
+    Err(Error::Invalid(format!(
+        "no JSONL batch spec (*.jsonl, or a .json of JSON lines) for the Cosmos output folder \
+         {}: looked in {}; put the spec there or choose it under Image branch → JSONL spec",
+        dir.display(),
+        names(&places)
+    )))
+}
+
+/// `s` with the image branch switched to the cached Cosmos output in `dir` and its spec
+/// ([`find_cosmos_spec`]); everything else unchanged.
+pub fn cosmos_output_settings(s: &PipelineSettings, dir: &Path) -> crate::Result<PipelineSettings> {
+    let spec = find_cosmos_spec(dir)?;
+    let mut s = s.clone();
+    s.wfm = WfmChoice::CachedCosmos;
+    s.wfm_dir = dir.display().to_string();
+    s.wfm_spec = spec.display().to_string();
+    Ok(s)
 }
 
 /// Frames per fragment when an RGB-D sequence is opened (3DMatch's fragment length).
@@ -1475,8 +1895,8 @@ pub fn open_dataset(kind: super::OpenKind, paths: &[PathBuf]) -> crate::Result<D
             Dataset::from_two_files(&s, &t, gt.as_deref())
         }
         OpenKind::CosmosOutput => Err(Error::Invalid(format!(
-            "{}: opening a Cosmos output folder is not supported yet; open the dataset it was \
-             generated for (its generations are read from the stage cache)",
+            "{}: a Cosmos output folder holds generated frames, not scans: it is opened as the \
+             image branch's cached Cosmos backend for the open dataset",
             one("one folder")?.display()
         ))),
         OpenKind::Auto => Err(Error::Invalid(format!(

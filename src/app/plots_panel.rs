@@ -4,7 +4,25 @@
 use eframe::egui;
 use egui_plot::{Bar, BarChart, Legend, Line, Plot, PlotPoints, Points};
 
+use super::controls::{Command, StudyRequest};
 use super::model::InspectorModel;
+
+/// The plots panel's own inputs (the K list of the sweep).
+#[derive(Clone, Debug, PartialEq)]
+pub struct PlotsState {
+    pub k_list: String,
+}
+
+impl Default for PlotsState {
+    fn default() -> Self {
+        Self {
+            k_list: "1,2,4,8".into(),
+        }
+    }
+}
+
+const K_EMPTY: &str = "no K sweep yet: press “Run K sweep” above\n(the open dataset's pairs, current settings, a WFM chosen)";
+const PROMPT_EMPTY: &str = "no prompt study yet: press “Run prompt study” above\n(four prompt categories over the open dataset's pairs)";
 
 const RRE_COLOR: egui::Color32 = egui::Color32::from_rgb(255, 170, 40);
 const RTE_COLOR: egui::Color32 = egui::Color32::from_rgb(80, 160, 255);
@@ -98,37 +116,45 @@ pub fn pr_plot(ui: &mut egui::Ui, model: &InspectorModel, h: f32) {
 }
 
 pub fn vs_k_plot(ui: &mut egui::Ui, model: &InspectorModel, h: f32) {
+    let title = titled("RRE / RTE against K", &model.plots.vs_k_source);
     if model.plots.vs_k.is_empty() {
-        no_data(
-            ui,
-            "RRE / RTE against K",
-            "no runs over K for this dataset:\nthe K sweep needs the image branch",
-            h,
-        );
+        no_data(ui, &title, K_EMPTY, h);
         return;
     }
-    let rre: Vec<[f64; 2]> = model
-        .plots
-        .vs_k
+    let pts = &model.plots.vs_k;
+    let rre: Vec<[f64; 2]> = pts.iter().map(|k| [k.k as f64, k.rre_deg]).collect();
+    let rte: Vec<[f64; 2]> = pts.iter().map(|k| [k.k as f64, k.rte_m * 100.0]).collect();
+    let counts = pts
         .iter()
-        .map(|k| [k.k as f64, k.rre_deg])
-        .collect();
-    let rte: Vec<[f64; 2]> = model
-        .plots
-        .vs_k
-        .iter()
-        .map(|k| [k.k as f64, k.rte_m * 100.0])
-        .collect();
-    plot(
+        .map(|k| {
+            format!(
+                "K={}: {} pairs{}{}",
+                k.k,
+                k.pairs,
+                if k.skipped > 0 {
+                    format!(" ({} skipped)", k.skipped)
+                } else {
+                    String::new()
+                },
+                k.recall
+                    .map(|r| format!(", RR {:.0} %", r * 100.0))
+                    .unwrap_or_default()
+            )
+        })
+        .collect::<Vec<_>>()
+        .join(" · ");
+    let pl = plot(
         "vs_k",
-        "RRE / RTE against K",
+        &title,
         "K (views per scan)",
-        "RRE (°) · RTE (cm)",
+        "mean RRE (°) · RTE (cm)",
         ui,
         h,
     )
     .include_y(0.0)
-    .show(ui, |p| {
+    .include_x(0.0);
+    ui.small(counts);
+    pl.show(ui, |p| {
         p.line(
             Line::new("RRE (°)", PlotPoints::from(rre.clone()))
                 .color(RRE_COLOR)
@@ -150,6 +176,15 @@ pub fn vs_k_plot(ui: &mut egui::Ui, model: &InspectorModel, h: f32) {
                 .radius(3.0),
         );
     });
+}
+
+/// "title — source" when the source is known.
+fn titled(title: &str, source: &str) -> String {
+    if source.is_empty() {
+        title.to_owned()
+    } else {
+        format!("{title} — {source}")
+    }
 }
 
 /// An empty plot area that says why it is empty.
@@ -174,13 +209,9 @@ fn no_data(ui: &mut egui::Ui, title: &str, why: &str, h: f32) {
 
 pub fn prompt_plot(ui: &mut egui::Ui, model: &InspectorModel, h: f32) {
     let bars = &model.plots.prompt_study;
+    let title = titled("Prompt study", &model.plots.prompt_source);
     if bars.is_empty() {
-        no_data(
-            ui,
-            "Prompt study (cached generations)",
-            "no cached generations for this dataset:\nthe prompt study needs the image branch",
-            h,
-        );
+        no_data(ui, &title, PROMPT_EMPTY, h);
         return;
     }
     let rre: Vec<Bar> = bars
@@ -189,7 +220,10 @@ pub fn prompt_plot(ui: &mut egui::Ui, model: &InspectorModel, h: f32) {
         .map(|(i, b)| {
             Bar::new(i as f64 - 0.18, b.rre_deg)
                 .width(0.36)
-                .name(format!("{} ({} pairs)", b.category, b.pairs))
+                .name(format!(
+                    "{} ({} pairs, {} skipped)",
+                    b.category, b.pairs, b.skipped
+                ))
         })
         .collect();
     let rte: Vec<Bar> = bars
@@ -198,7 +232,10 @@ pub fn prompt_plot(ui: &mut egui::Ui, model: &InspectorModel, h: f32) {
         .map(|(i, b)| {
             Bar::new(i as f64 + 0.18, b.rte_m * 100.0)
                 .width(0.36)
-                .name(format!("{} ({} pairs)", b.category, b.pairs))
+                .name(format!(
+                    "{} ({} pairs, {} skipped)",
+                    b.category, b.pairs, b.skipped
+                ))
         })
         .collect();
     let names: Vec<String> = bars.iter().map(|b| b.category.clone()).collect();
@@ -206,39 +243,109 @@ pub fn prompt_plot(ui: &mut egui::Ui, model: &InspectorModel, h: f32) {
         .iter()
         .map(|b| b.rre_deg.max(b.rte_m * 100.0))
         .fold(0.0, f64::max);
-    plot(
+    let counts = bars
+        .iter()
+        .map(|b| {
+            format!(
+                "{}: {} pairs{}{}",
+                b.category,
+                b.pairs,
+                if b.skipped > 0 {
+                    format!(" ({} skipped)", b.skipped)
+                } else {
+                    String::new()
+                },
+                b.recall
+                    .map(|r| format!(", RR {:.0} %", r * 100.0))
+                    .unwrap_or_default()
+            )
+        })
+        .collect::<Vec<_>>()
+        .join(" · ");
+    let pl = plot(
         "prompt",
-        "Prompt study (cached generations)",
+        &title,
         "prompt category",
-        "RRE (°) · RTE (cm)",
+        "mean RRE (°) · RTE (cm)",
         ui,
         h,
-    )
-    .include_y(0.0)
-    .include_y(top * 1.25)
-    .x_axis_formatter(move |mark, _range| {
-        let i = mark.value.round();
-        if (mark.value - i).abs() < 1e-6 && i >= 0.0 {
-            names.get(i as usize).cloned().unwrap_or_default()
-        } else {
-            String::new()
-        }
-    })
-    .show(ui, |p| {
-        p.bar_chart(BarChart::new("RRE (°)", rre).color(RRE_COLOR));
-        p.bar_chart(BarChart::new("RTE (cm)", rte).color(RTE_COLOR));
-    });
+    );
+    ui.small(counts);
+    pl.include_y(0.0)
+        .include_y(top * 1.25)
+        .x_axis_formatter(move |mark, _range| {
+            let i = mark.value.round();
+            if (mark.value - i).abs() < 1e-6 && i >= 0.0 {
+                names.get(i as usize).cloned().unwrap_or_default()
+            } else {
+                String::new()
+            }
+        })
+        .show(ui, |p| {
+            p.bar_chart(BarChart::new("RRE (°)", rre).color(RRE_COLOR));
+            p.bar_chart(BarChart::new("RTE (cm)", rte).color(RTE_COLOR));
+        });
 }
 
-/// The four plots in a 2 x 2 grid.
-pub fn plots_panel(ui: &mut egui::Ui, model: &InspectorModel) {
+/// The study buttons and progress, then the four plots in a 2 x 2 grid.
+pub fn plots_panel(
+    ui: &mut egui::Ui,
+    model: &InspectorModel,
+    state: &mut PlotsState,
+    commands: &mut Vec<Command>,
+) {
+    study_bar(ui, model, state, commands);
     let h = ((ui.available_height() - 60.0) / 2.0).max(120.0);
-    let w = (ui.available_width() - 12.0) / 2.0;
     ui.columns(2, |cols| {
-        let _ = w;
         per_pair_plot(&mut cols[0], model, h);
         vs_k_plot(&mut cols[0], model, h);
         pr_plot(&mut cols[1], model, h);
         prompt_plot(&mut cols[1], model, h);
+    });
+}
+
+/// "Run K sweep" (with its K list) and "Run prompt study": commands for the worker thread,
+/// which runs the open dataset's pairs with the current settings; the UI keeps running.
+fn study_bar(
+    ui: &mut egui::Ui,
+    model: &InspectorModel,
+    state: &mut PlotsState,
+    commands: &mut Vec<Command>,
+) {
+    let running = model.plots.study_progress.clone();
+    let ks = crate::pipeline::study::parse_ks(&state.k_list);
+    ui.horizontal(|ui| {
+        let l = ui.label("K values");
+        ui.add(egui::TextEdit::singleline(&mut state.k_list).desired_width(90.0))
+            .labelled_by(l.id);
+        let busy = running.is_some();
+        let k_btn = ui
+            .add_enabled(!busy && ks.is_ok(), egui::Button::new("Run K sweep"))
+            .on_hover_text("RRE/RTE against K (figure 6) over the open dataset's pairs");
+        if k_btn.clicked() {
+            if let Ok(ks) = &ks {
+                commands.push(Command::RunStudy(StudyRequest::K(ks.clone())));
+            }
+        }
+        if ui
+            .add_enabled(!busy, egui::Button::new("Run prompt study"))
+            .on_hover_text(
+                "RRE/RTE per prompt category (figure 4): scene-specific, general, minimal, \
+                 semantically wrong (+ the editor's scene as custom)",
+            )
+            .clicked()
+        {
+            commands.push(Command::RunStudy(StudyRequest::Prompt));
+        }
+        if let Err(e) = &ks {
+            ui.colored_label(egui::Color32::from_rgb(230, 190, 60), e.to_string());
+        }
+        if let Some((what, done, total)) = &running {
+            ui.add(
+                egui::ProgressBar::new(*done as f32 / (*total).max(1) as f32)
+                    .desired_width(220.0)
+                    .text(format!("{what}: {done}/{total}")),
+            );
+        }
     });
 }

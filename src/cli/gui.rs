@@ -65,6 +65,13 @@ pub struct ScreenshotArgs {
     /// plot; failing pairs are listed as failed), then show --pair.
     #[arg(long)]
     pub all_pairs: bool,
+    /// Run the K sweep over the manifest's pairs first (e.g. 1,2,4,8), as the plots panel's
+    /// "Run K sweep" button does.
+    #[arg(long)]
+    pub k_sweep: Option<String>,
+    /// Run the prompt study over the manifest's pairs first ("Run prompt study").
+    #[arg(long)]
+    pub prompt_study: bool,
     #[command(flatten)]
     pub pipeline: PipelineArgs,
     /// Image branch (--wfm oracle|builtin|cached, prompt, VFM, K, margin) and stage cache.
@@ -168,8 +175,14 @@ pub fn run_inspect(a: InspectArgs) -> Result<()> {
     let image = a.image.unwrap_or(di);
     let (worker, id) = open(a.manifest.as_deref(), a.pair.as_deref(), &pipeline, &image)?;
     let model = worker.initial_model(Some(&id));
-    crate::app::run_gui_with(model, Box::new(worker), vec![Command::SelectPair(id)])
-        .map_err(Error::Invalid)
+    // Without an explicit dataset, the data opened last time comes back (the demo when that
+    // fails); `screenshot` and the tests never read the settings file.
+    let initial = if a.manifest.is_none() {
+        crate::app::startup_commands(crate::app::default_settings_path().as_deref(), &id)
+    } else {
+        vec![Command::SelectPair(id)]
+    };
+    crate::app::run_gui_with(model, Box::new(worker), initial).map_err(Error::Invalid)
 }
 
 pub fn run_screenshot(a: ScreenshotArgs) -> Result<()> {
@@ -206,6 +219,21 @@ pub fn run_screenshot(a: ScreenshotArgs) -> Result<()> {
                 }
             }
         }
+    }
+    let mut studies = Vec::new();
+    if let Some(ks) = &a.k_sweep {
+        studies.push(crate::app::StudyRequest::K(
+            crate::pipeline::study::parse_ks(ks)?,
+        ));
+    }
+    if a.prompt_study {
+        studies.push(crate::app::StudyRequest::Prompt);
+    }
+    for req in studies {
+        let t = std::time::Instant::now();
+        let rep = worker.run_study(&req, &mut |_, _| {})?;
+        eprint!("{}", crate::pipeline::study::markdown_table(&rep));
+        eprintln!("({:.1} s)", t.elapsed().as_secs_f64());
     }
     let t = std::time::Instant::now();
     let mut model = worker.run_pair(&id)?;

@@ -6,6 +6,7 @@ mod cache;
 #[cfg(feature = "gui")]
 mod gui;
 mod register;
+mod study;
 mod table;
 
 use clap::{Parser, Subcommand};
@@ -28,6 +29,9 @@ pub enum Command {
     Register(register::RegisterArgs),
     /// Register every pair of a dataset manifest and print the paper-style table.
     Bench(bench::BenchArgs),
+    /// Parameter studies over a manifest's pairs: RRE/RTE against K (figure 6) or per prompt
+    /// category (figure 4).
+    Study(study::StudyArgs),
     /// Several `bench --json` results as one table in the layout of the paper's Table 4.
     Table(table::TableArgs),
     /// List, verify or remove cache entries.
@@ -46,6 +50,7 @@ pub fn main() -> ExitCode {
         Some(Command::Register(a)) => register::run(a),
         Some(Command::Bench(a)) => bench::run(a),
         Some(Command::Cache(a)) => cache::run(a),
+        Some(Command::Study(a)) => study::run(a),
         Some(Command::Table(a)) => table::run(a),
         #[cfg(feature = "gui")]
         Some(Command::Inspect(a)) => gui::run_inspect(a),

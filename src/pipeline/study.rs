@@ -1,0 +1,618 @@
+//! Parameter studies of the paper: RRE/RTE against the number of views K (figure 6) and per
+//! prompt category (figure 4). Every setting runs the same pairs with everything else fixed,
+//! through the stage cache, so a K sweep re-uses one generation per pair (K only selects views)
+//! and a prompt study needs one generation per prompt.
+//!
+//! Nothing is faked: a pair whose generation is not available (not cached and not generated,
+//! or a cached Cosmos video made from another prompt) is skipped and counted with its reason;
+//! a K that is invalid for L and m skips the whole setting. Every report carries the backend
+//! ids of the generations that were actually used (from their provenance), the VFM and the
+//! fusion mode.
+//!
+//! Aggregates of a row: mean / median RRE (degrees) and RTE (metres) over the pairs that ran;
+//! registration recall with the metrics module's success rule (RRE <= 15 deg and RTE <= 0.3 m)
+//! over the pairs that ran plus those that failed with an error (a failure counts as
+//! unsuccessful, as in `bench`); skipped pairs enter no aggregate.
+
+use super::cache::Cache;
+use super::image_branch::{register_with_image_keep, GENERATION_NOT_CACHED};
+use super::params::{ImageBranchParams, RegisterParams};
+use crate::dataset::manifest::Dataset;
+use crate::dataset::ScanPair;
+use crate::error::{Error, Result};
+use crate::metrics::{PairMetrics, Summary};
+use crate::wfm::{Prompt, PromptPreset};
+use serde::Serialize;
+use std::time::Instant;
+
+/// Which parameter a study varies.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum StudyKind {
+    /// Views per side K (figure 6).
+    K,
+    /// Prompt category (figure 4).
+    Prompt,
+}
+
+/// One setting of a study: everything else comes from the base parameters.
+#[derive(Clone, Debug, PartialEq)]
+pub enum StudySetting {
+    K(usize),
+    Prompt { label: String, prompt: Prompt },
+}
+
+impl StudySetting {
+    /// "K = 4", or the prompt's label ("scene-specific", "custom", ...).
+    pub fn label(&self) -> String {
+        match self {
+            StudySetting::K(k) => format!("K = {k}"),
+            StudySetting::Prompt { label, .. } => label.clone(),
+        }
+    }
+
+    fn apply(&self, base: &ImageBranchParams) -> ImageBranchParams {
+        let mut ib = base.clone();
+        match self {
+            StudySetting::K(k) => ib.k = *k,
+            StudySetting::Prompt { prompt, .. } => ib.prompt = prompt.clone(),
+        }
+        ib
+    }
+}
+
+/// The settings of a K sweep.
+pub fn k_settings(ks: &[usize]) -> Vec<StudySetting> {
+    ks.iter().map(|&k| StudySetting::K(k)).collect()
+}
+
+/// The paper's four prompt categories (presets, with `prefix` as the shared prefix), plus an
+/// optional custom scene description labelled "custom".
+pub fn prompt_settings(prefix: &str, custom_scene: Option<&str>) -> Vec<StudySetting> {
+    let mut v: Vec<StudySetting> = PromptPreset::ALL
+        .into_iter()
+        .map(|p| StudySetting::Prompt {
+            label: p.name().to_string(),
+            prompt: Prompt::new(prefix, p.default_scene()),
+        })
+        .collect();
+    if let Some(s) = custom_scene.filter(|s| !s.trim().is_empty()) {
+        v.push(StudySetting::Prompt {
+            label: "custom".into(),
+            prompt: Prompt::new(prefix, s.trim()),
+        });
+    }
+    v
+}
+
+/// One pair under one setting.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct StudyPairResult {
+    pub pair_id: String,
+    pub rre_deg: f64,
+    pub rte_m: f64,
+    pub inlier_ratio: f64,
+    pub success: bool,
+    /// Backend id of the generation used (its provenance), e.g. "oracle".
+    pub backend: String,
+    pub time_s: f64,
+}
+
+/// A pair that did not enter the aggregates, and why.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct PairNote {
+    pub pair_id: String,
+    pub reason: String,
+}
+
+/// The aggregate of one setting over the pairs.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct StudyRow {
+    /// "K = 4", "scene-specific", ...
+    pub setting: String,
+    pub k: usize,
+    /// The full prompt text of this setting.
+    pub prompt: String,
+    /// The whole setting was skipped (e.g. K invalid for L and m).
+    pub setting_skipped: Option<String>,
+    /// Pairs that ran and have metrics.
+    pub pairs_run: usize,
+    /// Pairs left out of every aggregate (generation not available, no ground truth).
+    pub skipped: Vec<PairNote>,
+    /// Pairs whose registration failed with an error: unsuccessful in the recall.
+    pub failed: Vec<PairNote>,
+    pub rre_mean_deg: Option<f64>,
+    pub rre_median_deg: Option<f64>,
+    pub rte_mean_m: Option<f64>,
+    pub rte_median_m: Option<f64>,
+    /// Successes / (pairs run + pairs failed); None when both are 0.
+    pub recall: Option<f64>,
+    pub per_pair: Vec<StudyPairResult>,
+}
+
+impl StudyRow {
+    fn new(s: &StudySetting, ib: &ImageBranchParams) -> Self {
+        StudyRow {
+            setting: s.label(),
+            k: ib.k,
+            prompt: ib.prompt.text(),
+            setting_skipped: None,
+            pairs_run: 0,
+            skipped: Vec::new(),
+            failed: Vec::new(),
+            rre_mean_deg: None,
+            rre_median_deg: None,
+            rte_mean_m: None,
+            rte_median_m: None,
+            recall: None,
+            per_pair: Vec::new(),
+        }
+    }
+
+    fn summarise(&mut self) {
+        self.pairs_run = self.per_pair.len();
+        let pm: Vec<PairMetrics> = self
+            .per_pair
+            .iter()
+            .map(|p| PairMetrics {
+                rre_deg: p.rre_deg,
+                rte_m: p.rte_m,
+                inlier_ratio: p.inlier_ratio,
+                success: p.success,
+            })
+            .collect();
+        let s = Summary::from_pairs(&pm);
+        let some = |x: f64| (!pm.is_empty()).then_some(x);
+        self.rre_mean_deg = some(s.rre_mean);
+        self.rre_median_deg = some(s.rre_median);
+        self.rte_mean_m = some(s.rte_mean);
+        self.rte_median_m = some(s.rte_median);
+        let n = pm.len() + self.failed.len();
+        self.recall = (n > 0).then(|| pm.iter().filter(|p| p.success).count() as f64 / n as f64);
+    }
+}
+
+/// A whole study, labelled with what produced it.
+#[derive(Clone, Debug, Serialize)]
+pub struct StudyReport {
+    pub kind: StudyKind,
+    /// Backend ids of the generations actually used (from provenance), in order of first use;
+    /// empty when no pair ran.
+    pub backends: Vec<String>,
+    /// The configured backend, in words (shown when no pair ran).
+    pub configured_backend: String,
+    /// The VFM that described the views (e.g. "xfeat@… (onnx, native ORT …)"), else its name.
+    pub vfm: String,
+    pub fusion: String,
+    pub pairs: Vec<String>,
+    pub rows: Vec<StudyRow>,
+    /// Things a reader must know (e.g. the oracle ignores prompts).
+    pub notes: Vec<String>,
+    pub params: RegisterParams,
+}
+
+impl StudyReport {
+    /// "oracle · xfeat@… · fusion NoisyAnd" (plot titles, table headers).
+    pub fn label(&self) -> String {
+        let b = if self.backends.is_empty() {
+            self.configured_backend.clone()
+        } else {
+            self.backends.join(", ")
+        };
+        format!("{b} · {} · fusion {}", self.vfm, self.fusion)
+    }
+}
+
+/// Progress of a study: `done` of `total` (pair, setting) runs finished.
+#[derive(Clone, Debug, PartialEq)]
+pub struct StudyProgress {
+    pub done: usize,
+    pub total: usize,
+    pub pair: String,
+    pub setting: String,
+}
+
+/// The configured backend in words (the true ids come from provenance once a pair ran).
+pub fn backend_label(spec: &super::params::WfmSpec) -> String {
+    use super::params::WfmSpec;
+    match spec {
+        WfmSpec::Oracle => "oracle (real RGB)".into(),
+        WfmSpec::Builtin => "builtin-depthshade-v1 (NOT a WFM)".into(),
+        WfmSpec::Cached { dir, .. } => format!("cached:{}", dir.display()),
+        WfmSpec::Cosmos { command, .. } => format!("cosmos:{}", command.join(" ")),
+    }
+}
+
+/// Runs `settings` over the pairs `pair_ids` of `ds` (loaded once each); see
+/// [`run_study_with`].
+pub fn run_study(
+    ds: &Dataset,
+    pair_ids: &[String],
+    params: &RegisterParams,
+    settings: &[StudySetting],
+    cache: Option<&Cache>,
+    generate: bool,
+    progress: &mut dyn FnMut(&StudyProgress),
+) -> Result<StudyReport> {
+    run_study_with(
+        pair_ids,
+        &mut |id| ds.load_pair(id),
+        params,
+        settings,
+        cache,
+        generate,
+        progress,
+    )
+}
+
+/// Runs every setting on every pair (pairs outer, so each pair is loaded once), with
+/// `params.image` as the base of the image branch. `generate` false: a generation missing
+/// from the cache is not produced and the pair is skipped for that setting. Errors only when
+/// the study cannot start (no image branch, mixed setting kinds); per-pair problems become
+/// skipped or failed entries.
+pub fn run_study_with(
+    pair_ids: &[String],
+    load: &mut dyn FnMut(&str) -> Result<ScanPair>,
+    params: &RegisterParams,
+    settings: &[StudySetting],
+    cache: Option<&Cache>,
+    generate: bool,
+    progress: &mut dyn FnMut(&StudyProgress),
+) -> Result<StudyReport> {
+    let base = params.image.as_ref().ok_or_else(|| {
+        Error::Invalid(
+            "a study needs the image branch: choose a WFM backend (e.g. --wfm oracle or \
+             --wfm builtin)"
+                .into(),
+        )
+    })?;
+    let kind = match settings.first() {
+        Some(StudySetting::K(_)) => StudyKind::K,
+        Some(StudySetting::Prompt { .. }) => StudyKind::Prompt,
+        None => return Err(Error::Invalid("a study needs at least one setting".into())),
+    };
+    if settings
+        .iter()
+        .any(|s| matches!(s, StudySetting::K(_)) != (kind == StudyKind::K))
+    {
+        return Err(Error::Invalid(
+            "a study varies one parameter: K values and prompts cannot be mixed".into(),
+        ));
+    }
+    let ibs: Vec<ImageBranchParams> = settings.iter().map(|s| s.apply(base)).collect();
+    let mut rows: Vec<StudyRow> = settings
+        .iter()
+        .zip(&ibs)
+        .map(|(s, ib)| {
+            let mut r = StudyRow::new(s, ib);
+            // Invalid K / m for L: the pipeline would refuse every pair the same way.
+            if let Err(e) = crate::wfm::select_views(
+                2 * ib.frames_per_fragment,
+                ib.frames_per_fragment,
+                ib.margin,
+                ib.k,
+            ) {
+                r.setting_skipped = Some(e.to_string());
+            }
+            r
+        })
+        .collect();
+    let mut notes = Vec::new();
+    if kind == StudyKind::Prompt && matches!(base.backend, super::params::WfmSpec::Oracle) {
+        notes.push(
+            "the oracle backend ignores the prompt: every category uses the same real RGB \
+             frames"
+                .to_string(),
+        );
+    }
+    let mut backends: Vec<String> = Vec::new();
+    let mut vfm: Option<String> = None;
+    let runnable = rows.iter().filter(|r| r.setting_skipped.is_none()).count();
+    let total = runnable * pair_ids.len();
+    let mut done = 0usize;
+    for id in pair_ids {
+        let pair = match load(id) {
+            Ok(p) => Some(p),
+            Err(e) => {
+                for r in rows.iter_mut().filter(|r| r.setting_skipped.is_none()) {
+                    r.failed.push(PairNote {
+                        pair_id: id.clone(),
+                        reason: format!("loading the pair: {e}"),
+                    });
+                }
+                None
+            }
+        };
+        for (row, ib) in rows.iter_mut().zip(&ibs) {
+            if row.setting_skipped.is_some() {
+                continue;
+            }
+            if let Some(pair) = &pair {
+                run_one(
+                    pair,
+                    params,
+                    ib,
+                    cache,
+                    generate,
+                    kind,
+                    row,
+                    &mut backends,
+                    &mut vfm,
+                );
+            }
+            done += 1;
+            progress(&StudyProgress {
+                done,
+                total,
+                pair: id.clone(),
+                setting: row.setting.clone(),
+            });
+        }
+    }
+    for r in &mut rows {
+        r.summarise();
+    }
+    Ok(StudyReport {
+        kind,
+        backends,
+        configured_backend: backend_label(&base.backend),
+        vfm: vfm.unwrap_or_else(|| base.vfm.name().to_string()),
+        fusion: format!("{:?}", params.fusion.mode),
+        pairs: pair_ids.to_vec(),
+        rows,
+        notes,
+        params: params.clone(),
+    })
+}
+
+#[allow(clippy::too_many_arguments)]
+fn run_one(
+    pair: &ScanPair,
+    params: &RegisterParams,
+    ib: &ImageBranchParams,
+    cache: Option<&Cache>,
+    generate: bool,
+    kind: StudyKind,
+    row: &mut StudyRow,
+    backends: &mut Vec<String>,
+    vfm: &mut Option<String>,
+) {
+    let note = |reason: String| PairNote {
+        pair_id: pair.id.clone(),
+        reason,
+    };
+    if pair.gt_target_from_source.is_none() {
+        row.skipped
+            .push(note("no ground truth: RRE/RTE cannot be measured".into()));
+        return;
+    }
+    let t = Instant::now();
+    let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        register_with_image_keep(pair, params, ib, cache, generate)
+    }));
+    let r = match r {
+        Ok(Ok((r, _))) => r,
+        Ok(Err(e)) if e.to_string().contains(GENERATION_NOT_CACHED) => {
+            let e = e.to_string();
+            let at = e.find(GENERATION_NOT_CACHED).unwrap_or(0);
+            row.skipped.push(note(e[at..].to_string()));
+            return;
+        }
+        Ok(Err(e)) => {
+            row.failed.push(note(e.to_string()));
+            return;
+        }
+        Err(_) => {
+            row.failed.push(note("the registration panicked".into()));
+            return;
+        }
+    };
+    let Some(img) = r.image.as_ref() else {
+        row.failed
+            .push(note("the image branch produced no output".into()));
+        return;
+    };
+    let prov = &img.provenance;
+    // A cached Cosmos video keeps the prompt it was made with: in a prompt study, frames from
+    // another prompt would be counted under the wrong category.
+    let used = prov.prompt.trim();
+    if kind == StudyKind::Prompt && !used.is_empty() && used != ib.prompt.text().trim() {
+        row.skipped.push(note(format!(
+            "the {} frames were generated with another prompt (\"{}\")",
+            prov.backend,
+            used.chars().take(60).collect::<String>()
+        )));
+        return;
+    }
+    let Some(m) = r.metrics else {
+        row.skipped
+            .push(note("no metrics (no ground truth)".into()));
+        return;
+    };
+    if !backends.contains(&prov.backend) {
+        backends.push(prov.backend.clone());
+    }
+    if vfm.is_none() {
+        *vfm = Some(img.vfm.clone());
+    }
+    row.per_pair.push(StudyPairResult {
+        pair_id: pair.id.clone(),
+        rre_deg: m.rre_deg,
+        rte_m: m.rte_m,
+        inlier_ratio: m.inlier_ratio,
+        success: m.success,
+        backend: prov.backend.clone(),
+        time_s: t.elapsed().as_secs_f64(),
+    });
+}
+
+/// Parses "1,2,4,8" (spaces allowed) into K values; a bad entry is a clear error.
+pub fn parse_ks(s: &str) -> Result<Vec<usize>> {
+    let ks: Vec<usize> = s
+        .split(',')
+        .map(str::trim)
+        .filter(|t| !t.is_empty())
+        .map(|t| {
+            t.parse::<usize>().map_err(|_| {
+                Error::Invalid(format!(
+                    "K list {s:?}: {t:?} is not a whole number (expected e.g. 1,2,4,8)"
+                ))
+            })
+        })
+        .collect::<Result<_>>()?;
+    if ks.is_empty() {
+        return Err(Error::Invalid(format!(
+            "K list {s:?} is empty (expected e.g. 1,2,4,8)"
+        )));
+    }
+    Ok(ks)
+}
+
+/// The report as a Markdown table (the CLI prints it; docs/studies.md quotes it).
+pub fn markdown_table(rep: &StudyReport) -> String {
+    let mut out = format!(
+        "{} study · backend {} · VFM {} · fusion {} · {} pairs\n\n",
+        match rep.kind {
+            StudyKind::K => "K",
+            StudyKind::Prompt => "Prompt",
+        },
+        if rep.backends.is_empty() {
+            format!("{} (no pair ran)", rep.configured_backend)
+        } else {
+            rep.backends.join(", ")
+        },
+        rep.vfm,
+        rep.fusion,
+        rep.pairs.len()
+    );
+    out.push_str(
+        "| setting | run | skipped | failed | RR % | RRE mean° | RRE med° | RTE mean cm | RTE med cm |\n",
+    );
+    out.push_str("|---|---|---|---|---|---|---|---|---|\n");
+    let f = |x: Option<f64>, scale: f64| x.map_or("–".into(), |v| format!("{:.2}", v * scale));
+    for r in &rep.rows {
+        if let Some(why) = &r.setting_skipped {
+            out.push_str(&format!(
+                "| {} | – | all ({why}) | – | – | – | – | – | – |\n",
+                r.setting
+            ));
+            continue;
+        }
+        out.push_str(&format!(
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {} |\n",
+            r.setting,
+            r.pairs_run,
+            r.skipped.len(),
+            r.failed.len(),
+            r.recall.map_or("–".into(), |v| format!("{:.1}", 100.0 * v)),
+            f(r.rre_mean_deg, 1.0),
+            f(r.rre_median_deg, 1.0),
+            f(r.rte_mean_m, 100.0),
+            f(r.rte_median_m, 100.0),
+        ));
+    }
+    for n in &rep.notes {
+        out.push_str(&format!("\nnote: {n}\n"));
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ks_parse_and_reject_garbage() {
+        assert_eq!(parse_ks("1, 2,4,8").unwrap(), vec![1, 2, 4, 8]);
+        assert!(parse_ks("1,x").unwrap_err().to_string().contains("\"x\""));
+        assert!(parse_ks(" , ").is_err());
+    }
+
+    #[test]
+    fn prompt_settings_are_the_four_categories_plus_custom() {
+        let s = prompt_settings("P:", Some("a barn"));
+        let labels: Vec<String> = s.iter().map(|x| x.label()).collect();
+        assert_eq!(
+            labels,
+            [
+                "scene-specific",
+                "general",
+                "minimal",
+                "semantically-wrong",
+                "custom"
+            ]
+        );
+        match &s[4] {
+            StudySetting::Prompt { prompt, .. } => assert_eq!(prompt.text(), "P: a barn"),
+            _ => unreachable!(),
+        }
+        assert_eq!(prompt_settings("P:", Some("  ")).len(), 4);
+    }
+
+    #[test]
+    fn study_without_image_branch_or_mixed_kinds_is_an_error() {
+        let p = RegisterParams::default();
+        let e = run_study_with(
+            &[],
+            &mut |_| unreachable!(),
+            &p,
+            &k_settings(&[1]),
+            None,
+            true,
+            &mut |_| {},
+        )
+        .unwrap_err();
+        assert!(e.to_string().contains("image branch"), "{e}");
+        let p = RegisterParams {
+            image: Some(ImageBranchParams::default()),
+            ..Default::default()
+        };
+        let mut mixed = k_settings(&[1]);
+        mixed.extend(prompt_settings("", None));
+        let e = run_study_with(
+            &[],
+            &mut |_| unreachable!(),
+            &p,
+            &mixed,
+            None,
+            true,
+            &mut |_| {},
+        )
+        .unwrap_err();
+        assert!(e.to_string().contains("cannot be mixed"), "{e}");
+    }
+
+    #[test]
+    fn row_summary_counts_failures_in_recall_only() {
+        let s = StudySetting::K(2);
+        let mut r = StudyRow::new(&s, &ImageBranchParams::default());
+        for (i, (rre, rte, ok)) in [(1.0, 0.02, true), (30.0, 0.5, false), (3.0, 0.04, true)]
+            .into_iter()
+            .enumerate()
+        {
+            r.per_pair.push(StudyPairResult {
+                pair_id: format!("p{i}"),
+                rre_deg: rre,
+                rte_m: rte,
+                inlier_ratio: 0.5,
+                success: ok,
+                backend: "b".into(),
+                time_s: 0.0,
+            });
+        }
+        r.failed.push(PairNote {
+            pair_id: "p3".into(),
+            reason: "x".into(),
+        });
+        r.skipped.push(PairNote {
+            pair_id: "p4".into(),
+            reason: "y".into(),
+        });
+        r.summarise();
+        assert_eq!(r.pairs_run, 3);
+        assert!((r.rre_mean_deg.unwrap() - 34.0 / 3.0).abs() < 1e-12);
+        assert_eq!(r.rre_median_deg, Some(3.0));
+        assert!((r.rte_median_m.unwrap() - 0.04).abs() < 1e-12);
+        assert_eq!(r.recall, Some(0.5));
+    }
+}

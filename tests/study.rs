@@ -1,0 +1,141 @@
+//! Parameter studies (figure 6: K sweep; figure 4: prompt categories) on the bundled demo with
+//! the built-in generator (NOT a WFM) + XFeat, through a temporary stage cache.
+#![cfg(feature = "onnx")]
+
+use cgenreg::dataset::Dataset;
+use cgenreg::pipeline::cache::Cache;
+use cgenreg::pipeline::image_branch::{register_with_image, GENERATION_NOT_CACHED};
+use cgenreg::pipeline::study::{
+    k_settings, markdown_table, prompt_settings, run_study, StudyKind, StudyProgress,
+};
+use cgenreg::pipeline::{ImageBranchParams, RegisterParams, WfmSpec};
+use std::path::Path;
+
+fn params() -> RegisterParams {
+    RegisterParams {
+        voxel: 0.05,
+        image: Some(ImageBranchParams {
+            backend: WfmSpec::Builtin,
+            // The demo has 8 frames per sequence: L = 8, m = 1, so K in 1..=7.
+            frames_per_fragment: 8,
+            margin: 1,
+            k: 2,
+            ..Default::default()
+        }),
+        ..Default::default()
+    }
+}
+
+fn demo() -> (Dataset, Vec<String>) {
+    let ds = Dataset::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/demo/demo.toml"))
+        .unwrap();
+    let ids = ds.pairs().iter().map(|p| p.id.clone()).collect();
+    (ds, ids)
+}
+
+#[test]
+fn k_sweep_matches_direct_runs_and_skips_invalid_k() {
+    let (ds, ids) = demo();
+    let dir = tempfile::tempdir().unwrap();
+    let cache = Cache::open(dir.path()).unwrap();
+    let p = params();
+    let mut seen: Vec<StudyProgress> = Vec::new();
+    let rep = run_study(
+        &ds,
+        &ids,
+        &p,
+        &k_settings(&[1, 2, 9]),
+        Some(&cache),
+        true,
+        &mut |pr| seen.push(pr.clone()),
+    )
+    .unwrap();
+    assert_eq!(rep.kind, StudyKind::K);
+    assert_eq!(rep.rows.len(), 3);
+    // K = 9 > L - m = 7: the whole setting is skipped with the pipeline's reason.
+    let bad = &rep.rows[2];
+    assert_eq!(bad.setting, "K = 9");
+    assert!(
+        bad.setting_skipped.as_deref().unwrap().contains("K = 9"),
+        "{bad:?}"
+    );
+    assert_eq!(bad.pairs_run, 0);
+    assert!(bad.rre_mean_deg.is_none() && bad.recall.is_none());
+    // Progress counts only runnable (pair, setting) runs.
+    assert_eq!(seen.len(), 2 * ids.len());
+    assert_eq!(seen.last().unwrap().done, seen.last().unwrap().total);
+    // Labelled with the generations' true source.
+    assert_eq!(rep.backends.len(), 1);
+    assert!(
+        rep.backends[0].starts_with("builtin-depthshade-v1"),
+        "{:?}",
+        rep.backends
+    );
+    assert!(rep.vfm.starts_with("xfeat@"), "{}", rep.vfm);
+    assert_eq!(rep.fusion, "NoisyAnd");
+    let pair = ds.load_pair(&ids[0]).unwrap();
+    for (row, k) in rep.rows[..2].iter().zip([1usize, 2]) {
+        assert_eq!(row.k, k);
+        assert_eq!(row.pairs_run, 1, "{row:?}");
+        assert!(row.skipped.is_empty() && row.failed.is_empty(), "{row:?}");
+        // Same numbers as the pipeline run directly at this K (in memory, no cache).
+        let mut ib = p.image.clone().unwrap();
+        ib.k = k;
+        let direct = register_with_image(&pair, &p, &ib, None).unwrap();
+        let m = direct.metrics.unwrap();
+        let got = &row.per_pair[0];
+        assert_eq!((got.rre_deg, got.rte_m), (m.rre_deg, m.rte_m), "K = {k}");
+        assert_eq!(row.rre_mean_deg, Some(m.rre_deg));
+        assert_eq!(row.rte_median_m, Some(m.rte_m));
+        assert_eq!(row.recall, Some(if m.success { 1.0 } else { 0.0 }));
+    }
+    let table = markdown_table(&rep);
+    assert!(table.contains("builtin-depthshade-v1") && table.contains("| K = 9 | – | all ("));
+}
+
+#[test]
+fn prompt_study_has_four_categories_and_never_fakes_missing_generations() {
+    let (ds, ids) = demo();
+    let dir = tempfile::tempdir().unwrap();
+    let cache = Cache::open(dir.path()).unwrap();
+    let p = params();
+    let settings = prompt_settings(cgenreg::wfm::prompt::DEFAULT_PREFIX, None);
+
+    // Nothing cached and generation not allowed: every pair is skipped, with the reason.
+    let rep = run_study(&ds, &ids, &p, &settings, Some(&cache), false, &mut |_| {}).unwrap();
+    assert_eq!(rep.kind, StudyKind::Prompt);
+    assert_eq!(rep.rows.len(), 4);
+    for r in &rep.rows {
+        assert_eq!(r.pairs_run, 0);
+        assert_eq!(r.skipped.len(), ids.len());
+        assert!(
+            r.skipped[0].reason.starts_with(GENERATION_NOT_CACHED),
+            "{r:?}"
+        );
+        assert!(r.rre_mean_deg.is_none());
+    }
+    assert!(rep.backends.is_empty());
+
+    // With the built-in generator allowed to run: one generation per prompt, four rows.
+    let rep = run_study(&ds, &ids, &p, &settings, Some(&cache), true, &mut |_| {}).unwrap();
+    let labels: Vec<&str> = rep.rows.iter().map(|r| r.setting.as_str()).collect();
+    assert_eq!(
+        labels,
+        ["scene-specific", "general", "minimal", "semantically-wrong"]
+    );
+    for r in &rep.rows {
+        assert_eq!(r.pairs_run, 1, "{r:?}");
+        assert!(r.rre_mean_deg.unwrap().is_finite());
+        assert!(r.prompt.ends_with(
+            cgenreg::wfm::PromptPreset::parse(&r.setting)
+                .unwrap()
+                .default_scene()
+        ));
+    }
+    // One generation per prompt in the cache (the K sweep, by contrast, needs one per pair).
+    let gens = std::fs::read_dir(dir.path().join("generation"))
+        .unwrap()
+        .filter(|e| e.as_ref().unwrap().path().is_dir())
+        .count();
+    assert_eq!(gens, 4);
+}
