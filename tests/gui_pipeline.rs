@@ -234,6 +234,19 @@ fn worker_runs_the_image_branch_from_the_cache_and_refuses_from_memory() {
     assert_eq!((m.source_views.len(), m.target_views.len()), (2, 2));
     assert!(m.source_views[0].label.backend.contains("oracle"));
     assert!(m.generation_missing.is_none());
+    // Figure 7 from the kept similarities: Noisy-AND and Noisy-OR, recall up to 1.
+    let curves = w
+        .fusion_pr_curves()
+        .expect("image branch + GT give both curves");
+    assert_eq!(curves.len(), 2);
+    assert!(curves[0].name.starts_with("Noisy-AND") && curves[1].name.starts_with("Noisy-OR"));
+    for c in &curves {
+        assert!(c
+            .points
+            .iter()
+            .all(|p| (0.0..=1.0).contains(&p[0]) && (0.0..=1.0).contains(&p[1])));
+        assert!((c.points.last().unwrap()[0] - 1.0).abs() < 1e-9);
+    }
     // Each view carries the depth frame it came from, its camera and what it sees.
     for (views, cloud) in [(&m.source_views, &m.source), (&m.target_views, &m.target)] {
         for v in views {

@@ -731,7 +731,7 @@ mod demo {
                 .collect(),
         };
         let plots = PlotData {
-            pr_curves: vec![pr("Noisy-AND", 2.6), pr("Noisy-OR", 1.4)],
+            pr_curves: vec![pr("Noisy-AND (made-up)", 2.6), pr("Noisy-OR (made-up)", 1.4)],
             vs_k: (1..=6)
                 .map(|k| KPoint {
                     k,

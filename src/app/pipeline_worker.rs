@@ -52,6 +52,8 @@ use crate::pipeline::{
 
 /// Inlier threshold of the GT flags on correspondences (metres).
 pub const GT_INLIER_M: f64 = 0.10;
+/// A match is correct within this distance under the ground truth in the paper's figure 7.
+pub const FIGURE7_CORRECT_M: f64 = 0.05;
 /// Display points per cloud on top of the keypoints.
 pub const DISPLAY_POINTS: usize = 150_000;
 /// Top-k of the "Top-k by score" selection rule.
@@ -1328,6 +1330,66 @@ impl PipelineWorker {
         }
     }
 
+    /// The paper's figure 7: precision-recall of the fused matches under Noisy-AND and under
+    /// Noisy-OR (a match is correct within 5 cm under the ground truth, as in appendix D), from
+    /// the kept similarities with the current calibration and selection. None without the
+    /// image branch or ground truth.
+    pub fn fusion_pr_curves(&self) -> Option<Vec<PrCurve>> {
+        let cur = self.current.as_ref()?;
+        let kept = cur.kept.as_ref()?;
+        let sims = kept.sims.as_ref()?;
+        let (s_img, vs, vt) = sims.image.as_ref()?;
+        let gt = cur.pair.gt_target_from_source?;
+        let params = settings_to_params(&self.settings, &self.base);
+        let sk = &kept.inputs.source_geo.keypoints.points;
+        let tk = &kept.inputs.target_geo.keypoints.points;
+        let curves: Vec<PrCurve> = [
+            (FusionMode::NoisyAnd, "Noisy-AND"),
+            (FusionMode::NoisyOr, "Noisy-OR"),
+        ]
+        .into_iter()
+        .filter_map(|(mode, name)| {
+            let mut f = params.fusion;
+            f.mode = mode;
+            let corr = crate::fusion::match_then_fuse_select(
+                Some((s_img, Some(vs.as_slice()), Some(vt.as_slice()))),
+                Some(&sims.geo),
+                &f,
+            )
+            .ok()?;
+            let matches: Vec<MatchInfo> = corr
+                .iter()
+                .filter_map(|c| {
+                    let (sp, tp) = (sk.get(c.src as usize)?, tk.get(c.tgt as usize)?);
+                    let d = (gt * sp.cast::<f64>() - tp.cast::<f64>()).norm();
+                    Some(MatchInfo {
+                        src: c.src as usize,
+                        tgt: c.tgt as usize,
+                        score: c.score,
+                        inlier_gt: Some(d < FIGURE7_CORRECT_M),
+                        branch: Branch::Both,
+                        survived: None,
+                    })
+                })
+                .collect();
+            pr_curve(&format!("{name} ({} matches)", matches.len()), &matches)
+        })
+        .collect();
+        (curves.len() == 2).then_some(curves)
+    }
+
+    /// Sends the current model again with both figure-7 curves, after the model itself went out
+    /// (the two extra fusions must not delay the view).
+    fn send_figure7(&mut self, events: &EventSink) {
+        let Some(curves) = self.fusion_pr_curves() else {
+            return;
+        };
+        if let Some(c) = self.current.as_mut() {
+            c.model.plots.pr_curves = curves;
+            events.send(WorkerEvent::Model(Box::new(c.model.clone())));
+        }
+    }
+
     fn run_and_report(&mut self, id: &str, generate: bool, events: &EventSink) {
         events.send(WorkerEvent::Stage(StageInfo {
             name: "load + register".into(),
@@ -1346,7 +1408,10 @@ impl PipelineWorker {
 impl Worker for PipelineWorker {
     fn handle(&mut self, command: Command, events: &EventSink) {
         match command {
-            Command::SelectPair(id) => self.run_and_report(&id, true, events),
+            Command::SelectPair(id) => {
+                self.run_and_report(&id, true, events);
+                self.send_figure7(events);
+            }
             Command::ApplySettings(s) => {
                 // a new prompt or seed is not generated without asking (the button)
                 let generate = s.prompt() == self.settings.prompt() && s.seed == self.settings.seed;
@@ -1360,6 +1425,7 @@ impl Worker for PipelineWorker {
                     Some(r) => self.report(&id, t, r, "re-fuse from memory", events),
                     None => self.run_and_report(&id, generate, events),
                 }
+                self.send_figure7(events);
             }
             Command::RunStudy(req) => self.study(req, events),
             Command::InspectSourcePoint(i) => match self.inspect_point(i) {

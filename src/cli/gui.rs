@@ -242,6 +242,10 @@ pub fn run_screenshot(a: ScreenshotArgs) -> Result<()> {
         t.elapsed().as_secs_f64() * 1e3,
         model.matches.len()
     );
+    // Figure 7 (Noisy-AND against Noisy-OR), as the inspector shows it after a run.
+    if let Some(curves) = worker.fusion_pr_curves() {
+        model.plots.pr_curves = curves;
+    }
     if panel == Panel::Posterior {
         // posteriors of the best-scored surviving matches (inliers under GT first)
         let mut order: Vec<usize> = (0..model.matches.len()).collect();
