@@ -731,7 +731,10 @@ mod demo {
                 .collect(),
         };
         let plots = PlotData {
-            pr_curves: vec![pr("Noisy-AND (made-up)", 2.6), pr("Noisy-OR (made-up)", 1.4)],
+            pr_curves: vec![
+                pr("Noisy-AND (made-up)", 2.6),
+                pr("Noisy-OR (made-up)", 1.4),
+            ],
             vs_k: (1..=6)
                 .map(|k| KPoint {
                     k,

@@ -16,6 +16,9 @@ pub struct InspectArgs {
     /// Pair id within the manifest (default: its first pair).
     #[arg(long)]
     pub pair: Option<String>,
+    /// Open the bundled demo even when other data was opened last time.
+    #[arg(long, conflicts_with = "manifest")]
+    pub demo: bool,
     #[command(flatten)]
     pub pipeline: Option<PipelineArgs>,
     /// Image branch (WFM backend, prompt, VFM, K, margin) and stage cache; the controls
@@ -177,7 +180,7 @@ pub fn run_inspect(a: InspectArgs) -> Result<()> {
     let model = worker.initial_model(Some(&id));
     // Without an explicit dataset, the data opened last time comes back (the demo when that
     // fails); `screenshot` and the tests never read the settings file.
-    let initial = if a.manifest.is_none() {
+    let initial = if a.manifest.is_none() && !a.demo {
         crate::app::startup_commands(crate::app::default_settings_path().as_deref(), &id)
     } else {
         vec![Command::SelectPair(id)]
