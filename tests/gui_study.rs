@@ -358,3 +358,48 @@ fn opening_a_cosmos_folder_switches_the_image_branch_and_keeps_the_dataset() {
         std::thread::sleep(Duration::from_millis(10));
     }
 }
+
+/// Figure 7 on request: a run leaves the curves pending (one curve, the current fusion's);
+/// Command::Figure7 (sent by the plots panel) brings Noisy-AND and Noisy-OR, once.
+#[test]
+fn figure7_is_computed_when_the_plots_ask_for_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut w = PipelineWorker::open_manifest(&demo_manifest(), base()).unwrap();
+    w.set_cache(Some(Cache::open(dir.path()).unwrap()));
+    let id = w.pair_ids()[0].clone();
+    let h = spawn_worker(Box::new(w), None);
+    let wait_model = |what: &str| {
+        let t0 = Instant::now();
+        loop {
+            for e in h.poll() {
+                if let WorkerEvent::Model(m) = e {
+                    return m;
+                }
+            }
+            assert!(
+                t0.elapsed() < Duration::from_secs(600),
+                "no model for {what}"
+            );
+            std::thread::sleep(Duration::from_millis(10));
+        }
+    };
+    assert!(h.send(Command::SelectPair(id)));
+    let m = wait_model("the run");
+    assert!(m.plots.figure7_pending, "demo has GT and the image branch");
+    assert_eq!(m.plots.pr_curves.len(), 1);
+    assert!(h.send(Command::Figure7));
+    let m = wait_model("figure 7");
+    assert!(!m.plots.figure7_pending);
+    let names: Vec<&str> = m.plots.pr_curves.iter().map(|c| c.name.as_str()).collect();
+    assert!(
+        names.len() == 2 && names[0].starts_with("Noisy-AND") && names[1].starts_with("Noisy-OR"),
+        "{names:?}"
+    );
+    // Asked again: nothing to do, no new model.
+    assert!(h.send(Command::Figure7));
+    std::thread::sleep(Duration::from_millis(300));
+    assert!(!h
+        .poll()
+        .into_iter()
+        .any(|e| matches!(e, WorkerEvent::Model(_))));
+}

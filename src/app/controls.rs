@@ -296,6 +296,9 @@ pub enum Command {
     InspectSourcePoint(usize),
     /// Run a parameter study over the open dataset's pairs with the current settings.
     RunStudy(StudyRequest),
+    /// Precision-recall of Noisy-AND and Noisy-OR for the current pair (figure 7), sent by
+    /// the plots panel while it is shown, so other tabs never pay for the two extra fusions.
+    Figure7,
     /// Open data (the last opened, at start); if that fails, log why and register
     /// `fallback_pair` of the dataset already loaded (the bundled demo).
     OpenOrFallback {
@@ -327,6 +330,7 @@ impl Command {
                     Command::InspectSourcePoint(_)
                 )
                 | (Command::SelectPair(_), Command::SelectPair(_))
+                | (Command::Figure7, Command::Figure7)
         )
     }
 }

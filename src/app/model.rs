@@ -207,6 +207,9 @@ pub struct PlotData {
     pub prompt_source: String,
     /// A study running on the worker: (what, runs done, runs in all).
     pub study_progress: Option<(String, usize, usize)>,
+    /// Both figure-7 curves can be computed (image branch + ground truth) but are not in
+    /// `pr_curves` yet: the plots panel asks the worker for them when it is shown.
+    pub figure7_pending: bool,
 }
 
 /// Everything the inspector shows. Plain data, cheap to read every frame.
@@ -765,6 +768,7 @@ mod demo {
             vs_k_source: "synthetic UI fixture (made-up values)".into(),
             prompt_source: "synthetic UI fixture (made-up values)".into(),
             study_progress: None,
+            figure7_pending: false,
         };
 
         InspectorModel {

@@ -1262,6 +1262,7 @@ impl PipelineWorker {
         match r {
             Ok(mut model) => {
                 self.studies.fill(&mut model.plots);
+                model.plots.figure7_pending = self.figure7_possible();
                 let ms = t.elapsed().as_secs_f64() * 1e3;
                 if model.stages.first().is_none_or(|s| s.name != stage) {
                     model.stages.insert(
@@ -1378,14 +1379,32 @@ impl PipelineWorker {
         (curves.len() == 2).then_some(curves)
     }
 
-    /// Sends the current model again with both figure-7 curves, after the model itself went out
-    /// (the two extra fusions must not delay the view).
+    /// Whether [`Self::fusion_pr_curves`] has what it needs (kept image similarity, GT).
+    fn figure7_possible(&self) -> bool {
+        self.current.as_ref().is_some_and(|c| {
+            c.pair.gt_target_from_source.is_some()
+                && c.kept
+                    .as_ref()
+                    .and_then(|k| k.sims.as_ref())
+                    .is_some_and(|s| s.image.is_some())
+        })
+    }
+
+    /// Puts both figure-7 curves into the current model and sends it, once per model.
     fn send_figure7(&mut self, events: &EventSink) {
-        let Some(curves) = self.fusion_pr_curves() else {
+        if !self
+            .current
+            .as_ref()
+            .is_some_and(|c| c.model.plots.figure7_pending)
+        {
             return;
-        };
+        }
+        let curves = self.fusion_pr_curves();
         if let Some(c) = self.current.as_mut() {
-            c.model.plots.pr_curves = curves;
+            c.model.plots.figure7_pending = false;
+            if let Some(curves) = curves {
+                c.model.plots.pr_curves = curves;
+            }
             events.send(WorkerEvent::Model(Box::new(c.model.clone())));
         }
     }
@@ -1408,10 +1427,8 @@ impl PipelineWorker {
 impl Worker for PipelineWorker {
     fn handle(&mut self, command: Command, events: &EventSink) {
         match command {
-            Command::SelectPair(id) => {
-                self.run_and_report(&id, true, events);
-                self.send_figure7(events);
-            }
+            Command::SelectPair(id) => self.run_and_report(&id, true, events),
+            Command::Figure7 => self.send_figure7(events),
             Command::ApplySettings(s) => {
                 // a new prompt or seed is not generated without asking (the button)
                 let generate = s.prompt() == self.settings.prompt() && s.seed == self.settings.seed;
@@ -1425,7 +1442,6 @@ impl Worker for PipelineWorker {
                     Some(r) => self.report(&id, t, r, "re-fuse from memory", events),
                     None => self.run_and_report(&id, generate, events),
                 }
-                self.send_figure7(events);
             }
             Command::RunStudy(req) => self.study(req, events),
             Command::InspectSourcePoint(i) => match self.inspect_point(i) {

@@ -302,6 +302,10 @@ pub fn plots_panel(
     commands: &mut Vec<Command>,
 ) {
     study_bar(ui, model, state, commands);
+    if model.plots.figure7_pending && !commands.contains(&Command::Figure7) {
+        // Repeated each frame until the worker answers; queued copies coalesce.
+        commands.push(Command::Figure7);
+    }
     let h = ((ui.available_height() - 60.0) / 2.0).max(120.0);
     ui.columns(2, |cols| {
         per_pair_plot(&mut cols[0], model, h);

@@ -248,6 +248,7 @@ pub fn run_screenshot(a: ScreenshotArgs) -> Result<()> {
     // Figure 7 (Noisy-AND against Noisy-OR), as the inspector shows it after a run.
     if let Some(curves) = worker.fusion_pr_curves() {
         model.plots.pr_curves = curves;
+        model.plots.figure7_pending = false;
     }
     if panel == Panel::Posterior {
         // posteriors of the best-scored surviving matches (inliers under GT first)
