@@ -243,6 +243,7 @@ fn view_depth_and_visibility(
     depth_path: &std::path::Path,
     cam: &ViewCamera,
     cloud: &[[f32; 3]],
+    cloud_key: &blake3::Hash,
 ) -> Option<ViewExtras> {
     static MEMO: std::sync::OnceLock<std::sync::Mutex<Vec<(blake3::Hash, ViewExtras)>>> =
         std::sync::OnceLock::new();
@@ -252,11 +253,7 @@ fn view_depth_and_visibility(
         h.update(&x.to_le_bytes());
     }
     h.update(format!("{:?}", cam.camera).as_bytes());
-    for p in cloud {
-        for c in p {
-            h.update(&c.to_le_bytes());
-        }
-    }
+    h.update(cloud_key.as_bytes());
     let key = h.finalize();
     let memo = MEMO.get_or_init(Default::default);
     if let Some(hit) = memo
@@ -371,6 +368,16 @@ pub fn result_to_model(
         })
         .collect();
 
+    // One content hash per display cloud keys the views' visibility memo (hashed as one
+    // buffer: per-value updates cost more than the fusion they follow).
+    let cloud_key = |c: &[[f32; 3]]| {
+        let bytes: Vec<u8> = c
+            .iter()
+            .flat_map(|p| p.iter().flat_map(|x| x.to_le_bytes()))
+            .collect();
+        blake3::hash(&bytes)
+    };
+    let (source_key, target_key) = (cloud_key(&source), cloud_key(&target));
     let (source_views, target_views, note) = match &result.image {
         Some(img) => {
             let prov = &img.provenance;
@@ -404,12 +411,16 @@ pub fn result_to_model(
                             cloud_from_camera: pose,
                             camera: v.camera.clone(),
                         });
-                        let cloud = if is_src { &source } else { &target };
+                        let (cloud, cloud_key) = if is_src {
+                            (&source, &source_key)
+                        } else {
+                            (&target, &target_key)
+                        };
                         let shown = v
                             .depth_path
                             .as_deref()
                             .zip(cam.as_ref())
-                            .and_then(|(p, c)| view_depth_and_visibility(p, c, cloud));
+                            .and_then(|(p, c)| view_depth_and_visibility(p, c, cloud, cloud_key));
                         ViewImage {
                             label: ViewLabel {
                                 backend: prov.model.clone(),
