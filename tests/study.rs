@@ -139,3 +139,36 @@ fn prompt_study_has_four_categories_and_never_fakes_missing_generations() {
         .count();
     assert_eq!(gens, 4);
 }
+
+/// A cancelled study stops before its next pair, keeps what ran and says so.
+#[test]
+fn a_cancelled_study_keeps_the_pairs_run_and_says_so() {
+    use std::sync::atomic::{AtomicBool, Ordering};
+    let (ds, ids) = demo();
+    let pair = ds.load_pair(&ids[0]).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let cache = Cache::open(dir.path()).unwrap();
+    // The same pair under three ids: the flag goes up after the first one's run.
+    let names: Vec<String> = (0..3).map(|i| format!("{}#{i}", ids[0])).collect();
+    let cancel = AtomicBool::new(false);
+    let rep = cgenreg::pipeline::study::run_study_with(
+        &names,
+        &mut |_| Ok(pair.clone()),
+        &params(),
+        &k_settings(&[2]),
+        Some(&cache),
+        true,
+        &mut |_| cancel.store(true, Ordering::Relaxed),
+        Some(&cancel),
+    )
+    .unwrap();
+    assert_eq!(rep.rows[0].pairs_run, 1, "{:?}", rep.rows[0]);
+    assert!(rep.rows[0].failed.is_empty() && rep.rows[0].skipped.is_empty());
+    assert!(
+        rep.notes
+            .iter()
+            .any(|n| n.contains("cancelled after 1 of 3")),
+        "{:?}",
+        rep.notes
+    );
+}

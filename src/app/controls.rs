@@ -383,6 +383,11 @@ pub trait Worker: Send + 'static {
     /// and results through `events`. Errors must be reported as `WorkerEvent::Log(Error, ..)`
     /// and stage `Failed` states, never by panicking.
     fn handle(&mut self, command: Command, events: &EventSink);
+    /// The flag [`WorkerHandle::send`] raises on [`Command::Cancel`], read by long work
+    /// (studies) while the worker thread is busy. Default: nothing to cancel.
+    fn cancel_flag(&self) -> Option<std::sync::Arc<std::sync::atomic::AtomicBool>> {
+        None
+    }
 }
 
 /// A worker that only logs what it receives (for a UI without a pipeline).
@@ -401,11 +406,19 @@ impl Worker for LogOnlyWorker {
 pub struct WorkerHandle {
     tx: Sender<Command>,
     rx: Receiver<WorkerEvent>,
+    cancel: Option<std::sync::Arc<std::sync::atomic::AtomicBool>>,
     _thread: Option<std::thread::JoinHandle<()>>,
 }
 
 impl WorkerHandle {
+    /// Queues `command`. A Cancel also raises the worker's cancel flag at once, since a busy
+    /// worker reads the queue only when its current task ends.
     pub fn send(&self, command: Command) -> bool {
+        if command == Command::Cancel {
+            if let Some(c) = &self.cancel {
+                c.store(true, std::sync::atomic::Ordering::Relaxed);
+            }
+        }
         self.tx.send(command).is_ok()
     }
     /// Drains pending events without blocking.
@@ -434,6 +447,7 @@ pub fn spawn_worker(mut worker: Box<dyn Worker>, ctx: Option<egui::Context>) -> 
     let (tx, cmd_rx) = channel::<Command>();
     let (ev_tx, rx) = channel::<WorkerEvent>();
     let sink = EventSink { tx: ev_tx, ctx };
+    let cancel = worker.cancel_flag();
     let thread = std::thread::Builder::new()
         .name("cgenreg-worker".into())
         .spawn(move || {
@@ -461,6 +475,7 @@ pub fn spawn_worker(mut worker: Box<dyn Worker>, ctx: Option<egui::Context>) -> 
     WorkerHandle {
         tx,
         rx,
+        cancel,
         _thread: thread,
     }
 }

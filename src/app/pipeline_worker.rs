@@ -823,6 +823,9 @@ pub struct PipelineWorker {
     cache_note: Option<String>,
     /// Results of the last K sweep / prompt study on this dataset (kept in every model).
     studies: StudyPlots,
+    /// Set by the UI thread (WorkerHandle::send(Command::Cancel)) to stop a running study
+    /// between pairs; the worker is busy then and reads no commands.
+    cancel: Arc<std::sync::atomic::AtomicBool>,
 }
 
 /// What the plots panel shows of the studies run on the open dataset.
@@ -924,6 +927,7 @@ impl PipelineWorker {
             cache,
             cache_note,
             studies: StudyPlots::default(),
+            cancel: Arc::default(),
         }
     }
 
@@ -1436,6 +1440,10 @@ impl PipelineWorker {
 }
 
 impl Worker for PipelineWorker {
+    fn cancel_flag(&self) -> Option<Arc<std::sync::atomic::AtomicBool>> {
+        Some(self.cancel.clone())
+    }
+
     fn handle(&mut self, command: Command, events: &EventSink) {
         match command {
             Command::SelectPair(id) => self.run_and_report(&id, true, events),
@@ -1509,7 +1517,7 @@ impl Worker for PipelineWorker {
             }
             Command::Cancel => events.log(
                 LogLevel::Info,
-                "cancel: registrations run to completion (nothing queued was dropped)",
+                "cancel: a running study stops before its next pair; registrations run to completion",
             ),
         }
     }
@@ -1559,6 +1567,7 @@ impl PipelineWorker {
             self.cache.as_deref(),
             generate,
             &mut |p| progress(p.done, p.total),
+            Some(&self.cancel),
         )?;
         let (k, p) = study_plots(&rep);
         let runs: usize = rep.rows.iter().map(|r| r.pairs_run).sum();
@@ -1604,6 +1613,8 @@ impl PipelineWorker {
             ),
         );
         let t = Instant::now();
+        self.cancel
+            .store(false, std::sync::atomic::Ordering::Relaxed);
         let r = self.run_study(&req, &mut |done, total| {
             events.send(WorkerEvent::Progress(what.to_string(), done, total))
         });

@@ -357,6 +357,13 @@ fn study_bar(
                     .desired_width(220.0)
                     .text(format!("{what}: {done}/{total}")),
             );
+            if ui
+                .button("Cancel")
+                .on_hover_text("stop before the next pair; the plot shows the pairs run so far")
+                .clicked()
+            {
+                commands.push(Command::Cancel);
+            }
         }
     });
 }

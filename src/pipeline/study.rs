@@ -242,6 +242,7 @@ pub fn run_study(
         cache,
         generate,
         progress,
+        None,
     )
 }
 
@@ -250,6 +251,9 @@ pub fn run_study(
 /// from the cache is not produced and the pair is skipped for that setting. Errors only when
 /// the study cannot start (no image branch, mixed setting kinds); per-pair problems become
 /// skipped or failed entries.
+// Every argument is an independent input of the study (pairs, loader, parameters, settings,
+// cache, generation policy, progress, cancellation); a struct would only rename them.
+#[allow(clippy::too_many_arguments)]
 pub fn run_study_with(
     pair_ids: &[String],
     load: &mut dyn FnMut(&str) -> Result<ScanPair>,
@@ -258,6 +262,7 @@ pub fn run_study_with(
     cache: Option<&Cache>,
     generate: bool,
     progress: &mut dyn FnMut(&StudyProgress),
+    cancel: Option<&std::sync::atomic::AtomicBool>,
 ) -> Result<StudyReport> {
     let base = params.image.as_ref().ok_or_else(|| {
         Error::Invalid(
@@ -311,6 +316,13 @@ pub fn run_study_with(
     let total = runnable * pair_ids.len();
     let mut done = 0usize;
     for id in pair_ids {
+        // Checked between pairs: a cancelled study keeps the pairs already run, says so.
+        if cancel.is_some_and(|c| c.load(std::sync::atomic::Ordering::Relaxed)) {
+            notes.push(format!(
+                "cancelled after {done} of {total} runs: the rows cover only the pairs run"
+            ));
+            break;
+        }
         let pair = match load(id) {
             Ok(p) => Some(p),
             Err(e) => {
@@ -560,6 +572,7 @@ mod tests {
             None,
             true,
             &mut |_| {},
+            None,
         )
         .unwrap_err();
         assert!(e.to_string().contains("image branch"), "{e}");
@@ -577,6 +590,7 @@ mod tests {
             None,
             true,
             &mut |_| {},
+            None,
         )
         .unwrap_err();
         assert!(e.to_string().contains("cannot be mixed"), "{e}");
