@@ -280,9 +280,18 @@ fn main() {
         stage("top-8000", t, p);
     }
 
-    if !wanted("cosine") {
-        return;
+    if wanted("cosine") {
+        cosine_table();
     }
+    if wanted("rownn") {
+        row_nn_table();
+    }
+    if let Ok(l) = std::fs::read_to_string("/proc/loadavg") {
+        println!("\nload average after the run: {}", l.trim());
+    }
+}
+
+fn cosine_table() {
     println!("\n| cosine similarity | wall ms (median) | CPU ms / run | peak extra heap (MiB) |");
     println!("|---|---|---|---|");
     for d in [33usize, 256] {
@@ -300,7 +309,19 @@ fn main() {
             mib(peak)
         );
     }
-    if let Ok(l) = std::fs::read_to_string("/proc/loadavg") {
-        println!("\nload average after the run: {}", l.trim());
+}
+
+/// The inspector's geometry-only re-fusion: each row's best target and its row-softmax
+/// probability from a kept similarity matrix.
+fn row_nn_table() {
+    println!("\n| row NN + softmax from a kept similarity | wall ms (median) | CPU ms / run |");
+    println!("|---|---|---|");
+    for n in [5_000usize, 7_000] {
+        let (s, _) = planted(n, 7, 0.3);
+        let (t, _, c) = measure(7, || {
+            cgenreg::fusion::streaming::row_nn_from_similarity(&s, 0.1).unwrap()
+        });
+        assert_eq!(c.len(), n);
+        println!("| {n} x {n} | {:.1} | {} |", t * 1e3, cpu_ms());
     }
 }

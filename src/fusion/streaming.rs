@@ -87,6 +87,7 @@ pub fn row_nn_posterior(src: &Features, tgt: &Features, tau: f32) -> Result<Vec<
 /// A row's first argmax and its row-softmax probability 1 / sum_j exp((s_j - max) / tau), with
 /// `it` = 1/tau. Max and sum run in 8 independent lanes so they vectorise (the sequential
 /// fold/sum were most of the time); both streaming paths share it, so they agree bit for bit.
+/// An AVX2 build of it measured no faster: at 5k x 5k it reads 100 MB per pass.
 #[inline]
 #[allow(clippy::needless_range_loop)]
 fn row_best(row: &[f32], it: f32) -> Option<(usize, f32)> {
