@@ -382,6 +382,13 @@ fn lidar_pair_goes_through_the_ftheta_camera() {
     }
     let r2 = register_pair_cached(&pair, &p2, Some(&cache)).unwrap();
     assert!(r2.warnings.iter().any(|w| w.contains("2 such cameras")));
+    assert!(
+        !r2.warnings
+            .iter()
+            .any(|w| w.contains("of the 2 f-theta cameras")),
+        "both cameras are looked at: {:?}",
+        r2.warnings
+    );
     let img2 = r2.image.as_ref().unwrap();
     let poses: Vec<_> = img2
         .source_views

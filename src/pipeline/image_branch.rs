@@ -843,6 +843,36 @@ pub fn register_with_image_keep(
         }
         let (mut r, inputs) = register_with_image_keep(&p2, params, ib, cache, generate)?;
         r.warnings.extend(notes);
+        // The views follow the reference's stride rule, not the cameras: say when some of
+        // the f-theta cameras were never looked at.
+        if ib.lidar_cameras > 1 {
+            if let Some(img) = &r.image {
+                for (side, views) in [("source", &img.source_views), ("target", &img.target_views)]
+                {
+                    let mut poses: Vec<[f64; 16]> = Vec::new();
+                    for v in views.iter().filter(|v| v.camera.name() == "f-theta") {
+                        let mut a = [0.0; 16];
+                        if let Some(t) = v.scan_from_camera {
+                            a.copy_from_slice(t.to_homogeneous().as_slice());
+                        }
+                        if !poses.contains(&a) {
+                            poses.push(a);
+                        }
+                    }
+                    if !views.is_empty() && poses.len() < ib.lidar_cameras.min(views.len()) {
+                        r.warnings.push(format!(
+                            "the {} selected {side} views see {} of the {} f-theta cameras \
+                             (views follow the stride rule over L = {}, m = {}); raise K",
+                            views.len(),
+                            poses.len(),
+                            ib.lidar_cameras,
+                            ib.frames_per_fragment,
+                            ib.margin
+                        ));
+                    }
+                }
+            }
+        }
         return Ok((r, inputs));
     }
     if !matches!(params.geo_features, super::params::GeoFeatureSource::Fpfh) {
