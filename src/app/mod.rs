@@ -706,7 +706,14 @@ impl App {
                                     );
                                 }
                             });
-                        let n = self.model.matches.len().max(1);
+                        // The range always holds the current value: a slider clamps to its
+                        // range, and the empty model at start-up would pin the count to 1.
+                        let n = self
+                            .model
+                            .matches
+                            .len()
+                            .max(self.ui_state.match_count)
+                            .max(1);
                         ui.add(
                             egui::Slider::new(&mut self.ui_state.match_count, 0..=n)
                                 .text("matches shown"),
@@ -931,14 +938,19 @@ impl eframe::App for EframeApp {
 
 /// Opens the inspector window (blocks until it is closed).
 pub fn run_gui(model: InspectorModel, worker: Box<dyn Worker>) -> Result<(), String> {
-    run_gui_with(model, worker, Vec::new())
+    run_gui_with(model, worker, Vec::new(), None)
 }
 
 /// [`run_gui`], sending `initial` commands to the worker once it runs (e.g. the pair to load).
+///
+/// One set of pipeline settings is in force, and the controls show it: `worker_settings`
+/// (what the worker was started with, e.g. from command-line options) when given, else the
+/// persisted settings, which are then sent to the worker before `initial`.
 pub fn run_gui_with(
     model: InspectorModel,
     worker: Box<dyn Worker>,
     initial: Vec<Command>,
+    worker_settings: Option<PipelineSettings>,
 ) -> Result<(), String> {
     let options = eframe::NativeOptions {
         renderer: eframe::Renderer::Glow,
@@ -957,14 +969,18 @@ pub fn run_gui_with(
             cc.egui_ctx
                 .set_missing_glyph_policy(egui::MissingGlyphPolicy::Tofu);
             let handle = spawn_worker(worker, Some(cc.egui_ctx.clone()));
+            let mut app = App::new(model, None, default_settings_path());
+            match worker_settings {
+                Some(s) => app.settings = s,
+                None => {
+                    handle.send(Command::ApplySettings(app.settings.clone()));
+                }
+            }
             for c in initial {
                 handle.send(c);
             }
-            Ok(Box::new(EframeApp(App::new(
-                model,
-                Some(handle),
-                default_settings_path(),
-            ))))
+            app.worker = Some(handle);
+            Ok(Box::new(EframeApp(app)))
         }),
     )
     .map_err(|e| format!("could not open the inspector window: {e}"))

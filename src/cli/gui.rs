@@ -174,6 +174,7 @@ pub fn run_inspect(a: InspectArgs) -> Result<()> {
         di.margin = 1;
         di.k = 2;
     }
+    let explicit = a.pipeline.is_some() || a.image.is_some();
     let pipeline = a.pipeline.unwrap_or(dp);
     let image = a.image.unwrap_or(di);
     let (worker, id) = open(a.manifest.as_deref(), a.pair.as_deref(), &pipeline, &image)?;
@@ -185,7 +186,12 @@ pub fn run_inspect(a: InspectArgs) -> Result<()> {
     } else {
         vec![Command::SelectPair(id)]
     };
-    crate::app::run_gui_with(model, Box::new(worker), initial).map_err(Error::Invalid)
+    // Options on the command line (or --demo) set the pipeline; otherwise the settings saved
+    // last time do, when there are any. Either way the controls show what runs.
+    let persisted = crate::app::default_settings_path().is_some_and(|p| p.is_file());
+    let worker_settings = (explicit || a.demo || !persisted).then(|| worker.settings().clone());
+    crate::app::run_gui_with(model, Box::new(worker), initial, worker_settings)
+        .map_err(Error::Invalid)
 }
 
 pub fn run_screenshot(a: ScreenshotArgs) -> Result<()> {
