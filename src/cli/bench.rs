@@ -63,18 +63,7 @@ struct SplitSummary {
 
 pub fn run(a: BenchArgs) -> Result<()> {
     let ds = Dataset::load(&a.manifest)?.with_fragment_cache(a.image.fragment_cache_dir());
-    let mut specs: Vec<_> = ds
-        .pairs()
-        .iter()
-        .filter(|p| {
-            a.split
-                .as_ref()
-                .is_none_or(|s| p.split.eq_ignore_ascii_case(s))
-        })
-        .collect();
-    if let Some(n) = a.limit {
-        specs.truncate(n);
-    }
+    let specs = ds.select_pairs(a.split.as_deref(), a.limit);
     if a.list {
         for p in &specs {
             println!("{}\t{}", p.id, p.split);

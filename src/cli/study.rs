@@ -90,19 +90,11 @@ fn run_common(a: &CommonArgs, settings: Vec<StudySetting>) -> Result<()> {
         ));
     }
     let ds = Dataset::load(&a.manifest)?.with_fragment_cache(a.image.fragment_cache_dir());
-    let mut ids: Vec<String> = ds
-        .pairs()
-        .iter()
-        .filter(|p| {
-            a.split
-                .as_ref()
-                .is_none_or(|s| p.split.eq_ignore_ascii_case(s))
-        })
+    let ids: Vec<String> = ds
+        .select_pairs(a.split.as_deref(), a.limit)
+        .into_iter()
         .map(|p| p.id.clone())
         .collect();
-    if let Some(n) = a.limit {
-        ids.truncate(n);
-    }
     if ids.is_empty() {
         return Err(Error::Invalid(format!(
             "{}: no pairs selected",

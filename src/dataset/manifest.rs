@@ -692,6 +692,15 @@ impl Dataset {
         &self.pairs
     }
 
+    /// The pairs of `split` (any case; all when None), the first `limit` of them.
+    pub fn select_pairs(&self, split: Option<&str>, limit: Option<usize>) -> Vec<&PairSpec> {
+        self.pairs
+            .iter()
+            .filter(|p| split.is_none_or(|s| p.split.eq_ignore_ascii_case(s)))
+            .take(limit.unwrap_or(usize::MAX))
+            .collect()
+    }
+
     pub fn fragments(&self) -> &[FragmentSpec] {
         &self.fragments
     }
