@@ -280,17 +280,22 @@ impl InspectorModel {
     /// Axis-aligned bounds of both clouds (target frame for the target, source frame for the
     /// source), used to frame the camera.
     pub fn bounds(&self) -> Option<([f32; 3], [f32; 3])> {
-        let mut it = self.source.iter().chain(self.target.iter());
-        let first = *it.next()?;
-        let (mut lo, mut hi) = (first, first);
-        for p in it {
-            for k in 0..3 {
-                lo[k] = lo[k].min(p[k]);
-                hi[k] = hi[k].max(p[k]);
-            }
-        }
-        Some((lo, hi))
+        bounds_of(self.source.iter().chain(self.target.iter()))
     }
+}
+
+/// Axis-aligned bounds (min, max) of some points; None for none.
+pub fn bounds_of<'a>(pts: impl IntoIterator<Item = &'a [f32; 3]>) -> Option<([f32; 3], [f32; 3])> {
+    let mut it = pts.into_iter();
+    let first = *it.next()?;
+    let (mut lo, mut hi) = (first, first);
+    for p in it {
+        for k in 0..3 {
+            lo[k] = lo[k].min(p[k]);
+            hi[k] = hi[k].max(p[k]);
+        }
+    }
+    Some((lo, hi))
 }
 
 /// Rotation angle between two rotations, degrees, and translation distance, metres.

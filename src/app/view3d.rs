@@ -97,6 +97,8 @@ pub struct View3dState {
     pub camera: OrbitCamera,
     framed_for: Option<u64>,
     positions_for: Option<u64>,
+    /// Depth of the drawn view frusta, from the target's extent (set with the positions).
+    frustum_range: f64,
     source_pos: Arc<Vec<[f32; 3]>>,
     target_pos: Arc<Vec<[f32; 3]>>,
     source_colors: ColorCache,
@@ -277,11 +279,10 @@ pub fn match_rgb(model: &InspectorModel, idx: usize, rank: usize, mode: MatchCol
 fn frustum_lines(
     model: &InspectorModel,
     src_xf: &Isometry3<f64>,
+    range: f64,
     pos: &mut Vec<[f32; 3]>,
     col: &mut Vec<[u8; 4]>,
 ) {
-    // Frusta scale with the scene: 35 cm in a room, metres around a LiDAR scan.
-    let range = frustum_range(&model.target);
     let mut add = |views: &[super::model::ViewImage], xf: &Isometry3<f64>, c: [u8; 3]| {
         for v in views {
             let Some(cam) = &v.camera else { continue };
@@ -306,23 +307,15 @@ fn frustum_lines(
     add(&model.target_views, &Isometry3::identity(), [140, 190, 255]);
 }
 
-/// Frustum depth for display: a tenth of the cloud's bounding-box diagonal, 0.2-15 m.
+/// Frustum depth for display, so frusta scale with the scene (tens of cm in a room, metres
+/// around a LiDAR scan): a tenth of the cloud's bounding-box diagonal, 0.2-15 m.
 fn frustum_range(cloud: &[[f32; 3]]) -> f64 {
-    let (lo, hi) = cloud.iter().fold(
-        ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]),
-        |(mut lo, mut hi), p| {
-            for i in 0..3 {
-                lo[i] = lo[i].min(p[i]);
-                hi[i] = hi[i].max(p[i]);
-            }
-            (lo, hi)
-        },
-    );
-    let d = (0..3).map(|i| (hi[i] - lo[i]).powi(2)).sum::<f32>().sqrt() as f64;
-    if d.is_finite() {
-        (0.1 * d).clamp(0.2, 15.0)
-    } else {
-        0.35
+    match super::model::bounds_of(cloud) {
+        Some((lo, hi)) => {
+            let d = (0..3).map(|i| (hi[i] - lo[i]).powi(2)).sum::<f32>().sqrt() as f64;
+            (0.1 * d).clamp(0.2, 15.0)
+        }
+        None => 0.35,
     }
 }
 
@@ -388,6 +381,7 @@ pub fn scene_ui(
     if state.positions_for != Some(gen) {
         state.source_pos = Arc::new(model.source.clone());
         state.target_pos = Arc::new(model.target.clone());
+        state.frustum_range = frustum_range(&model.target);
         state.positions_for = Some(gen);
     }
 
@@ -509,7 +503,7 @@ pub fn scene_ui(
     let mut fpos = Vec::new();
     let mut fcol = Vec::new();
     if prefs.show_frusta {
-        frustum_lines(model, &src_xf, &mut fpos, &mut fcol);
+        frustum_lines(model, &src_xf, state.frustum_range, &mut fpos, &mut fcol);
     }
     let overlay_lines = keep_or_new(&mut state.overlay, lpos, lcol);
     let scene_lines = keep_or_new(&mut state.frusta, fpos, fcol);
