@@ -268,13 +268,11 @@ fn view_depth_and_visibility(
     // A missing or unreadable depth frame leaves the view without its depth toggle; the
     // pipeline already read the same file, so this is not expected.
     let d = crate::io::depth_png::read_depth_png(depth_path).ok()?;
-    let clip = match cam.camera {
-        crate::camera::CameraModel::FTheta(_) => 65.0,
-        crate::camera::CameraModel::Pinhole(_) => crate::wfm::depth_video::CLIP_METERS,
-    };
-    let g = crate::wfm::depth_video::gray_to_rgb(
-        &crate::wfm::depth_video::encode_depth_frame_clip(&d, clip),
-    );
+    let g =
+        crate::wfm::depth_video::gray_to_rgb(&crate::wfm::depth_video::encode_depth_frame_clip(
+            &d,
+            crate::pipeline::image_branch::depth_video_clip(&cam.camera),
+        ));
     let pts: Vec<Point3<f32>> = cloud
         .iter()
         .map(|p| Point3::new(p[0], p[1], p[2]))

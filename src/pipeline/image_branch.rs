@@ -46,6 +46,15 @@ const LIFT_MAX_DEPTH: f32 = 5.0;
 /// the depth PNGs limits them.
 const LIDAR_MAX_RANGE: f32 = 65.0;
 
+/// Depth-video clip (metres) for frames of `camera`: the reference's 4 m for RGB-D frames,
+/// the whole range for LiDAR (f-theta) frames. The GUI shows depth frames with the same clip.
+pub fn depth_video_clip(camera: &crate::camera::CameraModel) -> f64 {
+    match camera {
+        crate::camera::CameraModel::Pinhole(_) => crate::wfm::depth_video::CLIP_METERS,
+        crate::camera::CameraModel::FTheta(_) => LIDAR_MAX_RANGE as f64,
+    }
+}
+
 /// Lifting clip for frames of `camera`.
 fn lift_max_depth(camera: &crate::camera::CameraModel) -> f32 {
     match camera {
@@ -914,15 +923,11 @@ pub fn register_with_image_keep(
         .map(|p| hash_file(p))
         .collect::<Result<_>>()?;
     let dh: Vec<&str> = depth_hashes.iter().map(String::as_str).collect();
-    // LiDAR (f-theta) frames keep their range; RGB-D frames get the reference's 4 m clip.
+    // One video, one clip: the larger of the two scans' (a LiDAR scan keeps its range).
     let lidar = [src_fs, tgt_fs]
         .iter()
         .any(|fs| matches!(fs.camera, crate::camera::CameraModel::FTheta(_)));
-    let clip = if lidar {
-        LIDAR_MAX_RANGE as f64
-    } else {
-        crate::wfm::depth_video::CLIP_METERS
-    };
+    let clip = depth_video_clip(&src_fs.camera).max(depth_video_clip(&tgt_fs.camera));
     let video_params = if lidar {
         json!({ "L": l, "clip": clip })
     } else {
