@@ -2,6 +2,9 @@
 //! `register_pair`, converted into the model, checked against brute force, and rendered.
 #![cfg(feature = "gui")]
 
+mod common;
+use common::demo_manifest;
+
 use std::path::Path;
 use std::time::{Duration, Instant};
 
@@ -15,10 +18,6 @@ use cgenreg::app::{spawn_worker, Command, Panel, WorkerEvent};
 use cgenreg::dataset::manifest::Dataset;
 use cgenreg::pipeline::{register_pair, RegisterParams};
 use nalgebra::Point3;
-
-fn demo_manifest() -> std::path::PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/demo/demo.toml")
-}
 
 fn params() -> RegisterParams {
     let mut p = RegisterParams::default();
@@ -212,18 +211,9 @@ fn worker_registers_on_the_worker_thread_and_reports_posteriors() {
 #[test]
 fn worker_runs_the_image_branch_from_the_cache_and_refuses_from_memory() {
     use cgenreg::app::controls::WfmChoice;
-    use cgenreg::pipeline::{ImageBranchParams, WfmSpec};
+    use cgenreg::pipeline::WfmSpec;
     let dir = tempfile::tempdir().unwrap();
-    let mut base = RegisterParams {
-        image: Some(ImageBranchParams {
-            backend: WfmSpec::Oracle,
-            frames_per_fragment: 8,
-            margin: 1,
-            k: 2,
-            ..Default::default()
-        }),
-        ..Default::default()
-    };
+    let mut base = common::demo_params(WfmSpec::Oracle);
     let mut w = PipelineWorker::open_manifest(&demo_manifest(), base.clone()).unwrap();
     w.set_cache(Some(
         cgenreg::pipeline::cache::Cache::open(dir.path()).unwrap(),

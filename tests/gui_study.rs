@@ -2,6 +2,9 @@
 //! bundled demo with the built-in generator (NOT a WFM) + XFeat and a temporary stage cache.
 #![cfg(all(feature = "gui", feature = "onnx"))]
 
+mod common;
+use common::demo_manifest;
+
 use std::path::Path;
 use std::time::{Duration, Instant};
 
@@ -11,24 +14,10 @@ use cgenreg::app::{spawn_worker, Command, LogLevel, StudyRequest, WorkerEvent};
 use cgenreg::dataset::Dataset;
 use cgenreg::pipeline::cache::Cache;
 use cgenreg::pipeline::image_branch::register_with_image;
-use cgenreg::pipeline::{ImageBranchParams, RegisterParams, WfmSpec};
-
-fn demo_manifest() -> std::path::PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/demo/demo.toml")
-}
+use cgenreg::pipeline::{RegisterParams, WfmSpec};
 
 fn base() -> RegisterParams {
-    RegisterParams {
-        voxel: 0.05,
-        image: Some(ImageBranchParams {
-            backend: WfmSpec::Builtin,
-            frames_per_fragment: 8,
-            margin: 1,
-            k: 2,
-            ..Default::default()
-        }),
-        ..Default::default()
-    }
+    common::demo_params(WfmSpec::Builtin)
 }
 
 #[test]

@@ -3,6 +3,8 @@
 //! corrupted cache entry reported and recomputed, never used.
 #![cfg(feature = "onnx")]
 
+mod common;
+
 use cgenreg::dataset::Dataset;
 use cgenreg::fusion::Calibration;
 use cgenreg::pipeline::cache::Cache;
@@ -23,19 +25,7 @@ const CACHED: &[&str] = &[
 ];
 
 fn params() -> RegisterParams {
-    RegisterParams {
-        // The demo room is small and dense (fragment voxel 1 cm).
-        voxel: 0.05,
-        image: Some(ImageBranchParams {
-            backend: WfmSpec::Builtin,
-            // The demo has 8 frames per sequence: L = 8, m = 1, K = 2 views ([0, 3] / [1, 4]).
-            frames_per_fragment: 8,
-            margin: 1,
-            k: 2,
-            ..Default::default()
-        }),
-        ..Default::default()
-    }
+    common::demo_params(WfmSpec::Builtin)
 }
 
 fn status(r: &cgenreg::pipeline::RegistrationResult, stage: &str) -> String {
@@ -49,7 +39,7 @@ fn status(r: &cgenreg::pipeline::RegistrationResult, stage: &str) -> String {
 
 #[test]
 fn full_method_on_demo_with_cache() {
-    let manifest = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/demo/demo.toml");
+    let manifest = common::demo_manifest();
     let ds = Dataset::load(&manifest).unwrap();
     let id = ds.pairs()[0].id.clone();
     let pair = ds.load_pair(&id).unwrap();
@@ -156,7 +146,7 @@ fn full_method_on_demo_with_cache() {
 
 #[test]
 fn invalid_k_is_a_clear_error() {
-    let manifest = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/demo/demo.toml");
+    let manifest = common::demo_manifest();
     let ds = Dataset::load(&manifest).unwrap();
     let pair = ds.load_pair(&ds.pairs()[0].id.clone()).unwrap();
     let mut p = params();
@@ -218,7 +208,7 @@ fn fuse_from_kept_similarities_equals_full_tail() {
     use cgenreg::pipeline::image_branch::{
         fuse_and_finish, fuse_and_finish_with, register_with_image_keep, similarities, FusionInputs,
     };
-    let manifest = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/demo/demo.toml");
+    let manifest = common::demo_manifest();
     let ds = Dataset::load(&manifest).unwrap();
     let pair = ds.load_pair(&ds.pairs()[0].id.clone()).unwrap();
     let p = params();
@@ -276,7 +266,7 @@ fn fuse_from_kept_similarities_equals_full_tail() {
 /// pinhole trajectory (cached), then runs as usual, and says so.
 #[test]
 fn cloud_only_pair_renders_virtual_depth_frames() {
-    let manifest = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/demo/demo.toml");
+    let manifest = common::demo_manifest();
     let ds = Dataset::load(&manifest).unwrap();
     let mut pair = ds.load_pair(&ds.pairs()[0].id.clone()).unwrap();
     pair.source.frames = None;

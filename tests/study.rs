@@ -2,33 +2,22 @@
 //! the built-in generator (NOT a WFM) + XFeat, through a temporary stage cache.
 #![cfg(feature = "onnx")]
 
+mod common;
+
 use cgenreg::dataset::Dataset;
 use cgenreg::pipeline::cache::Cache;
 use cgenreg::pipeline::image_branch::{register_with_image, GENERATION_NOT_CACHED};
 use cgenreg::pipeline::study::{
     k_settings, markdown_table, prompt_settings, run_study, StudyKind, StudyProgress,
 };
-use cgenreg::pipeline::{ImageBranchParams, RegisterParams, WfmSpec};
-use std::path::Path;
+use cgenreg::pipeline::{RegisterParams, WfmSpec};
 
 fn params() -> RegisterParams {
-    RegisterParams {
-        voxel: 0.05,
-        image: Some(ImageBranchParams {
-            backend: WfmSpec::Builtin,
-            // The demo has 8 frames per sequence: L = 8, m = 1, so K in 1..=7.
-            frames_per_fragment: 8,
-            margin: 1,
-            k: 2,
-            ..Default::default()
-        }),
-        ..Default::default()
-    }
+    common::demo_params(WfmSpec::Builtin)
 }
 
 fn demo() -> (Dataset, Vec<String>) {
-    let ds = Dataset::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/demo/demo.toml"))
-        .unwrap();
+    let ds = Dataset::load(&common::demo_manifest()).unwrap();
     let ids = ds.pairs().iter().map(|p| p.id.clone()).collect();
     (ds, ids)
 }
