@@ -97,7 +97,7 @@ fn latency(
         .filter(|s| s.state == cgenreg::app::model::StageState::Cached)
         .count();
     let views = m.source_views.len() + m.target_views.len();
-    let mut settings = worker.settings().clone();
+    let mut settings = worker.params().clone();
     let mut r = HeadlessRenderer::new(m, (1280, 800))?;
     r.app.ui_state.tab = Panel::View3d;
     r.frame(false)?;
@@ -105,8 +105,9 @@ fn latency(
     let (mut to_model, mut to_frame) = (Vec::new(), Vec::new());
     let mut stages = String::new();
     for i in 0..reps {
-        settings.geometry_calibration.temperature = if i % 2 == 0 { 0.12 } else { 0.1 };
-        settings.image_calibration.temperature = settings.geometry_calibration.temperature;
+        let tau = if i % 2 == 0 { 0.12 } else { 0.1 };
+        *settings.fusion.calibration_geo.tau_mut() = tau;
+        *settings.fusion.calibration_img.tau_mut() = tau;
         let t = Instant::now();
         h.send(Command::ApplySettings(settings.clone()));
         let model = loop {

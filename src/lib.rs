@@ -17,6 +17,7 @@ pub mod geometry;
 pub mod io;
 pub mod metrics;
 pub mod pipeline;
+pub mod simd;
 pub mod synth;
 pub mod vfm;
 pub mod wfm;

@@ -12,7 +12,7 @@ use cgenreg::app::colormap::{SOURCE_RGB, TARGET_RGB};
 use cgenreg::app::headless::render_screenshot;
 use cgenreg::app::model::{PairStatus, StageState};
 use cgenreg::app::pipeline_worker::{
-    result_to_model, settings_to_params, PipelineWorker, GT_INLIER_M, IMAGE_BRANCH_OFF,
+    result_to_model, PipelineWorker, GT_INLIER_M, IMAGE_BRANCH_OFF,
 };
 use cgenreg::app::{spawn_worker, Command, Panel, WorkerEvent};
 use cgenreg::dataset::manifest::Dataset;
@@ -118,8 +118,8 @@ fn registration_result_becomes_a_consistent_model() {
 fn worker_registers_on_the_worker_thread_and_reports_posteriors() {
     let worker = PipelineWorker::open_manifest(&demo_manifest(), params()).unwrap();
     let id = worker.pair_ids()[0].clone();
-    // settings map back onto the same parameters
-    let p = settings_to_params(worker.settings(), &params());
+    // the worker runs the parameters it was given (fusion shows what a geometry-only run does)
+    let p = worker.params();
     assert_eq!(p.fusion.selection, params().fusion.selection);
     assert_eq!(p.fusion.calibration_geo, params().fusion.calibration_geo);
 
@@ -210,7 +210,6 @@ fn worker_registers_on_the_worker_thread_and_reports_posteriors() {
 /// back to the geometric branch with the reason.
 #[test]
 fn worker_runs_the_image_branch_from_the_cache_and_refuses_from_memory() {
-    use cgenreg::app::controls::WfmChoice;
     use cgenreg::pipeline::WfmSpec;
     let dir = tempfile::tempdir().unwrap();
     let mut base = common::demo_params(WfmSpec::Oracle);
@@ -218,7 +217,7 @@ fn worker_runs_the_image_branch_from_the_cache_and_refuses_from_memory() {
     w.set_cache(Some(
         cgenreg::pipeline::cache::Cache::open(dir.path()).unwrap(),
     ));
-    assert_eq!(w.settings().wfm, WfmChoice::Oracle);
+    assert_eq!(w.params().image.as_ref().unwrap().backend, WfmSpec::Oracle);
     let id = w.pair_ids()[0].clone();
     let m = w.run_pair(&id).unwrap();
     assert_eq!((m.source_views.len(), m.target_views.len()), (2, 2));
@@ -268,9 +267,9 @@ fn worker_runs_the_image_branch_from_the_cache_and_refuses_from_memory() {
         .iter()
         .any(|s| s.name == "generation" && s.state == StageState::Cached));
     // temperature change: fusion onward from memory, views kept
-    let mut s = w.settings().clone();
-    s.geometry_calibration.temperature = 0.05;
-    w.set_settings(s.clone());
+    let mut s = w.params().clone();
+    *s.fusion.calibration_geo.tau_mut() = 0.05;
+    w.set_params(s.clone());
     let m = w
         .refuse()
         .expect("same image settings: re-fuse from memory")
@@ -299,8 +298,8 @@ fn worker_runs_the_image_branch_from_the_cache_and_refuses_from_memory() {
         .iter()
         .all(|v| v.is_finite() && (0.0..=1.0).contains(v)));
     // a new prompt: not generated without asking, no views from the old prompt
-    s.prompt_scene = "a snowy pine forest".into();
-    w.set_settings(s);
+    s.image.as_mut().unwrap().prompt.scene = "a snowy pine forest".into();
+    w.set_params(s);
     assert!(w.refuse().is_none(), "a new prompt needs the image stages");
     let m = w.run_pair_with(&id, false).unwrap();
     assert!(m.generation_missing.is_some());

@@ -6,7 +6,8 @@
 use std::sync::{Arc, Mutex};
 
 use cgenreg::app::colormap::{SOURCE_RGB, TARGET_RGB};
-use cgenreg::app::controls::{spawn_worker, Command, EventSink, PromptPreset, Worker};
+use cgenreg::app::controls::{spawn_worker, Command, EventSink, Worker};
+use cgenreg::wfm::PromptPreset;
 use cgenreg::app::headless::{render_screenshot, HeadlessGl};
 use cgenreg::app::{App, InspectorModel, Panel};
 use eframe::egui;
@@ -125,31 +126,28 @@ fn tabs_and_controls_drive_the_ui_and_the_worker() {
     // a prompt preset re-runs the pipeline through a command, without blocking the UI
     h.get_by_label("Minimal").click();
     h.run_steps(2);
-    assert_eq!(h.state().settings.preset, PromptPreset::Minimal);
-    let t0 = std::time::Instant::now();
-    loop {
-        let got = seen.lock().unwrap().iter().any(|c| {
-            matches!(c, Command::ApplySettings(s) if s.preset == PromptPreset::Minimal && s.prompt_scene == cgenreg::wfm::PromptPreset::Minimal.default_scene())
-        });
-        if got {
-            break;
-        }
-        assert!(
-            t0.elapsed().as_secs() < 5,
-            "worker never got the settings: {:?}",
-            seen.lock().unwrap()
-        );
-        std::thread::sleep(std::time::Duration::from_millis(10));
-    }
+    // the image branch is off: the controls edit the parameters it will run with, and
+    // nothing re-runs (the run does not depend on them)
+    assert_eq!(
+        h.state().image_off.prompt.scene,
+        PromptPreset::Minimal.default_scene()
+    );
+    h.run_steps(3);
+    assert!(
+        !seen
+            .lock()
+            .unwrap()
+            .iter()
+            .any(|c| matches!(c, Command::ApplySettings(_))),
+        "a prompt edit with the image branch off re-ran the pipeline: {:?}",
+        seen.lock().unwrap()
+    );
     // other controls are reachable by label
     assert!(h.query_all_by_label("K views").next().is_some());
     h.get_by_label("Match colours");
     // the image branch's generator is a control (geometry only by default)
     h.get_by_label("WFM");
-    assert_eq!(
-        h.state().settings.wfm,
-        cgenreg::app::controls::WfmChoice::None
-    );
+    assert!(h.state().params.image.is_none());
     assert!(h
         .query_all_by_label("Safeguard margin (frames)")
         .next()

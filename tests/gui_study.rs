@@ -9,7 +9,7 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use cgenreg::app::model::InspectorModel;
-use cgenreg::app::pipeline_worker::{params_to_settings, settings_to_params, PipelineWorker};
+use cgenreg::app::pipeline_worker::PipelineWorker;
 use cgenreg::app::{spawn_worker, Command, LogLevel, StudyRequest, WorkerEvent};
 use cgenreg::dataset::Dataset;
 use cgenreg::pipeline::cache::Cache;
@@ -25,7 +25,7 @@ fn k_sweep_button_fills_the_plot_from_the_worker() {
     let dir = tempfile::tempdir().unwrap();
     let mut w = PipelineWorker::open_manifest(&demo_manifest(), base()).unwrap();
     w.set_cache(Some(Cache::open(dir.path()).unwrap()));
-    let params = settings_to_params(&params_to_settings(&base()), &base());
+    let params = base();
     let h = spawn_worker(Box::new(w), None);
     assert!(h.send(Command::RunStudy(StudyRequest::K(vec![1, 2, 9]))));
     let t0 = Instant::now();
@@ -192,9 +192,7 @@ fn wait_for_done(
 
 // ---- the Open dialog's "Cosmos output folder…" ----
 
-use cgenreg::app::controls::WfmChoice;
 use cgenreg::app::pipeline_worker::{cosmos_output_settings, find_cosmos_spec};
-use cgenreg::app::PipelineSettings;
 
 const LINE: &str = r#"{"prompt": "a kitchen", "visual_input": "", "control_overrides": {"depth": {"input_control": "/d/000000_x.mp4", "control_weight": 1.0}}}"#;
 
@@ -250,28 +248,19 @@ fn cosmos_spec_is_found_next_to_the_output_folder() {
     assert!(e.contains("video_<i>"), "{e}");
 
     // the settings change: cached Cosmos backend with folder + spec, nothing else
-    let s0 = PipelineSettings {
-        k: 3,
-        ..Default::default()
-    };
+    let mut s0 = base();
+    s0.image.as_mut().unwrap().k = 3;
     let s = cosmos_output_settings(&s0, &a).unwrap();
-    assert_eq!(s.wfm, WfmChoice::CachedCosmos);
-    assert_eq!(Path::new(&s.wfm_dir), a.as_path());
-    assert_eq!(Path::new(&s.wfm_spec), a.join("batch.jsonl").as_path());
-    let mut back = s.clone();
-    back.wfm = s0.wfm;
-    back.wfm_dir.clear();
-    back.wfm_spec.clear();
-    assert_eq!(back, s0);
-    // the pipeline gets the same backend as the Image-branch controls would give it
-    let p = settings_to_params(&s, &base());
     assert_eq!(
-        p.image.unwrap().backend,
+        s.image.as_ref().unwrap().backend,
         WfmSpec::Cached {
             dir: a.clone(),
             spec: a.join("batch.jsonl")
         }
     );
+    let mut back = s.clone();
+    back.image.as_mut().unwrap().backend = s0.image.as_ref().unwrap().backend.clone();
+    assert_eq!(back, s0);
 }
 
 #[test]
@@ -313,8 +302,13 @@ fn opening_a_cosmos_folder_switches_the_image_branch_and_keeps_the_dataset() {
         std::thread::sleep(Duration::from_millis(10));
     }
     let s = settings.expect("the controls get the new settings");
-    assert_eq!(s.wfm, WfmChoice::CachedCosmos);
-    assert_eq!(Path::new(&s.wfm_spec), out.join("batch.jsonl").as_path());
+    assert_eq!(
+        s.image.as_ref().unwrap().backend,
+        WfmSpec::Cached {
+            dir: out.clone(),
+            spec: out.join("batch.jsonl")
+        }
+    );
     let m = model.unwrap_or_else(|| panic!("no re-run; log {logs:?}"));
     // same dataset, same pair, re-run; this fake folder has no output.mp4, so the image
     // branch says why and the geometric branch registers alone

@@ -1,8 +1,10 @@
 //! Pipeline controls and the channel to the worker that re-runs the pipeline.
 //!
-//! The UI never computes: every change of a control produces a [`Command`] sent over a
-//! `std::sync::mpsc` channel to a worker thread, which answers with [`WorkerEvent`]s. The
-//! lead implements [`Worker`] on top of the pipeline; [`spawn_worker`] runs it.
+//! The controls edit the pipeline's own [`RegisterParams`] (no UI copy of any setting): a
+//! change sends the whole parameter set in a [`Command::ApplySettings`] over a
+//! `std::sync::mpsc` channel to a worker thread, which answers with [`WorkerEvent`]s.
+//! [`crate::app::pipeline_worker::PipelineWorker`] implements [`Worker`] on top of the
+//! pipeline; [`spawn_worker`] runs it.
 
 use std::path::PathBuf;
 use std::sync::mpsc::{channel, Receiver, Sender, TryRecvError};
@@ -11,240 +13,13 @@ use eframe::egui;
 use serde::{Deserialize, Serialize};
 
 use super::model::{InspectorModel, StageInfo};
+use crate::estimate::EstimatorKind;
+use crate::fusion::{Calibration, FusionMode, Selection};
+use crate::pipeline::params::{ImageBranchParams, RegisterParams, VfmSpec, WfmSpec};
+use crate::wfm::PromptPreset;
 
-/// The four prompt presets of the prompt study (project page ablation).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-pub enum PromptPreset {
-    /// The per-pair scene description from the spec file.
-    SceneSpecific,
-    General,
-    Minimal,
-    /// A deliberately wrong description (robustness study).
-    Wrong,
-}
-
-impl PromptPreset {
-    pub const ALL: [PromptPreset; 4] = [
-        Self::SceneSpecific,
-        Self::General,
-        Self::Minimal,
-        Self::Wrong,
-    ];
-    pub fn label(self) -> &'static str {
-        match self {
-            Self::SceneSpecific => "Scene-specific",
-            Self::General => "General",
-            Self::Minimal => "Minimal",
-            Self::Wrong => "Wrong",
-        }
-    }
-    /// The pipeline's preset (same scene texts as `cgenreg register --prompt-preset`, so the
-    /// GUI and the CLI share cache entries).
-    pub fn pipeline(self) -> crate::wfm::PromptPreset {
-        match self {
-            Self::SceneSpecific => crate::wfm::PromptPreset::SceneSpecific,
-            Self::General => crate::wfm::PromptPreset::General,
-            Self::Minimal => crate::wfm::PromptPreset::Minimal,
-            Self::Wrong => crate::wfm::PromptPreset::SemanticallyWrong,
-        }
-    }
-    /// Scene text the preset puts in the editor: the pipeline's preset text; for
-    /// scene-specific, `scene_specific` (the pair's own description) when one is known.
-    pub fn scene_text(self, scene_specific: &str) -> String {
-        match self {
-            Self::SceneSpecific if !scene_specific.trim().is_empty() => scene_specific.to_owned(),
-            p => p.pipeline().default_scene().to_owned(),
-        }
-    }
-}
-
-/// Which generator produces the image branch's RGB views.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
-pub enum WfmChoice {
-    /// Image branch off: the geometric branch alone.
-    #[default]
-    None,
-    /// The dataset's real colour frames ("C-GenReg (Oracle)").
-    Oracle,
-    /// `builtin-depthshade-v1`: shading of the depth video, not a world foundation model.
-    Builtin,
-    /// An existing Cosmos-Transfer1 output folder plus its JSONL batch spec.
-    CachedCosmos,
-}
-
-impl WfmChoice {
-    pub const ALL: [WfmChoice; 4] = [Self::None, Self::Oracle, Self::Builtin, Self::CachedCosmos];
-    pub fn label(self) -> &'static str {
-        match self {
-            Self::None => "none (geometry only)",
-            Self::Oracle => "oracle (real RGB)",
-            Self::Builtin => "built-in depth shading — NOT a WFM",
-            Self::CachedCosmos => "cached Cosmos output (folder + spec)",
-        }
-    }
-}
-
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-pub enum FusionMode {
-    NoisyAnd,
-    NoisyOr,
-    Concatenation,
-    ImageOnly,
-    GeometryOnly,
-}
-
-impl FusionMode {
-    pub const ALL: [FusionMode; 5] = [
-        Self::NoisyAnd,
-        Self::NoisyOr,
-        Self::Concatenation,
-        Self::ImageOnly,
-        Self::GeometryOnly,
-    ];
-    pub fn label(self) -> &'static str {
-        match self {
-            Self::NoisyAnd => "Noisy-AND",
-            Self::NoisyOr => "Noisy-OR",
-            Self::Concatenation => "Concatenation",
-            Self::ImageOnly => "Image only",
-            Self::GeometryOnly => "Geometry only",
-        }
-    }
-}
-
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-pub enum Calibration {
-    /// Softmax over similarities with a temperature.
-    Softmax,
-    /// Dual softmax (row and column).
-    DualSoftmax,
-    None,
-}
-
-impl Calibration {
-    pub const ALL: [Calibration; 3] = [Self::Softmax, Self::DualSoftmax, Self::None];
-    pub fn label(self) -> &'static str {
-        match self {
-            Self::Softmax => "Softmax",
-            Self::DualSoftmax => "Dual softmax",
-            Self::None => "None",
-        }
-    }
-}
-
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-pub enum SelectionRule {
-    MutualNearest,
-    TopK,
-    /// Each source point's best target, no mutual check (SC2-PCR's FPFH protocol).
-    RowNearest,
-}
-
-impl SelectionRule {
-    pub const ALL: [SelectionRule; 3] = [Self::MutualNearest, Self::TopK, Self::RowNearest];
-    pub fn label(self) -> &'static str {
-        match self {
-            Self::MutualNearest => "Mutual nearest",
-            Self::TopK => "Top-k by score",
-            Self::RowNearest => "Best target per source",
-        }
-    }
-}
-
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-pub enum Estimator {
-    Sc2Pcr,
-    Ransac,
-}
-
-impl Estimator {
-    pub const ALL: [Estimator; 2] = [Self::Sc2Pcr, Self::Ransac];
-    pub fn label(self) -> &'static str {
-        match self {
-            Self::Sc2Pcr => "SC2-PCR",
-            Self::Ransac => "RANSAC",
-        }
-    }
-}
-
-/// Calibration of one branch.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-pub struct BranchCalibration {
-    pub method: Calibration,
-    pub temperature: f32,
-}
-
-/// Every setting that changes a pipeline result. The worker diffs two snapshots to know
-/// which stages to re-run.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct PipelineSettings {
-    pub prompt_prefix: String,
-    pub prompt_scene: String,
-    pub preset: PromptPreset,
-    pub k: usize,
-    /// Safeguard margin m in frames: generated frames [L-m, L+m) around the source/target seam
-    /// are dropped (reference §3).
-    pub margin: usize,
-    pub vfm: String,
-    /// Generator of the image branch's views (None: geometry only).
-    #[serde(default)]
-    pub wfm: WfmChoice,
-    /// Cosmos output folder and JSONL spec for [`WfmChoice::CachedCosmos`].
-    #[serde(default)]
-    pub wfm_dir: String,
-    #[serde(default)]
-    pub wfm_spec: String,
-    /// Generation seed.
-    #[serde(default)]
-    pub seed: u64,
-    /// XFeat ONNX file; empty = the default `models/xfeat.onnx`.
-    #[serde(default)]
-    pub vfm_model: String,
-    pub image_calibration: BranchCalibration,
-    pub geometry_calibration: BranchCalibration,
-    pub fusion: FusionMode,
-    pub selection: SelectionRule,
-    pub estimator: Estimator,
-}
-
-impl Default for PipelineSettings {
-    fn default() -> Self {
-        Self {
-            prompt_prefix: crate::wfm::prompt::DEFAULT_PREFIX.into(),
-            prompt_scene: PromptPreset::SceneSpecific.scene_text(""),
-            preset: PromptPreset::SceneSpecific,
-            k: 4,
-            margin: 3,
-            vfm: "xfeat".into(),
-            wfm: WfmChoice::None,
-            wfm_dir: String::new(),
-            wfm_spec: String::new(),
-            seed: 0,
-            vfm_model: String::new(),
-            image_calibration: BranchCalibration {
-                method: Calibration::Softmax,
-                temperature: 0.1,
-            },
-            geometry_calibration: BranchCalibration {
-                method: Calibration::Softmax,
-                temperature: 0.1,
-            },
-            fusion: FusionMode::NoisyAnd,
-            selection: SelectionRule::MutualNearest,
-            estimator: Estimator::Sc2Pcr,
-        }
-    }
-}
-
-impl PipelineSettings {
-    /// The full prompt sent to the generator (as `crate::wfm::Prompt::text`).
-    pub fn prompt(&self) -> String {
-        self.wfm_prompt().text()
-    }
-    pub fn wfm_prompt(&self) -> crate::wfm::Prompt {
-        crate::wfm::Prompt::new(self.prompt_prefix.trim(), self.prompt_scene.trim())
-    }
-}
+/// k of top-k selection when the inspector switches to it (the reference's 8000).
+pub const DEFAULT_TOPK: usize = crate::fusion::select::REFERENCE_TOP_K;
 
 /// What a dropped or chosen path is meant to be.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -286,8 +61,8 @@ pub enum Command {
         paths: Vec<PathBuf>,
     },
     SelectPair(String),
-    /// New settings snapshot; re-run the stages that depend on what changed, from the cache.
-    ApplySettings(PipelineSettings),
+    /// New parameters; re-run the stages that depend on what changed, from the cache.
+    ApplySettings(RegisterParams),
     /// Run the configured generator for a prompt whose generation is not cached.
     RunGenerator {
         prompt: String,
@@ -353,7 +128,7 @@ pub enum WorkerEvent {
     Progress(String, usize, usize),
     /// The worker changed the settings (e.g. opening a Cosmos output folder switched the image
     /// branch): the controls show these from now on.
-    Settings(Box<PipelineSettings>),
+    Settings(Box<RegisterParams>),
     Log(LogLevel, String),
 }
 
@@ -480,38 +255,75 @@ pub fn spawn_worker(mut worker: Box<dyn Worker>, ctx: Option<egui::Context>) -> 
     }
 }
 
-/// The side-panel controls. Returns the commands the user's changes produced.
+/// A combo box over `options`; the current value is the option of the same kind (`same`), so
+/// choices that carry data (a temperature, k, a model path) keep the current value's data.
+fn choice<T: Clone>(
+    ui: &mut egui::Ui,
+    label: &str,
+    value: &mut T,
+    options: impl IntoIterator<Item = T>,
+    same: impl Fn(&T, &T) -> bool,
+    text: impl Fn(&T) -> &'static str,
+) {
+    egui::ComboBox::from_label(label)
+        .selected_text(text(value))
+        .width(220.0)
+        .show_ui(ui, |ui| {
+            for o in options {
+                let selected = same(value, &o);
+                if ui.selectable_label(selected, text(&o)).clicked() && !selected {
+                    *value = o;
+                }
+            }
+        });
+}
+
+fn same_variant<T>(a: &T, b: &T) -> bool {
+    std::mem::discriminant(a) == std::mem::discriminant(b)
+}
+
+/// The side-panel controls over the pipeline's parameters. `image_off` holds the image
+/// branch's parameters while the branch is off (choosing a WFM again restores them).
+/// Returns the commands the user's changes produced.
 pub fn controls_ui(
     ui: &mut egui::Ui,
-    settings: &mut PipelineSettings,
+    params: &mut RegisterParams,
+    image_off: &mut ImageBranchParams,
     scene_specific: &str,
     out: &mut Vec<Command>,
 ) {
-    let before = settings.clone();
+    let before = params.clone();
+    // the WFM choice decides whether the image branch runs at all
+    let mut backend = params.image.as_ref().map(|ib| ib.backend.clone());
+    let image_on = backend.is_some();
+    let ib: &mut ImageBranchParams = match params.image.as_mut() {
+        Some(ib) => ib,
+        None => image_off,
+    };
     egui::CollapsingHeader::new("Prompt")
         .default_open(true)
         .show(ui, |ui| {
+            let current = PromptPreset::of_scene(&ib.prompt.scene).or_else(|| {
+                (!scene_specific.is_empty() && ib.prompt.scene.trim() == scene_specific.trim())
+                    .then_some(PromptPreset::SceneSpecific)
+            });
             ui.horizontal_wrapped(|ui| {
                 for p in PromptPreset::ALL {
-                    if ui
-                        .selectable_label(settings.preset == p, p.label())
-                        .clicked()
-                    {
-                        settings.preset = p;
-                        settings.prompt_scene = p.scene_text(scene_specific);
+                    if ui.selectable_label(current == Some(p), p.label()).clicked() {
+                        ib.prompt.scene = p.scene_text(scene_specific);
                     }
                 }
             });
             let l = ui.label("Shared prefix");
             ui.add(
-                egui::TextEdit::multiline(&mut settings.prompt_prefix)
+                egui::TextEdit::multiline(&mut ib.prompt.prefix)
                     .desired_rows(2)
                     .desired_width(f32::INFINITY),
             )
             .labelled_by(l.id);
             let l = ui.label("Scene description");
             ui.add(
-                egui::TextEdit::multiline(&mut settings.prompt_scene)
+                egui::TextEdit::multiline(&mut ib.prompt.scene)
                     .desired_rows(3)
                     .desired_width(f32::INFINITY),
             )
@@ -520,106 +332,141 @@ pub fn controls_ui(
     egui::CollapsingHeader::new("Image branch")
         .default_open(true)
         .show(ui, |ui| {
-            egui::ComboBox::from_label("WFM")
-                .selected_text(settings.wfm.label())
-                .width(220.0)
-                .show_ui(ui, |ui| {
-                    for w in WfmChoice::ALL {
-                        ui.selectable_value(&mut settings.wfm, w, w.label());
-                    }
-                });
-            if settings.wfm == WfmChoice::CachedCosmos {
-                path_field(ui, "Cosmos output folder", &mut settings.wfm_dir);
-                path_field(ui, "JSONL spec", &mut settings.wfm_spec);
+            let options = std::iter::once(None).chain(WfmSpec::all().map(|w| match w {
+                // keep the folder, spec or command already given
+                w if w.same_kind(&ib.backend) => Some(ib.backend.clone()),
+                w => Some(w),
+            }));
+            choice(
+                ui,
+                "WFM",
+                &mut backend,
+                options,
+                |a, b| match (a, b) {
+                    (Some(a), Some(b)) => a.same_kind(b),
+                    (None, None) => true,
+                    _ => false,
+                },
+                |w| w.as_ref().map_or("none (geometry only)", |w| w.label()),
+            );
+            if let Some(WfmSpec::Cached { dir, spec }) = &mut backend {
+                path_field(ui, "Cosmos output folder", dir);
+                path_field(ui, "JSONL spec", spec);
+            }
+            if let Some(WfmSpec::Cosmos { command, .. }) = &backend {
+                ui.label(format!("command: {}", command.join(" ")));
             }
             ui.horizontal(|ui| {
                 let l = ui.label("Seed");
-                ui.add(egui::DragValue::new(&mut settings.seed))
-                    .labelled_by(l.id);
+                ui.add(egui::DragValue::new(&mut ib.seed)).labelled_by(l.id);
             });
         });
     egui::CollapsingHeader::new("Views")
         .default_open(true)
         .show(ui, |ui| {
-            ui.add(egui::Slider::new(&mut settings.k, 1..=8).text("K views"));
-            ui.add(
-                egui::Slider::new(&mut settings.margin, 0..=10).text("Safeguard margin (frames)"),
+            ui.add(egui::Slider::new(&mut ib.k, 1..=8).text("K views"));
+            ui.add(egui::Slider::new(&mut ib.margin, 0..=10).text("Safeguard margin (frames)"));
+            let options = VfmSpec::all().map(|v| match v {
+                v if v.same_kind(&ib.vfm) => ib.vfm.clone(),
+                v => v,
+            });
+            choice(
+                ui,
+                "VFM",
+                &mut ib.vfm,
+                options,
+                VfmSpec::same_kind,
+                VfmSpec::label,
             );
-            egui::ComboBox::from_label("VFM")
-                .selected_text(settings.vfm.clone())
-                .show_ui(ui, |ui| {
-                    // MASt3R needs the user's own export in the model field below
-                    ui.selectable_value(&mut settings.vfm, "xfeat".to_owned(), "xfeat");
-                    ui.selectable_value(
-                        &mut settings.vfm,
-                        "mast3r".to_owned(),
-                        "mast3r (your ONNX export)",
-                    );
-                });
-            path_field(ui, "XFeat model (empty: default)", &mut settings.vfm_model);
+            path_field(ui, "VFM model (ONNX)", ib.vfm.model_mut());
         });
     egui::CollapsingHeader::new("Calibration & fusion")
         .default_open(true)
         .show(ui, |ui| {
             for (name, cal) in [
-                ("Image", &mut settings.image_calibration),
-                ("Geometry", &mut settings.geometry_calibration),
+                ("Image", &mut params.fusion.calibration_img),
+                ("Geometry", &mut params.fusion.calibration_geo),
             ] {
-                ui.horizontal(|ui| {
-                    egui::ComboBox::from_label(format!("{name} calibration"))
-                        .selected_text(cal.method.label())
-                        .show_ui(ui, |ui| {
-                            for c in Calibration::ALL {
-                                ui.selectable_value(&mut cal.method, c, c.label());
-                            }
-                        });
-                });
+                let tau = cal.tau();
+                choice(
+                    ui,
+                    &format!("{name} calibration"),
+                    cal,
+                    Calibration::all_with_tau(tau),
+                    same_variant,
+                    |c| c.label(),
+                );
                 ui.add(
-                    egui::Slider::new(&mut cal.temperature, 0.005..=1.0)
+                    egui::Slider::new(cal.tau_mut(), 0.005..=1.0)
                         .logarithmic(true)
                         .text(format!("{name} temperature")),
                 );
             }
-            egui::ComboBox::from_label("Fusion")
-                .selected_text(settings.fusion.label())
-                .show_ui(ui, |ui| {
-                    for f in FusionMode::ALL {
-                        ui.selectable_value(&mut settings.fusion, f, f.label());
-                    }
-                });
-            egui::ComboBox::from_label("Selection")
-                .selected_text(settings.selection.label())
-                .show_ui(ui, |ui| {
-                    for s in SelectionRule::ALL {
-                        ui.selectable_value(&mut settings.selection, s, s.label());
-                    }
-                });
-            egui::ComboBox::from_label("Estimator")
-                .selected_text(settings.estimator.label())
-                .show_ui(ui, |ui| {
-                    for e in Estimator::ALL {
-                        ui.selectable_value(&mut settings.estimator, e, e.label());
-                    }
-                });
+            let mode = &mut params.fusion.mode;
+            choice(ui, "Fusion", mode, FusionMode::ALL, |a, b| a == b, |m| m.label());
+            let k = match params.fusion.selection {
+                Selection::TopK(k) => k,
+                _ => DEFAULT_TOPK,
+            };
+            choice(
+                ui,
+                "Selection",
+                &mut params.fusion.selection,
+                Selection::all_with_k(k),
+                same_variant,
+                |s| s.label(),
+            );
+            if let Selection::TopK(k) = &mut params.fusion.selection {
+                ui.add(egui::Slider::new(k, 100..=20_000).logarithmic(true).text("top-k"));
+            }
+            let options = EstimatorKind::all().map(|e| match e {
+                e if e.same_kind(&params.estimator) => params.estimator.clone(),
+                e => e,
+            });
+            choice(
+                ui,
+                "Estimator",
+                &mut params.estimator,
+                options,
+                EstimatorKind::same_kind,
+                EstimatorKind::label,
+            );
         });
-    if *settings != before {
-        out.push(Command::ApplySettings(settings.clone()));
+    // switch the image branch on or off, keeping its parameters while it is off
+    match (image_on, backend) {
+        (true, Some(b)) => params.image.as_mut().expect("image on").backend = b,
+        (true, None) => *image_off = params.image.take().expect("image on"),
+        (false, Some(b)) => {
+            params.image = Some(ImageBranchParams {
+                backend: b,
+                ..image_off.clone()
+            })
+        }
+        (false, None) => {}
+    }
+    if *params != before {
+        let mut p = params.clone();
+        if let Some(ib) = &mut p.image {
+            // whitespace at either end of the prompt changes nothing the user means
+            ib.prompt = crate::wfm::Prompt::new(ib.prompt.prefix.trim(), ib.prompt.scene.trim());
+        }
+        out.push(Command::ApplySettings(p));
     }
 }
 
 /// A path text field that commits on Enter or when it loses focus (not per keystroke, so a
 /// half-typed path never re-runs the pipeline).
-fn path_field(ui: &mut egui::Ui, label: &str, value: &mut String) {
+fn path_field(ui: &mut egui::Ui, label: &str, value: &mut PathBuf) {
     let id = ui.make_persistent_id(("path_field", label));
     let mut buf: String = ui
         .data_mut(|d| d.get_temp::<String>(id))
-        .unwrap_or_else(|| value.clone());
+        .unwrap_or_else(|| value.display().to_string());
     let l = ui.label(label);
     let r = ui
         .add(egui::TextEdit::singleline(&mut buf).desired_width(f32::INFINITY))
         .labelled_by(l.id);
     if r.lost_focus() || (r.has_focus() && ui.input(|i| i.key_pressed(egui::Key::Enter))) {
-        *value = buf.trim().to_owned();
+        *value = PathBuf::from(buf.trim());
         ui.data_mut(|d| d.remove::<String>(id));
     } else if r.has_focus() {
         ui.data_mut(|d| d.insert_temp(id, buf));
@@ -650,8 +497,11 @@ mod tests {
         h.send(Command::Cancel);
         std::thread::sleep(std::time::Duration::from_millis(5));
         for k in 1..=5 {
-            h.send(Command::ApplySettings(PipelineSettings {
-                k,
+            h.send(Command::ApplySettings(RegisterParams {
+                image: Some(ImageBranchParams {
+                    k,
+                    ..Default::default()
+                }),
                 ..Default::default()
             }));
         }
@@ -666,7 +516,7 @@ mod tests {
         let applied: Vec<usize> = seen
             .iter()
             .filter_map(|c| match c {
-                Command::ApplySettings(s) => Some(s.k),
+                Command::ApplySettings(s) => s.image.as_ref().map(|ib| ib.k),
                 _ => None,
             })
             .collect();
@@ -678,22 +528,5 @@ mod tests {
         assert!(seen.contains(&Command::RunGenerator { prompt: "p".into() }));
         let logs = h.poll();
         assert_eq!(logs.len(), seen.len());
-    }
-
-    #[test]
-    fn prompt_joins_prefix_and_scene() {
-        let mut s = PipelineSettings {
-            prompt_scene: PromptPreset::Minimal.scene_text("x"),
-            prompt_prefix: "A photorealistic".into(),
-            ..Default::default()
-        };
-        assert_eq!(s.prompt(), "A photorealistic an indoor scene");
-        s.prompt_prefix.clear();
-        assert_eq!(s.prompt(), "an indoor scene");
-        // the default prompt is the CLI's default (shared cache entries)
-        assert_eq!(
-            PipelineSettings::default().prompt(),
-            crate::wfm::Prompt::from_preset(crate::wfm::PromptPreset::SceneSpecific).text()
-        );
     }
 }

@@ -24,8 +24,10 @@ use std::sync::Arc;
 use eframe::egui;
 use serde::{Deserialize, Serialize};
 
+use crate::pipeline::params::{ImageBranchParams, RegisterParams};
+
 pub use controls::{
-    spawn_worker, Command, EventSink, LogLevel, LogOnlyWorker, OpenKind, PipelineSettings,
+    spawn_worker, Command, EventSink, LogLevel, LogOnlyWorker, OpenKind,
     StudyRequest, Worker, WorkerEvent, WorkerHandle,
 };
 pub use model::InspectorModel;
@@ -76,11 +78,12 @@ impl Panel {
 }
 
 /// How correspondences are coloured in the views and in 3D.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
 pub enum MatchColorMode {
     /// One colour per match of the shown subset (as in the paper's figures).
     Categorical,
     /// Green inlier / red outlier under ground truth.
+    #[value(name = "gt")]
     InlierOutlier,
     /// Turbo colormap of the fused confidence.
     Confidence,
@@ -183,7 +186,10 @@ impl Shared<'_> {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
 pub struct Persisted {
-    pub settings: PipelineSettings,
+    /// The pipeline's own parameters (files of the old `settings` form load with defaults).
+    pub params: RegisterParams,
+    /// The image branch's parameters while it is off (restored when a WFM is chosen).
+    pub image_off: ImageBranchParams,
     pub view3d: View3dPrefs,
     pub match_mode: MatchColorMode,
     pub match_count: usize,
@@ -196,7 +202,8 @@ impl Default for Persisted {
     fn default() -> Self {
         let ui = UiState::default();
         Self {
-            settings: PipelineSettings::default(),
+            params: RegisterParams::default(),
+            image_off: ImageBranchParams::default(),
             view3d: View3dPrefs::default(),
             match_mode: ui.match_mode,
             match_count: ui.match_count,
@@ -236,7 +243,17 @@ pub fn startup_commands(settings_path: Option<&Path>, fallback_pair: &str) -> Ve
 /// Reads persisted settings; a missing or unreadable file gives defaults and a message.
 pub fn load_persisted(path: &Path) -> (Persisted, Option<String>) {
     match std::fs::read(path) {
-        Ok(b) => match serde_json::from_slice(&b) {
+        Ok(b) => match serde_json::from_slice::<Persisted>(&b) {
+            // before the controls edited the pipeline's own parameters, they were stored
+            // under "settings" in a form of their own; the rest of the file still applies
+            Ok(p) if is_old_settings_file(&b) => (
+                p,
+                Some(format!(
+                    "{}: pipeline settings from an older cgenreg were reset to defaults \
+                     (view, colours and last opened data kept)",
+                    path.display()
+                )),
+            ),
             Ok(p) => (p, None),
             Err(e) => (
                 Persisted::default(),
@@ -252,6 +269,12 @@ pub fn load_persisted(path: &Path) -> (Persisted, Option<String>) {
             Some(format!("{}: {e}", path.display())),
         ),
     }
+}
+
+fn is_old_settings_file(bytes: &[u8]) -> bool {
+    serde_json::from_slice::<serde_json::Value>(bytes).is_ok_and(|v| {
+        v.get("settings").is_some() && v.get("params").is_none()
+    })
 }
 
 pub fn save_persisted(path: &Path, p: &Persisted) -> Result<(), String> {
@@ -379,7 +402,10 @@ pub struct App {
     model: InspectorModel,
     model_gen: u64,
     pub ui_state: UiState,
-    pub settings: PipelineSettings,
+    /// What the controls edit and the worker runs: the pipeline's own parameters.
+    pub params: RegisterParams,
+    /// The image branch's parameters while it is off.
+    pub image_off: ImageBranchParams,
     view3d: View3dState,
     views: ViewsState,
     posterior: PosteriorState,
@@ -406,7 +432,8 @@ impl App {
             model,
             model_gen: view3d::next_id(),
             ui_state: UiState::default(),
-            settings: PipelineSettings::default(),
+            params: RegisterParams::default(),
+            image_off: ImageBranchParams::default(),
             view3d: View3dState::default(),
             views: ViewsState::default(),
             posterior: PosteriorState::default(),
@@ -428,14 +455,20 @@ impl App {
             app.apply_persisted(p.clone());
             app.last_saved = Some(p);
         }
-        if app.settings.prompt_scene.is_empty() {
-            app.settings.prompt_scene = app.scene_specific_prompt();
+        let scene = app.scene_specific_prompt();
+        let ib = match app.params.image.as_mut() {
+            Some(ib) => ib,
+            None => &mut app.image_off,
+        };
+        if ib.prompt.scene.is_empty() {
+            ib.prompt.scene = scene;
         }
         app
     }
 
     pub fn apply_persisted(&mut self, p: Persisted) {
-        self.settings = p.settings;
+        self.params = p.params;
+        self.image_off = p.image_off;
         self.view3d.prefs = p.view3d;
         self.ui_state.match_mode = p.match_mode;
         self.ui_state.match_count = p.match_count;
@@ -446,7 +479,8 @@ impl App {
 
     pub fn persisted(&self) -> Persisted {
         Persisted {
-            settings: self.settings.clone(),
+            params: self.params.clone(),
+            image_off: self.image_off.clone(),
             view3d: self.view3d.prefs.clone(),
             match_mode: self.ui_state.match_mode,
             match_count: self.ui_state.match_count,
@@ -547,7 +581,7 @@ impl App {
                     }
                 }
                 WorkerEvent::Log(l, t) => self.push_log(l, t),
-                WorkerEvent::Settings(s) => self.settings = *s,
+                WorkerEvent::Settings(s) => self.params = *s,
                 WorkerEvent::Progress(what, done, total) => {
                     self.model.plots.study_progress = (done < total).then_some((what, done, total));
                 }
@@ -771,7 +805,13 @@ impl App {
                             }
                             ui.separator();
                         }
-                        controls::controls_ui(ui, &mut self.settings, &scene, &mut commands);
+                        controls::controls_ui(
+                            ui,
+                            &mut self.params,
+                            &mut self.image_off,
+                            &scene,
+                            &mut commands,
+                        );
                     });
             });
 
@@ -950,7 +990,7 @@ pub fn run_gui_with(
     model: InspectorModel,
     worker: Box<dyn Worker>,
     initial: Vec<Command>,
-    worker_settings: Option<PipelineSettings>,
+    worker_settings: Option<RegisterParams>,
 ) -> Result<(), String> {
     let options = eframe::NativeOptions {
         renderer: eframe::Renderer::Glow,
@@ -971,9 +1011,9 @@ pub fn run_gui_with(
             let handle = spawn_worker(worker, Some(cc.egui_ctx.clone()));
             let mut app = App::new(model, None, default_settings_path());
             match worker_settings {
-                Some(s) => app.settings = s,
+                Some(s) => app.params = s,
                 None => {
-                    handle.send(Command::ApplySettings(app.settings.clone()));
+                    handle.send(Command::ApplySettings(app.params.clone()));
                 }
             }
             for c in initial {
@@ -995,13 +1035,23 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("cfg").join("inspector.json");
         let mut p = Persisted::default();
-        p.settings.k = 5;
+        p.image_off.k = 5;
         p.match_mode = MatchColorMode::Confidence;
         p.last_opened = Some((OpenKind::TwoClouds, vec!["a.ply".into(), "b.ply".into()]));
         save_persisted(&path, &p).unwrap();
         let (q, err) = load_persisted(&path);
         assert!(err.is_none());
         assert_eq!(p, q);
+        // a file of the old form: the pipeline settings reset, the rest kept, said so
+        std::fs::write(
+            &path,
+            br#"{"settings": {"k": 5, "wfm": "Oracle"}, "match_count": 7}"#,
+        )
+        .unwrap();
+        let (q, err) = load_persisted(&path);
+        assert_eq!(q.params, RegisterParams::default());
+        assert_eq!(q.match_count, 7);
+        assert!(err.unwrap().contains("older cgenreg"));
         std::fs::write(&path, b"{not json").unwrap();
         let (q, err) = load_persisted(&path);
         assert_eq!(q, Persisted::default());
@@ -1009,7 +1059,7 @@ mod tests {
         // the app reads the file at start
         save_persisted(&path, &p).unwrap();
         let app = App::new(InspectorModel::demo(), None, Some(path));
-        assert_eq!(app.settings.k, 5);
+        assert_eq!(app.image_off.k, 5);
         assert_eq!(app.ui_state.match_mode, MatchColorMode::Confidence);
     }
 

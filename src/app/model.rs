@@ -1,5 +1,6 @@
-//! The plain-data model the inspector draws every frame. The pipeline (through the lead's
-//! `Worker`) fills it; the UI never computes registration results itself.
+//! The plain-data model the inspector draws every frame. The pipeline worker
+//! ([`crate::app::pipeline_worker::PipelineWorker`]) fills it; the UI never computes
+//! registration results itself.
 //!
 //! Conventions: every cloud is in its own scan frame; `target_from_source` maps source
 //! points into the target frame (p_target = T * p_source). Pixel coordinates are in the
@@ -298,12 +299,11 @@ pub fn bounds_of<'a>(pts: impl IntoIterator<Item = &'a [f32; 3]>) -> Option<([f3
     Some((lo, hi))
 }
 
-/// Rotation angle between two rotations, degrees, and translation distance, metres.
-pub fn pose_errors(a: &Isometry3<f64>, b: &Isometry3<f64>) -> (f64, f64) {
-    let d = a.rotation.inverse() * b.rotation;
+/// RRE (degrees) and RTE (metres) of `estimated` against `gt`, by the metrics module.
+pub fn pose_errors(gt: &Isometry3<f64>, estimated: &Isometry3<f64>) -> (f64, f64) {
     (
-        d.angle().to_degrees(),
-        (a.translation.vector - b.translation.vector).norm(),
+        crate::metrics::rre_deg(estimated, gt),
+        crate::metrics::rte_m(estimated, gt),
     )
 }
 

@@ -20,22 +20,14 @@ use std::time::Instant;
 
 use nalgebra::{Isometry3, Point3};
 
-use super::controls::{
-    Calibration as UiCalibration, Command, Estimator, EventSink, FusionMode as UiFusion, LogLevel,
-    PipelineSettings, SelectionRule, StudyRequest, WfmChoice, Worker, WorkerEvent,
-};
+use super::controls::{Command, EventSink, LogLevel, StudyRequest, Worker, WorkerEvent};
 use super::model::{
     Branch, InspectorModel, MatchInfo, PairEntry, PairStatus, PlotData, Posterior, PrCurve,
     RgbImage, StageInfo, StageState, ViewCamera, ViewImage, ViewLabel,
 };
 use crate::dataset::manifest::Dataset;
 use crate::dataset::ScanPair;
-use crate::estimate::ransac::RansacParams;
-use crate::estimate::sc2pcr::Sc2PcrParams;
-use crate::estimate::EstimatorKind;
-use crate::fusion::calibrate::Calibration;
 use crate::fusion::fuse::FusionMode;
-use crate::fusion::select::Selection;
 use crate::pipeline::cache::Cache;
 use crate::pipeline::image_branch::{
     fuse_and_finish, fuse_and_finish_with, register_with_image_keep, similarities, FusionInputs,
@@ -47,7 +39,7 @@ use crate::pipeline::study::{
 };
 use crate::pipeline::{
     register_pair, ImageBranchOutput, ImageBranchParams, RegisterParams, RegistrationResult,
-    VfmSpec, WfmSpec,
+    WfmSpec,
 };
 
 /// Inlier threshold of the GT flags on correspondences (metres).
@@ -56,8 +48,6 @@ pub const GT_INLIER_M: f64 = 0.10;
 pub const FIGURE7_CORRECT_M: f64 = 0.05;
 /// Display points per cloud on top of the keypoints.
 pub const DISPLAY_POINTS: usize = 150_000;
-/// Top-k of the "Top-k by score" selection rule.
-const TOPK: usize = 8000;
 /// Candidates kept per posterior.
 const POSTERIOR_CANDIDATES: usize = 400;
 
@@ -65,136 +55,6 @@ const POSTERIOR_CANDIDATES: usize = 400;
 pub const IMAGE_BRANCH_OFF: &str = "image branch off (WFM: none) — the geometric branch ran \
 alone, so there are no views to show and the fused posterior equals the geometric one; choose \
 a WFM under “Image branch” (oracle needs a pair with RGB-D frames)";
-
-/// Maps the UI's settings onto the pipeline's parameters. `base` carries what the UI does not
-/// edit (voxel, geometric feature source, inlier threshold, frames per fragment, lift radius,
-/// a Cosmos command).
-pub fn settings_to_params(s: &PipelineSettings, base: &RegisterParams) -> RegisterParams {
-    let mut p = base.clone();
-    let cal = |c: &super::controls::BranchCalibration| match c.method {
-        UiCalibration::DualSoftmax => Calibration::DualSoftmax {
-            tau: c.temperature.max(1e-4),
-        },
-        // "None" has no pipeline equivalent; a row softmax with the given temperature is the
-        // closest calibrated posterior
-        UiCalibration::Softmax | UiCalibration::None => Calibration::RowSoftmax {
-            tau: c.temperature.max(1e-4),
-        },
-    };
-    p.fusion.calibration_img = cal(&s.image_calibration);
-    p.fusion.calibration_geo = cal(&s.geometry_calibration);
-    p.fusion.mode = match s.fusion {
-        UiFusion::NoisyAnd => FusionMode::NoisyAnd,
-        UiFusion::NoisyOr => FusionMode::NoisyOr,
-        UiFusion::Concatenation => FusionMode::Concat,
-        UiFusion::ImageOnly => FusionMode::ImageOnly,
-        UiFusion::GeometryOnly => FusionMode::GeometryOnly,
-    };
-    p.fusion.selection = match s.selection {
-        SelectionRule::MutualNearest => Selection::MutualNn,
-        SelectionRule::TopK => Selection::TopK(TOPK),
-        SelectionRule::RowNearest => Selection::RowNn,
-    };
-    p.estimator = match s.estimator {
-        Estimator::Sc2Pcr => EstimatorKind::Sc2Pcr(Sc2PcrParams::default()),
-        Estimator::Ransac => EstimatorKind::Ransac(RansacParams::default()),
-    };
-    let ib_base = base.image.clone().unwrap_or_default();
-    let backend = match s.wfm {
-        WfmChoice::None => None,
-        WfmChoice::Oracle => Some(WfmSpec::Oracle),
-        WfmChoice::Builtin => Some(WfmSpec::Builtin),
-        WfmChoice::CachedCosmos => match &ib_base.backend {
-            // a Cosmos command from the command line stays the configured generator
-            WfmSpec::Cosmos { .. } if s.wfm_dir.is_empty() => Some(ib_base.backend.clone()),
-            _ => Some(WfmSpec::Cached {
-                dir: PathBuf::from(&s.wfm_dir),
-                spec: PathBuf::from(&s.wfm_spec),
-            }),
-        },
-    };
-    p.image = backend.map(|backend| ImageBranchParams {
-        backend,
-        prompt: s.wfm_prompt(),
-        seed: s.seed,
-        vfm: match (s.vfm.as_str(), s.vfm_model.trim()) {
-            // No MASt3R weights ship with cgenreg: an empty path reaches the pipeline, which
-            // reports the missing model (and the inspector falls back to geometry).
-            ("mast3r", m) => VfmSpec::Mast3r {
-                model: PathBuf::from(m),
-            },
-            (_, "") => VfmSpec::default(),
-            (_, m) => VfmSpec::Xfeat {
-                model: PathBuf::from(m),
-            },
-        },
-        k: s.k,
-        margin: s.margin,
-        ..ib_base
-    });
-    p
-}
-
-/// UI settings that reproduce `p` as closely as the controls allow (initial control state).
-pub fn params_to_settings(p: &RegisterParams) -> PipelineSettings {
-    let mut s = PipelineSettings::default();
-    let cal = |c: Calibration| match c {
-        Calibration::RowSoftmax { tau } => super::controls::BranchCalibration {
-            method: UiCalibration::Softmax,
-            temperature: tau,
-        },
-        Calibration::DualSoftmax { tau } => super::controls::BranchCalibration {
-            method: UiCalibration::DualSoftmax,
-            temperature: tau,
-        },
-    };
-    s.image_calibration = cal(p.fusion.calibration_img);
-    s.geometry_calibration = cal(p.fusion.calibration_geo);
-    s.fusion = match p.fusion.mode {
-        FusionMode::NoisyAnd => UiFusion::NoisyAnd,
-        FusionMode::NoisyOr => UiFusion::NoisyOr,
-        FusionMode::Concat => UiFusion::Concatenation,
-        FusionMode::ImageOnly => UiFusion::ImageOnly,
-        FusionMode::GeometryOnly => UiFusion::GeometryOnly,
-    };
-    s.selection = match p.fusion.selection {
-        Selection::MutualNn => SelectionRule::MutualNearest,
-        Selection::TopK(_) => SelectionRule::TopK,
-        Selection::RowNn => SelectionRule::RowNearest,
-    };
-    s.estimator = match p.estimator {
-        EstimatorKind::Ransac(_) => Estimator::Ransac,
-        _ => Estimator::Sc2Pcr,
-    };
-    if let Some(ib) = &p.image {
-        s.wfm = match &ib.backend {
-            WfmSpec::Oracle => WfmChoice::Oracle,
-            WfmSpec::Builtin => WfmChoice::Builtin,
-            WfmSpec::Cached { dir, spec } => {
-                s.wfm_dir = dir.display().to_string();
-                s.wfm_spec = spec.display().to_string();
-                WfmChoice::CachedCosmos
-            }
-            WfmSpec::Cosmos { .. } => WfmChoice::CachedCosmos,
-        };
-        s.prompt_prefix = ib.prompt.prefix.clone();
-        s.prompt_scene = ib.prompt.scene.clone();
-        if let Some(pr) = super::controls::PromptPreset::ALL
-            .into_iter()
-            .find(|pr| pr.pipeline().default_scene() == ib.prompt.scene)
-        {
-            s.preset = pr;
-        }
-        s.seed = ib.seed;
-        s.k = ib.k;
-        s.margin = ib.margin;
-        s.vfm = ib.vfm.name().to_string();
-        if ib.vfm.model() != crate::vfm::default_xfeat_path() {
-            s.vfm_model = ib.vfm.model().display().to_string();
-        }
-    }
-    s
-}
 
 fn p3(p: &Point3<f32>) -> [f32; 3] {
     [p.x, p.y, p.z]
@@ -807,8 +667,8 @@ fn signature(p: &RegisterParams) -> String {
 /// The [`Worker`] behind `cgenreg inspect`.
 pub struct PipelineWorker {
     dataset: Dataset,
-    base: RegisterParams,
-    settings: PipelineSettings,
+    /// The parameters in force: the command line's at start, then the controls'.
+    params: RegisterParams,
     pairs: Vec<PairEntry>,
     current: Option<Current>,
     /// Loaded pairs by id (loading a fragment is the slowest step for real scans).
@@ -909,15 +769,14 @@ impl PipelineWorker {
                 rte_m: None,
             })
             .collect();
-        let mut settings = params_to_settings(&base);
-        if base.image.is_none() {
+        let mut params = base;
+        if params.image.is_none() {
             // without the image branch only geometry-only fusion runs: show what ran
-            settings.fusion = UiFusion::GeometryOnly;
+            params.fusion.mode = FusionMode::GeometryOnly;
         }
         Self {
             dataset,
-            base,
-            settings,
+            params,
             pairs,
             current: None,
             loaded: HashMap::new(),
@@ -959,7 +818,7 @@ impl PipelineWorker {
                 state: StageState::Running,
                 time_ms: None,
             }],
-            image_branch_note: Some(if self.base.image.is_some() {
+            image_branch_note: Some(if self.params.image.is_some() {
                 "registering…".to_string()
             } else {
                 IMAGE_BRANCH_OFF.to_string()
@@ -975,13 +834,14 @@ impl PipelineWorker {
         }
     }
 
-    pub fn settings(&self) -> &PipelineSettings {
-        &self.settings
+    /// The parameters in force (what the controls show).
+    pub fn params(&self) -> &RegisterParams {
+        &self.params
     }
 
-    /// Replaces the settings without running anything (the next run uses them).
-    pub fn set_settings(&mut self, s: PipelineSettings) {
-        self.settings = s;
+    /// Replaces the parameters without running anything (the next run uses them).
+    pub fn set_params(&mut self, p: RegisterParams) {
+        self.params = p;
     }
 
     /// Loads (or reuses) and registers one pair, generating views when needed; returns the
@@ -1040,7 +900,7 @@ impl PipelineWorker {
                 p
             }
         };
-        let params = settings_to_params(&self.settings, &self.base);
+        let params = self.params.clone();
         let sig = signature(&params);
         let mut note: Option<String> = None;
         let mut missing: Option<String> = None;
@@ -1153,7 +1013,7 @@ impl PipelineWorker {
 
     fn fusion_label(&self, result: &RegistrationResult) -> String {
         match &result.image_branch {
-            Some(_) => self.settings.fusion.label().to_string(),
+            Some(_) => self.params.fusion.mode.label().to_string(),
             None => format!("geometry only ({}; image branch off)", result.geo_features),
         }
     }
@@ -1162,9 +1022,9 @@ impl PipelineWorker {
     /// the same image-branch settings (only calibration, fusion, selection or estimator
     /// changed). None: a full (cached) run is needed.
     pub fn refuse(&mut self) -> Option<crate::Result<InspectorModel>> {
-        let params = settings_to_params(&self.settings, &self.base);
+        let params = self.params.clone();
         let sig = signature(&params);
-        let label_settings = self.settings.fusion;
+        let label_settings = self.params.fusion.mode;
         let cur = self.current.as_mut()?;
         let kept = cur.kept.as_ref()?;
         if kept.signature != sig {
@@ -1223,7 +1083,7 @@ impl PipelineWorker {
 
     /// Adds the branch posteriors of source keypoint `src` to the current model.
     pub fn inspect_point(&mut self, src: usize) -> crate::Result<InspectorModel> {
-        let fusion = settings_to_params(&self.settings, &self.base).fusion;
+        let fusion = self.params.fusion;
         let cur = self
             .current
             .as_mut()
@@ -1311,7 +1171,7 @@ impl PipelineWorker {
                 events.log(LogLevel::Info, msg);
                 if let Some(n) = &model.image_branch_note {
                     let level = if model.generation_missing.is_some()
-                        || model.source_views.is_empty() && self.settings.wfm != WfmChoice::None
+                        || model.source_views.is_empty() && self.params.image.is_some()
                     {
                         LogLevel::Warn
                     } else {
@@ -1354,7 +1214,7 @@ impl PipelineWorker {
         let sims = kept.sims.as_ref()?;
         let (s_img, vs, vt) = sims.image.as_ref()?;
         let gt = cur.pair.gt_target_from_source?;
-        let params = settings_to_params(&self.settings, &self.base);
+        let params = self.params.clone();
         let sk = &kept.inputs.source_geo.keypoints.points;
         let tk = &kept.inputs.target_geo.keypoints.points;
         let curves: Vec<PrCurve> = [
@@ -1448,8 +1308,9 @@ impl Worker for PipelineWorker {
             Command::Figure7 => self.send_figure7(events),
             Command::ApplySettings(s) => {
                 // a new prompt or seed is not generated without asking (the button)
-                let generate = s.prompt() == self.settings.prompt() && s.seed == self.settings.seed;
-                self.settings = s;
+                let gen_of = |p: &RegisterParams| p.image.as_ref().map(|i| (i.prompt.text(), i.seed));
+                let generate = gen_of(&s) == gen_of(&self.params);
+                self.params = s;
                 let Some(id) = self.current.as_ref().map(|c| c.result.pair_id.clone()) else {
                     events.log(LogLevel::Info, "settings stored; no pair selected yet");
                     return;
@@ -1486,14 +1347,15 @@ impl Worker for PipelineWorker {
                 }
             }
             Command::RunGenerator { prompt } => {
-                if self.settings.wfm == WfmChoice::None {
+                let Some(ib) = &self.params.image else {
                     events.log(
                         LogLevel::Warn,
                         "no generator configured: choose a WFM under “Image branch”",
                     );
                     return;
-                }
-                if prompt.trim() != self.settings.prompt().trim() {
+                };
+                let backend = ib.backend.label();
+                if prompt.trim() != ib.prompt.text().trim() {
                     events.log(
                         LogLevel::Warn,
                         "the prompt changed since the request; generating for the prompt in the editor",
@@ -1503,10 +1365,7 @@ impl Worker for PipelineWorker {
                     Some(id) => {
                         events.log(
                             LogLevel::Info,
-                            format!(
-                                "{id}: running the generator ({})",
-                                self.settings.wfm.label()
-                            ),
+                            format!("{id}: running the generator ({backend})"),
                         );
                         self.run_and_report(&id, true, events)
                     }
@@ -1528,12 +1387,17 @@ impl PipelineWorker {
         match req {
             StudyRequest::K(ks) => k_settings(ks),
             StudyRequest::Prompt => {
-                let scene = self.settings.prompt_scene.trim();
-                let custom = (!crate::wfm::PromptPreset::ALL
-                    .iter()
-                    .any(|p| p.default_scene() == scene))
-                .then_some(scene);
-                prompt_settings(self.settings.prompt_prefix.trim(), custom)
+                let prompt = self
+                    .params
+                    .image
+                    .as_ref()
+                    .map(|ib| ib.prompt.clone())
+                    .unwrap_or_else(|| ImageBranchParams::default().prompt);
+                let scene = prompt.scene.trim();
+                let custom = crate::wfm::PromptPreset::of_scene(scene)
+                    .is_none()
+                    .then_some(scene);
+                prompt_settings(prompt.prefix.trim(), custom)
             }
         }
     }
@@ -1546,7 +1410,7 @@ impl PipelineWorker {
         req: &StudyRequest,
         progress: &mut dyn FnMut(usize, usize),
     ) -> crate::Result<StudyReport> {
-        let params = settings_to_params(&self.settings, &self.base);
+        let params = self.params.clone();
         let settings = self.study_settings(req);
         let generate = !matches!(
             params.image.as_ref().map(|i| &i.backend),
@@ -1596,7 +1460,7 @@ impl PipelineWorker {
             StudyRequest::K(_) => "K sweep",
             StudyRequest::Prompt => "prompt study",
         };
-        if self.settings.wfm == WfmChoice::None {
+        if self.params.image.is_none() {
             events.log(
                 LogLevel::Warn,
                 format!("{what}: choose a WFM under “Image branch” first (a study needs the image branch)"),
@@ -1734,9 +1598,11 @@ impl PipelineWorker {
     /// the current pair re-runs. False (logged) when the folder or its spec is unusable.
     fn open_cosmos_output(&mut self, paths: &[PathBuf], events: &EventSink) -> bool {
         let r = match paths {
-            [dir] => cosmos_output_settings(&self.settings, dir).and_then(|s| {
+            [dir] => cosmos_output_settings(&self.params, dir).and_then(|s| {
                 // the spec must parse (positional mapping) before the settings change
-                crate::wfm::cached::CachedBackend::open(dir, Path::new(&s.wfm_spec))?;
+                if let Some(WfmSpec::Cached { dir, spec }) = s.image.as_ref().map(|i| &i.backend) {
+                    crate::wfm::cached::CachedBackend::open(dir, spec)?;
+                }
                 Ok(s)
             }),
             _ => Err(crate::Error::Invalid(format!(
@@ -1754,14 +1620,17 @@ impl PipelineWorker {
                 return false;
             }
         };
-        events.log(
-            LogLevel::Info,
-            format!(
-                "image branch: cached Cosmos output {} with spec {} (dataset unchanged)",
-                s.wfm_dir, s.wfm_spec
-            ),
-        );
-        self.settings = s.clone();
+        if let Some(WfmSpec::Cached { dir, spec }) = s.image.as_ref().map(|i| &i.backend) {
+            events.log(
+                LogLevel::Info,
+                format!(
+                    "image branch: cached Cosmos output {} with spec {} (dataset unchanged)",
+                    dir.display(),
+                    spec.display()
+                ),
+            );
+        }
+        self.params = s.clone();
         events.send(WorkerEvent::Settings(Box::new(s)));
         let id = self
             .current
@@ -1782,11 +1651,10 @@ impl PipelineWorker {
         what: &str,
         events: &EventSink,
     ) {
-        let base = self.base.clone();
-        let settings = self.settings.clone();
+        let params = self.params.clone();
         let cache = self.cache.take();
-        *self = Self::with_cache(d, base, cache, None);
-        self.settings = settings;
+        *self = Self::with_cache(d, params.clone(), cache, None);
+        self.params = params;
         if let Some(p) = first {
             self.loaded.insert(p.id.clone(), p);
         }
@@ -1932,13 +1800,14 @@ pub fn find_cosmos_spec(dir: &Path) -> crate::Result<PathBuf> {
 
 /// `s` with the image branch switched to the cached Cosmos output in `dir` and its spec
 /// ([`find_cosmos_spec`]); everything else unchanged.
-pub fn cosmos_output_settings(s: &PipelineSettings, dir: &Path) -> crate::Result<PipelineSettings> {
+pub fn cosmos_output_settings(p: &RegisterParams, dir: &Path) -> crate::Result<RegisterParams> {
     let spec = find_cosmos_spec(dir)?;
-    let mut s = s.clone();
-    s.wfm = WfmChoice::CachedCosmos;
-    s.wfm_dir = dir.display().to_string();
-    s.wfm_spec = spec.display().to_string();
-    Ok(s)
+    let mut p = p.clone();
+    p.image.get_or_insert_with(ImageBranchParams::default).backend = WfmSpec::Cached {
+        dir: dir.to_path_buf(),
+        spec,
+    };
+    Ok(p)
 }
 
 /// Frames per fragment when an RGB-D sequence is opened (3DMatch's fragment length).

@@ -15,11 +15,13 @@ use super::render3d::{self, CloudData, Instance, LineData, SceneFrame};
 use super::{MatchColorMode, Shared};
 
 /// How a cloud's points are coloured.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
 pub enum CloudColorMode {
     Fixed,
+    #[value(name = "score")]
     FusedScore,
     ResidualEstimate,
+    #[value(name = "residual-gt")]
     ResidualGroundTruth,
     Branch,
     /// Seen by the image branch's K views: visible, occluded inside a view, or outside all.

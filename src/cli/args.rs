@@ -1,60 +1,20 @@
 //! Pipeline options shared by `register`, `bench` and the GUI's command line.
 
-use crate::estimate::ransac::RansacParams;
-use crate::estimate::sc2pcr::Sc2PcrParams;
+//!
+//! Every choice is the pipeline's own type (clap's `ValueEnum` is implemented on them), so
+//! an option means the same thing here, in the inspector and in a run's JSON.
+
 use crate::estimate::EstimatorKind;
 use crate::fusion::calibrate::Calibration;
 use crate::fusion::fuse::FusionMode;
 use crate::fusion::select::Selection;
 use crate::pipeline::cache::Cache;
 use crate::pipeline::params::{
-    GeoFeatureSource, ImageBranchParams, RegisterParams, VfmSpec, WfmSpec,
+    GeoFeatureSource, ImageBranchParams, RegisterParams, VfmSpec, VirtualCamera, WfmSpec,
 };
 use crate::wfm::{Prompt, PromptPreset};
-use clap::{Args, ValueEnum};
+use clap::Args;
 use std::path::PathBuf;
-
-/// `--virtual-camera`.
-#[derive(Clone, Copy, Debug, ValueEnum)]
-pub enum VirtualCameraArg {
-    Auto,
-    Pinhole,
-    Ftheta,
-}
-
-#[derive(Clone, Copy, Debug, ValueEnum)]
-pub enum CalibrationArg {
-    /// The paper's row softmax over target points (eq. 5).
-    Row,
-    /// The reference code's dual softmax sqrt(Pr*Pc + 1e-9).
-    Dual,
-}
-
-#[derive(Clone, Copy, Debug, ValueEnum)]
-pub enum FusionArg {
-    NoisyAnd,
-    NoisyOr,
-    Concat,
-    Image,
-    Geometry,
-}
-
-#[derive(Clone, Copy, Debug, ValueEnum)]
-pub enum SelectionArg {
-    /// Mutual nearest neighbours of the fused posterior (paper).
-    Mutual,
-    /// Global top-k entries (reference code, k = 8000).
-    Topk,
-    /// Each source point's best target, no mutual check (SC2-PCR's FPFH protocol).
-    Nn,
-}
-
-#[derive(Clone, Copy, Debug, ValueEnum)]
-pub enum EstimatorArg {
-    Sc2pcr,
-    Ransac,
-    Svd,
-}
 
 #[derive(Args, Debug, Clone)]
 pub struct PipelineArgs {
@@ -69,28 +29,29 @@ pub struct PipelineArgs {
     /// The authors' GeoTransformer pair feature file (.pkl, reference §5).
     #[arg(long, conflicts_with = "learned_source")]
     pub geotransformer_pkl: Option<PathBuf>,
-    #[arg(long, value_enum, default_value_t = CalibrationArg::Row)]
-    pub calibration: CalibrationArg,
+    /// Calibration of both branches (row: the paper's eq. 5; dual: the reference code's).
+    #[arg(long, value_enum, default_value = "row")]
+    pub calibration: Calibration,
     /// Softmax temperature of the image branch.
     #[arg(long, default_value_t = 0.1)]
     pub tau_img: f32,
     /// Softmax temperature of the geometric branch.
     #[arg(long, default_value_t = 0.1)]
     pub tau_geo: f32,
-    #[arg(long, value_enum, default_value_t = FusionArg::NoisyAnd)]
-    pub fusion: FusionArg,
+    #[arg(long, value_enum, default_value = "noisy-and")]
+    pub fusion: FusionMode,
     /// Noisy-AND prior; default 1/(N*M).
     #[arg(long)]
     pub prior: Option<f64>,
     /// Correspondence selection. Default: `nn` when only the geometric branch runs (the
     /// SC2-PCR FPFH protocol), `mutual` when branches are fused (the paper).
     #[arg(long, value_enum)]
-    pub selection: Option<SelectionArg>,
+    pub selection: Option<Selection>,
     /// k of --selection topk.
     #[arg(long, default_value_t = 8000)]
     pub topk: usize,
-    #[arg(long, value_enum, default_value_t = EstimatorArg::Sc2pcr)]
-    pub estimator: EstimatorArg,
+    #[arg(long, value_enum, default_value = "sc2pcr")]
+    pub estimator: EstimatorKind,
     /// Reproduce the authors' code: dual softmax, global top-8000, f32 Noisy-AND as written.
     #[arg(long)]
     pub reference: bool,
@@ -114,65 +75,34 @@ impl PipelineArgs {
             (_, _, Some(pkl)) => GeoFeatureSource::GeoTransformerPkl { path: pkl.clone() },
             _ => GeoFeatureSource::Fpfh,
         };
+        // --reference: the authors' dual softmax and global top-8000 (temperatures and mode
+        // still from their options); otherwise the paper's choices or the given ones.
         let (cal, sel) = if self.reference {
-            (CalibrationArg::Dual, Selection::TopK(8000))
-        } else {
             (
-                self.calibration,
-                match self.selection.unwrap_or(if image_branch {
-                    SelectionArg::Mutual
-                } else {
-                    SelectionArg::Nn
-                }) {
-                    SelectionArg::Mutual => Selection::MutualNn,
-                    SelectionArg::Topk => Selection::TopK(self.topk),
-                    SelectionArg::Nn => Selection::RowNn,
-                },
+                Calibration::DualSoftmax { tau: 0.1 },
+                Selection::TopK(crate::fusion::select::REFERENCE_TOP_K),
             )
+        } else {
+            let sel = self.selection.unwrap_or(if image_branch {
+                Selection::MutualNn
+            } else {
+                Selection::RowNn
+            });
+            let sel = match sel {
+                Selection::TopK(_) => Selection::TopK(self.topk),
+                s => s,
+            };
+            (self.calibration, sel)
         };
-        let calib = |tau: f32| match cal {
-            CalibrationArg::Row => Calibration::RowSoftmax { tau },
-            CalibrationArg::Dual => Calibration::DualSoftmax { tau },
-        };
-        p.fusion.calibration_img = calib(self.tau_img);
-        p.fusion.calibration_geo = calib(self.tau_geo);
-        p.fusion.mode = match self.fusion {
-            FusionArg::NoisyAnd => FusionMode::NoisyAnd,
-            FusionArg::NoisyOr => FusionMode::NoisyOr,
-            FusionArg::Concat => FusionMode::Concat,
-            FusionArg::Image => FusionMode::ImageOnly,
-            FusionArg::Geometry => FusionMode::GeometryOnly,
-        };
-        p.fusion.prior = self.prior;
+        p.fusion.calibration_img = cal.with_tau(self.tau_img);
+        p.fusion.calibration_geo = cal.with_tau(self.tau_geo);
+        p.fusion.mode = self.fusion;
         p.fusion.selection = sel;
         p.fusion.exact_reference = self.reference;
-        p.estimator = match self.estimator {
-            EstimatorArg::Sc2pcr => EstimatorKind::Sc2Pcr(Sc2PcrParams::default()),
-            EstimatorArg::Ransac => EstimatorKind::Ransac(RansacParams::default()),
-            EstimatorArg::Svd => EstimatorKind::WeightedSvd,
-        };
+        p.fusion.prior = self.prior;
+        p.estimator = self.estimator.clone();
         p
     }
-}
-
-#[derive(Clone, Copy, Debug, ValueEnum)]
-pub enum WfmArg {
-    /// The dataset's real colour frames ("C-GenReg (Oracle)").
-    Oracle,
-    /// builtin-depthshade-v1: deterministic shading of the depth video. NOT a WFM.
-    Builtin,
-    /// An existing Cosmos output folder (--wfm-dir) with its JSONL spec (--wfm-spec).
-    Cached,
-    /// Run Cosmos-Transfer1 (--cosmos-cmd, as an argument vector).
-    Cosmos,
-}
-
-#[derive(Clone, Copy, Debug, ValueEnum)]
-pub enum PresetArg {
-    Scene,
-    General,
-    Minimal,
-    Wrong,
 }
 
 /// Options of the generated-RGB image branch and of the stage cache.
@@ -180,7 +110,7 @@ pub enum PresetArg {
 pub struct ImageArgs {
     /// WFM backend of the image branch; absent = geometric branch only.
     #[arg(long, value_enum)]
-    pub wfm: Option<WfmArg>,
+    pub wfm: Option<WfmSpec>,
     /// Cosmos output folder for --wfm cached.
     #[arg(long)]
     pub wfm_dir: Option<PathBuf>,
@@ -198,8 +128,8 @@ pub struct ImageArgs {
     #[arg(long, default_value_t = 3600)]
     pub cosmos_timeout: u64,
     /// Prompt preset (paper's four categories).
-    #[arg(long, value_enum, default_value_t = PresetArg::Scene)]
-    pub prompt_preset: PresetArg,
+    #[arg(long, value_enum, default_value = "scene")]
+    pub prompt_preset: PromptPreset,
     /// Scene description replacing the preset's (the shared prefix is kept).
     #[arg(long)]
     pub prompt: Option<String>,
@@ -208,8 +138,8 @@ pub struct ImageArgs {
     pub seed: u64,
     /// Vision foundation model: xfeat (per-image; default models/xfeat.onnx) or mast3r
     /// (pair-conditioned; needs --vfm-model, an export made with models/export_mast3r.py).
-    #[arg(long, value_parser = ["xfeat", "mast3r"], default_value = "xfeat")]
-    pub vfm: String,
+    #[arg(long, value_enum, default_value = "xfeat")]
+    pub vfm: VfmSpec,
     /// The VFM's ONNX model file.
     #[arg(long)]
     pub vfm_model: Option<PathBuf>,
@@ -227,8 +157,8 @@ pub struct ImageArgs {
     pub lift_radius: f32,
     /// Virtual camera for scans with no depth frames: f-theta for LiDAR-like clouds (they
     /// carry intensity) and a pinhole trajectory otherwise (auto), or force one.
-    #[arg(long, value_enum, default_value_t = VirtualCameraArg::Auto)]
-    pub virtual_camera: VirtualCameraArg,
+    #[arg(long, value_enum, default_value = "auto")]
+    pub virtual_camera: VirtualCamera,
     /// f-theta cameras per LiDAR scan, evenly spaced in yaw (1 = the paper's single forward
     /// camera; 2 or more cover a 360° scan).
     #[arg(long, default_value_t = 1)]
@@ -243,13 +173,11 @@ pub struct ImageArgs {
 
 impl ImageArgs {
     pub fn to_image_params(&self) -> crate::Result<Option<ImageBranchParams>> {
-        let Some(wfm) = self.wfm else {
+        let Some(wfm) = &self.wfm else {
             return Ok(None);
         };
         let backend = match wfm {
-            WfmArg::Oracle => WfmSpec::Oracle,
-            WfmArg::Builtin => WfmSpec::Builtin,
-            WfmArg::Cached => match (&self.wfm_dir, &self.wfm_spec) {
+            WfmSpec::Cached { .. } => match (&self.wfm_dir, &self.wfm_spec) {
                 (Some(d), Some(s)) => WfmSpec::Cached {
                     dir: d.clone(),
                     spec: s.clone(),
@@ -261,7 +189,7 @@ impl ImageArgs {
                     ))
                 }
             },
-            WfmArg::Cosmos => {
+            WfmSpec::Cosmos { .. } => {
                 if self.cosmos_cmd.is_empty() {
                     return Err(crate::Error::Invalid(
                         "--wfm cosmos needs --cosmos-cmd PROGRAM [--cosmos-cmd ARG ...]".into(),
@@ -276,42 +204,34 @@ impl ImageArgs {
                     timeout_s: self.cosmos_timeout,
                 }
             }
+            w => w.clone(),
         };
-        let preset = match self.prompt_preset {
-            PresetArg::Scene => PromptPreset::SceneSpecific,
-            PresetArg::General => PromptPreset::General,
-            PresetArg::Minimal => PromptPreset::Minimal,
-            PresetArg::Wrong => PromptPreset::SemanticallyWrong,
-        };
-        let mut prompt = Prompt::from_preset(preset);
+        let mut prompt = Prompt::from_preset(self.prompt_preset);
         if let Some(s) = &self.prompt {
             prompt.scene = s.clone();
+        }
+        let mut vfm = self.vfm.clone();
+        match (&mut vfm, &self.vfm_model) {
+            (v, Some(p)) => *v.model_mut() = p.clone(),
+            (VfmSpec::Mast3r { .. }, None) => {
+                return Err(crate::Error::Invalid(
+                    "--vfm mast3r needs --vfm-model FILE.onnx (export it with \
+                     models/export_mast3r.py; no MASt3R weights ship with cgenreg)"
+                        .into(),
+                ))
+            }
+            _ => {}
         }
         Ok(Some(ImageBranchParams {
             backend,
             prompt,
             seed: self.seed,
-            vfm: match (self.vfm.as_str(), &self.vfm_model) {
-                ("mast3r", Some(p)) => VfmSpec::Mast3r { model: p.clone() },
-                ("mast3r", None) => {
-                    return Err(crate::Error::Invalid(
-                        "--vfm mast3r needs --vfm-model FILE.onnx (export it with \
-                         models/export_mast3r.py; no MASt3R weights ship with cgenreg)"
-                            .into(),
-                    ))
-                }
-                (_, Some(p)) => VfmSpec::Xfeat { model: p.clone() },
-                (_, None) => VfmSpec::default(),
-            },
+            vfm,
             k: self.k,
             margin: self.margin,
             frames_per_fragment: self.frames,
             lift_radius: self.lift_radius,
-            virtual_camera: match self.virtual_camera {
-                VirtualCameraArg::Auto => crate::pipeline::params::VirtualCamera::Auto,
-                VirtualCameraArg::Pinhole => crate::pipeline::params::VirtualCamera::Pinhole,
-                VirtualCameraArg::Ftheta => crate::pipeline::params::VirtualCamera::Ftheta,
-            },
+            virtual_camera: self.virtual_camera,
             lidar_cameras: self.lidar_cameras,
         }))
     }

@@ -47,8 +47,8 @@ pub struct ScreenshotArgs {
     pub height: u32,
     /// Correspondence colours: gt (green inlier / red outlier under ground truth),
     /// categorical or confidence.
-    #[arg(long, value_enum, default_value_t = MatchColors::Gt)]
-    pub match_colors: MatchColors,
+    #[arg(long, value_enum, default_value = "gt")]
+    pub match_colors: MatchColorMode,
     /// Number of correspondences drawn (highest fused score first).
     #[arg(long, default_value_t = 150)]
     pub matches: usize,
@@ -59,8 +59,8 @@ pub struct ScreenshotArgs {
     #[arg(long)]
     pub only_survivors: bool,
     /// Colour mode of both clouds in the 3D view.
-    #[arg(long, value_enum, default_value_t = CloudColors::Fixed)]
-    pub cloud_colors: CloudColors,
+    #[arg(long, value_enum, default_value = "fixed")]
+    pub cloud_colors: crate::app::view3d::CloudColorMode,
     /// Show each view's depth frame (as the WFM saw it) instead of the generated view.
     #[arg(long)]
     pub depth_frames: bool,
@@ -83,29 +83,11 @@ pub struct ScreenshotArgs {
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, clap::ValueEnum)]
-pub enum CloudColors {
-    Fixed,
-    Score,
-    ResidualEstimate,
-    ResidualGt,
-    Branch,
-    /// Visible / occluded / outside the image branch's K views.
-    Visibility,
-}
-
-#[derive(Clone, Copy, Debug, PartialEq, clap::ValueEnum)]
 pub enum Alignment {
     Estimated,
     Gt,
     Initial,
     All,
-}
-
-#[derive(Clone, Copy, Debug, clap::ValueEnum)]
-pub enum MatchColors {
-    Gt,
-    Categorical,
-    Confidence,
 }
 
 /// The bundled synthetic demo's manifest (next to the sources, else under the working dir).
@@ -169,7 +151,7 @@ pub fn run_inspect(a: InspectArgs) -> Result<()> {
     if a.manifest.is_none() {
         // The bundled demo (8 frames per sequence) runs the whole method out of the box: the
         // built-in generator (NOT a WFM) + XFeat, with L = 8, m = 1 and K = 2 views per side.
-        di.wfm = Some(super::args::WfmArg::Builtin);
+        di.wfm = Some(crate::pipeline::params::WfmSpec::Builtin);
         di.frames = 8;
         di.margin = 1;
         di.k = 2;
@@ -189,7 +171,7 @@ pub fn run_inspect(a: InspectArgs) -> Result<()> {
     // Options on the command line (or --demo) set the pipeline; otherwise the settings saved
     // last time do, when there are any. Either way the controls show what runs.
     let persisted = crate::app::default_settings_path().is_some_and(|p| p.is_file());
-    let worker_settings = (explicit || a.demo || !persisted).then(|| worker.settings().clone());
+    let worker_settings = (explicit || a.demo || !persisted).then(|| worker.params().clone());
     crate::app::run_gui_with(model, Box::new(worker), initial, worker_settings)
         .map_err(Error::Invalid)
 }
@@ -274,7 +256,7 @@ pub fn run_screenshot(a: ScreenshotArgs) -> Result<()> {
             model = worker.inspect_point(s)?;
         }
     }
-    let settings = worker.settings().clone();
+    let params = worker.params().clone();
     let (mode, count, only, align) = (a.match_colors, a.matches, a.only_survivors, a.alignment);
     let (cloud_mode, depth_frames) = (a.cloud_colors, a.depth_frames);
     crate::app::headless::render_screenshot_with(
@@ -283,12 +265,8 @@ pub fn run_screenshot(a: ScreenshotArgs) -> Result<()> {
         (a.width, a.height),
         &a.out,
         |app| {
-            app.settings = settings;
-            app.ui_state.match_mode = match mode {
-                MatchColors::Gt => MatchColorMode::InlierOutlier,
-                MatchColors::Categorical => MatchColorMode::Categorical,
-                MatchColors::Confidence => MatchColorMode::Confidence,
-            };
+            app.params = params;
+            app.ui_state.match_mode = mode;
             app.ui_state.match_count = count;
             // the views get the whole height (the 3D overlay has its own screenshot)
             app.ui_state.show_3d_below_views = false;
@@ -297,16 +275,7 @@ pub fn run_screenshot(a: ScreenshotArgs) -> Result<()> {
             p.show_estimated = matches!(align, Alignment::Estimated | Alignment::All);
             p.show_ground_truth = matches!(align, Alignment::Gt | Alignment::All);
             p.show_initial = matches!(align, Alignment::Initial | Alignment::All);
-            use crate::app::view3d::CloudColorMode as M;
-            let m = match cloud_mode {
-                CloudColors::Fixed => M::Fixed,
-                CloudColors::Score => M::FusedScore,
-                CloudColors::ResidualEstimate => M::ResidualEstimate,
-                CloudColors::ResidualGt => M::ResidualGroundTruth,
-                CloudColors::Branch => M::Branch,
-                CloudColors::Visibility => M::Visibility,
-            };
-            (p.source_mode, p.target_mode) = (m, m);
+            (p.source_mode, p.target_mode) = (cloud_mode, cloud_mode);
             app.show_depth_frames(depth_frames);
         },
     )

@@ -41,6 +41,47 @@ impl Default for EstimatorKind {
     }
 }
 
+impl EstimatorKind {
+    /// Every estimator with its default parameters.
+    pub fn all() -> [EstimatorKind; 3] {
+        [
+            EstimatorKind::Sc2Pcr(Sc2PcrParams::default()),
+            EstimatorKind::Ransac(RansacParams::default()),
+            EstimatorKind::WeightedSvd,
+        ]
+    }
+
+    pub fn label(&self) -> &'static str {
+        match self {
+            EstimatorKind::Sc2Pcr(_) => "SC2-PCR",
+            EstimatorKind::Ransac(_) => "RANSAC",
+            EstimatorKind::WeightedSvd => "Weighted SVD",
+        }
+    }
+
+    /// Whether `self` and `other` are the same estimator (parameters aside).
+    pub fn same_kind(&self, other: &EstimatorKind) -> bool {
+        std::mem::discriminant(self) == std::mem::discriminant(other)
+    }
+}
+
+/// `--estimator sc2pcr|ransac|svd`, each with its default parameters.
+impl clap::ValueEnum for EstimatorKind {
+    fn value_variants<'a>() -> &'a [Self] {
+        static V: std::sync::LazyLock<[EstimatorKind; 3]> =
+            std::sync::LazyLock::new(EstimatorKind::all);
+        &*V
+    }
+
+    fn to_possible_value(&self) -> Option<clap::builder::PossibleValue> {
+        Some(clap::builder::PossibleValue::new(match self {
+            EstimatorKind::Sc2Pcr(_) => "sc2pcr",
+            EstimatorKind::Ransac(_) => "ransac",
+            EstimatorKind::WeightedSvd => "svd",
+        }))
+    }
+}
+
 /// Estimate `target_from_source` from scored correspondences (`weights[i]` is the score of
 /// `src[i] ↔ tgt[i]`; SC2-PCR and RANSAC only use it in the fallback).
 ///

@@ -29,6 +29,11 @@ impl Pcg32 {
         xorshifted.rotate_right(rot)
     }
 
+    #[cfg(test)]
+    pub fn next_u64(&mut self) -> u64 {
+        ((self.next_u32() as u64) << 32) | self.next_u32() as u64
+    }
+
     /// Uniform in [0, n) by rejection (no modulo bias); n must be > 0.
     pub fn below(&mut self, n: u32) -> u32 {
         let threshold = n.wrapping_neg() % n;
@@ -53,6 +58,23 @@ impl Pcg32 {
         let u2 = self.unit_f64();
         (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
     }
+}
+
+/// The seed and generator of a seeded test named `name`: `$CGENREG_TEST_SEED` when set (to
+/// reproduce a failure), else a fixed seed derived from the name. Put the seed in every
+/// assertion message so a failure says how to reproduce it.
+#[cfg(test)]
+pub(crate) fn seeded_for_test(name: &str) -> (u64, Pcg32) {
+    let seed = std::env::var("CGENREG_TEST_SEED")
+        .ok()
+        .and_then(|s| s.trim().parse().ok())
+        .unwrap_or_else(|| {
+            // FNV-1a of the name: stable across runs and platforms
+            name.bytes().fold(0xcbf29ce484222325u64, |h, b| {
+                (h ^ b as u64).wrapping_mul(0x100000001b3)
+            })
+        });
+    (seed, Pcg32::new(seed, 0))
 }
 
 #[cfg(test)]

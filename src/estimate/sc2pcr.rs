@@ -15,6 +15,7 @@
 //! Ties are broken deterministically by the lower correspondence index (stable sorts); torch's
 //! unstable argsort may order ties differently.
 
+use crate::simd::Isa;
 use super::kabsch;
 use super::Estimate;
 use crate::{Error, Result};
@@ -384,114 +385,6 @@ unsafe fn build_row_avx512(
     build_row(p, i, d, nms, w0, words, rows, vals)
 }
 
-#[inline(always)]
-fn and_popcount(a: &[u64], b: &[u64]) -> u32 {
-    a.iter().zip(b).map(|(x, y)| (x & y).count_ones()).sum()
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,popcnt")]
-unsafe fn and_popcount_avx2(a: &[u64], b: &[u64]) -> u32 {
-    and_popcount(a, b)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,avx512vpopcntdq,popcnt")]
-unsafe fn and_popcount_avx512(a: &[u64], b: &[u64]) -> u32 {
-    // Wide u64 lanes so that the sum vectorises with vpopcntq.
-    let s: u64 = a
-        .iter()
-        .zip(b)
-        .map(|(x, y)| (x & y).count_ones() as u64)
-        .sum();
-    s as u32
-}
-
-/// `out[k] = |a & rows[k]|` for rows of a length that is a multiple of 8 words: each 512-bit
-/// chunk of `a` is loaded once for up to four rows.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,avx512vpopcntdq")]
-unsafe fn and_popcount_many_avx512(a: &[u64], rows: &[&[u64]], out: &mut [u32]) {
-    debug_assert!(a.len().is_multiple_of(8) && rows.iter().all(|r| r.len() == a.len()));
-    let mut k = 0;
-    while k + 4 <= rows.len() {
-        let r = [rows[k], rows[k + 1], rows[k + 2], rows[k + 3]];
-        out[k..k + 4].copy_from_slice(&and_popcount_n::<4>(a, r));
-        k += 4;
-    }
-    for (r, o) in rows[k..].iter().zip(&mut out[k..]) {
-        *o = and_popcount_n::<1>(a, [r])[0];
-    }
-}
-
-/// N rows against `a` with N accumulators held in registers.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,avx512vpopcntdq")]
-#[inline]
-unsafe fn and_popcount_n<const N: usize>(a: &[u64], rows: [&[u64]; N]) -> [u32; N] {
-    use std::arch::x86_64::*;
-    let len = a.len();
-    let mut acc = [_mm512_setzero_si512(); N];
-    let mut w = 0;
-    while w < len {
-        // SAFETY: w + 8 <= len for every slice (lengths are equal multiples of 8).
-        let x = _mm512_loadu_si512(a.as_ptr().add(w) as *const __m512i);
-        for q in 0..N {
-            let y = _mm512_loadu_si512(rows[q].as_ptr().add(w) as *const __m512i);
-            acc[q] = _mm512_add_epi64(acc[q], _mm512_popcnt_epi64(_mm512_and_si512(x, y)));
-        }
-        w += 8;
-    }
-    let mut out = [0u32; N];
-    for q in 0..N {
-        out[q] = _mm512_reduce_add_epi64(acc[q]) as u32;
-    }
-    out
-}
-
-/// The widest vector extension the CPU offers, detected at run time.
-#[derive(Clone, Copy, Debug, PartialEq)]
-enum Isa {
-    Avx512,
-    Avx2,
-    Scalar,
-}
-
-fn isa() -> Isa {
-    #[cfg(target_arch = "x86_64")]
-    {
-        if is_x86_feature_detected!("avx512f")
-            && is_x86_feature_detected!("avx512bw")
-            && is_x86_feature_detected!("avx512vl")
-            && is_x86_feature_detected!("avx512vpopcntdq")
-            && is_x86_feature_detected!("popcnt")
-            && is_x86_feature_detected!("fma")
-        {
-            return Isa::Avx512;
-        }
-        if is_x86_feature_detected!("avx2")
-            && is_x86_feature_detected!("popcnt")
-            && is_x86_feature_detected!("fma")
-        {
-            return Isa::Avx2;
-        }
-    }
-    Isa::Scalar
-}
-
-#[inline(always)]
-fn and_popcount_isa(isa: Isa, a: &[u64], b: &[u64]) -> u32 {
-    #[cfg(target_arch = "x86_64")]
-    match isa {
-        // SAFETY: the CPU supports these features (checked at run time by `isa`).
-        Isa::Avx512 => return unsafe { and_popcount_avx512(a, b) },
-        Isa::Avx2 => return unsafe { and_popcount_avx2(a, b) },
-        Isa::Scalar => {}
-    }
-    let _ = isa;
-    and_popcount(a, b)
-}
-
 /// In-place transpose of a 64 x 64 bit matrix: bit c of `a[r]` becomes bit r of `a[c]`.
 fn transpose64(a: &mut [u64; 64]) {
     let mut j = 32usize;
@@ -563,7 +456,7 @@ impl Graph {
         let mut hard = vec![0u64; n * stride];
         let mut tight = vec![0u64; n * stride];
         let mut near = vec![0u64; n * stride];
-        let isa = isa();
+        let isa = crate::simd::features().bitset_isa();
         // Pass 1: the diagonal 64-column block and everything right of it (all three relations
         // are symmetric: `cross(i, j)` and `cross(j, i)` are bit-identical).
         let rows: Vec<Vec<(u32, f32)>> = hard
@@ -577,7 +470,7 @@ impl Graph {
                 let mut vals = Vec::with_capacity((n - i) / 8 + 16);
                 match isa {
                     #[cfg(target_arch = "x86_64")]
-                    // SAFETY: the CPU supports these features (checked at run time by `isa`).
+                    // SAFETY: the CPU supports these features (checked by `bitset_isa`).
                     Isa::Avx512 => unsafe {
                         build_row_avx512(p, i, d, nms, w0, words, row, &mut vals)
                     },
@@ -816,12 +709,14 @@ impl Graph {
             let vals = &mut vals[..need.len()];
             match self.isa {
                 #[cfg(target_arch = "x86_64")]
-                // SAFETY: the CPU supports AVX-512F and VPOPCNTDQ (checked at run time by
-                // `isa`); rows are `stride` words, a multiple of 8.
-                Isa::Avx512 => unsafe { and_popcount_many_avx512(tj, &rows, vals) },
+                // SAFETY: the CPU supports AVX-512F and VPOPCNTDQ (checked by `bitset_isa`);
+                // rows are `stride` words, a multiple of 8.
+                Isa::Avx512 => unsafe {
+                    crate::simd::x86_64_avx512::and_popcount_many(tj, &rows, vals)
+                },
                 _ => {
                     for (v, r) in vals.iter_mut().zip(&rows) {
-                        *v = and_popcount_isa(self.isa, r, tj);
+                        *v = crate::simd::and_popcount(self.isa, r, tj);
                     }
                 }
             }
@@ -1073,18 +968,19 @@ mod tests {
 
     #[test]
     fn popcount_kernels_agree() {
+        use crate::simd::{and_popcount, features, scalar};
         let a: Vec<u64> = (0..131u64)
             .map(|k| k.wrapping_mul(0x9e37_79b9_7f4a_7c15))
             .collect();
         let b: Vec<u64> = (0..131u64)
             .map(|k| (k + 7).wrapping_mul(0xc2b2_ae3d_27d4_eb4f))
             .collect();
-        let want = and_popcount(&a, &b);
-        for isa in [Isa::Scalar, isa()] {
-            assert_eq!(and_popcount_isa(isa, &a, &b), want);
+        let want = scalar::and_popcount(&a, &b);
+        for isa in [Isa::Scalar, features().bitset_isa()] {
+            assert_eq!(and_popcount(isa, &a, &b), want);
         }
         #[cfg(target_arch = "x86_64")]
-        if isa() == Isa::Avx512 {
+        if features().bitset_isa() == Isa::Avx512 {
             let pad = |v: &[u64]| {
                 let mut p = v.to_vec();
                 p.resize(136, 0);
@@ -1101,9 +997,9 @@ mod tests {
             let refs: Vec<&[u64]> = rows.iter().map(|r| r.as_slice()).collect();
             let mut out = vec![0u32; 6];
             // SAFETY: checked AVX-512 support; rows are 136 = 17 x 8 words.
-            unsafe { and_popcount_many_avx512(&pad(&a), &refs, &mut out) };
+            unsafe { crate::simd::x86_64_avx512::and_popcount_many(&pad(&a), &refs, &mut out) };
             for (o, r) in out.iter().zip(&rows) {
-                assert_eq!(*o, and_popcount(&pad(&a), r));
+                assert_eq!(*o, scalar::and_popcount(&pad(&a), r));
             }
         }
     }

@@ -38,6 +38,55 @@ impl Calibration {
             Calibration::RowSoftmax { tau } | Calibration::DualSoftmax { tau } => tau,
         }
     }
+
+    /// The temperature, for controls that edit it in place.
+    pub fn tau_mut(&mut self) -> &mut f32 {
+        match self {
+            Calibration::RowSoftmax { tau } | Calibration::DualSoftmax { tau } => tau,
+        }
+    }
+
+    /// Every calibration method, each with temperature `tau` (for a method choice that keeps
+    /// the temperature).
+    pub fn all_with_tau(tau: f32) -> [Calibration; 2] {
+        [
+            Calibration::RowSoftmax { tau },
+            Calibration::DualSoftmax { tau },
+        ]
+    }
+
+    /// The same method with temperature `tau`.
+    pub fn with_tau(mut self, tau: f32) -> Calibration {
+        *self.tau_mut() = tau;
+        self
+    }
+
+    pub fn label(&self) -> &'static str {
+        match self {
+            Calibration::RowSoftmax { .. } => "Row softmax",
+            Calibration::DualSoftmax { .. } => "Dual softmax",
+        }
+    }
+}
+
+/// `--calibration row|dual`; the temperature comes from `--tau-img` / `--tau-geo`.
+impl clap::ValueEnum for Calibration {
+    fn value_variants<'a>() -> &'a [Self] {
+        const V: [Calibration; 2] = [
+            Calibration::RowSoftmax { tau: 0.1 },
+            Calibration::DualSoftmax { tau: 0.1 },
+        ];
+        &V
+    }
+
+    fn to_possible_value(&self) -> Option<clap::builder::PossibleValue> {
+        Some(match self {
+            Calibration::RowSoftmax { .. } => clap::builder::PossibleValue::new("row")
+                .help("The paper's row softmax over target points (eq. 5)"),
+            Calibration::DualSoftmax { .. } => clap::builder::PossibleValue::new("dual")
+                .help("The reference code's dual softmax sqrt(Pr*Pc + 1e-9)"),
+        })
+    }
 }
 
 /// The reference's floor inside the square root of the dual softmax.

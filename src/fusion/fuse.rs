@@ -21,7 +21,9 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 /// How the two modality posteriors become one score matrix.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum,
+)]
 pub enum FusionMode {
     /// Joint posterior (paper eq. 6): both modalities must support a match.
     #[default]
@@ -29,12 +31,35 @@ pub enum FusionMode {
     /// Disjunctive posterior (paper eq. 7): `1 - (1 - p_img)(1 - p_geo)`.
     NoisyOr,
     /// The image-branch posterior alone.
+    #[value(name = "image")]
     ImageOnly,
     /// The geometric-branch posterior alone.
+    #[value(name = "geometry")]
     GeometryOnly,
     /// Fuse-then-match baseline: concatenate L2-normalised features, then one cosine
     /// similarity calibrated like a single branch (see [`concat_features`]).
     Concat,
+}
+
+impl FusionMode {
+    /// Every mode, in the order the inspector lists them.
+    pub const ALL: [FusionMode; 5] = [
+        FusionMode::NoisyAnd,
+        FusionMode::NoisyOr,
+        FusionMode::Concat,
+        FusionMode::ImageOnly,
+        FusionMode::GeometryOnly,
+    ];
+
+    pub fn label(self) -> &'static str {
+        match self {
+            FusionMode::NoisyAnd => "Noisy-AND",
+            FusionMode::NoisyOr => "Noisy-OR",
+            FusionMode::Concat => "Concatenation",
+            FusionMode::ImageOnly => "Image only",
+            FusionMode::GeometryOnly => "Geometry only",
+        }
+    }
 }
 
 /// The paper's uniform prior `pi = 1 / (N_src N_tgt)`.

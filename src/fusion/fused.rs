@@ -13,6 +13,7 @@ use super::matrix::{rows_per_task, DenseMatrix};
 use super::select::{order, Selection};
 use super::Correspondence;
 use crate::{Error, Result};
+use crate::simd::Isa;
 use rayon::prelude::*;
 
 /// Row-softmax inputs for one branch: similarity, row validity, column validity.
@@ -257,30 +258,6 @@ unsafe fn band_kernel_avx512(
     band_kernel(x, t, out, best, tmp, cbi)
 }
 
-#[derive(Clone, Copy)]
-enum Isa {
-    Avx512,
-    Avx2,
-    Scalar,
-}
-
-fn isa() -> Isa {
-    #[cfg(target_arch = "x86_64")]
-    {
-        if is_x86_feature_detected!("avx512f")
-            && is_x86_feature_detected!("avx512bw")
-            && is_x86_feature_detected!("avx512vl")
-            && is_x86_feature_detected!("avx512dq")
-        {
-            return Isa::Avx512;
-        }
-        if is_x86_feature_detected!("avx2") {
-            return Isa::Avx2;
-        }
-    }
-    Isa::Scalar
-}
-
 /// Row softmax of both branches, Noisy-AND (stable, prior `prior` or 1 / (N M)) and
 /// `selection` (MutualNn or RowNn; anything else is an error), in one pass. With
 /// `materialise` the posteriors `(p_img, p_geo, fused)` are returned as well; without, no
@@ -344,7 +321,7 @@ pub(crate) fn row_softmax_noisy_and(
         c,
         want_cols,
     };
-    let isa = isa();
+    let isa = crate::simd::features().float_isa();
     let mut best: Vec<Option<(usize, f32)>> = vec![None; rows];
     let col_len = if want_cols { cols } else { 0 };
     let init = || {

@@ -27,6 +27,47 @@ pub enum Selection {
 /// The reference's number of matches.
 pub const REFERENCE_TOP_K: usize = 8000;
 
+impl Selection {
+    /// Every rule; top-k with `k`.
+    pub fn all_with_k(k: usize) -> [Selection; 3] {
+        [Selection::MutualNn, Selection::TopK(k), Selection::RowNn]
+    }
+
+    pub fn label(&self) -> &'static str {
+        match self {
+            Selection::MutualNn => "Mutual nearest",
+            Selection::TopK(_) => "Top-k by score",
+            Selection::RowNn => "Best target per source",
+        }
+    }
+}
+
+/// `--selection mutual|topk|nn`; top-k's k comes from `--topk`.
+impl clap::ValueEnum for Selection {
+    fn value_variants<'a>() -> &'a [Self] {
+        const V: [Selection; 3] = [
+            Selection::MutualNn,
+            Selection::TopK(REFERENCE_TOP_K),
+            Selection::RowNn,
+        ];
+        &V
+    }
+
+    fn to_possible_value(&self) -> Option<clap::builder::PossibleValue> {
+        use clap::builder::PossibleValue;
+        Some(match self {
+            Selection::MutualNn => {
+                PossibleValue::new("mutual").help("Mutual nearest neighbours of the fused posterior (paper)")
+            }
+            Selection::TopK(_) => {
+                PossibleValue::new("topk").help("Global top-k entries (reference code, k = 8000)")
+            }
+            Selection::RowNn => PossibleValue::new("nn")
+                .help("Each source point's best target, no mutual check (SC2-PCR's FPFH protocol)"),
+        })
+    }
+}
+
 /// Selects correspondences from `scores` (module docs for the rules).
 pub fn select(scores: &DenseMatrix, sel: Selection) -> Vec<Correspondence> {
     // A matrix whose buffer disagrees with its shape is read only as far as it is consistent.

@@ -21,6 +21,46 @@ pub fn normalize_rows(f: &Features) -> Features {
     Features { dim: f.dim, data }
 }
 
+/// `out[r][j] = a_band[r] · b[j]` for a band of rows `a_band` (rows x d, row-major) against all
+/// of `b` (m x d, row-major, read as its transpose), with one blocked sgemm; `out` is rows x m.
+/// Panics when the slice lengths disagree with `d` (a caller bug, never data-dependent).
+pub(crate) fn dot_band(a_band: &[f32], b: &[f32], d: usize, out: &mut [f32]) {
+    if d == 0 {
+        out.fill(0.0);
+        return;
+    }
+    let rows = a_band.len() / d;
+    let m = b.len() / d;
+    assert!(
+        a_band.len() == rows * d && b.len() == m * d && out.len() == rows * m,
+        "dot_band: {} x {d} against {} x {d} into {} values",
+        rows,
+        m,
+        out.len()
+    );
+    // SAFETY: a_band is rows x d (row stride d), b is m x d read as its transpose d x m (row
+    // stride 1, column stride d), out is rows x m (row stride m); the lengths were checked
+    // above and the slices do not alias (out is the only &mut).
+    unsafe {
+        matrixmultiply::sgemm(
+            rows,
+            d,
+            m,
+            1.0,
+            a_band.as_ptr(),
+            d as isize,
+            1,
+            b.as_ptr(),
+            1,
+            d as isize,
+            0.0,
+            out.as_mut_ptr(),
+            m as isize,
+            1,
+        );
+    }
+}
+
 /// `S[i][j] = cos(src_i, tgt_j)`: both sides L2-normalised, then one blocked sgemm per band
 /// of source rows, bands run in parallel.
 pub fn cosine_similarity(src: &Features, tgt: &Features) -> Result<DenseMatrix> {
@@ -54,28 +94,7 @@ pub fn cosine_similarity(src: &Features, tgt: &Features) -> Result<DenseMatrix> 
         .for_each(|(t, c)| {
             let r0 = t * band;
             let rows = c.len() / m;
-            let a_band = &a.data[r0 * d..(r0 + rows) * d];
-            // SAFETY: a_band is rows x d (row stride d), b.data is m x d read as its transpose
-            // d x m (row stride 1, column stride d), c is rows x m (row stride m); all slices
-            // are exactly that long and do not alias.
-            unsafe {
-                matrixmultiply::sgemm(
-                    rows,
-                    d,
-                    m,
-                    1.0,
-                    a_band.as_ptr(),
-                    d as isize,
-                    1,
-                    b.data.as_ptr(),
-                    1,
-                    d as isize,
-                    0.0,
-                    c.as_mut_ptr(),
-                    m as isize,
-                    1,
-                );
-            }
+            dot_band(&a.data[r0 * d..(r0 + rows) * d], &b.data, d, c);
         });
     Ok(out)
 }

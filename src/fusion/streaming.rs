@@ -41,27 +41,7 @@ pub fn row_nn_posterior(src: &Features, tgt: &Features, tau: f32) -> Result<Vec<
         .flat_map_iter(|(t, a_band)| {
             let rows = a_band.len() / d;
             let mut s = vec![0.0f32; rows * m];
-            // SAFETY: a_band is rows x d (row stride d); b.data is m x d read as d x m
-            // (row stride 1, column stride d); s is rows x m; the slices have exactly these
-            // lengths and do not alias.
-            unsafe {
-                matrixmultiply::sgemm(
-                    rows,
-                    d,
-                    m,
-                    1.0,
-                    a_band.as_ptr(),
-                    d as isize,
-                    1,
-                    b.data.as_ptr(),
-                    1,
-                    d as isize,
-                    0.0,
-                    s.as_mut_ptr(),
-                    m as isize,
-                    1,
-                );
-            }
+            super::similarity::dot_band(a_band, &b.data, d, &mut s);
             let base = t * BAND;
             (0..rows)
                 .filter_map(|r| {

@@ -64,6 +64,74 @@ pub enum WfmSpec {
     },
 }
 
+impl WfmSpec {
+    /// Every backend, the ones with files or a command with empty ones (the user fills them).
+    pub fn all() -> [WfmSpec; 4] {
+        [
+            WfmSpec::Oracle,
+            WfmSpec::Builtin,
+            WfmSpec::Cached {
+                dir: PathBuf::new(),
+                spec: PathBuf::new(),
+            },
+            WfmSpec::Cosmos {
+                command: Vec::new(),
+                work_dir: std::env::temp_dir().join("cgenreg-cosmos"),
+                timeout_s: 3600,
+            },
+        ]
+    }
+
+    /// The inspector's choice text; says plainly which backends are not a WFM.
+    pub fn label(&self) -> &'static str {
+        match self {
+            WfmSpec::Oracle => "oracle (real RGB)",
+            WfmSpec::Builtin => "built-in depth shading — NOT a WFM",
+            WfmSpec::Cached { .. } => "cached Cosmos output (folder + spec)",
+            WfmSpec::Cosmos { .. } => "Cosmos-Transfer1 command",
+        }
+    }
+
+    pub fn same_kind(&self, other: &WfmSpec) -> bool {
+        std::mem::discriminant(self) == std::mem::discriminant(other)
+    }
+}
+
+/// `--wfm oracle|builtin|cached|cosmos`; files and the command come from their own options.
+impl clap::ValueEnum for WfmSpec {
+    fn value_variants<'a>() -> &'a [Self] {
+        static V: std::sync::LazyLock<[WfmSpec; 4]> = std::sync::LazyLock::new(WfmSpec::all);
+        &*V
+    }
+
+    fn to_possible_value(&self) -> Option<clap::builder::PossibleValue> {
+        use clap::builder::PossibleValue;
+        Some(match self {
+            WfmSpec::Oracle => {
+                PossibleValue::new("oracle").help("The dataset's real colour frames (\"C-GenReg (Oracle)\")")
+            }
+            WfmSpec::Builtin => PossibleValue::new("builtin")
+                .help("builtin-depthshade-v1: deterministic shading of the depth video. NOT a WFM"),
+            WfmSpec::Cached { .. } => PossibleValue::new("cached")
+                .help("An existing Cosmos output folder (--wfm-dir) with its JSONL spec (--wfm-spec)"),
+            WfmSpec::Cosmos { .. } => PossibleValue::new("cosmos")
+                .help("Run Cosmos-Transfer1 (--cosmos-cmd, as an argument vector)"),
+        })
+    }
+}
+
+/// `--vfm xfeat|mast3r`; the model file comes from `--vfm-model`.
+impl clap::ValueEnum for VfmSpec {
+    fn value_variants<'a>() -> &'a [Self] {
+        static V: std::sync::LazyLock<[VfmSpec; 2]> = std::sync::LazyLock::new(VfmSpec::all);
+        &*V
+    }
+
+    fn to_possible_value(&self) -> Option<clap::builder::PossibleValue> {
+        Some(clap::builder::PossibleValue::new(self.name()))
+    }
+}
+
 /// Which vision foundation model describes the selected views.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "kebab-case")]
@@ -80,6 +148,36 @@ impl VfmSpec {
         match self {
             VfmSpec::Xfeat { model } | VfmSpec::Mast3r { model } => model,
         }
+    }
+
+    /// The model file, for the field that edits it.
+    pub fn model_mut(&mut self) -> &mut PathBuf {
+        match self {
+            VfmSpec::Xfeat { model } | VfmSpec::Mast3r { model } => model,
+        }
+    }
+
+    /// Every VFM with its default model file (MASt3R has none: no weights ship with cgenreg,
+    /// so its path is empty until the user gives an export).
+    pub fn all() -> [VfmSpec; 2] {
+        [
+            VfmSpec::default(),
+            VfmSpec::Mast3r {
+                model: PathBuf::new(),
+            },
+        ]
+    }
+
+    /// The inspector's choice text.
+    pub fn label(&self) -> &'static str {
+        match self {
+            VfmSpec::Xfeat { .. } => "xfeat",
+            VfmSpec::Mast3r { .. } => "mast3r (your ONNX export)",
+        }
+    }
+
+    pub fn same_kind(&self, other: &VfmSpec) -> bool {
+        std::mem::discriminant(self) == std::mem::discriminant(other)
     }
 
     pub fn name(&self) -> &'static str {
@@ -129,7 +227,7 @@ fn one() -> usize {
 }
 
 /// How depth frames are made for a scan that is only a point cloud (paper §3.1, appendix B.3).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "kebab-case")]
 pub enum VirtualCamera {
     /// f-theta for LiDAR-like scans (the cloud carries intensity, as LiDAR formats do),

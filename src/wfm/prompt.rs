@@ -62,16 +62,18 @@ impl Prompt {
 }
 
 /// The four prompt categories of the paper's prompt study.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "kebab-case")]
 pub enum PromptPreset {
     /// A detailed description of the actual scene (objects, materials, colours).
+    #[value(name = "scene")]
     SceneSpecific,
     /// The scene's category only ("a kitchen").
     General,
     /// Almost nothing ("indoor scene").
     Minimal,
     /// A description of a different kind of place ("snowy forest"); degrades registration.
+    #[value(name = "wrong")]
     SemanticallyWrong,
 }
 
@@ -100,6 +102,34 @@ impl PromptPreset {
             PromptPreset::General => "general",
             PromptPreset::Minimal => "minimal",
             PromptPreset::SemanticallyWrong => "semantically-wrong",
+        }
+    }
+
+    /// The inspector's button text.
+    pub fn label(self) -> &'static str {
+        match self {
+            PromptPreset::SceneSpecific => "Scene-specific",
+            PromptPreset::General => "General",
+            PromptPreset::Minimal => "Minimal",
+            PromptPreset::SemanticallyWrong => "Wrong",
+        }
+    }
+
+    /// The preset whose default scene is `scene`, if any.
+    pub fn of_scene(scene: &str) -> Option<PromptPreset> {
+        PromptPreset::ALL
+            .into_iter()
+            .find(|p| p.default_scene() == scene.trim())
+    }
+
+    /// The scene text the preset puts in the editor: its default scene; for scene-specific,
+    /// `scene_specific` (the pair's own description) when one is known.
+    pub fn scene_text(self, scene_specific: &str) -> String {
+        match self {
+            PromptPreset::SceneSpecific if !scene_specific.trim().is_empty() => {
+                scene_specific.to_owned()
+            }
+            p => p.default_scene().to_owned(),
         }
     }
 
