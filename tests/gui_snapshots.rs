@@ -7,9 +7,9 @@ use std::sync::{Arc, Mutex};
 
 use cgenreg::app::colormap::{SOURCE_RGB, TARGET_RGB};
 use cgenreg::app::controls::{spawn_worker, Command, EventSink, Worker};
-use cgenreg::wfm::PromptPreset;
 use cgenreg::app::headless::{render_screenshot, HeadlessGl};
 use cgenreg::app::{App, InspectorModel, Panel};
+use cgenreg::wfm::PromptPreset;
 use eframe::egui;
 use egui_kittest::kittest::Queryable;
 use egui_kittest::{Harness, TestRenderer};

@@ -55,27 +55,31 @@ proptest! {
     ) {
         let idx = KdIndex::new(&pts);
         let got = idx.knn(&q, k);
-        let mut want: Vec<f32> = pts.iter().map(|p| (p - q).norm_squared()).collect();
+        let mut want: Vec<f32> = pts.iter().map(|p| (p - q).norm()).collect();
         want.sort_by(|a, b| a.partial_cmp(b).unwrap());
         want.truncate(k);
         prop_assert_eq!(got.len(), want.len());
         for ((i, d), w) in got.iter().zip(&want) {
-            let d_true = (pts[*i] - q).norm_squared();
-            // the reported distance is the point's own, and the k-th smallest
+            let d_true = (pts[*i] - q).norm();
+            // the reported distance (m) is the point's own, and the k-th smallest
             prop_assert!((d - d_true).abs() <= 1e-4 * (1.0 + d_true), "{d} vs {d_true}");
             prop_assert!((d_true - w).abs() <= 1e-4 * (1.0 + w), "{d_true} vs {w}");
         }
     }
 
-    /// Voxel downsampling keeps one point per occupied voxel, inside that voxel.
+    /// Voxel downsampling keeps one point per occupied voxel of the grid anchored half a
+    /// voxel below the minimum bound (as Open3D), inside that voxel.
     #[test]
     fn voxel_grid_one_point_per_occupied_voxel(
         pts in prop::collection::vec(point(), 1..400),
         voxel in 0.2f64..2.0,
     ) {
+        let lo = pts.iter().fold([f64::INFINITY; 3], |m, p| {
+            [m[0].min(p.x as f64), m[1].min(p.y as f64), m[2].min(p.z as f64)]
+        });
         let key = |p: &Point3<f32>| {
-            let v = voxel as f32;
-            ((p.x / v).floor() as i64, (p.y / v).floor() as i64, (p.z / v).floor() as i64)
+            let c = |x: f32, l: f64| ((x as f64 - (l - voxel / 2.0)) / voxel).floor() as i64;
+            (c(p.x, lo[0]), c(p.y, lo[1]), c(p.z, lo[2]))
         };
         let occupied: HashSet<_> = pts.iter().map(key).collect();
         let out = voxel_downsample(&PointCloud::from_points(pts.clone()), voxel);

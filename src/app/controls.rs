@@ -403,7 +403,14 @@ pub fn controls_ui(
                 );
             }
             let mode = &mut params.fusion.mode;
-            choice(ui, "Fusion", mode, FusionMode::ALL, |a, b| a == b, |m| m.label());
+            choice(
+                ui,
+                "Fusion",
+                mode,
+                FusionMode::ALL,
+                |a, b| a == b,
+                |m| m.label(),
+            );
             let k = match params.fusion.selection {
                 Selection::TopK(k) => k,
                 _ => DEFAULT_TOPK,
@@ -417,7 +424,11 @@ pub fn controls_ui(
                 |s| s.label(),
             );
             if let Selection::TopK(k) = &mut params.fusion.selection {
-                ui.add(egui::Slider::new(k, 100..=20_000).logarithmic(true).text("top-k"));
+                ui.add(
+                    egui::Slider::new(k, 100..=20_000)
+                        .logarithmic(true)
+                        .text("top-k"),
+                );
             }
             let options = EstimatorKind::all().map(|e| match e {
                 e if e.same_kind(&params.estimator) => params.estimator.clone(),

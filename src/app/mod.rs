@@ -27,8 +27,8 @@ use serde::{Deserialize, Serialize};
 use crate::pipeline::params::{ImageBranchParams, RegisterParams};
 
 pub use controls::{
-    spawn_worker, Command, EventSink, LogLevel, LogOnlyWorker, OpenKind,
-    StudyRequest, Worker, WorkerEvent, WorkerHandle,
+    spawn_worker, Command, EventSink, LogLevel, LogOnlyWorker, OpenKind, StudyRequest, Worker,
+    WorkerEvent, WorkerHandle,
 };
 pub use model::InspectorModel;
 
@@ -272,9 +272,8 @@ pub fn load_persisted(path: &Path) -> (Persisted, Option<String>) {
 }
 
 fn is_old_settings_file(bytes: &[u8]) -> bool {
-    serde_json::from_slice::<serde_json::Value>(bytes).is_ok_and(|v| {
-        v.get("settings").is_some() && v.get("params").is_none()
-    })
+    serde_json::from_slice::<serde_json::Value>(bytes)
+        .is_ok_and(|v| v.get("settings").is_some() && v.get("params").is_none())
 }
 
 pub fn save_persisted(path: &Path, p: &Persisted) -> Result<(), String> {

@@ -1803,7 +1803,9 @@ pub fn find_cosmos_spec(dir: &Path) -> crate::Result<PathBuf> {
 pub fn cosmos_output_settings(p: &RegisterParams, dir: &Path) -> crate::Result<RegisterParams> {
     let spec = find_cosmos_spec(dir)?;
     let mut p = p.clone();
-    p.image.get_or_insert_with(ImageBranchParams::default).backend = WfmSpec::Cached {
+    p.image
+        .get_or_insert_with(ImageBranchParams::default)
+        .backend = WfmSpec::Cached {
         dir: dir.to_path_buf(),
         spec,
     };

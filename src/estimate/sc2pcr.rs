@@ -15,9 +15,9 @@
 //! Ties are broken deterministically by the lower correspondence index (stable sorts); torch's
 //! unstable argsort may order ties differently.
 
-use crate::simd::Isa;
 use super::kabsch;
 use super::Estimate;
+use crate::simd::Isa;
 use crate::{Error, Result};
 use nalgebra::{Isometry3, Point3, Vector3};
 use rayon::prelude::*;

@@ -21,9 +21,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 /// How the two modality posteriors become one score matrix.
-#[derive(
-    Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum,
-)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
 pub enum FusionMode {
     /// Joint posterior (paper eq. 6): both modalities must support a match.
     #[default]

@@ -12,8 +12,8 @@ use super::fuse::{default_prior, noisy_and_rank_key};
 use super::matrix::{rows_per_task, DenseMatrix};
 use super::select::{order, Selection};
 use super::Correspondence;
-use crate::{Error, Result};
 use crate::simd::Isa;
+use crate::{Error, Result};
 use rayon::prelude::*;
 
 /// Row-softmax inputs for one branch: similarity, row validity, column validity.

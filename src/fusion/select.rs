@@ -56,9 +56,8 @@ impl clap::ValueEnum for Selection {
     fn to_possible_value(&self) -> Option<clap::builder::PossibleValue> {
         use clap::builder::PossibleValue;
         Some(match self {
-            Selection::MutualNn => {
-                PossibleValue::new("mutual").help("Mutual nearest neighbours of the fused posterior (paper)")
-            }
+            Selection::MutualNn => PossibleValue::new("mutual")
+                .help("Mutual nearest neighbours of the fused posterior (paper)"),
             Selection::TopK(_) => {
                 PossibleValue::new("topk").help("Global top-k entries (reference code, k = 8000)")
             }

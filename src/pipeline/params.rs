@@ -107,13 +107,13 @@ impl clap::ValueEnum for WfmSpec {
     fn to_possible_value(&self) -> Option<clap::builder::PossibleValue> {
         use clap::builder::PossibleValue;
         Some(match self {
-            WfmSpec::Oracle => {
-                PossibleValue::new("oracle").help("The dataset's real colour frames (\"C-GenReg (Oracle)\")")
-            }
+            WfmSpec::Oracle => PossibleValue::new("oracle")
+                .help("The dataset's real colour frames (\"C-GenReg (Oracle)\")"),
             WfmSpec::Builtin => PossibleValue::new("builtin")
                 .help("builtin-depthshade-v1: deterministic shading of the depth video. NOT a WFM"),
-            WfmSpec::Cached { .. } => PossibleValue::new("cached")
-                .help("An existing Cosmos output folder (--wfm-dir) with its JSONL spec (--wfm-spec)"),
+            WfmSpec::Cached { .. } => PossibleValue::new("cached").help(
+                "An existing Cosmos output folder (--wfm-dir) with its JSONL spec (--wfm-spec)",
+            ),
             WfmSpec::Cosmos { .. } => PossibleValue::new("cosmos")
                 .help("Run Cosmos-Transfer1 (--cosmos-cmd, as an argument vector)"),
         })

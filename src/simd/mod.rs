@@ -114,14 +114,20 @@ mod tests {
     #[test]
     fn rules_fall_back_in_order() {
         let none = Features::default();
-        assert_eq!((none.float_isa(), none.bitset_isa()), (Isa::Scalar, Isa::Scalar));
+        assert_eq!(
+            (none.float_isa(), none.bitset_isa()),
+            (Isa::Scalar, Isa::Scalar)
+        );
         let avx2 = Features {
             avx2: true,
             fma: true,
             popcnt: true,
             ..none
         };
-        assert_eq!((avx2.float_isa(), avx2.bitset_isa()), (Isa::Avx2, Isa::Avx2));
+        assert_eq!(
+            (avx2.float_isa(), avx2.bitset_isa()),
+            (Isa::Avx2, Isa::Avx2)
+        );
         // AVX2 without POPCNT: float kernels only
         let f = Features {
             popcnt: false,
@@ -136,7 +142,10 @@ mod tests {
             avx512dq: true,
             ..avx2
         };
-        assert_eq!((skx.float_isa(), skx.bitset_isa()), (Isa::Avx512, Isa::Avx2));
+        assert_eq!(
+            (skx.float_isa(), skx.bitset_isa()),
+            (Isa::Avx512, Isa::Avx2)
+        );
     }
 
     #[test]
@@ -147,7 +156,11 @@ mod tests {
             let b: Vec<u64> = (0..len).map(|_| rng.next_u64()).collect();
             let want = scalar::and_popcount(&a, &b);
             for isa in [Isa::Scalar, features().bitset_isa()] {
-                assert_eq!(and_popcount(isa, &a, &b), want, "len {len}, {isa:?}, seed {seed}");
+                assert_eq!(
+                    and_popcount(isa, &a, &b),
+                    want,
+                    "len {len}, {isa:?}, seed {seed}"
+                );
             }
         }
     }
