@@ -47,6 +47,21 @@ fn run(
     if let Ok(s) = std::env::var("GUI_BENCH_POINT_SIZE") {
         r.app.view3d_prefs_mut().point_size = s.parse().unwrap_or(2.0);
     }
+    // GUI_BENCH_DEPTH_CUE=none|normals|edl (default: the view's default)
+    if let Ok(s) = std::env::var("GUI_BENCH_DEPTH_CUE") {
+        use cgenreg::app::render3d::DepthCue;
+        r.app.view3d_prefs_mut().depth_cue = match s.as_str() {
+            "none" => DepthCue::None,
+            "normals" => DepthCue::Normals,
+            "edl" => DepthCue::Edl,
+            _ => {
+                return Err(format!(
+                    "GUI_BENCH_DEPTH_CUE={s}: expected none, normals or edl"
+                ))
+            }
+        };
+    }
+    let cue = r.app.view3d_prefs_mut().depth_cue.label();
     for _ in 0..5 {
         r.app.orbit_3d(3.0, 0.0);
         r.frame(false)?;
@@ -65,7 +80,7 @@ fn run(
     let cpu = (cpu_ms() - cpu0) / frames as f64;
     let (med, mean, p90) = stats(times);
     println!(
-        "{label:<32} {}x{}  median {med:6.1} ms  mean {mean:6.1} ms  p90 {p90:6.1} ms  cpu {cpu:6.1} ms/frame  ({})",
+        "{label:<32} {}x{}  median {med:6.1} ms  mean {mean:6.1} ms  p90 {p90:6.1} ms  cpu {cpu:6.1} ms/frame  (depth cue: {cue}; {})",
         size.0, size.1, r.gl.renderer
     );
     Ok(())

@@ -180,3 +180,74 @@ fn headless_3d_screenshot_shows_source_and_target_points() {
     let img2 = image::open(&out2).unwrap().to_rgba8();
     assert!(count_near(&img2, TARGET_RGB, 6) < 50);
 }
+
+/// Where no native dialog is available (here: dialogs refused, as on a desktop without an
+/// xdg portal or zenity), "Open…" shows the built-in browser: a typed, Tab-completed path
+/// opens through the worker and the dataset loads.
+#[test]
+fn the_built_in_browser_opens_a_typed_manifest_and_the_dataset_loads() {
+    use cgenreg::app::pipeline_worker::PipelineWorker;
+    use cgenreg::pipeline::RegisterParams;
+    let manifest = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/demo/demo.toml");
+    let mut params = RegisterParams::default();
+    params.fusion.selection = cgenreg::fusion::select::Selection::RowNn;
+    let worker = PipelineWorker::open_manifest(&manifest, params).unwrap();
+    let handle = spawn_worker(Box::new(worker), None);
+    // the app starts empty: only the open fills it
+    let mut app = App::new(InspectorModel::default(), Some(handle), None);
+    app.allow_dialogs = false;
+    let Some(mut h) = harness(app) else { return };
+    h.run_steps(2);
+    h.get_by_label("Open…").click();
+    h.run_steps(2);
+    h.get_by_label("Dataset manifest…").click();
+    h.run_steps(2);
+    assert!(
+        h.state().browser.is_some(),
+        "the built-in browser did not open"
+    );
+    // type the folder and the start of the name, complete with Tab
+    let field = h.get_by_label("Path");
+    field.click();
+    h.run_steps(1);
+    h.key_press_modifiers(egui::Modifiers::COMMAND, egui::Key::A);
+    h.run_steps(1);
+    let partial = format!("{}/de", manifest.parent().unwrap().display());
+    h.get_by_label("Path").type_text(&partial);
+    h.run_steps(1);
+    h.key_press(egui::Key::Tab);
+    h.run_steps(2);
+    assert_eq!(
+        h.state().browser.as_ref().map(|b| b.text.clone()),
+        Some(manifest.display().to_string()),
+        "Tab did not complete the file name"
+    );
+    h.get_by_label("Open").click();
+    h.run_steps(2);
+    assert!(h.state().browser.is_none(), "the browser stayed open");
+    // the worker loads the manifest and registers its first pair
+    let t0 = std::time::Instant::now();
+    loop {
+        h.run_steps(1);
+        let m = h.state().model();
+        if m.current_pair
+            .is_some_and(|i| m.pairs[i].status == cgenreg::app::model::PairStatus::Done)
+        {
+            assert_eq!(
+                m.pairs.len(),
+                cgenreg::dataset::Dataset::load(&manifest)
+                    .unwrap()
+                    .pairs()
+                    .len()
+            );
+            assert!(!m.source.is_empty() && !m.target.is_empty());
+            break;
+        }
+        assert!(
+            t0.elapsed().as_secs() < 300,
+            "the dataset never loaded; log: {:?}",
+            h.state().log.iter().map(|l| &l.text).collect::<Vec<_>>()
+        );
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+}

@@ -6,6 +6,7 @@
 
 pub mod colormap;
 pub mod controls;
+pub mod file_browser;
 pub mod headless;
 pub mod model;
 pub mod pairs_panel;
@@ -390,6 +391,9 @@ pub fn classify_drop(paths: &[PathBuf]) -> OpenKind {
     OpenKind::Auto
 }
 
+/// A native dialog that answers "cancelled" sooner than this never opened.
+const NO_DIALOG_WITHIN: std::time::Duration = std::time::Duration::from_millis(400);
+
 #[derive(Clone, Debug)]
 pub struct LogLine {
     pub level: LogLevel,
@@ -412,7 +416,15 @@ pub struct App {
     worker: Option<WorkerHandle>,
     pub log: Vec<LogLine>,
     show_log: bool,
-    dialog: Option<Receiver<(OpenKind, Option<Vec<PathBuf>>)>>,
+    dialog: Option<(
+        Receiver<(OpenKind, Option<Vec<PathBuf>>)>,
+        std::time::Instant,
+    )>,
+    /// The in-app file browser, while open.
+    pub browser: Option<file_browser::FileBrowser>,
+    /// Open files with the in-app browser instead of the native dialog (set by the user, or
+    /// when the native dialog turned out to be unavailable).
+    pub builtin_browser: bool,
     settings_path: Option<PathBuf>,
     last_saved: Option<Persisted>,
     last_opened: Option<(OpenKind, Vec<PathBuf>)>,
@@ -441,6 +453,8 @@ impl App {
             log: Vec::new(),
             show_log: false,
             dialog: None,
+            browser: None,
+            builtin_browser: std::env::var("CGENREG_FILE_DIALOG").as_deref() == Ok("builtin"),
             settings_path,
             last_saved: None,
             last_opened: None,
@@ -515,14 +529,15 @@ impl App {
         &mut self.view3d.prefs
     }
 
-    /// Show the depth frame instead of the generated view in every row of the views panel.
+    /// Show the depth frames instead of the generated views in the views panel.
     pub fn show_depth_frames(&mut self, on: bool) {
-        let rows = self
-            .model
-            .source_views
-            .len()
-            .max(self.model.target_views.len());
-        self.views.show_depth = vec![on; rows];
+        self.views.show_depth = on;
+    }
+
+    /// Shows view pair (source view, target view) in the views panel; None: the pair with
+    /// the most shown matches.
+    pub fn show_view_pair(&mut self, pair: Option<(usize, usize)>) {
+        self.views.pair = pair;
     }
 
     /// The pair's own scene description, when known. The views' labels carry full prompts
@@ -586,27 +601,48 @@ impl App {
                 }
             }
         }
-        if let Some(rx) = &self.dialog {
+        if let Some((rx, started)) = &self.dialog {
             if let Ok((kind, paths)) = rx.try_recv() {
+                let fast = started.elapsed() < NO_DIALOG_WITHIN;
                 self.dialog = None;
                 match paths {
                     Some(paths) if !paths.is_empty() => self.send(Command::Open { kind, paths }),
-                    _ => self.push_log(
-                        LogLevel::Info,
-                        "open cancelled (or no file dialog available)",
-                    ),
+                    // rfd answers None at once when it has neither a portal nor zenity
+                    _ if fast => {
+                        self.push_log(
+                            LogLevel::Info,
+                            "no native file dialog (no xdg portal or zenity): using the built-in browser",
+                        );
+                        self.builtin_browser = true;
+                        self.open_browser(kind);
+                    }
+                    _ => self.push_log(LogLevel::Info, "open cancelled"),
                 }
             }
         }
     }
 
-    /// Native dialog on a thread: the UI keeps running while it is open.
+    /// The in-app browser, starting where the last opened data lies.
+    pub fn open_browser(&mut self, kind: OpenKind) {
+        let start = self
+            .last_opened
+            .as_ref()
+            .and_then(|(_, p)| p.first().cloned());
+        self.browser = Some(file_browser::FileBrowser::new(kind, start.as_deref()));
+    }
+
+    /// Native dialog on a thread (the UI keeps running while it is open); the in-app
+    /// browser where native dialogs are refused or unavailable.
     fn open_dialog(&mut self, kind: OpenKind, ctx: &egui::Context) {
-        if !self.allow_dialogs || self.dialog.is_some() {
+        if self.dialog.is_some() {
+            return;
+        }
+        if !self.allow_dialogs || self.builtin_browser {
+            self.open_browser(kind);
             return;
         }
         let (tx, rx) = channel();
-        self.dialog = Some(rx);
+        self.dialog = Some((rx, std::time::Instant::now()));
         let ctx = ctx.clone();
         let spawned = std::thread::Builder::new()
             .name("cgenreg-dialog".into())
@@ -708,6 +744,12 @@ impl App {
                                     ui.close();
                                 }
                             }
+                            ui.separator();
+                            ui.checkbox(&mut self.builtin_browser, "built-in file browser")
+                                .on_hover_text(
+                                    "instead of the desktop's dialog (chosen by itself where \
+                                     there is none: no xdg portal or zenity)",
+                                );
                         });
                         if let Some((k, paths)) = self.last_opened.clone() {
                             if ui
@@ -863,6 +905,16 @@ impl App {
 
         if let Some(k) = open_request {
             self.open_dialog(k, &ctx);
+        }
+        if let Some(b) = &mut self.browser {
+            match b.show(&ctx) {
+                Some(file_browser::BrowserOutcome::Open(kind, paths)) => {
+                    self.browser = None;
+                    commands.push(Command::Open { kind, paths });
+                }
+                Some(file_browser::BrowserOutcome::Cancel) => self.browser = None,
+                None => {}
+            }
         }
         for c in commands {
             self.send(c);

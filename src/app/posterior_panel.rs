@@ -11,6 +11,7 @@ use super::model::{InspectorModel, Posterior};
 use super::view3d::{self, TargetOverride, View3dState};
 use super::views_panel::{image_in_rect, to_screen, ViewsState};
 use super::Shared;
+use crate::geometry::knn::KdIndex;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub enum PosteriorKind {
@@ -133,17 +134,17 @@ pub fn posterior_cloud_colors(
             (1.0 + v.max(1e-12).log10() / LOG_DECADES).clamp(0.0, 1.0)
         }
     };
-    let nn = crate::app::render3d::nearest::CappedNearest::new(&pos, SPLAT_M);
+    let index = KdIndex::new(&pos.iter().map(|p| view3d::point3(*p)).collect::<Vec<_>>());
     use rayon::prelude::*;
     model
         .target
         .par_iter()
-        .map(|q| match nn.nearest(*q) {
-            Some((i, _)) => {
+        .map(|q| match index.nearest(&view3d::point3(*q)) {
+            Some((i, d)) if d < SPLAT_M => {
                 let c = value_rgb(shown(val[i]), kind);
                 [c[0], c[1], c[2], 255]
             }
-            None => dim,
+            _ => dim,
         })
         .collect()
 }

@@ -9,10 +9,138 @@ use serde::{Deserialize, Serialize};
 
 use super::colormap::{self, to_color32, HIGHLIGHT_RGB, SOURCE_RGB, TARGET_RGB};
 use super::model::{Branch, InspectorModel};
-use super::render3d::camera::{project, OrbitCamera};
-use super::render3d::nearest::CappedNearest;
-use super::render3d::{self, CloudData, Instance, LineData, SceneFrame};
+use super::render3d::{self, CloudData, DepthCue, Instance, LineData, SceneFrame};
 use super::{MatchColorMode, Shared};
+use crate::geometry::knn::KdIndex;
+
+/// three-d's perspective camera driven by its [`three_d::OrbitControl`]. Clouds use OpenCV
+/// axes (y down), so "up" is -y.
+#[derive(Clone, Debug)]
+pub struct SceneCamera {
+    pub camera: three_d::Camera,
+    pub control: three_d::OrbitControl,
+    pub fov_y: f32,
+}
+
+impl Default for SceneCamera {
+    fn default() -> Self {
+        Self::looking_at([0.0, 0.0, 2.0], 4.0, 0.0, 0.35)
+    }
+}
+
+impl SceneCamera {
+    /// Orbiting `target` at `distance`, `yaw` about the up axis, `pitch` above the horizon.
+    fn looking_at(target: [f32; 3], distance: f32, yaw: f32, pitch: f32) -> Self {
+        let fov_y = 0.9f32;
+        let t = three_d::vec3(target[0], target[1], target[2]);
+        let (cp, sp) = (pitch.cos(), pitch.sin());
+        let dir = three_d::vec3(cp * yaw.sin(), -sp, -cp * yaw.cos());
+        let camera = three_d::Camera::new_perspective(
+            three_d::Viewport::new_at_origo(1, 1),
+            t + dir * distance,
+            t,
+            three_d::vec3(0.0, -1.0, 0.0),
+            three_d::radians(fov_y),
+            0.01,
+            100.0,
+        );
+        let mut me = Self {
+            camera,
+            control: three_d::OrbitControl::new(t, 1e-3, 1e5),
+            fov_y,
+        };
+        me.update_clip_planes();
+        me
+    }
+
+    /// Frames an axis-aligned box, seen from behind the scan origin (-z) and slightly above.
+    pub fn framing(lo: [f32; 3], hi: [f32; 3]) -> Self {
+        let c = [
+            (lo[0] + hi[0]) / 2.0,
+            (lo[1] + hi[1]) / 2.0,
+            (lo[2] + hi[2]) / 2.0,
+        ];
+        let r = ((hi[0] - lo[0]).powi(2) + (hi[1] - lo[1]).powi(2) + (hi[2] - lo[2]).powi(2))
+            .sqrt()
+            .max(1e-3)
+            / 2.0;
+        Self::looking_at(c, r / (0.9f32 / 2.0).tan() * 0.8, 0.35, 0.45)
+    }
+
+    pub fn distance(&self) -> f32 {
+        use three_d::InnerSpace;
+        (self.camera.position() - self.control.target).magnitude()
+    }
+
+    /// Near and far planes follow the distance (a room and a LiDAR sweep both stay sharp).
+    fn update_clip_planes(&mut self) {
+        let d = self.distance();
+        self.camera.set_perspective_projection(
+            three_d::radians(self.fov_y),
+            (d * 0.01).max(1e-3),
+            d * 20.0 + 10.0,
+        );
+    }
+
+    fn event(&mut self, e: three_d::Event) {
+        self.control.handle_events(&mut self.camera, &mut [e]);
+        self.update_clip_planes();
+    }
+
+    /// A left drag of (`dx`, `dy`) pixels, through the orbit control.
+    pub fn orbit(&mut self, dx: f32, dy: f32) {
+        self.event(three_d::Event::MouseMotion {
+            button: Some(three_d::MouseButton::Left),
+            delta: (dx * 0.8, dy * 0.8),
+            position: three_d::PhysicalPoint { x: 0.0, y: 0.0 },
+            modifiers: three_d::Modifiers::default(),
+            handled: false,
+        });
+    }
+
+    /// Scroll by `scroll` points (egui's units), through the orbit control.
+    pub fn zoom(&mut self, scroll: f32) {
+        self.event(three_d::Event::MouseWheel {
+            delta: (0.0, scroll * 0.25),
+            position: three_d::PhysicalPoint { x: 0.0, y: 0.0 },
+            modifiers: three_d::Modifiers::default(),
+            handled: false,
+        });
+    }
+
+    /// Moves the orbit centre in the image plane; `dx`, `dy` in pixels of a view `height`
+    /// high (the orbit control has no pan).
+    pub fn pan(&mut self, dx: f32, dy: f32, height: f32) {
+        let scale = 2.0 * self.distance() * (self.fov_y / 2.0).tan() / height.max(1.0);
+        let right = self.camera.right_direction();
+        let up = self.camera.up_orthogonal();
+        let change = -right * dx * scale + up * dy * scale;
+        self.camera.translate(change);
+        self.control.target += change;
+    }
+
+    /// Projection times view for a `w` x `h` viewport (column-major, OpenGL clip space).
+    pub fn view_projection(&mut self, w: f32, h: f32) -> Matrix4<f32> {
+        self.camera.set_viewport(three_d::Viewport::new_at_origo(
+            w.max(1.0) as u32,
+            h.max(1.0) as u32,
+        ));
+        let m = self.camera.projection() * self.camera.view();
+        let a: &[f32; 16] = m.as_ref();
+        Matrix4::from_column_slice(a)
+    }
+}
+
+/// Projects a point with a view-projection matrix into pixel coordinates of a `w` x `h`
+/// viewport (origin top-left). None behind the camera.
+pub fn project(vp: &Matrix4<f32>, p: [f32; 3], w: f32, h: f32) -> Option<[f32; 2]> {
+    let c = vp * nalgebra::Vector4::new(p[0], p[1], p[2], 1.0);
+    if c.w <= 1e-6 {
+        return None;
+    }
+    let (x, y) = (c.x / c.w, c.y / c.w);
+    Some([(x + 1.0) * 0.5 * w, (1.0 - y) * 0.5 * h])
+}
 
 /// How a cloud's points are coloured.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
@@ -58,6 +186,7 @@ pub const RESIDUAL_CAP_M: f32 = 0.1;
 
 /// Persisted options of the 3D panel.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
 pub struct View3dPrefs {
     pub show_initial: bool,
     pub show_estimated: bool,
@@ -68,6 +197,9 @@ pub struct View3dPrefs {
     pub point_size: f32,
     pub source_mode: CloudColorMode,
     pub target_mode: CloudColorMode,
+    pub depth_cue: DepthCue,
+    /// Eye-dome lighting strength (1: moderate).
+    pub edl_strength: f32,
 }
 
 impl Default for View3dPrefs {
@@ -82,6 +214,8 @@ impl Default for View3dPrefs {
             point_size: 2.0,
             source_mode: CloudColorMode::Fixed,
             target_mode: CloudColorMode::Fixed,
+            depth_cue: DepthCue::None,
+            edl_strength: 1.0,
         }
     }
 }
@@ -96,13 +230,15 @@ struct ColorCache {
 #[derive(Default)]
 pub struct View3dState {
     pub prefs: View3dPrefs,
-    pub camera: OrbitCamera,
+    pub camera: SceneCamera,
     framed_for: Option<u64>,
     positions_for: Option<u64>,
     /// Depth of the drawn view frusta, from the target's extent (set with the positions).
     frustum_range: f64,
     source_pos: Arc<Vec<[f32; 3]>>,
     target_pos: Arc<Vec<[f32; 3]>>,
+    /// Display normals of both clouds, estimated when normal shading is first asked for.
+    normals: Option<(u64, Arc<Vec<[f32; 3]>>, Arc<Vec<[f32; 3]>>)>,
     source_colors: ColorCache,
     target_colors: ColorCache,
     /// Last uploaded line sets: the same contents keep their id (no re-upload).
@@ -176,9 +312,36 @@ pub fn primary_alignment(model: &InspectorModel, prefs: &View3dPrefs) -> Isometr
     model.initial
 }
 
+pub fn point3(p: [f32; 3]) -> Point3<f32> {
+    Point3::new(p[0], p[1], p[2])
+}
+
 fn apply(t: &Isometry3<f64>, p: [f32; 3]) -> [f32; 3] {
     let q = t * Point3::new(p[0] as f64, p[1] as f64, p[2] as f64);
     [q.x as f32, q.y as f32, q.z as f32]
+}
+
+/// Unoriented unit normals for shading (local PCA over the 16 nearest points within four
+/// point spacings; zero where degenerate), from the library's normal estimation.
+pub fn display_normals(pts: &[[f32; 3]]) -> Vec<[f32; 3]> {
+    if pts.len() < 3 {
+        return vec![[0.0; 3]; pts.len()];
+    }
+    let p: Vec<Point3<f32>> = pts.iter().map(|q| point3(*q)).collect();
+    let index = KdIndex::new(&p);
+    // the spacing: median distance to the nearest other point over a sample
+    let step = (p.len() / 256).max(1);
+    let mut d: Vec<f32> = p
+        .iter()
+        .step_by(step)
+        .filter_map(|q| index.knn(q, 2).get(1).map(|x| x.1))
+        .collect();
+    d.sort_by(f32::total_cmp);
+    let spacing = d.get(d.len() / 2).copied().unwrap_or(0.01).max(1e-4);
+    crate::geometry::normals::estimate_normals(&p, &index, 4.0 * spacing as f64, 16)
+        .into_iter()
+        .map(|n| [n.x, n.y, n.z])
+        .collect()
 }
 
 /// Per-point colours of a cloud under a colour mode.
@@ -243,13 +406,15 @@ pub fn cloud_colors(model: &InspectorModel, is_source: bool, mode: CloudColorMod
             } else {
                 (&model.target, &model.source, t.inverse())
             };
-            let nn = CappedNearest::new(to, RESIDUAL_CAP_M);
+            let index = KdIndex::new(&to.iter().map(|p| point3(*p)).collect::<Vec<_>>());
             use rayon::prelude::*;
             from.par_iter()
                 .map(|p| {
-                    rgba(colormap::turbo(
-                        nn.distance(apply(&xf, *p)) / RESIDUAL_CAP_M,
-                    ))
+                    // no point in the other cloud: as far as the colormap goes
+                    let d = index
+                        .nearest(&point3(apply(&xf, *p)))
+                        .map_or(RESIDUAL_CAP_M, |(_, d)| d.min(RESIDUAL_CAP_M));
+                    rgba(colormap::turbo(d / RESIDUAL_CAP_M))
                 })
                 .collect()
         }
@@ -342,6 +507,18 @@ pub fn view3d_options(ui: &mut egui::Ui, state: &mut View3dState) {
         ui.add(egui::Slider::new(&mut p.point_size, 1.0..=8.0).text("point size"));
     });
     ui.horizontal_wrapped(|ui| {
+        egui::ComboBox::from_label("Depth cue")
+            .selected_text(p.depth_cue.label())
+            .show_ui(ui, |ui| {
+                for c in DepthCue::ALL {
+                    ui.selectable_value(&mut p.depth_cue, c, c.label());
+                }
+            });
+        if p.depth_cue == DepthCue::Edl {
+            ui.add(egui::Slider::new(&mut p.edl_strength, 0.1..=4.0).text("EDL strength"));
+        }
+    });
+    ui.horizontal_wrapped(|ui| {
         for (name, mode) in [
             ("Source colour", &mut p.source_mode),
             ("Target colour", &mut p.target_mode),
@@ -375,8 +552,8 @@ pub fn scene_ui(
     );
     if state.framed_for != Some(gen) {
         state.camera = match model.bounds() {
-            Some((lo, hi)) => OrbitCamera::framing(lo, hi),
-            None => OrbitCamera::default(),
+            Some((lo, hi)) => SceneCamera::framing(lo, hi),
+            None => SceneCamera::default(),
         };
         state.framed_for = Some(gen);
     }
@@ -385,6 +562,14 @@ pub fn scene_ui(
         state.target_pos = Arc::new(model.target.clone());
         state.frustum_range = frustum_range(&model.target);
         state.positions_for = Some(gen);
+    }
+    let shade_normals = state.prefs.depth_cue == DepthCue::Normals;
+    if shade_normals && state.normals.as_ref().is_none_or(|n| n.0 != gen) {
+        state.normals = Some((
+            gen,
+            Arc::new(display_normals(&model.source)),
+            Arc::new(display_normals(&model.target)),
+        ));
     }
 
     // Interaction: left drag orbits, right/middle drag or shift-drag pans, scroll zooms,
@@ -411,7 +596,7 @@ pub fn scene_ui(
     }
 
     let prefs = state.prefs.clone();
-    let vp = state.camera.view_projection(rect.width() / rect.height());
+    let vp = state.camera.view_projection(rect.width(), rect.height());
     let src_xf = primary_alignment(model, &prefs);
 
     // colours, recomputed only when the mode or the model changes
@@ -429,13 +614,21 @@ pub fn scene_ui(
             &state.target_pos,
         ),
     ] {
-        let key = (gen, mode, is_src, 0);
+        let key = (gen, mode, is_src, shade_normals as u64);
         if cache.key != Some(key) {
             let colors = Arc::new(cloud_colors(model, is_src, mode));
+            let normals = state.normals.as_ref().filter(|_| shade_normals).map(|n| {
+                if is_src {
+                    n.1.clone()
+                } else {
+                    n.2.clone()
+                }
+            });
             cache.data = Some(CloudData {
                 id: next_id(),
                 positions: pos.clone(),
                 colors,
+                normals,
             });
             cache.key = Some(key);
         }
@@ -451,6 +644,7 @@ pub fn scene_ui(
             id: o.id,
             positions: target.positions.clone(),
             colors: o.colors,
+            normals: target.normals.clone(),
         };
     }
 
@@ -516,12 +710,19 @@ pub fn scene_ui(
         // one more frame after the motion stops, drawn in full
         ui.ctx().request_repaint();
     }
+    use three_d::Viewer;
+    let eye = state.camera.camera.position();
     let frame = SceneFrame {
         source,
         target,
         source_instances: instances,
         show_target: prefs.show_target,
         view_proj,
+        eye: [eye.x, eye.y, eye.z],
+        near: state.camera.camera.z_near(),
+        far: state.camera.camera.z_far(),
+        depth_cue: prefs.depth_cue,
+        edl_strength: prefs.edl_strength,
         point_budget: moving.then_some(MOVING_POINT_BUDGET),
         overlay_lines,
         scene_lines,
@@ -694,4 +895,53 @@ pub fn next_id() -> u64 {
 pub fn view3d_panel(ui: &mut egui::Ui, shared: &mut Shared<'_>, state: &mut View3dState) {
     view3d_options(ui, state);
     scene_ui(ui, shared, state, None);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn framing_puts_the_box_centre_in_the_middle_and_inside() {
+        let mut cam = SceneCamera::framing([-1.0, -1.0, 1.0], [1.0, 1.0, 3.0]);
+        let vp = cam.view_projection(300.0, 200.0);
+        let c = project(&vp, [0.0, 0.0, 2.0], 300.0, 200.0).unwrap();
+        assert!(
+            (c[0] - 150.0).abs() < 1e-2 && (c[1] - 100.0).abs() < 1e-2,
+            "{c:?}"
+        );
+        for corner in [[-1.0, -1.0, 1.0], [1.0, 1.0, 3.0], [1.0, -1.0, 1.0]] {
+            let p = project(&vp, corner, 300.0, 200.0).unwrap();
+            assert!(
+                p[0] > 0.0 && p[0] < 300.0 && p[1] > 0.0 && p[1] < 200.0,
+                "{p:?}"
+            );
+        }
+        // -y is up: a point above the centre projects above it on screen
+        let above = project(&vp, [0.0, -0.5, 2.0], 300.0, 200.0).unwrap();
+        assert!(above[1] < c[1]);
+    }
+
+    #[test]
+    fn orbit_keeps_the_distance_pan_moves_the_centre_zoom_gets_closer() {
+        let mut cam = SceneCamera::default();
+        let d0 = cam.distance();
+        let c0 = cam.control.target;
+        cam.orbit(40.0, 10.0);
+        assert!((cam.distance() - d0).abs() < 1e-3 * d0);
+        assert_eq!(cam.control.target, c0);
+        cam.pan(10.0, 0.0, 100.0);
+        assert_ne!(cam.control.target, c0);
+        assert!((cam.distance() - d0).abs() < 1e-3 * d0);
+        // the orbit centre stays in the middle of the view after a pan
+        let t = cam.control.target;
+        let vp = cam.view_projection(200.0, 100.0);
+        let p = project(&vp, [t.x, t.y, t.z], 200.0, 100.0).unwrap();
+        assert!(
+            (p[0] - 100.0).abs() < 0.05 && (p[1] - 50.0).abs() < 0.05,
+            "{p:?}"
+        );
+        cam.zoom(100.0);
+        assert!(cam.distance() < d0);
+    }
 }

@@ -64,6 +64,13 @@ pub struct ScreenshotArgs {
     /// Show each view's depth frame (as the WFM saw it) instead of the generated view.
     #[arg(long)]
     pub depth_frames: bool,
+    /// The views panel's view pair, as SOURCE,TARGET view indices (e.g. 0,1); default: the
+    /// pair holding the most shown matches.
+    #[arg(long, value_parser = parse_view_pair)]
+    pub view_pair: Option<(usize, usize)>,
+    /// Depth cue of the 3D view's points: eye-dome lighting, normal shading or none.
+    #[arg(long, value_enum, default_value = "edl")]
+    pub depth_cue: crate::app::render3d::DepthCue,
     /// Register every pair of the manifest first (fills the pair browser and the RRE/RTE
     /// plot; failing pairs are listed as failed), then show --pair.
     #[arg(long)]
@@ -80,6 +87,15 @@ pub struct ScreenshotArgs {
     /// Image branch (--wfm oracle|builtin|cached, prompt, VFM, K, margin) and stage cache.
     #[command(flatten)]
     pub image: ImageArgs,
+}
+
+fn parse_view_pair(s: &str) -> std::result::Result<(usize, usize), String> {
+    let bad = || format!("{s:?}: expected SOURCE,TARGET view indices, e.g. 0,1");
+    let (a, b) = s.split_once(',').ok_or_else(bad)?;
+    Ok((
+        a.trim().parse().map_err(|_| bad())?,
+        b.trim().parse().map_err(|_| bad())?,
+    ))
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, clap::ValueEnum)]
@@ -259,6 +275,15 @@ pub fn run_screenshot(a: ScreenshotArgs) -> Result<()> {
     let params = worker.params().clone();
     let (mode, count, only, align) = (a.match_colors, a.matches, a.only_survivors, a.alignment);
     let (cloud_mode, depth_frames) = (a.cloud_colors, a.depth_frames);
+    let (view_pair, depth_cue) = (a.view_pair, a.depth_cue);
+    if let Some((i, j)) = view_pair {
+        let (ks, kt) = (model.source_views.len(), model.target_views.len());
+        if i >= ks || j >= kt {
+            return Err(Error::Invalid(format!(
+                "--view-pair {i},{j}: the pair has {ks} source and {kt} target views"
+            )));
+        }
+    }
     crate::app::headless::render_screenshot_with(
         &model,
         panel,
@@ -276,7 +301,9 @@ pub fn run_screenshot(a: ScreenshotArgs) -> Result<()> {
             p.show_ground_truth = matches!(align, Alignment::Gt | Alignment::All);
             p.show_initial = matches!(align, Alignment::Initial | Alignment::All);
             (p.source_mode, p.target_mode) = (cloud_mode, cloud_mode);
+            p.depth_cue = depth_cue;
             app.show_depth_frames(depth_frames);
+            app.show_view_pair(view_pair);
         },
     )
     .map_err(|e| Error::Invalid(format!("cannot render the screenshot headless: {e}")))?;

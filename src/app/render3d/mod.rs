@@ -1,12 +1,17 @@
 //! three-d drawing inside an egui panel.
 //!
 //! The panel builds a [`SceneFrame`] (plain data, `Send + Sync`) each frame and hands it to an
-//! `egui_glow::CallbackFn`. The GL resources live in a thread-local keyed by the GL context,
-//! because three-d objects belong to the GL thread. Point and line buffers are uploaded only
-//! when their generation number changes, so a 100k-point cloud costs one draw call per frame.
-
-pub mod camera;
-pub mod nearest;
+//! `egui_glow::CallbackFn`, which draws it with three-d on egui's own GL context
+//! (`three_d::Context::from_gl_context`): three-d programs, vertex buffers, textures and
+//! render targets. Points and lines go through `Program::draw_with` with `GL_POINTS` /
+//! `GL_LINES` (three-d's own draw calls only draw triangles). The GL resources live in a
+//! thread-local keyed by the GL context, because they belong to the GL thread. Buffers are
+//! uploaded only when their generation number changes, so a 100k-point cloud costs one draw
+//! call per frame.
+//!
+//! Depth cues ([`DepthCue`]): shading by the point normals against the view direction, or
+//! eye-dome lighting (points drawn into an offscreen colour + depth target, then composited
+//! with each pixel darkened by how much nearer its neighbours are, in log depth).
 
 use std::cell::RefCell;
 use std::sync::Arc;
@@ -14,6 +19,34 @@ use std::sync::Arc;
 use eframe::egui;
 use eframe::egui_glow;
 use eframe::glow::{self, HasContext};
+use serde::{Deserialize, Serialize};
+use three_d::{
+    ClearState, Context, DepthTest, DepthTexture2D, Interpolation, Program, RenderStates,
+    RenderTarget, Texture2D, VertexBuffer, Viewport, Wrapping, WriteMask,
+};
+
+/// How depth is made visible on the points.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+pub enum DepthCue {
+    /// Flat colours.
+    None,
+    /// Each point lit by its surface normal (local PCA) against the view direction.
+    Normals,
+    /// Eye-dome lighting: silhouettes and creases darkened from the depth buffer alone.
+    #[default]
+    Edl,
+}
+
+impl DepthCue {
+    pub const ALL: [DepthCue; 3] = [Self::None, Self::Normals, Self::Edl];
+    pub fn label(self) -> &'static str {
+        match self {
+            Self::None => "none",
+            Self::Normals => "normal shading",
+            Self::Edl => "eye-dome lighting",
+        }
+    }
+}
 
 /// Geometry and colours of one cloud; `id` changes whenever the contents change.
 #[derive(Clone)]
@@ -21,6 +54,8 @@ pub struct CloudData {
     pub id: u64,
     pub positions: Arc<Vec<[f32; 3]>>,
     pub colors: Arc<Vec<[u8; 4]>>,
+    /// Unit normals (zero where unknown), for [`DepthCue::Normals`].
+    pub normals: Option<Arc<Vec<[f32; 3]>>>,
 }
 
 /// One drawing of the source cloud under an alignment.
@@ -49,6 +84,10 @@ pub struct SceneFrame {
     pub show_target: bool,
     /// Column-major view-projection matrix.
     pub view_proj: [f32; 16],
+    /// Camera position (normal shading) and clip planes (eye-dome lighting).
+    pub eye: [f32; 3],
+    pub near: f32,
+    pub far: f32,
     /// Lines drawn over the points (correspondences, highlighted match).
     pub overlay_lines: LineData,
     /// Lines drawn with depth test (camera frusta, axes).
@@ -57,25 +96,39 @@ pub struct SceneFrame {
     pub background: [f32; 4],
     /// At most this many points per cloud (the camera is moving); None draws every point.
     pub point_budget: Option<u32>,
+    pub depth_cue: DepthCue,
+    /// Eye-dome lighting strength (about 1: moderate).
+    pub edl_strength: f32,
 }
 
-// Points: colours as normalised bytes (three-d bound them as integer attributes), and one VAO
-// per cloud set up once at upload: a frame is a handful of GL calls and one draw per cloud.
+// Colours as bytes bound as integer attributes (three-d binds u8 that way), hence uvec4.
 const POINT_VS: &str = r#"
 uniform mat4 mvp;
+uniform mat4 model;
+uniform vec3 eye;
 uniform vec4 tint;
 uniform float point_size;
+uniform int shade;
 in vec3 position;
-in vec4 color;
+in uvec4 color;
+in vec3 normal;
 out vec4 v_color;
 void main() {
     gl_Position = mvp * vec4(position, 1.0);
     gl_PointSize = point_size;
-    v_color = color * tint;
+    vec4 c = vec4(color) / 255.0 * tint;
+    if (shade == 1) {
+        vec3 wp = (model * vec4(position, 1.0)).xyz;
+        vec3 n = mat3(model) * normal;
+        float len = length(n);
+        float l = len > 1e-6 ? abs(dot(n / len, normalize(eye - wp))) : 1.0;
+        c.rgb *= 0.3 + 0.7 * l;
+    }
+    v_color = c;
 }
 "#;
 
-const FS: &str = r#"
+const POINT_FS: &str = r#"
 in vec4 v_color;
 out vec4 out_color;
 void main() {
@@ -83,77 +136,105 @@ void main() {
 }
 "#;
 
+const QUAD_VS: &str = r#"
+in vec2 corner;
+out vec2 uv;
+void main() {
+    uv = corner * 0.5 + 0.5;
+    gl_Position = vec4(corner, 0.0, 1.0);
+}
+"#;
+
+// Eye-dome lighting (Boucheny 2009): the response is how much nearer, in log2 of the linear
+// depth, the 8 neighbours at `radius` pixels are; background neighbours count as no nearer.
+const EDL_FS: &str = r#"
+uniform sampler2D color_tex;
+uniform sampler2D depth_tex;
+uniform vec2 texel;
+uniform float near;
+uniform float far;
+uniform float strength;
+uniform vec4 background;
+in vec2 uv;
+out vec4 out_color;
+float logz(float d) {
+    return log2(near * far / (far - d * (far - near)));
+}
+void main() {
+    float d = texture(depth_tex, uv).r;
+    if (d >= 1.0) {
+        out_color = background;
+        gl_FragDepth = 1.0;
+        return;
+    }
+    float l = logz(d);
+    float sum = 0.0;
+    for (int i = 0; i < 8; i++) {
+        float a = float(i) * 0.785398;
+        vec2 o = vec2(cos(a), sin(a)) * 1.5 * texel;
+        float dn = texture(depth_tex, uv + o).r;
+        if (dn < 1.0) {
+            sum += max(0.0, l - logz(dn));
+        }
+    }
+    float shade = exp(-sum * 60.0 * strength);
+    out_color = vec4(texture(color_tex, uv).rgb * shade, 1.0);
+    gl_FragDepth = d;
+}
+"#;
+
 struct GpuCloud {
     id: Option<u64>,
-    vao: glow::VertexArray,
-    positions: glow::Buffer,
-    colors: glow::Buffer,
+    positions: VertexBuffer<[f32; 3]>,
+    colors: VertexBuffer<[u8; 4]>,
+    normals: Option<VertexBuffer<[f32; 3]>>,
     count: u32,
 }
 
 impl GpuCloud {
-    fn new(gl: &glow::Context, prog: &GpuProgram) -> Result<Self, String> {
-        unsafe {
-            let vao = gl.create_vertex_array()?;
-            let positions = gl.create_buffer()?;
-            let colors = gl.create_buffer()?;
-            gl.bind_vertex_array(Some(vao));
-            gl.bind_buffer(glow::ARRAY_BUFFER, Some(positions));
-            gl.enable_vertex_attrib_array(prog.position);
-            gl.vertex_attrib_pointer_f32(prog.position, 3, glow::FLOAT, false, 12, 0);
-            gl.bind_buffer(glow::ARRAY_BUFFER, Some(colors));
-            gl.enable_vertex_attrib_array(prog.color);
-            gl.vertex_attrib_pointer_f32(prog.color, 4, glow::UNSIGNED_BYTE, true, 4, 0);
-            gl.bind_vertex_array(None);
-            gl.bind_buffer(glow::ARRAY_BUFFER, None);
-            Ok(Self {
-                id: None,
-                vao,
-                positions,
-                colors,
-                count: 0,
-            })
+    fn new(ctx: &Context) -> Self {
+        Self {
+            id: None,
+            positions: VertexBuffer::new(ctx),
+            colors: VertexBuffer::new(ctx),
+            normals: None,
+            count: 0,
         }
     }
-    /// Uploads only when the contents' id changed.
-    /// Uploads in a scattered order ([`scatter_order`]) so that any prefix of the buffer is a
-    /// uniform subsample: a point budget then just draws fewer vertices. Lines keep their order.
-    fn sync(&mut self, gl: &glow::Context, id: u64, pos: &[[f32; 3]], colors: &[[u8; 4]]) {
-        self.sync_ordered(gl, id, pos, colors, true)
-    }
 
-    fn sync_ordered(
+    /// Uploads only when the contents' id changed, in a scattered order ([`scatter_order`])
+    /// so that any prefix of the buffer is a uniform subsample: a point budget then just
+    /// draws fewer vertices. Lines (`scatter` false) keep their order.
+    fn sync(
         &mut self,
-        gl: &glow::Context,
+        ctx: &Context,
         id: u64,
         pos: &[[f32; 3]],
         colors: &[[u8; 4]],
+        normals: Option<&[[f32; 3]]>,
         scatter: bool,
     ) {
-        if self.id != Some(id) {
-            let n = pos.len().min(colors.len());
-            let (p, c): (Vec<[f32; 3]>, Vec<[u8; 4]>) = if scatter {
-                scatter_order(n).map(|i| (pos[i], colors[i])).unzip()
-            } else {
-                (pos[..n].to_vec(), colors[..n].to_vec())
-            };
-            unsafe {
-                gl.bind_buffer(glow::ARRAY_BUFFER, Some(self.positions));
-                gl.buffer_data_u8_slice(glow::ARRAY_BUFFER, bytemuck_f32(&p), glow::STATIC_DRAW);
-                gl.bind_buffer(glow::ARRAY_BUFFER, Some(self.colors));
-                gl.buffer_data_u8_slice(glow::ARRAY_BUFFER, c.as_flattened(), glow::STATIC_DRAW);
-                gl.bind_buffer(glow::ARRAY_BUFFER, None);
-            }
-            self.count = n as u32;
-            self.id = Some(id);
+        if self.id == Some(id) {
+            return;
         }
-    }
-    fn delete(&self, gl: &glow::Context) {
-        unsafe {
-            gl.delete_vertex_array(self.vao);
-            gl.delete_buffer(self.positions);
-            gl.delete_buffer(self.colors);
+        let n = pos.len().min(colors.len());
+        let normals = normals.filter(|v| v.len() >= n);
+        if scatter {
+            let order: Vec<usize> = scatter_order(n).collect();
+            self.positions
+                .fill(&order.iter().map(|&i| pos[i]).collect::<Vec<_>>());
+            self.colors
+                .fill(&order.iter().map(|&i| colors[i]).collect::<Vec<_>>());
+            self.normals = normals.map(|nv| {
+                VertexBuffer::new_with_data(ctx, &order.iter().map(|&i| nv[i]).collect::<Vec<_>>())
+            });
+        } else {
+            self.positions.fill(&pos[..n]);
+            self.colors.fill(&colors[..n]);
+            self.normals = normals.map(|nv| VertexBuffer::new_with_data(ctx, &nv[..n]));
         }
+        self.count = n as u32;
+        self.id = Some(id);
     }
 }
 
@@ -175,90 +256,24 @@ pub fn scatter_order(n: usize) -> impl Iterator<Item = usize> {
     (0..n).map(move |i| ((i as u128 * step as u128) % n.max(1) as u128) as usize)
 }
 
-fn bytemuck_f32(v: &[[f32; 3]]) -> &[u8] {
-    let flat = v.as_flattened();
-    // SAFETY: f32 has no padding or invalid bit patterns; the length is in bytes.
-    unsafe { std::slice::from_raw_parts(flat.as_ptr() as *const u8, std::mem::size_of_val(flat)) }
-}
-
-struct GpuProgram {
-    program: glow::Program,
-    mvp: Option<glow::UniformLocation>,
-    tint: Option<glow::UniformLocation>,
-    point_size: Option<glow::UniformLocation>,
-    position: u32,
-    color: u32,
-}
-
-fn compile(gl: &glow::Context) -> Result<GpuProgram, String> {
-    let version = egui_glow::ShaderVersion::get(gl);
-    if !version.is_new_shader_interface() {
-        return Err(format!(
-            "the 3D view needs GLSL 1.30+/ES 3.0 (have {version:?})"
-        ));
-    }
-    let header = format!(
-        "{}\n{}",
-        version.version_declaration(),
-        if version.is_embedded() {
-            "precision highp float;"
-        } else {
-            ""
-        }
-    );
-    unsafe {
-        let program = gl.create_program()?;
-        let mut shaders = Vec::new();
-        for (kind, src) in [(glow::VERTEX_SHADER, POINT_VS), (glow::FRAGMENT_SHADER, FS)] {
-            let sh = gl.create_shader(kind)?;
-            gl.shader_source(sh, &format!("{header}\n{src}"));
-            gl.compile_shader(sh);
-            if !gl.get_shader_compile_status(sh) {
-                return Err(format!("3D shader: {}", gl.get_shader_info_log(sh)));
-            }
-            gl.attach_shader(program, sh);
-            shaders.push(sh);
-        }
-        gl.bind_attrib_location(program, 0, "position");
-        gl.bind_attrib_location(program, 1, "color");
-        gl.link_program(program);
-        for sh in shaders {
-            gl.detach_shader(program, sh);
-            gl.delete_shader(sh);
-        }
-        if !gl.get_program_link_status(program) {
-            return Err(format!(
-                "3D shader link: {}",
-                gl.get_program_info_log(program)
-            ));
-        }
-        Ok(GpuProgram {
-            mvp: gl.get_uniform_location(program, "mvp"),
-            tint: gl.get_uniform_location(program, "tint"),
-            point_size: gl.get_uniform_location(program, "point_size"),
-            program,
-            position: 0,
-            color: 1,
-        })
-    }
+/// The offscreen colour + depth target of eye-dome lighting, kept while the size holds.
+struct EdlTarget {
+    size: (u32, u32),
+    color: Texture2D,
+    depth: DepthTexture2D,
 }
 
 struct Gpu {
     gl: Arc<glow::Context>,
-    prog: GpuProgram,
+    ctx: Context,
+    points: Program,
+    edl: Program,
+    quad: VertexBuffer<[f32; 2]>,
+    edl_target: Option<EdlTarget>,
     source: GpuCloud,
     target: GpuCloud,
     overlay: GpuCloud,
     scene_lines: GpuCloud,
-}
-
-impl Drop for Gpu {
-    fn drop(&mut self) {
-        for c in [&self.source, &self.target, &self.overlay, &self.scene_lines] {
-            c.delete(&self.gl);
-        }
-        unsafe { self.gl.delete_program(self.prog.program) };
-    }
 }
 
 thread_local! {
@@ -276,14 +291,30 @@ fn gpu_for(gl: &Arc<glow::Context>) -> Result<(), String> {
         if let Some(old) = g.take() {
             std::mem::forget(old);
         }
-        let prog = compile(gl)?;
+        let version = egui_glow::ShaderVersion::get(gl);
+        if !version.is_new_shader_interface() {
+            return Err(format!(
+                "the 3D view needs GLSL 3.30+/ES 3.0 (have {version:?})"
+            ));
+        }
+        let ctx = Context::from_gl_context(gl.clone()).map_err(|e| format!("three-d: {e}"))?;
+        let points = Program::from_source(&ctx, POINT_VS, POINT_FS)
+            .map_err(|e| format!("3D point shader: {e}"))?;
+        let edl = Program::from_source(&ctx, QUAD_VS, EDL_FS)
+            .map_err(|e| format!("3D eye-dome lighting shader: {e}"))?;
+        // one triangle covering the viewport
+        let quad = VertexBuffer::new_with_data(&ctx, &[[-1.0f32, -1.0], [3.0, -1.0], [-1.0, 3.0]]);
         *g = Some(Gpu {
             gl: gl.clone(),
-            source: GpuCloud::new(gl, &prog)?,
-            target: GpuCloud::new(gl, &prog)?,
-            overlay: GpuCloud::new(gl, &prog)?,
-            scene_lines: GpuCloud::new(gl, &prog)?,
-            prog,
+            source: GpuCloud::new(&ctx),
+            target: GpuCloud::new(&ctx),
+            overlay: GpuCloud::new(&ctx),
+            scene_lines: GpuCloud::new(&ctx),
+            points,
+            edl,
+            quad,
+            edl_target: None,
+            ctx,
         });
         Ok(())
     })
@@ -322,6 +353,17 @@ fn log_once(msg: &str) {
     }
 }
 
+fn mat4(a: &[f32; 16]) -> three_d::Mat4 {
+    three_d::Mat4::new(
+        a[0], a[1], a[2], a[3], a[4], a[5], a[6], a[7], a[8], a[9], a[10], a[11], a[12], a[13],
+        a[14], a[15],
+    )
+}
+
+const IDENTITY: [f32; 16] = [
+    1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0,
+];
+
 /// Draws one frame into the currently bound framebuffer, inside the callback's viewport.
 pub fn paint(
     info: &egui::PaintCallbackInfo,
@@ -336,71 +378,78 @@ pub fn paint(
     let y0 = vp.from_bottom_px.max(clip.from_bottom_px);
     let x1 = (vp.left_px + vp.width_px).min(clip.left_px + clip.width_px);
     let y1 = (vp.from_bottom_px + vp.height_px).min(clip.from_bottom_px + clip.height_px);
-    if x1 <= x0 || y1 <= y0 {
+    if x1 <= x0 || y1 <= y0 || vp.width_px <= 0 || vp.height_px <= 0 {
         return Ok(());
     }
+    let panel_vp = Viewport {
+        x: vp.left_px,
+        y: vp.from_bottom_px,
+        width: vp.width_px as u32,
+        height: vp.height_px as u32,
+    };
+    let clip_panel = || unsafe {
+        gl.enable(glow::SCISSOR_TEST);
+        gl.scissor(x0, y0, x1 - x0, y1 - y0);
+    };
     GPU.with(|g| {
         let mut g = g.borrow_mut();
         let Some(gpu) = g.as_mut() else {
             return Err("no GL state".to_string());
         };
+        let ctx = gpu.ctx.clone();
+        // egui's framebuffer: the window's, or the headless renderer's
+        let egui_fbo = unsafe { gl.get_parameter_framebuffer(glow::DRAW_FRAMEBUFFER_BINDING) };
         unsafe {
             gl.disable(glow::FRAMEBUFFER_SRGB);
-            gl.enable(glow::SCISSOR_TEST);
-            gl.scissor(x0, y0, x1 - x0, y1 - y0);
-            let b = frame.background;
+        }
+        clip_panel();
+        let b = frame.background;
+        unsafe {
             gl.clear_color(b[0], b[1], b[2], b[3]);
             gl.depth_mask(true);
             gl.clear(glow::COLOR_BUFFER_BIT | glow::DEPTH_BUFFER_BIT);
         }
-        let vp_m = frame.view_proj;
-        let mul = |a: &[f32; 16], b: &[f32; 16]| -> [f32; 16] {
-            // column-major a * b
-            let mut o = [0.0f32; 16];
-            for c in 0..4 {
-                for r in 0..4 {
-                    o[c * 4 + r] = (0..4).map(|k| a[k * 4 + r] * b[c * 4 + k]).sum();
-                }
-            }
-            o
-        };
+        let normals = frame.depth_cue == DepthCue::Normals;
         gpu.source.sync(
-            gl,
+            &ctx,
             frame.source.id,
             &frame.source.positions,
             &frame.source.colors,
+            frame.source.normals.as_deref().map(|v| v.as_slice()),
+            true,
         );
         gpu.target.sync(
-            gl,
+            &ctx,
             frame.target.id,
             &frame.target.positions,
             &frame.target.colors,
+            frame.target.normals.as_deref().map(|v| v.as_slice()),
+            true,
         );
-        gpu.overlay.sync_ordered(
-            gl,
+        gpu.overlay.sync(
+            &ctx,
             frame.overlay_lines.id,
             &frame.overlay_lines.positions,
             &frame.overlay_lines.colors,
+            None,
             false,
         );
-        gpu.scene_lines.sync_ordered(
-            gl,
+        gpu.scene_lines.sync(
+            &ctx,
             frame.scene_lines.id,
             &frame.scene_lines.positions,
             &frame.scene_lines.colors,
+            None,
             false,
         );
-        let prog = &gpu.prog;
-        unsafe {
-            gl.viewport(vp.left_px, vp.from_bottom_px, vp.width_px, vp.height_px);
-            gl.use_program(Some(prog.program));
-            gl.disable(glow::BLEND);
-            gl.disable(glow::CULL_FACE);
-            gl.enable(glow::DEPTH_TEST);
-            gl.depth_func(glow::LESS);
-            gl.enable(glow::PROGRAM_POINT_SIZE);
-        }
-        let draw = |cloud: &GpuCloud, mode: u32, mvp: &[f32; 16], tint: [f32; 4]| {
+        let prog = &gpu.points;
+        let draw = |cloud: &GpuCloud,
+                    mode: u32,
+                    model: &[f32; 16],
+                    tint: [f32; 4],
+                    shade: bool,
+                    states: RenderStates,
+                    viewport: Viewport| {
             let n = if mode == glow::LINES {
                 cloud.count / 2 * 2
             } else {
@@ -411,32 +460,142 @@ pub fn paint(
             if n == 0 {
                 return;
             }
-            unsafe {
-                gl.uniform_matrix_4_f32_slice(prog.mvp.as_ref(), false, mvp);
-                gl.uniform_4_f32_slice(prog.tint.as_ref(), &tint);
-                gl.uniform_1_f32(prog.point_size.as_ref(), frame.point_size.clamp(1.0, 16.0));
-                gl.bind_vertex_array(Some(cloud.vao));
-                gl.draw_arrays(mode, 0, n as i32);
-            }
-        };
-        if frame.show_target {
-            draw(&gpu.target, glow::POINTS, &vp_m, [1.0; 4]);
-        }
-        for inst in &frame.source_instances {
-            draw(
-                &gpu.source,
-                glow::POINTS,
-                &mul(&vp_m, &inst.model),
-                inst.tint,
+            let m = mat4(model);
+            prog.use_uniform("mvp", mat4(&frame.view_proj) * m);
+            prog.use_uniform_if_required("model", m);
+            prog.use_uniform_if_required(
+                "eye",
+                three_d::vec3(frame.eye[0], frame.eye[1], frame.eye[2]),
             );
+            prog.use_uniform_if_required("tint", three_d::vec4(tint[0], tint[1], tint[2], tint[3]));
+            prog.use_uniform_if_required("point_size", frame.point_size.clamp(1.0, 16.0));
+            let with_normals = shade && cloud.normals.is_some();
+            prog.use_uniform_if_required("shade", if with_normals { 1i32 } else { 0 });
+            prog.use_vertex_attribute("position", &cloud.positions);
+            prog.use_vertex_attribute("color", &cloud.colors);
+            if let (true, Some(nb)) = (with_normals, &cloud.normals) {
+                if prog.requires_attribute("normal") {
+                    prog.use_vertex_attribute("normal", nb);
+                }
+            }
+            prog.draw_with(states, viewport, || unsafe {
+                gl.draw_arrays(mode, 0, n as i32);
+            });
+        };
+        let depth_tested = RenderStates {
+            depth_test: DepthTest::Less,
+            ..Default::default()
+        };
+        let draw_points = |viewport: Viewport| {
+            unsafe { gl.enable(glow::PROGRAM_POINT_SIZE) };
+            if frame.show_target {
+                draw(
+                    &gpu.target,
+                    glow::POINTS,
+                    &IDENTITY,
+                    [1.0; 4],
+                    normals,
+                    depth_tested,
+                    viewport,
+                );
+            }
+            for inst in &frame.source_instances {
+                draw(
+                    &gpu.source,
+                    glow::POINTS,
+                    &inst.model,
+                    inst.tint,
+                    normals,
+                    depth_tested,
+                    viewport,
+                );
+            }
+            unsafe { gl.disable(glow::PROGRAM_POINT_SIZE) };
+        };
+        if frame.depth_cue == DepthCue::Edl {
+            let size = (panel_vp.width, panel_vp.height);
+            if gpu.edl_target.as_ref().is_none_or(|t| t.size != size) {
+                gpu.edl_target = Some(EdlTarget {
+                    size,
+                    color: Texture2D::new_empty::<[u8; 4]>(
+                        &ctx,
+                        size.0,
+                        size.1,
+                        Interpolation::Nearest,
+                        Interpolation::Nearest,
+                        None,
+                        Wrapping::ClampToEdge,
+                        Wrapping::ClampToEdge,
+                    ),
+                    depth: DepthTexture2D::new::<f32>(
+                        &ctx,
+                        size.0,
+                        size.1,
+                        Wrapping::ClampToEdge,
+                        Wrapping::ClampToEdge,
+                    ),
+                });
+            }
+            let t = gpu.edl_target.as_ref().expect("made above");
+            let rt = RenderTarget::new(t.color.as_color_target(None), t.depth.as_depth_target());
+            rt.clear(ClearState::color_and_depth(b[0], b[1], b[2], b[3], 1.0))
+                .write::<std::convert::Infallible>(|| {
+                    draw_points(Viewport::new_at_origo(size.0, size.1));
+                    Ok(())
+                })
+                .ok();
+            drop(rt);
+            // back to egui's framebuffer: composite, writing the points' depth for the lines
+            unsafe { gl.bind_framebuffer(glow::DRAW_FRAMEBUFFER, egui_fbo) };
+            clip_panel();
+            let e = &gpu.edl;
+            e.use_texture("color_tex", &t.color);
+            e.use_depth_texture("depth_tex", &t.depth);
+            e.use_uniform_if_required(
+                "texel",
+                three_d::vec2(1.0 / size.0 as f32, 1.0 / size.1 as f32),
+            );
+            e.use_uniform_if_required("near", frame.near);
+            e.use_uniform_if_required("far", frame.far);
+            e.use_uniform_if_required("strength", frame.edl_strength);
+            e.use_uniform_if_required("background", three_d::vec4(b[0], b[1], b[2], b[3]));
+            e.use_vertex_attribute("corner", &gpu.quad);
+            e.draw_with(
+                RenderStates {
+                    depth_test: DepthTest::Always,
+                    write_mask: WriteMask::COLOR_AND_DEPTH,
+                    ..Default::default()
+                },
+                panel_vp,
+                || unsafe { gl.draw_arrays(glow::TRIANGLES, 0, 3) },
+            );
+        } else {
+            draw_points(panel_vp);
         }
-        draw(&gpu.scene_lines, glow::LINES, &vp_m, [1.0; 4]);
-        unsafe { gl.disable(glow::DEPTH_TEST) };
-        draw(&gpu.overlay, glow::LINES, &vp_m, [1.0; 4]);
+        draw(
+            &gpu.scene_lines,
+            glow::LINES,
+            &IDENTITY,
+            [1.0; 4],
+            false,
+            depth_tested,
+            panel_vp,
+        );
+        draw(
+            &gpu.overlay,
+            glow::LINES,
+            &IDENTITY,
+            [1.0; 4],
+            false,
+            RenderStates {
+                depth_test: DepthTest::Always,
+                write_mask: WriteMask::COLOR,
+                ..Default::default()
+            },
+            panel_vp,
+        );
         unsafe {
-            gl.bind_vertex_array(None);
             gl.use_program(None);
-            gl.disable(glow::PROGRAM_POINT_SIZE);
         }
         Ok(())
     })
