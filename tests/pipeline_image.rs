@@ -409,3 +409,26 @@ fn walk(d: &Path) -> Vec<std::path::PathBuf> {
     }
     out
 }
+
+/// `--no-cache` on a cloud-only pair: the virtual frames go to a fresh scratch folder that
+/// is removed afterwards (it used to be a fixed `cgenreg-virtual-frames` folder under the
+/// system temp dir, shared by every run and never cleaned).
+#[test]
+fn cloud_only_pair_without_cache_leaves_no_virtual_frames() {
+    let manifest = common::demo_manifest();
+    let ds = Dataset::load(&manifest).unwrap();
+    let mut pair = ds.load_pair(&ds.pairs()[0].id.clone()).unwrap();
+    pair.source.frames = None;
+    pair.target.frames = None;
+    let mine = format!("cgenreg-virtual-frames-{}-", std::process::id());
+    let leftovers = || -> Vec<String> {
+        std::fs::read_dir(std::env::temp_dir())
+            .unwrap()
+            .filter_map(|e| e.ok()?.file_name().into_string().ok())
+            .filter(|n| n.starts_with(&mine))
+            .collect()
+    };
+    let r = register_pair_cached(&pair, &params(), None).unwrap();
+    assert!(r.warnings.iter().any(|w| w.contains("virtual pinhole")));
+    assert_eq!(leftovers(), Vec::<String>::new());
+}

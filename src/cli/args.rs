@@ -16,10 +16,40 @@ use crate::wfm::{Prompt, PromptPreset};
 use clap::Args;
 use std::path::PathBuf;
 
+/// A finite number > 0 (lengths, radii); clap names the option in the error.
+fn positive_f64(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
+        Ok(v) => Err(format!("must be a positive length in metres, got {v}")),
+        Err(e) => Err(e.to_string()),
+    }
+}
+
+fn positive_f32(s: &str) -> Result<f32, String> {
+    positive_f64(s).map(|v| v as f32)
+}
+
+/// Frames per fragment: 1 ..= the frame limit (checked before any work starts; every frame
+/// is rendered, written and generated, so 100,000 would run for hours and fill the disk).
+fn frame_count(s: &str) -> Result<usize, String> {
+    let n: usize = s.trim().parse().map_err(|e| format!("{e}"))?;
+    let max = crate::io::limits::max_frames();
+    if n == 0 {
+        return Err("must be at least 1".into());
+    }
+    if n > max {
+        return Err(format!(
+            "{n} frames per fragment exceeds the limit of {max} (set {}=N to allow more)",
+            crate::io::limits::ENV_MAX_FRAMES
+        ));
+    }
+    Ok(n)
+}
+
 #[derive(Args, Debug, Clone)]
 pub struct PipelineArgs {
     /// Keypoint voxel size in metres (FPFH radii: normals 2v, features 5v).
-    #[arg(long, default_value_t = 0.05)]
+    #[arg(long, default_value_t = 0.05, value_parser = positive_f64, allow_negative_numbers = true)]
     pub voxel: f64,
     /// Learned features for the source scan (.npz with points/feats, or .pkl); needs --learned-target.
     #[arg(long, requires = "learned_target")]
@@ -149,11 +179,12 @@ pub struct ImageArgs {
     /// Safeguard margin m (frames dropped on each side of the source/target seam).
     #[arg(long, default_value_t = 3)]
     pub margin: usize,
-    /// Frames per fragment in the depth video (L).
-    #[arg(long, default_value_t = 50)]
+    /// Frames per fragment in the depth video (L); at most 1000 unless CGENREG_MAX_FRAMES
+    /// allows more.
+    #[arg(long, default_value_t = 50, value_parser = frame_count, allow_negative_numbers = true)]
     pub frames: usize,
     /// Lifting radius in metres.
-    #[arg(long, default_value_t = 0.05)]
+    #[arg(long, default_value_t = 0.05, value_parser = positive_f32, allow_negative_numbers = true)]
     pub lift_radius: f32,
     /// Virtual camera for scans with no depth frames: f-theta for LiDAR-like clouds (they
     /// carry intensity) and a pinhole trajectory otherwise (auto), or force one.

@@ -294,7 +294,7 @@ impl Dataset {
 
     /// Load a manifest, with `root` (when given) replacing the manifest's `root` field.
     pub fn load_with_root(path: &Path, root: Option<&Path>) -> Result<Dataset> {
-        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        let text = crate::io::limits::read_text(path)?;
         let raw: RawManifest = toml::from_str(&text).map_err(|e| {
             bad(
                 path,

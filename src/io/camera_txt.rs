@@ -10,7 +10,7 @@ use std::path::Path;
 
 /// Read all numbers of a text file; comments after '#' are ignored.
 pub fn read_numbers(path: &Path) -> Result<Vec<f64>> {
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let text = crate::io::limits::read_text(path)?;
     parse_numbers(path, &text)
 }
 
@@ -43,7 +43,13 @@ pub fn parse_numbers(path: &Path, text: &str) -> Result<Vec<f64>> {
 
 /// Read pinhole intrinsics for images of `width` x `height`.
 pub fn read_intrinsics(path: &Path, width: u32, height: u32) -> Result<Intrinsics> {
-    let v = read_numbers(path)?;
+    let text = crate::io::limits::read_text(path)?;
+    parse_intrinsics(path, &text, width, height)
+}
+
+/// [`read_intrinsics`] on the file's text; `path` is used only in error messages.
+pub fn parse_intrinsics(path: &Path, text: &str, width: u32, height: u32) -> Result<Intrinsics> {
+    let v = parse_numbers(path, text)?;
     let (fx, fy, cx, cy) = match v.len() {
         9 => (v[0], v[4], v[2], v[5]),
         16 => (v[0], v[5], v[2], v[6]),
@@ -76,7 +82,13 @@ pub fn read_intrinsics(path: &Path, width: u32, height: u32) -> Result<Intrinsic
 
 /// Read a 4x4 rigid transform. Which direction it is depends on the file (see the caller).
 pub fn read_pose(path: &Path) -> Result<Isometry3<f64>> {
-    let v = read_numbers(path)?;
+    let text = crate::io::limits::read_text(path)?;
+    parse_pose(path, &text)
+}
+
+/// [`read_pose`] on the file's text; `path` is used only in error messages.
+pub fn parse_pose(path: &Path, text: &str) -> Result<Isometry3<f64>> {
+    let v = parse_numbers(path, text)?;
     if v.len() != 16 {
         return Err(Error::format(
             path,

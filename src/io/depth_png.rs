@@ -36,9 +36,13 @@ impl DepthImage {
 }
 
 pub fn read_depth_png(path: &Path) -> Result<DepthImage> {
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-    let img = image::load_from_memory_with_format(&bytes, image::ImageFormat::Png)
-        .map_err(|e| Error::format(path, "png", "a readable 16-bit PNG", e.to_string()))?;
+    let bytes = crate::io::limits::read_file(path)?;
+    parse_depth_png(path, &bytes)
+}
+
+/// Decode PNG bytes under the decoded-size limit; `path` is used only in error messages.
+pub fn parse_depth_png(path: &Path, bytes: &[u8]) -> Result<DepthImage> {
+    let img = decode_image(path, bytes, image::ImageFormat::Png)?;
     match img {
         image::DynamicImage::ImageLuma16(buf) => Ok(DepthImage {
             width: buf.width(),
@@ -52,6 +56,35 @@ pub fn read_depth_png(path: &Path) -> Result<DepthImage> {
             format!("{:?}", other.color()),
         )),
     }
+}
+
+/// Decode an image, refusing one whose decoded pixels would exceed
+/// [`crate::io::limits::max_decoded_bytes`] (a few-KB PNG can declare 65535 x 65535 pixels).
+pub fn decode_image(
+    path: &Path,
+    bytes: &[u8],
+    format: image::ImageFormat,
+) -> Result<image::DynamicImage> {
+    let max = crate::io::limits::max_decoded_bytes();
+    let mut r = image::ImageReader::with_format(std::io::Cursor::new(bytes), format);
+    let mut limits = image::Limits::default();
+    limits.max_alloc = Some(max);
+    r.limits(limits);
+    r.decode().map_err(|e| {
+        let hint = match e {
+            image::ImageError::Limits(_) => format!(
+                " (over the {max}-byte decoded-size limit; raise {} if the image is real)",
+                crate::io::limits::ENV_MAX_DECODED_BYTES
+            ),
+            _ => String::new(),
+        };
+        Error::format(
+            path,
+            "image",
+            format!("a readable {format:?} image"),
+            format!("{e}{hint}"),
+        )
+    })
 }
 
 /// Write a 16-bit depth PNG (millimetres, 0 = invalid).

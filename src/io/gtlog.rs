@@ -128,13 +128,18 @@ pub fn parse_gt_log(path: &Path, text: &str) -> Result<Vec<GtEntry>> {
 }
 
 pub fn read_gt_log(path: &Path) -> Result<Vec<GtEntry>> {
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let text = crate::io::limits::read_text(path)?;
     parse_gt_log(path, &text)
 }
 
 pub fn read_gt_info(path: &Path) -> Result<Vec<GtInfo>> {
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-    Ok(parse_blocks(path, &text, 6, 6)?
+    let text = crate::io::limits::read_text(path)?;
+    parse_gt_info(path, &text)
+}
+
+/// [`read_gt_info`] on the file's text; `path` is used only in error messages.
+pub fn parse_gt_info(path: &Path, text: &str) -> Result<Vec<GtInfo>> {
+    Ok(parse_blocks(path, text, 6, 6)?
         .into_iter()
         .map(|b| GtInfo {
             target: b.header[0],

@@ -8,7 +8,7 @@ use nalgebra::Point3;
 use std::path::Path;
 
 pub fn read_kitti_bin(path: &Path) -> Result<PointCloud> {
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let bytes = crate::io::limits::read_file(path)?;
     parse_kitti_bin(path, &bytes)
 }
 

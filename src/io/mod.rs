@@ -4,8 +4,10 @@
 pub mod camera_txt;
 pub mod cloud;
 pub mod depth_png;
+pub mod fuzz_targets;
 pub mod gtlog;
 pub mod kitti;
+pub mod limits;
 pub mod npy;
 pub mod pcd;
 pub mod pickle;

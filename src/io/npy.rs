@@ -207,6 +207,8 @@ enum Lit {
 struct LitParser<'a> {
     s: &'a [u8],
     i: usize,
+    /// Tuple nesting so far; a header nesting deeper than the limit is refused (recursion).
+    depth: usize,
 }
 
 impl LitParser<'_> {
@@ -238,13 +240,19 @@ impl LitParser<'_> {
             }
             b'(' => {
                 self.i += 1;
+                self.depth += 1;
+                if self.depth > 32 {
+                    return None; // shapes nest one level; this is not an NPY header
+                }
                 let mut items = Vec::new();
                 loop {
                     if self.eat(b')') {
+                        self.depth -= 1;
                         return Some(Lit::Tuple(items));
                     }
                     items.push(self.value()?);
                     if !self.eat(b',') {
+                        self.depth -= 1;
                         return self.eat(b')').then_some(Lit::Tuple(items));
                     }
                 }
@@ -313,7 +321,7 @@ pub(crate) fn parse_descr(d: &str) -> Option<(char, usize, bool)> {
 }
 
 pub fn read_npy(path: &Path) -> Result<NpyArray> {
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let bytes = crate::io::limits::read_file(path)?;
     parse_npy(path, &bytes)
 }
 
@@ -364,9 +372,13 @@ pub fn parse_npy(path: &Path, bytes: &[u8]) -> Result<NpyArray> {
             format!("{:?}", String::from_utf8_lossy(header).trim_end()),
         )
     };
-    let dict = LitParser { s: header, i: 0 }
-        .dict()
-        .ok_or_else(bad_header)?;
+    let dict = LitParser {
+        s: header,
+        i: 0,
+        depth: 0,
+    }
+    .dict()
+    .ok_or_else(bad_header)?;
     let get = |k: &str| dict.iter().find(|(n, _)| n == k).map(|(_, v)| v);
     let (Some(Lit::Str(descr)), Some(Lit::Bool(fortran)), Some(Lit::Tuple(shape))) =
         (get("descr"), get("fortran_order"), get("shape"))
@@ -401,8 +413,15 @@ pub fn parse_npy(path: &Path, bytes: &[u8]) -> Result<NpyArray> {
 
 /// Read every `name.npy` entry of an `.npz` archive, keyed by `name`.
 pub fn read_npz(path: &Path) -> Result<BTreeMap<String, NpyArray>> {
+    let bytes = crate::io::limits::read_file(path)?;
+    parse_npz(path, &bytes)
+}
+
+/// Parse the bytes of an `.npz` archive; every entry's decoded size is capped by
+/// [`crate::io::limits::max_decoded_bytes`] whatever its zip header claims.
+pub fn parse_npz(path: &Path, bytes: &[u8]) -> Result<BTreeMap<String, NpyArray>> {
     use std::io::Read;
-    let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+    let file = std::io::Cursor::new(bytes);
     let zerr = |e: zip::result::ZipError| {
         Error::format(
             path,
@@ -419,15 +438,16 @@ pub fn read_npz(path: &Path) -> Result<BTreeMap<String, NpyArray>> {
         let Some(key) = name.strip_suffix(".npy") else {
             continue;
         };
+        let field = format!("entry {name}");
+        let max = crate::io::limits::max_decoded_bytes();
+        crate::io::limits::check_decoded(path, &field, entry.size())?;
         let mut buf = Vec::with_capacity((entry.size() as usize).min(1 << 28));
-        entry.read_to_end(&mut buf).map_err(|e| {
-            Error::format(
-                path,
-                format!("entry {name}"),
-                "readable data",
-                e.to_string(),
-            )
-        })?;
+        // The declared size may lie: stop reading one byte past the limit.
+        (&mut entry)
+            .take(max + 1)
+            .read_to_end(&mut buf)
+            .map_err(|e| Error::format(path, &field, "readable data", e.to_string()))?;
+        crate::io::limits::check_decoded(path, &field, buf.len() as u64)?;
         let entry_path = path.join(&name);
         out.insert(key.to_string(), parse_npy(&entry_path, &buf)?);
     }

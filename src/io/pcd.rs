@@ -337,7 +337,7 @@ pub fn lzf_compress(input: &[u8]) -> Vec<u8> {
 }
 
 pub fn read_pcd(path: &Path) -> Result<PointCloud> {
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let bytes = crate::io::limits::read_file(path)?;
     parse_pcd(path, &bytes)
 }
 
@@ -360,8 +360,26 @@ pub fn parse_pcd(path: &Path, bytes: &[u8]) -> Result<PointCloud> {
     };
     let n = h.points;
     let body = &bytes[h.body_start..];
-    let point_size: usize = h.fields.iter().map(|f| f.size * f.count).sum();
-    let need = n.saturating_mul(point_size);
+    // Sizes from the header are untrusted: overflow is an error, never a wrap to 0 bytes.
+    let overflow = |what: &str| {
+        Error::format(
+            path,
+            "SIZE/COUNT",
+            format!("{what} that fits in 64 bits"),
+            "a product that overflows (COUNT too large)",
+        )
+    };
+    let mut point_size = 0usize;
+    for f in &h.fields {
+        point_size = f
+            .size
+            .checked_mul(f.count)
+            .and_then(|b| point_size.checked_add(b))
+            .ok_or_else(|| overflow("a point size"))?;
+    }
+    let need = n
+        .checked_mul(point_size)
+        .ok_or_else(|| overflow("POINTS x point size"))?;
 
     // Per point, the bytes of each wanted field: `base + i * stride`.
     // Capacity is capped by the data size so a lying header cannot force a huge allocation.
@@ -447,6 +465,7 @@ pub fn parse_pcd(path: &Path, bytes: &[u8]) -> Result<PointCloud> {
             if usize_ != need {
                 return Err(lie(format!("{usize_} uncompressed bytes")));
             }
+            crate::io::limits::check_decoded(path, "binary_compressed data", usize_ as u64)?;
             let comp = body.get(8..8 + csize).ok_or_else(|| {
                 Error::format(
                     path,
@@ -463,6 +482,20 @@ pub fn parse_pcd(path: &Path, bytes: &[u8]) -> Result<PointCloud> {
             });
         }
         Data::Ascii => {
+            // Every value takes at least one byte: a COUNT the data cannot hold is a lie
+            // (and would allocate without bound).
+            let ncols = h
+                .fields
+                .iter()
+                .try_fold(0usize, |a, f| a.checked_add(f.count))
+                .ok_or_else(|| overflow("the number of values per point"))?;
+            crate::io::limits::check_count(
+                path,
+                "POINTS x COUNT (values)",
+                (n as u64).saturating_mul(ncols as u64),
+                1,
+                body.len() as u64,
+            )?;
             let text = String::from_utf8_lossy(body);
             let lines: Vec<&str> = text
                 .lines()
@@ -471,7 +504,6 @@ pub fn parse_pcd(path: &Path, bytes: &[u8]) -> Result<PointCloud> {
             if lines.len() != n {
                 return Err(lie(format!("{} data lines", lines.len())));
             }
-            let ncols: usize = h.fields.iter().map(|f| f.count).sum();
             // Column index of each field's first value.
             let cols: Vec<usize> = h
                 .fields

@@ -62,7 +62,8 @@ enum Value {
     /// array data); decoding it this way skips a slow general UTF-8 pass.
     Latin1(Rc<Vec<u8>>),
     Bytes(Rc<Vec<u8>>),
-    Tuple(Vec<Value>),
+    // Containers carry an identity (for the memo and for their nesting depth).
+    Tuple(u64, Vec<Value>),
     // Mutable objects carry an identity so the memo can follow later mutations.
     List(u64, Vec<Value>),
     Dict(u64, Vec<(Value, Value)>),
@@ -77,6 +78,8 @@ impl Value {
             Value::List(id, _) | Value::Dict(id, _) | Value::Array(id, _) | Value::Dtype(id, _) => {
                 Some(*id)
             }
+            // Tuples are immutable: no memo refresh needed.
+            Value::Tuple(..) => None,
             _ => None,
         }
     }
@@ -88,7 +91,7 @@ impl Value {
             Value::Float(_) => "float",
             Value::Str(_) | Value::Latin1(_) => "str",
             Value::Bytes(_) => "bytes",
-            Value::Tuple(_) => "tuple",
+            Value::Tuple(..) => "tuple",
             Value::List(..) => "list",
             Value::Dict(..) => "dict",
             Value::Array(..) => "numpy.ndarray",
@@ -98,7 +101,7 @@ impl Value {
     }
     fn as_shape(&self) -> Option<Vec<usize>> {
         match self {
-            Value::Tuple(v) | Value::List(_, v) => v
+            Value::Tuple(_, v) | Value::List(_, v) => v
                 .iter()
                 .map(|d| match d {
                     Value::Int(n) if *n >= 0 => usize::try_from(*n).ok(),
@@ -138,6 +141,52 @@ fn latin1(b: &[u8]) -> Option<Vec<u8>> {
     Some(out)
 }
 
+enum Decoded {
+    /// Every char is <= U+00FF: kept as latin-1 bytes.
+    Latin1(Vec<u8>),
+    Text(String),
+}
+
+/// Decode Python's `raw-unicode-escape`: each byte is the char of that code, except
+/// `\uXXXX` and `\UXXXXXXXX` (an odd run of backslashes before `u`/`U` starts an escape).
+fn raw_unicode_escape(b: &[u8]) -> Option<Decoded> {
+    let mut chars: Vec<u32> = Vec::with_capacity(b.len());
+    let mut i = 0;
+    let mut slashes = 0usize;
+    while i < b.len() {
+        let c = b[i];
+        if c == b'\\' {
+            slashes += 1;
+        } else if (c == b'u' || c == b'U') && slashes % 2 == 1 {
+            let n = if c == b'u' { 4 } else { 8 };
+            let hex = std::str::from_utf8(b.get(i + 1..i + 1 + n)?).ok()?;
+            if !hex.bytes().all(|h| h.is_ascii_hexdigit()) {
+                return None;
+            }
+            let code = u32::from_str_radix(hex, 16).ok()?;
+            char::from_u32(code)?;
+            chars.pop(); // the backslash that started the escape
+            chars.push(code);
+            slashes = 0;
+            i += 1 + n;
+            continue;
+        } else {
+            slashes = 0;
+        }
+        chars.push(c as u32);
+        i += 1;
+    }
+    if chars.iter().all(|&c| c <= 0xff) {
+        Some(Decoded::Latin1(
+            chars.into_iter().map(|c| c as u8).collect(),
+        ))
+    } else {
+        Some(Decoded::Text(
+            chars.into_iter().filter_map(char::from_u32).collect(),
+        ))
+    }
+}
+
 struct Vm<'a> {
     path: &'a Path,
     data: &'a [u8],
@@ -149,6 +198,15 @@ struct Vm<'a> {
     memo: HashMap<u32, Value>,
     memo_of: HashMap<u64, Vec<u32>>,
     next_id: u64,
+    /// Nesting depth of every container built so far (by identity), and the limit: deep
+    /// nesting would overflow the stack when the values are cloned, printed or dropped.
+    /// Also their size in values: memo gets and DUP copy values (Python shares them), so a
+    /// list appended to itself would double each time without a cap.
+    depth: HashMap<u64, (usize, u64)>,
+    max_depth: usize,
+    max_values: u64,
+    /// Values copied so far by memo gets and DUP, capped by `max_values` too.
+    copied: u64,
 }
 
 impl<'a> Vm<'a> {
@@ -163,6 +221,10 @@ impl<'a> Vm<'a> {
             memo: HashMap::new(),
             memo_of: HashMap::new(),
             next_id: 0,
+            depth: HashMap::new(),
+            max_depth: crate::io::limits::max_nesting(),
+            max_values: 1_000_000 + 64 * data.len() as u64,
+            copied: 0,
         }
     }
 
@@ -217,6 +279,71 @@ impl<'a> Vm<'a> {
         self.pos += nl + 1;
         Ok(s.trim_end_matches('\r'))
     }
+    /// (nesting depth, number of values) of `v`.
+    fn weight(&self, v: &Value) -> (usize, u64) {
+        match v {
+            Value::Tuple(id, _) | Value::List(id, _) | Value::Dict(id, _) => {
+                self.depth.get(id).copied().unwrap_or((1, 1))
+            }
+            _ => (0, 1),
+        }
+    }
+    /// A new container holding `items`: its identity, after checking the nesting limit.
+    fn container(&mut self, items: &[Value]) -> Result<u64> {
+        let refs: Vec<&Value> = items.iter().collect();
+        self.container_of(&refs)
+    }
+    fn container_of(&mut self, items: &[&Value]) -> Result<u64> {
+        let id = self.new_id();
+        self.depth.insert(id, (1, 1));
+        self.grow_of(id, items)?;
+        Ok(id)
+    }
+    /// Container `id` receives `items`: raise its depth, failing past the limit.
+    fn grow(&mut self, id: u64, items: &[Value]) -> Result<()> {
+        let refs: Vec<&Value> = items.iter().collect();
+        self.grow_of(id, &refs)
+    }
+    fn grow_of(&mut self, id: u64, items: &[&Value]) -> Result<()> {
+        let (d0, n0) = self.depth.get(&id).copied().unwrap_or((1, 1));
+        let (mut d, mut n) = (d0, n0);
+        for v in items {
+            let (dv, nv) = self.weight(v);
+            d = d.max(dv + 1);
+            n = n.saturating_add(nv);
+        }
+        if n > self.max_values {
+            return Err(self.err(
+                format!(
+                    "at most {} values in one object (copies through the memo count)",
+                    self.max_values
+                ),
+                format!("{n} values"),
+            ));
+        }
+        if d > self.max_depth {
+            return Err(self.err(
+                format!(
+                    "containers nested at most {} levels deep (raise {} if the data is real)",
+                    self.max_depth,
+                    crate::io::limits::ENV_MAX_NESTING
+                ),
+                format!("{d} levels"),
+            ));
+        }
+        self.depth.insert(id, (d, n));
+        Ok(())
+    }
+    fn count_copy(&mut self, v: &Value) -> Result<()> {
+        self.copied = self.copied.saturating_add(self.weight(v).1);
+        if self.copied > self.max_values {
+            return Err(self.err(
+                format!("at most {} values copied by memo gets", self.max_values),
+                format!("{} values", self.copied),
+            ));
+        }
+        Ok(())
+    }
     fn new_id(&mut self) -> u64 {
         self.next_id += 1;
         self.next_id
@@ -266,6 +393,7 @@ impl<'a> Vm<'a> {
             .get(&key)
             .cloned()
             .ok_or_else(|| self.err("a memo key that was stored", format!("key {key}")))?;
+        self.count_copy(&v)?;
         self.stack.push(v);
         Ok(())
     }
@@ -322,7 +450,7 @@ impl<'a> Vm<'a> {
         let Value::Global(g) = f else {
             return Err(self.err("a callable global", f.type_name()));
         };
-        let Value::Tuple(args) = args else {
+        let Value::Tuple(_, args) = args else {
             return Err(self.err("an argument tuple", args.type_name()));
         };
         let bad = |vm: &Self, what: &str| {
@@ -392,7 +520,7 @@ impl<'a> Vm<'a> {
                 }
                 _ => Err(bad(self, "_frombuffer(bytes, dtype, shape, order)")),
             },
-            Global::OrderedDict => Ok(Value::Dict(self.new_id(), Vec::new())),
+            Global::OrderedDict => Ok(Value::Dict(self.container(&[])?, Vec::new())),
             Global::NdArray => Err(self.err(
                 "numpy.ndarray built through _reconstruct",
                 "a direct numpy.ndarray call",
@@ -408,13 +536,13 @@ impl<'a> Vm<'a> {
         match self.top()? {
             Value::Dtype(_, dt) => {
                 // State: (version, byteorder, subarray, names, fields, elsize, alignment, flags).
-                if let Value::Tuple(s) = &state {
+                if let Value::Tuple(_, s) = &state {
                     match s.get(1) {
                         Some(Value::Str(o)) if &**o == ">" => dt.big = true,
                         Some(Value::Str(o)) if &**o == "<" => dt.big = false,
                         _ => {}
                     }
-                    if matches!(s.get(3), Some(Value::Tuple(_))) {
+                    if matches!(s.get(3), Some(Value::Tuple(..))) {
                         return Err(err("a plain float dtype", "a structured dtype".into()));
                     }
                 }
@@ -422,8 +550,8 @@ impl<'a> Vm<'a> {
             Value::Array(_, a) => {
                 // State: (version, shape, dtype, is_fortran, data) or without the version.
                 let s = match &state {
-                    Value::Tuple(s) if s.len() == 5 => &s[1..],
-                    Value::Tuple(s) if s.len() == 4 => &s[..],
+                    Value::Tuple(_, s) if s.len() == 5 => &s[1..],
+                    Value::Tuple(_, s) if s.len() == 4 => &s[..],
                     other => {
                         return Err(err(
                             "an ndarray state tuple (version, shape, dtype, fortran, data)",
@@ -469,6 +597,7 @@ impl<'a> Vm<'a> {
         self.marks.clear();
         self.memo.clear();
         self.memo_of.clear();
+        self.depth.clear();
         loop {
             let op = self.u8()?;
             match op {
@@ -549,6 +678,28 @@ impl<'a> Vm<'a> {
                     };
                     self.stack.push(v);
                 }
+                // Protocol 0 UNICODE: raw-unicode-escape text up to a newline (bytes are
+                // latin-1 chars, `\uXXXX` / `\UXXXXXXXX` escape the rest).
+                b'V' => {
+                    let rest = &self.data[self.pos..];
+                    let nl = rest.iter().position(|&c| c == b'\n').ok_or_else(|| {
+                        self.err("a newline-terminated UNICODE argument", "end of file")
+                    })?;
+                    let v = match raw_unicode_escape(&rest[..nl]) {
+                        Some(Decoded::Latin1(b)) if b.len() > 4096 => Value::Latin1(Rc::new(b)),
+                        Some(Decoded::Latin1(b)) => {
+                            Value::Str(Rc::from(b.iter().map(|&c| c as char).collect::<String>()))
+                        }
+                        Some(Decoded::Text(t)) => Value::Str(Rc::from(t)),
+                        None => {
+                            return Err(
+                                self.err("raw-unicode-escape text", "a bad \\u or \\U escape")
+                            )
+                        }
+                    };
+                    self.pos += nl + 1;
+                    self.stack.push(v);
+                }
                 // Python 2 str: bytes that Python 3 decodes as latin-1.
                 b'T' | b'U' => {
                     let n = if op == b'T' {
@@ -618,26 +769,31 @@ impl<'a> Vm<'a> {
                         .map_err(|_| self.err("a memo key", format!("{l:?}")))?;
                     self.get(k)?;
                 }
-                b')' => self.stack.push(Value::Tuple(Vec::new())),
+                b')' => {
+                    let id = self.container(&[])?;
+                    self.stack.push(Value::Tuple(id, Vec::new()));
+                }
                 0x85..=0x87 => {
                     let n = (op - 0x84) as usize;
                     if self.stack.len() < n + self.marks.last().copied().unwrap_or(0) {
                         return Err(self.err(format!("{n} values for a tuple"), "fewer"));
                     }
                     let items = self.stack.split_off(self.stack.len() - n);
-                    self.stack.push(Value::Tuple(items));
+                    let id = self.container(&items)?;
+                    self.stack.push(Value::Tuple(id, items));
                 }
                 b't' => {
                     let items = self.pop_mark()?;
-                    self.stack.push(Value::Tuple(items));
+                    let id = self.container(&items)?;
+                    self.stack.push(Value::Tuple(id, items));
                 }
                 b']' | 0x8f => {
-                    let id = self.new_id();
+                    let id = self.container(&[])?;
                     self.stack.push(Value::List(id, Vec::new()));
                 }
                 b'l' | 0x91 => {
                     let items = self.pop_mark()?;
-                    let id = self.new_id();
+                    let id = self.container(&items)?;
                     self.stack.push(Value::List(id, items));
                 }
                 b'a' | b'e' | 0x90 => {
@@ -646,6 +802,14 @@ impl<'a> Vm<'a> {
                     } else {
                         self.pop_mark()?
                     };
+                    let id = match self.top()? {
+                        Value::List(id, _) => *id,
+                        other => {
+                            let t = other.type_name();
+                            return Err(self.err("a list to append to", t));
+                        }
+                    };
+                    self.grow(id, &items)?;
                     match self.top()? {
                         Value::List(_, l) => l.extend(items),
                         other => {
@@ -656,7 +820,7 @@ impl<'a> Vm<'a> {
                     self.sync_top()?;
                 }
                 b'}' => {
-                    let id = self.new_id();
+                    let id = self.container(&[])?;
                     self.stack.push(Value::Dict(id, Vec::new()));
                 }
                 b'd' | b's' | b'u' => {
@@ -677,9 +841,19 @@ impl<'a> Vm<'a> {
                         pairs.push((k, v));
                     }
                     if op == b'd' {
-                        let id = self.new_id();
+                        let flat: Vec<&Value> = pairs.iter().flat_map(|(k, v)| [k, v]).collect();
+                        let id = self.container_of(&flat)?;
                         self.stack.push(Value::Dict(id, pairs));
                     } else {
+                        let id = match self.top()? {
+                            Value::Dict(id, _) => *id,
+                            other => {
+                                let t = other.type_name();
+                                return Err(self.err("a dict to set items in", t));
+                            }
+                        };
+                        let flat: Vec<&Value> = pairs.iter().flat_map(|(k, v)| [k, v]).collect();
+                        self.grow_of(id, &flat)?;
                         match self.top()? {
                             Value::Dict(_, d) => d.extend(pairs),
                             other => {
@@ -702,6 +876,7 @@ impl<'a> Vm<'a> {
                 }
                 b'2' => {
                     let v = self.top()?.clone();
+                    self.count_copy(&v)?;
                     self.stack.push(v);
                 }
                 b'R' | 0x81 => {
@@ -781,7 +956,7 @@ pub fn parse_pickle_arrays(path: &Path, bytes: &[u8]) -> Result<BTreeMap<String,
 }
 
 pub fn read_pickle_arrays(path: &Path) -> Result<BTreeMap<String, NpyArray>> {
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let bytes = crate::io::limits::read_file(path)?;
     parse_pickle_arrays(path, &bytes)
 }
 
@@ -834,7 +1009,7 @@ pub fn parse_pth_array(path: &Path, bytes: &[u8]) -> Result<NpyArray> {
 }
 
 pub fn read_pth_array(path: &Path) -> Result<NpyArray> {
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let bytes = crate::io::limits::read_file(path)?;
     parse_pth_array(path, &bytes)
 }
 
@@ -885,6 +1060,97 @@ pub(crate) mod tests {
         assert_eq!(m["ref_feats_f"].to_f32()[5], -2.0);
         assert_eq!(m["src_points_f"].to_f32(), vec![0.25, 0.5, 0.75]);
         assert_eq!(m["src_feats_f"].to_f32(), vec![0.0, 0.0, 3.5, 0.0]);
+    }
+
+    /// `pickle.dumps(d, protocol=0)` of the same dict (UNICODE opcodes, text ints).
+    const GEO_P0: &str = "286470300a567265665f706f696e74735f660a70310a636e756d70792e5f636f72652e6d756c746961727261790a5f7265636f6e7374727563740a70320a28636e756d70790a6e6461727261790a70330a2849300a7470340a635f636f646563730a656e636f64650a70350a2856620a70360a566c6174696e310a70370a7470380a5270390a747031300a527031310a2849310a2849320a49330a747031320a636e756d70790a64747970650a7031330a285666340a7031340a4930300a4930310a747031350a527031360a2849330a563c0a7031370a4e4e4e492d310a492d310a49300a747031380a624930300a67350a28565c75303030305c75303030305c75303030305c75303030305c75303030305c75303030305c75303030303f5c75303030305c7530303030803f5c75303030305c7530303030c03f5c75303030305c75303030305c7530303030405c75303030305c753030303020400a7031390a67370a747032300a527032310a747032320a6273567265665f66656174735f660a7032330a67320a2867330a2849300a747032340a67390a747032350a527032360a2849310a2849320a49340a747032370a6731360a4930300a67350a28565c75303030305c7530303030803f5c75303030305c75303030305c75303030305c75303030305c75303030305c75303030305c75303030305c75303030305c75303030305c75303030305c75303030305c75303030305c75303030305c75303030305c75303030305c75303030305c75303030305c75303030305c7530303030c05c75303030305c75303030305c75303030305c75303030305c75303030305c75303030305c75303030305c75303030300a7032380a67370a747032390a527033300a747033310a6273567372635f706f696e74735f660a7033320a67320a2867330a2849300a747033330a67390a747033340a527033350a2849310a2849310a49330a747033360a6731360a4930300a67350a28565c75303030305c7530303030803e5c75303030305c75303030305c75303030303f5c75303030305c7530303030403f0a7033370a67370a747033380a527033390a747034300a6273567372635f66656174735f660a7034310a67320a2867330a2849300a747034320a67390a747034330a527034340a2849310a2849310a49340a747034350a6731360a4930300a67350a28565c75303030305c75303030305c75303030305c75303030305c75303030305c75303030305c75303030305c75303030305c75303030305c753030303060405c75303030305c75303030305c75303030305c75303030300a7034360a67370a747034370a527034380a747034390a62732e";
+
+    #[test]
+    fn protocol_0_numpy_pickle() {
+        let m = parse_pickle_arrays(Path::new("p0"), &hex(GEO_P0)).unwrap();
+        check_geo(&m);
+        assert!(matches!(
+            raw_unicode_escape(br"a\u00e9\U0001F600\\u"),
+            Some(Decoded::Text(t)) if t == "a\u{e9}\u{1F600}\\\\u"
+        ));
+        assert!(raw_unicode_escape(br"\u12").is_none());
+        assert!(raw_unicode_escape(br"\uzzzz").is_none());
+    }
+
+    /// A pickle of `levels` nested 1-tuples around an int: `K 0` then `levels` x TUPLE1.
+    fn nested_tuples(levels: usize) -> Vec<u8> {
+        let mut b = b"\x80\x02K\x00".to_vec();
+        b.extend(std::iter::repeat_n(0x85u8, levels));
+        b.push(b'.');
+        b
+    }
+
+    #[test]
+    fn deep_nesting_is_a_clear_error_not_a_stack_overflow() {
+        // 50,000 levels overflowed the stack when the value was cloned or dropped.
+        for bytes in [
+            nested_tuples(50_000),
+            // Lists through marks: `(` x N then `l` x N.
+            {
+                let mut b = b"\x80\x02".to_vec();
+                b.extend(std::iter::repeat_n(b'(', 50_000));
+                b.extend(std::iter::repeat_n(b'l', 50_000));
+                b.push(b'.');
+                b
+            },
+            // Empty lists appended into each other: `]` x N then `a` x (N-1).
+            {
+                let mut b = b"\x80\x02".to_vec();
+                b.extend(std::iter::repeat_n(b']', 50_000));
+                b.extend(std::iter::repeat_n(b'a', 49_999));
+                b.push(b'.');
+                b
+            },
+        ] {
+            let e = parse_pickle_arrays(Path::new("deep.pkl"), &bytes)
+                .unwrap_err()
+                .to_string();
+            assert!(
+                e.contains("deep.pkl") && e.contains("nested at most 1000"),
+                "{e}"
+            );
+            let e = parse_pth_array(Path::new("deep.pth"), &bytes)
+                .unwrap_err()
+                .to_string();
+            assert!(
+                e.contains("deep.pth") && e.contains("CGENREG_MAX_NESTING"),
+                "{e}"
+            );
+        }
+        // Within the limit, nesting is fine (the error is about the shape, not the depth).
+        let e = parse_pickle_arrays(Path::new("ok.pkl"), &nested_tuples(900))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("a dict of arrays"), "{e}");
+        // And through the file readers (the `.pth` cloud path and `--geotransformer-pkl`).
+        let d = tempfile::tempdir().unwrap();
+        let f = d.path().join("deep.pth");
+        std::fs::write(&f, nested_tuples(50_000)).unwrap();
+        assert!(crate::io::cloud::load_cloud(&f).is_err());
+        let f = d.path().join("deep.pkl");
+        std::fs::write(&f, nested_tuples(50_000)).unwrap();
+        assert!(read_pickle_arrays(&f).is_err());
+    }
+
+    #[test]
+    fn self_doubling_lists_are_capped() {
+        // `]` then (DUP, APPEND) x 60: each step copies the list into itself, 2^60 values.
+        let mut b = b"\x80\x02]".to_vec();
+        for _ in 0..60 {
+            b.extend_from_slice(b"2a");
+        }
+        b.push(b'.');
+        let t = std::time::Instant::now();
+        let e = parse_pickle_arrays(Path::new("dbl.pkl"), &b)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("values"), "{e}");
+        assert!(t.elapsed().as_secs() < 5);
     }
 
     #[test]

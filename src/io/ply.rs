@@ -373,7 +373,7 @@ impl Sink {
 }
 
 pub fn read_ply(path: &Path) -> Result<PointCloud> {
-    let data = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let data = crate::io::limits::read_file(path)?;
     parse_ply(path, &data)
 }
 
@@ -515,7 +515,19 @@ fn parse_binary(path: &Path, h: &Header, body: &[u8], big: bool) -> Result<Point
                                     format!("{n}"),
                                 ));
                             }
-                            p += count.size() + n as usize * item.size();
+                            p = (n as usize)
+                                .checked_mul(item.size())
+                                .and_then(|b| b.checked_add(p + count.size()))
+                                .filter(|&e| e <= rest.len())
+                                .ok_or_else(|| {
+                                    truncated(
+                                        path,
+                                        el,
+                                        i,
+                                        format!("a list of {n} items"),
+                                        rest.len().saturating_sub(p),
+                                    )
+                                })?;
                         }
                     }
                 }
@@ -551,7 +563,17 @@ fn parse_ascii(path: &Path, h: &Header, body: &[u8]) -> Result<PointCloud> {
         // Each ascii vertex takes at least 2 bytes: cap the capacity a header can ask for.
         let cap = el.count.min(body.len() / 2);
         let mut sink = r.as_ref().map(|r| Sink::new(cap, el, r));
-        for i in 0..el.count {
+        // An element without properties has nothing to read, whatever its count (looping
+        // over a count of 10^18 would never end); one with properties needs a token each.
+        let count = if el.props.is_empty() { 0 } else { el.count };
+        crate::io::limits::check_count(
+            path,
+            &format!("element {} count", el.name),
+            (count as u64).saturating_mul(el.props.len() as u64),
+            1,
+            body.len() as u64,
+        )?;
+        for i in 0..count {
             vals.clear();
             for prop in &el.props {
                 let mut next = |what: &str| -> Result<f64> {

@@ -10,7 +10,7 @@ use nalgebra::Point3;
 use std::path::Path;
 
 pub fn read_xyz(path: &Path) -> Result<PointCloud> {
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let bytes = crate::io::limits::read_file(path)?;
     let text = std::str::from_utf8(&bytes).map_err(|e| {
         Error::format(
             path,

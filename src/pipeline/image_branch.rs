@@ -819,9 +819,18 @@ pub fn register_with_image_keep(
 ) -> Result<(RegistrationResult, FusionInputs)> {
     // Point-cloud-only scans: render their depth frames from a virtual pinhole trajectory.
     if pair.source.frames.is_none() || pair.target.frames.is_none() {
-        let root = match cache {
-            Some(c) => c.root().join("virtual-frames"),
-            None => std::env::temp_dir().join("cgenreg-virtual-frames"),
+        // Without a cache the frames go to a fresh scratch folder, removed when this call
+        // returns (a fixed shared folder would leak files and mix concurrent runs).
+        let scratch = match cache {
+            Some(_) => None,
+            None => Some(crate::io::limits::ScratchDir::new(
+                "cgenreg-virtual-frames",
+            )?),
+        };
+        let root = match (cache, &scratch) {
+            (Some(c), _) => c.root().join("virtual-frames"),
+            (None, Some(s)) => s.path().to_path_buf(),
+            (None, None) => unreachable!("a scratch folder is made when there is no cache"),
         };
         let mut p2 = pair.clone();
         let mut notes = Vec::new();

@@ -15,7 +15,10 @@
 //! `{seed}`, `{job_dir}` or `{checkpoint_dir}` is replaced by its value; other arguments pass
 //! through untouched (so the prompt, which travels in the files, can never be re-parsed as
 //! arguments). An argument that looks like an unknown `{placeholder}` is an error. The child
-//! runs in its own process group; on timeout the whole group is killed.
+//! runs in its own process group with a unique `CGENREG_JOB_TOKEN` in its environment; when
+//! it exits (successfully or not) or times out, the group and every process carrying the
+//! token (e.g. a `setsid` grandchild) are killed, so nothing it started outlives the call.
+//! Error messages quote the last 20 lines of the stderr log, read from its last 64 KiB.
 
 use super::backend::{now_unix, sanitize, GenerateRequest, Generation, Provenance, WfmBackend};
 use super::prompt::{to_ascii_json, BatchLine};
@@ -190,32 +193,111 @@ pub fn write_controlnet_spec(
     write_atomic(path, to_ascii_json(&v).as_bytes())
 }
 
-/// The last `n` lines of a log file, for error messages.
-fn tail(path: &Path, n: usize) -> String {
-    let text = std::fs::read(path)
-        .map(|b| String::from_utf8_lossy(&b).into_owned())
-        .unwrap_or_default();
-    let lines: Vec<&str> = text.lines().collect();
-    lines[lines.len().saturating_sub(n)..].join("\n")
+/// Environment variable set to a unique token in the generator's environment; every
+/// process it starts inherits it, so its whole tree can be found (and killed) even after a
+/// grandchild left the process group with `setsid`.
+pub const JOB_TOKEN_ENV: &str = "CGENREG_JOB_TOKEN";
+
+/// A fresh token for one generator run.
+fn job_token() -> String {
+    static NEXT: AtomicUsize = AtomicUsize::new(0);
+    let nanos = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_nanos())
+        .unwrap_or(0);
+    format!(
+        "{}-{nanos}-{}",
+        std::process::id(),
+        NEXT.fetch_add(1, Ordering::Relaxed)
+    )
 }
 
+/// Pids of live processes whose environment holds `JOB_TOKEN_ENV=token` (Linux `/proc`;
+/// empty elsewhere). Zombies are skipped: they are already dead.
+#[cfg(target_os = "linux")]
+fn processes_with_token(token: &str) -> Vec<i32> {
+    let needle = format!("{JOB_TOKEN_ENV}={token}");
+    let me = std::process::id() as i32;
+    let Ok(rd) = std::fs::read_dir("/proc") else {
+        return Vec::new();
+    };
+    rd.filter_map(|e| e.ok()?.file_name().to_str()?.parse::<i32>().ok())
+        .filter(|&pid| pid != me)
+        .filter(|pid| {
+            let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap_or_default();
+            // State is the field after the parenthesised command name.
+            let state = stat
+                .rsplit(')')
+                .next()
+                .and_then(|r| r.split_whitespace().next());
+            !matches!(state, Some("Z") | Some("X") | None)
+        })
+        .filter(|pid| {
+            std::fs::read(format!("/proc/{pid}/environ"))
+                .map(|env| env.split(|&b| b == 0).any(|v| v == needle.as_bytes()))
+                .unwrap_or(false)
+        })
+        .collect()
+}
+
+#[cfg(not(target_os = "linux"))]
+fn processes_with_token(_token: &str) -> Vec<i32> {
+    Vec::new()
+}
+
+/// Kill the child's process group and every process carrying the job token (setsid
+/// escapees), repeating while new ones appear (a dying parent may still fork).
 #[cfg(unix)]
-fn kill_group(child: &mut std::process::Child) {
-    // The child leads its own process group (process_group(0)); kill every process in it,
-    // e.g. torchrun's workers, then the child itself in case the group call failed.
-    let pid = child.id() as i32;
+fn kill_tree(pgid: i32, token: &str) {
     unsafe {
-        libc::kill(-pid, libc::SIGKILL);
+        libc::kill(-pgid, libc::SIGKILL);
     }
-    let _ = child.kill();
+    for _ in 0..20 {
+        let left = processes_with_token(token);
+        if left.is_empty() {
+            break;
+        }
+        for pid in left {
+            unsafe {
+                libc::kill(pid, libc::SIGKILL);
+            }
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
 }
 
 #[cfg(not(unix))]
-fn kill_group(child: &mut std::process::Child) {
-    let _ = child.kill();
+fn kill_tree(_pgid: i32, _token: &str) {}
+
+/// Whether the child has exited, without reaping it (its pid, hence the process group id,
+/// stays reserved until [`std::process::Child::wait`]).
+#[cfg(unix)]
+fn exited(child: &std::process::Child) -> std::io::Result<bool> {
+    let mut info: libc::siginfo_t = unsafe { std::mem::zeroed() };
+    let r = unsafe {
+        libc::waitid(
+            libc::P_PID,
+            child.id() as libc::id_t,
+            &mut info,
+            libc::WEXITED | libc::WNOHANG | libc::WNOWAIT,
+        )
+    };
+    if r != 0 {
+        return Err(std::io::Error::last_os_error());
+    }
+    Ok(unsafe { info.si_pid() } != 0)
+}
+
+#[cfg(not(unix))]
+fn exited(child: &std::process::Child) -> std::io::Result<bool> {
+    // No way to peek without reaping: fall back to try_wait's answer.
+    let _ = child;
+    Ok(true)
 }
 
 /// Run `argv` with the given working dir/env, logging to the two files, with a timeout.
+/// Whatever way it ends (success, failure, timeout), every process the command started is
+/// killed: its process group, and any process that inherited the job token.
 pub(crate) fn run_logged(
     argv: &[String],
     cwd: Option<&Path>,
@@ -234,6 +316,7 @@ pub(crate) fn run_logged(
     };
     let out = std::fs::File::create(stdout_log).map_err(|e| Error::io(stdout_log, e))?;
     let err = std::fs::File::create(stderr_log).map_err(|e| Error::io(stderr_log, e))?;
+    let token = job_token();
     let mut cmd = Command::new(&argv[0]);
     cmd.args(&argv[1..])
         .stdin(Stdio::null())
@@ -245,6 +328,7 @@ pub(crate) fn run_logged(
     for (k, v) in env {
         cmd.env(k, v);
     }
+    cmd.env(JOB_TOKEN_ENV, &token);
     #[cfg(unix)]
     {
         use std::os::unix::process::CommandExt;
@@ -256,29 +340,35 @@ pub(crate) fn run_logged(
             argv[0]
         ))
     })?;
+    let pgid = child.id() as i32;
+    let finish = |child: &mut std::process::Child| {
+        kill_tree(pgid, &token);
+        child.wait()
+    };
     let start = Instant::now();
     let mut poll = Duration::from_millis(10);
     loop {
-        match child.try_wait() {
-            Ok(Some(status)) if status.success() => return Ok(()),
-            Ok(Some(status)) => {
+        match exited(&child) {
+            Ok(true) => {
+                let status = finish(&mut child).map_err(|e| ext(format!("wait: {e}")))?;
+                if status.success() {
+                    return Ok(());
+                }
                 return Err(ext(format!(
                     "exited with {status} after {:.1} s; stderr log {}:\n{}",
                     start.elapsed().as_secs_f64(),
                     stderr_log.display(),
-                    tail(stderr_log, 20)
-                )))
+                    crate::io::limits::tail_lines(stderr_log, 20)
+                )));
             }
-            Ok(None) => {}
+            Ok(false) => {}
             Err(e) => {
-                kill_group(&mut child);
-                let _ = child.wait();
+                let _ = finish(&mut child);
                 return Err(ext(format!("could not wait for it: {e}")));
             }
         }
         if start.elapsed() >= timeout {
-            kill_group(&mut child);
-            let _ = child.wait();
+            let _ = finish(&mut child);
             return Err(ext(format!(
                 "timed out after {:.1} s and was killed; logs: {} and {}",
                 timeout.as_secs_f64(),
@@ -481,6 +571,103 @@ mod tests {
         let r = CosmosConfig::reference(Path::new("/c"), Path::new("/ck"), 2, "/w");
         assert!(r.command.contains(&"--sigma_max".to_string()));
         assert!(CosmosBackend::new(r).is_ok());
+    }
+
+    /// Wait until every pid in `file` is gone (dead or a zombie), at most `secs`.
+    #[cfg(target_os = "linux")]
+    fn all_gone(file: &Path, secs: u64) -> bool {
+        let text = std::fs::read_to_string(file).unwrap();
+        let pids: Vec<i32> = text
+            .split_whitespace()
+            .map(|p| p.parse().unwrap())
+            .collect();
+        assert!(!pids.is_empty());
+        let alive = |pid: i32| {
+            std::fs::read_to_string(format!("/proc/{pid}/stat"))
+                .map(|s| {
+                    let st = s
+                        .rsplit(')')
+                        .next()
+                        .and_then(|r| r.split_whitespace().next());
+                    !matches!(st, Some("Z") | Some("X"))
+                })
+                .unwrap_or(false)
+        };
+        let t = Instant::now();
+        while t.elapsed().as_secs() < secs {
+            if pids.iter().all(|&p| !alive(p)) {
+                return true;
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        false
+    }
+
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn children_and_setsid_grandchildren_die_with_the_command() {
+        let d = tempfile::tempdir().unwrap();
+        let pids = d.path().join("pids");
+        let (out, err) = (d.path().join("o.log"), d.path().join("e.log"));
+        let sh = |script: &str| -> Vec<String> {
+            vec![
+                "sh".into(),
+                "-c".into(),
+                script.replace("PIDS", pids.to_str().unwrap()),
+            ]
+        };
+        // Success: a background child and a setsid grandchild outlive `sh` unless killed.
+        run_logged(
+            &sh("sleep 300 & echo $! > PIDS; setsid sleep 300 & echo $! >> PIDS; exit 0"),
+            None,
+            &[],
+            &out,
+            &err,
+            Duration::from_secs(30),
+        )
+        .unwrap();
+        assert!(all_gone(&pids, 5), "children survived a successful exit");
+        // Timeout: the setsid grandchild left the process group, the token still finds it.
+        let t = Instant::now();
+        let e = run_logged(
+            &sh("setsid sleep 300 & echo $! > PIDS; sleep 300"),
+            None,
+            &[],
+            &out,
+            &err,
+            Duration::from_millis(500),
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("timed out"), "{e}");
+        assert!(t.elapsed().as_secs() < 10);
+        assert!(
+            all_gone(&pids, 5),
+            "a setsid grandchild survived the timeout"
+        );
+    }
+
+    #[test]
+    fn failure_quotes_a_bounded_log_tail() {
+        let d = tempfile::tempdir().unwrap();
+        let (out, err) = (d.path().join("o.log"), d.path().join("e.log"));
+        // 5 MB of stderr; the message shows only its last 20 lines.
+        let script = "i=0; while [ $i -lt 50000 ]; do echo \"noise line $i padded to make it long ......................................................\" >&2; i=$((i+1)); done; echo LAST >&2; exit 3";
+        let e = run_logged(
+            &["sh".into(), "-c".into(), script.into()],
+            None,
+            &[],
+            &out,
+            &err,
+            Duration::from_secs(120),
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains("LAST") && e.contains("earlier bytes not shown"),
+            "{e}"
+        );
+        assert!(e.len() < 4000, "{} bytes of message", e.len());
     }
 
     #[test]

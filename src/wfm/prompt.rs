@@ -253,11 +253,12 @@ fn write_py_string(s: &str, out: &mut String) {
 /// `prompt` and a string `control_overrides.depth.input_control`; blank lines are allowed
 /// only at the end (a blank line in the middle would shift the line <-> video mapping).
 pub fn read_reference_jsonl(path: &Path) -> Result<Vec<BatchLine>> {
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let text = crate::io::limits::read_text(path)?;
     parse_reference_jsonl(path, &text)
 }
 
-fn parse_reference_jsonl(path: &Path, text: &str) -> Result<Vec<BatchLine>> {
+/// [`read_reference_jsonl`] on the file's text; `path` is used only in error messages.
+pub fn parse_reference_jsonl(path: &Path, text: &str) -> Result<Vec<BatchLine>> {
     let raw: Vec<&str> = text.lines().collect();
     let last = raw
         .iter()
