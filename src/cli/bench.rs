@@ -1,11 +1,20 @@
+//! `cgenreg bench`: every selected pair of a manifest, the paper-style table, per-pair JSON.
+//! Sharded (`--shard I/N`) and resumable: the JSON is rewritten atomically after every pair
+//! (see `pipeline::shard`), a pair that fails (error or panic) is recorded with its reason
+//! and the run goes on.
+
 use super::args::{ImageArgs, PipelineArgs};
 use crate::dataset::fragment_cache::pair_summary;
-use crate::dataset::manifest::Dataset;
+use crate::dataset::manifest::{Dataset, PairSpec};
 use crate::error::{Error, Result};
 use crate::metrics::{PairMetrics, Summary};
 use crate::pipeline::register_pair_cached;
+use crate::pipeline::shard::{
+    run_pending, stage_totals, PairRecord, Progress, ResumeMode, RunFile, RunHeader, RunIdentity,
+    Shard, StageTime, DONE, FAILED,
+};
 use clap::Args;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 
 #[derive(Args, Debug)]
@@ -21,82 +30,275 @@ pub struct BenchArgs {
     /// List the pairs and exit.
     #[arg(long)]
     pub list: bool,
-    /// Write per-pair results and a summary as JSON.
+    /// Write per-pair results and a summary as JSON, rewritten after every pair.
     #[arg(long)]
     pub json: Option<PathBuf>,
+    #[command(flatten)]
+    pub run: RunArgs,
     #[command(flatten)]
     pub pipeline: PipelineArgs,
     #[command(flatten)]
     pub image: ImageArgs,
 }
 
-#[derive(Serialize)]
-struct PairRow {
-    id: String,
-    split: String,
-    source: String,
-    target: String,
-    rre_deg: Option<f64>,
-    rte_m: Option<f64>,
-    inlier_ratio: Option<f64>,
-    success: Option<bool>,
-    time_s: f64,
-    error: Option<String>,
+/// Sharding and resuming, shared by `bench`, `study` and `generate`.
+#[derive(Args, Debug, Clone, Default)]
+pub struct RunArgs {
+    /// Run only shard I of N (0 <= I < N): the selected pairs at positions p with
+    /// p mod N == I. Merge the shards' JSONs with `cgenreg merge`.
+    #[arg(long)]
+    pub shard: Option<Shard>,
+    /// Keep the pairs an existing --json output already has (the default; it must have been
+    /// written with the same parameters and binary).
+    #[arg(long, conflicts_with = "no_resume")]
+    pub resume: bool,
+    /// Ignore an existing --json output and run every pair.
+    #[arg(long)]
+    pub no_resume: bool,
+}
+
+impl RunArgs {
+    pub fn shard(&self) -> Shard {
+        self.shard.unwrap_or(Shard::ALL)
+    }
+    pub fn mode(&self) -> ResumeMode {
+        if self.no_resume {
+            ResumeMode::Restart
+        } else {
+            ResumeMode::Resume
+        }
+    }
+}
+
+/// One pair's row of the JSON (`pairs`) and of the table.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct PairRow {
+    pub id: String,
+    pub split: String,
+    pub source: String,
+    pub target: String,
+    pub rre_deg: Option<f64>,
+    pub rte_m: Option<f64>,
+    pub inlier_ratio: Option<f64>,
+    pub success: Option<bool>,
+    pub time_s: f64,
+    pub error: Option<String>,
+}
+
+impl PairRow {
+    fn failed(spec_id: &str, split: &str, why: &str, time_s: f64) -> PairRow {
+        PairRow {
+            id: spec_id.to_string(),
+            split: split.to_string(),
+            source: String::new(),
+            target: String::new(),
+            rre_deg: None,
+            rte_m: None,
+            inlier_ratio: None,
+            success: Some(false),
+            time_s,
+            error: Some(why.to_string()),
+        }
+    }
 }
 
 #[derive(Serialize)]
 struct BenchJson<'a> {
     manifest: String,
-    params: &'a crate::pipeline::RegisterParams,
+    params: &'a serde_json::Value,
+    run: &'a RunHeader,
     pairs: Vec<PairRow>,
     summary: Vec<SplitSummary>,
+    records: &'a [PairRecord],
 }
 
 #[derive(Serialize)]
-struct SplitSummary {
-    split: String,
-    recall: f64,
+pub struct SplitSummary {
+    pub split: String,
+    pub recall: f64,
     #[serde(flatten)]
-    summary: Summary,
-    time_per_pair_s: f64,
+    pub summary: Summary,
+    pub time_per_pair_s: f64,
 }
 
-pub fn run(a: BenchArgs) -> Result<()> {
-    let ds = Dataset::load(&a.manifest)?.with_fragment_cache(a.image.fragment_cache_dir());
-    let specs = ds.select_pairs(a.split.as_deref(), a.limit);
-    if a.list {
-        for p in &specs {
-            println!("{}\t{}", p.id, p.split);
-        }
-        return Ok(());
+/// The rows of a run file's records, in order.
+pub fn rows_of(f: &RunFile) -> Result<Vec<PairRow>> {
+    f.records
+        .iter()
+        .map(|r| {
+            serde_json::from_value::<PairRow>(r.result.clone())
+                .map_err(|e| Error::Invalid(format!("pair {}: not a bench result: {e}", r.id)))
+        })
+        .collect()
+}
+
+/// Bench output bytes for a run file (what `bench` and `merge` write).
+pub fn bench_json(f: &RunFile) -> Result<Vec<u8>> {
+    let rows = rows_of(f)?;
+    let summary = summarise(&rows);
+    let out = BenchJson {
+        manifest: f.run.identity.manifest.clone(),
+        params: &f.run.identity.params,
+        run: &f.run,
+        pairs: rows,
+        summary,
+        records: &f.records,
+    };
+    serde_json::to_vec_pretty(&out).map_err(|e| Error::Invalid(format!("serialising results: {e}")))
+}
+
+/// Per-split summaries (splits sorted by name). A failed pair counts as a failure with
+/// infinite error, so recall stays honest.
+pub fn summarise(rows: &[PairRow]) -> Vec<SplitSummary> {
+    let mut splits: Vec<String> = rows.iter().map(|r| r.split.clone()).collect();
+    splits.sort();
+    splits.dedup();
+    splits
+        .iter()
+        .map(|split| {
+            let sel: Vec<&PairRow> = rows.iter().filter(|r| &r.split == split).collect();
+            let pm: Vec<PairMetrics> = sel
+                .iter()
+                .map(|r| PairMetrics {
+                    rre_deg: r.rre_deg.unwrap_or(f64::INFINITY),
+                    rte_m: r.rte_m.unwrap_or(f64::INFINITY),
+                    inlier_ratio: r.inlier_ratio.unwrap_or(0.0),
+                    success: r.success.unwrap_or(false),
+                })
+                .collect();
+            let s = Summary::from_pairs(&pm);
+            let tpp = sel.iter().map(|r| r.time_s).sum::<f64>() / sel.len().max(1) as f64;
+            SplitSummary {
+                split: split.clone(),
+                recall: s.recall,
+                summary: s,
+                time_per_pair_s: tpp,
+            }
+        })
+        .collect()
+}
+
+/// The paper-style table of `summaries`.
+pub fn print_table(summaries: &[SplitSummary]) {
+    println!(
+        "| split | pairs | RR % | RA@5° | RA@10° | RA@45° | RRE mean° | RRE med° | TA@5cm | TA@10cm | TA@25cm | RTE mean cm | RTE med cm | s/pair |"
+    );
+    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
+    for x in summaries {
+        let s = &x.summary;
+        println!(
+            "| {} | {} | {:.1} | {:.1} | {:.1} | {:.1} | {:.2} | {:.2} | {:.1} | {:.1} | {:.1} | {:.2} | {:.2} | {:.3} |",
+            x.split,
+            s.n,
+            100.0 * s.recall,
+            100.0 * s.rot_acc_5,
+            100.0 * s.rot_acc_10,
+            100.0 * s.rot_acc_45,
+            s.rre_mean,
+            s.rre_median,
+            100.0 * s.trans_acc_5cm,
+            100.0 * s.trans_acc_10cm,
+            100.0 * s.trans_acc_25cm,
+            100.0 * s.rte_mean,
+            100.0 * s.rte_median,
+            x.time_per_pair_s
+        );
     }
-    if specs.is_empty() {
-        return Err(Error::Invalid(format!(
-            "{}: no pairs selected",
-            a.manifest.display()
-        )));
+}
+
+/// The stage table: total seconds per stage, pairs cached / computed.
+pub fn print_stage_table<'a>(records: impl IntoIterator<Item = &'a PairRecord>) {
+    println!("| stage | total s | cached | computed |");
+    println!("|---|---|---|---|");
+    for (name, ms, computed, cached) in stage_totals(records) {
+        println!("| {name} | {:.2} | {cached} | {computed} |", ms / 1e3);
     }
-    let (params, cache) = a.image.params_and_cache(&a.pipeline)?;
-    let (mut n_cached, mut n_computed) = (0usize, 0usize);
-    let mut stage_ms: Vec<(String, f64, usize, usize)> = Vec::new();
-    let mut warnings = 0usize;
-    let bar = indicatif::ProgressBar::new(specs.len() as u64);
+}
+
+/// A log line: on the progress bar when it is drawn, else on stderr (Slurm logs).
+pub fn log_line(bar: &indicatif::ProgressBar, s: &str) {
+    if bar.is_hidden() {
+        eprintln!("{s}");
+    } else {
+        bar.println(s);
+    }
+}
+
+pub fn progress_bar(len: usize) -> indicatif::ProgressBar {
+    let bar = indicatif::ProgressBar::new(len as u64);
     bar.set_style(
         indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} {msg} [{elapsed}<{eta}]")
             .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
     );
-    let mut rows = Vec::new();
-    for spec in &specs {
-        bar.set_message(spec.id.clone());
+    bar
+}
+
+/// The selected pairs and the run identity of a `command` over a manifest.
+pub fn selection<'a>(
+    ds: &'a Dataset,
+    manifest: &std::path::Path,
+    split: Option<&str>,
+    limit: Option<usize>,
+) -> Result<Vec<&'a PairSpec>> {
+    let specs = ds.select_pairs(split, limit);
+    if specs.is_empty() {
+        return Err(Error::Invalid(format!(
+            "{}: no pairs selected",
+            manifest.display()
+        )));
+    }
+    Ok(specs)
+}
+
+pub fn run(a: BenchArgs) -> Result<()> {
+    let ds = Dataset::load(&a.manifest)?.with_fragment_cache(a.image.fragment_cache_dir());
+    if a.list {
+        for p in ds.select_pairs(a.split.as_deref(), a.limit) {
+            println!("{}\t{}", p.id, p.split);
+        }
+        return Ok(());
+    }
+    let specs = selection(&ds, &a.manifest, a.split.as_deref(), a.limit)?;
+    let (params, cache) = a.image.params_and_cache(&a.pipeline)?;
+    let shard = a.run.shard();
+    let params_json = serde_json::to_value(&params)
+        .map_err(|e| Error::Invalid(format!("serialising parameters: {e}")))?;
+    let identity = RunIdentity::new(
+        "bench",
+        &a.manifest,
+        a.split.as_deref(),
+        a.limit,
+        params_json,
+        shard.count,
+        specs.iter().map(|s| s.id.clone()).collect(),
+    )?;
+    let (mut progress, message) =
+        Progress::start(identity, shard, a.json.as_deref(), a.run.mode())?;
+    if let Some(m) = message {
+        eprintln!("{m}");
+    }
+    if shard.count > 1 {
+        eprintln!(
+            "shard {shard}: {} of the {} selected pairs",
+            progress.positions.len(),
+            specs.len()
+        );
+    }
+    let mut warnings = 0usize;
+    let bar = progress_bar(progress.positions.len());
+    bar.set_position((progress.positions.len() - progress.pending().len()) as u64);
+    let mut run_pair = |pos: usize, id: &str| -> Result<PairRecord> {
+        let spec = specs[pos];
+        bar.set_message(id.to_string());
         let t = std::time::Instant::now();
         let res = ds.load_pair_status(&spec.id).and_then(|(pair, st)| {
             let load_ms = t.elapsed().as_secs_f64() * 1e3;
             let (hit, rebuilt) = pair_summary(&st);
             for why in rebuilt {
-                bar.println(format!(
-                    "{}: warning: fragment cache: {why} (rebuilt)",
-                    spec.id
-                ));
+                log_line(
+                    &bar,
+                    &format!("{}: warning: fragment cache: {why} (rebuilt)", spec.id),
+                );
                 warnings += 1;
             }
             let loaded = hit == Some(true);
@@ -112,31 +314,25 @@ pub fn run(a: BenchArgs) -> Result<()> {
             Ok(r)
         });
         let time_s = t.elapsed().as_secs_f64();
-        let row = match res {
+        bar.inc(1);
+        let (row, stages, status) = match res {
             Ok(r) => {
-                for t in &r.timings {
-                    let hit = crate::pipeline::image_branch::is_cached(&t.status);
-                    if hit {
-                        n_cached += 1;
-                    } else {
-                        n_computed += 1;
-                    }
-                    match stage_ms.iter_mut().find(|s| s.0 == t.stage) {
-                        Some(s) => {
-                            s.1 += t.ms;
-                            s.2 += hit as usize;
-                            s.3 += !hit as usize;
-                        }
-                        None => stage_ms.push((t.stage.clone(), t.ms, hit as usize, !hit as usize)),
-                    }
-                }
                 for w in &r.warnings {
                     if w.contains("corrupt") || w.contains("could not write cache") {
-                        bar.println(format!("{}: warning: {w}", spec.id));
+                        log_line(&bar, &format!("{}: warning: {w}", spec.id));
                         warnings += 1;
                     }
                 }
-                PairRow {
+                let stages = r
+                    .timings
+                    .iter()
+                    .map(|t| StageTime {
+                        stage: t.stage.clone(),
+                        ms: t.ms,
+                        status: t.status.clone(),
+                    })
+                    .collect();
+                let row = PairRow {
                     id: spec.id.clone(),
                     split: spec.split.clone(),
                     source: r.source_name.clone(),
@@ -147,110 +343,71 @@ pub fn run(a: BenchArgs) -> Result<()> {
                     success: r.metrics.as_ref().map(|m| m.success),
                     time_s,
                     error: None,
-                }
+                };
+                (row, stages, DONE)
             }
-            Err(e) => {
-                bar.println(format!("{}: error: {e}", spec.id));
-                PairRow {
-                    id: spec.id.clone(),
-                    split: spec.split.clone(),
-                    source: String::new(),
-                    target: String::new(),
-                    rre_deg: None,
-                    rte_m: None,
-                    inlier_ratio: None,
-                    success: Some(false),
-                    time_s,
-                    error: Some(e.to_string()),
-                }
-            }
+            Err(e) => (
+                PairRow::failed(&spec.id, &spec.split, &e.to_string(), time_s),
+                Vec::new(),
+                FAILED,
+            ),
         };
-        rows.push(row);
-        bar.inc(1);
-    }
+        Ok(PairRecord {
+            id: spec.id.clone(),
+            status: status.into(),
+            error: row.error.clone(),
+            time_s,
+            stages,
+            result: serde_json::to_value(&row)
+                .map_err(|e| Error::Invalid(format!("serialising a row: {e}")))?,
+        })
+    };
+    let failed_result = |pos: usize, why: &str| {
+        serde_json::to_value(PairRow::failed(&specs[pos].id, &specs[pos].split, why, 0.0))
+            .unwrap_or_default()
+    };
+    let written = run_pending(
+        &mut progress,
+        &bench_json,
+        &mut run_pair,
+        &failed_result,
+        &mut |l| log_line(&bar, l),
+    );
     bar.finish_and_clear();
 
-    let mut splits: Vec<String> = rows.iter().map(|r| r.split.clone()).collect();
-    splits.dedup();
-    splits.sort();
-    splits.dedup();
-    let mut summaries = Vec::new();
+    let file = progress.run_file();
+    let rows = rows_of(&file)?;
+    print_table(&summarise(&rows));
+    println!();
+    print_stage_table(&file.records);
+    let (n_cached, n_computed) = stage_totals(&file.records)
+        .iter()
+        .fold((0, 0), |(c, n), s| (c + s.3, n + s.2));
     println!(
-        "| split | pairs | RR % | RA@5° | RA@10° | RA@45° | RRE mean° | RRE med° | TA@5cm | TA@10cm | TA@25cm | RTE mean cm | RTE med cm | s/pair |"
-    );
-    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
-    for split in &splits {
-        let sel: Vec<&PairRow> = rows.iter().filter(|r| &r.split == split).collect();
-        // A failed run counts as a failure with infinite error, so recall stays honest.
-        let pm: Vec<PairMetrics> = sel
-            .iter()
-            .map(|r| PairMetrics {
-                rre_deg: r.rre_deg.unwrap_or(f64::INFINITY),
-                rte_m: r.rte_m.unwrap_or(f64::INFINITY),
-                inlier_ratio: r.inlier_ratio.unwrap_or(0.0),
-                success: r.success.unwrap_or(false),
-            })
-            .collect();
-        let s = Summary::from_pairs(&pm);
-        let tpp = sel.iter().map(|r| r.time_s).sum::<f64>() / sel.len().max(1) as f64;
-        println!(
-            "| {} | {} | {:.1} | {:.1} | {:.1} | {:.1} | {:.2} | {:.2} | {:.1} | {:.1} | {:.1} | {:.2} | {:.2} | {:.3} |",
-            split,
-            s.n,
-            100.0 * s.recall,
-            100.0 * s.rot_acc_5,
-            100.0 * s.rot_acc_10,
-            100.0 * s.rot_acc_45,
-            s.rre_mean,
-            s.rre_median,
-            100.0 * s.trans_acc_5cm,
-            100.0 * s.trans_acc_10cm,
-            100.0 * s.trans_acc_25cm,
-            100.0 * s.rte_mean,
-            100.0 * s.rte_median,
-            tpp
-        );
-        summaries.push(SplitSummary {
-            split: split.clone(),
-            recall: s.recall,
-            summary: s,
-            time_per_pair_s: tpp,
-        });
-    }
-    {
-        println!();
-        println!("| stage | total s | cached | computed |");
-        println!("|---|---|---|---|");
-        for (name, ms, c, n) in &stage_ms {
-            println!("| {name} | {:.2} | {c} | {n} |", ms / 1e3);
-        }
-        println!(
-            "cache ({}): {n_cached} stage results were cache hits, {n_computed} were computed{}",
-            cache
+        "cache ({}): {n_cached} stage results were cache hits, {n_computed} were computed{}",
+        cache
+            .as_ref()
+            .map(|c| c.root().display().to_string())
+            .or_else(|| ds
+                .fragment_cache
                 .as_ref()
-                .map(|c| c.root().display().to_string())
-                .or_else(|| ds
-                    .fragment_cache
-                    .as_ref()
-                    .map(|d| format!("fragments only: {}", d.display())))
-                .unwrap_or_else(|| "off".into()),
-            if warnings > 0 {
-                format!("; {warnings} cache problems reported above")
-            } else {
-                String::new()
-            }
-        );
+                .map(|d| format!("fragments only: {}", d.display())))
+            .unwrap_or_else(|| "off".into()),
+        if warnings > 0 {
+            format!("; {warnings} cache problems reported above")
+        } else {
+            String::new()
+        }
+    );
+    let failed: Vec<&PairRecord> = file.records.iter().filter(|r| r.status == FAILED).collect();
+    if !failed.is_empty() {
+        eprintln!("{} of {} pairs failed:", failed.len(), file.records.len());
+        for r in &failed {
+            eprintln!("  {}: {}", r.id, r.error.as_deref().unwrap_or(""));
+        }
     }
+    written?;
     if let Some(path) = &a.json {
-        let out = BenchJson {
-            manifest: a.manifest.display().to_string(),
-            params: &params,
-            pairs: rows,
-            summary: summaries,
-        };
-        let s = serde_json::to_string_pretty(&out)
-            .map_err(|e| Error::Invalid(format!("serialising results: {e}")))?;
-        crate::error::write_atomic(path, s.as_bytes())?;
         eprintln!("wrote {}", path.display());
     }
     Ok(())

@@ -3,9 +3,12 @@
 mod args;
 mod bench;
 mod cache;
+mod generate;
 #[cfg(feature = "gui")]
 mod gui;
+mod merge;
 mod register;
+mod slurm;
 mod study;
 mod table;
 
@@ -36,6 +39,18 @@ pub enum Command {
     Table(table::TableArgs),
     /// List, verify or remove cache entries.
     Cache(cache::CacheArgs),
+    /// Fill the stage cache with the expensive stages (depth video, generator, descriptors)
+    /// of the selected pairs; sharded and resumable like `bench`.
+    Generate(generate::GenerateArgs),
+    /// Merge the shard outputs of one `bench`/`study`/`generate` run into one JSON and table.
+    Merge(merge::MergeArgs),
+    /// Pairs done / failed / missing per shard of a run, time per stage, projected cost.
+    Status(merge::StatusArgs),
+    /// Write (and with --submit, submit) a Slurm job array that runs a command in N shards.
+    Slurm(slurm::SlurmArgs),
+    /// One array task of a `cgenreg slurm` run (what its sbatch script runs).
+    #[command(hide = true)]
+    SlurmTask(slurm::SlurmTaskArgs),
     /// Open the inspector GUI (the default command; the bundled demo pair when no data is given).
     #[cfg(feature = "gui")]
     Inspect(gui::InspectArgs),
@@ -44,18 +59,30 @@ pub enum Command {
     Screenshot(gui::ScreenshotArgs),
 }
 
+/// Runs one command (also what a Slurm array task runs, in-process).
+pub fn run_command(c: Command) -> crate::Result<()> {
+    match c {
+        Command::Register(a) => register::run(a),
+        Command::Bench(a) => bench::run(a),
+        Command::Cache(a) => cache::run(a),
+        Command::Study(a) => study::run(a),
+        Command::Table(a) => table::run(a),
+        Command::Generate(a) => generate::run(a),
+        Command::Merge(a) => merge::run_merge(a),
+        Command::Status(a) => merge::run_status(a),
+        Command::Slurm(a) => slurm::run(a),
+        Command::SlurmTask(a) => slurm::run_task(a),
+        #[cfg(feature = "gui")]
+        Command::Inspect(a) => gui::run_inspect(a),
+        #[cfg(feature = "gui")]
+        Command::Screenshot(a) => gui::run_screenshot(a),
+    }
+}
+
 pub fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
-        Some(Command::Register(a)) => register::run(a),
-        Some(Command::Bench(a)) => bench::run(a),
-        Some(Command::Cache(a)) => cache::run(a),
-        Some(Command::Study(a)) => study::run(a),
-        Some(Command::Table(a)) => table::run(a),
-        #[cfg(feature = "gui")]
-        Some(Command::Inspect(a)) => gui::run_inspect(a),
-        #[cfg(feature = "gui")]
-        Some(Command::Screenshot(a)) => gui::run_screenshot(a),
+        Some(c) => run_command(c),
         #[cfg(feature = "gui")]
         None => gui::run_inspect(gui::InspectArgs::default()),
         #[cfg(not(feature = "gui"))]

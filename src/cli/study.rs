@@ -2,13 +2,20 @@
 //! (figure 4) over the pairs of a manifest, with the same image-branch options as `bench`.
 
 use super::args::{ImageArgs, PipelineArgs};
+use super::bench::{log_line, progress_bar, selection, RunArgs};
 use crate::dataset::manifest::Dataset;
 use crate::error::{Error, Result};
 use crate::pipeline::params::WfmSpec;
-use crate::pipeline::study::{
-    k_settings, markdown_table, parse_ks, prompt_settings, run_study, StudySetting,
+use crate::pipeline::shard::{
+    run_pending, PairRecord, Progress, RunFile, RunIdentity, DONE, FAILED,
 };
+use crate::pipeline::study::{
+    assemble_study, k_settings, markdown_table, parse_ks, plan_study, prompt_settings, study_pair,
+    SettingOutcome, StudyReport, StudySetting,
+};
+use crate::pipeline::RegisterParams;
 use clap::{Args, Subcommand};
+use serde_json::{json, Value};
 use std::path::PathBuf;
 
 #[derive(Args, Debug)]
@@ -59,9 +66,12 @@ pub struct CommonArgs {
     /// --wfm cosmos (pairs without a cached generation are then skipped and counted).
     #[arg(long)]
     pub generate: bool,
-    /// Write the full report (rows, per-pair results, skipped pairs with reasons) as JSON.
+    /// Write the full report (rows, per-pair results, skipped pairs with reasons) as JSON,
+    /// rewritten after every pair (resumable, see `bench --shard`).
     #[arg(long)]
     pub json: Option<PathBuf>,
+    #[command(flatten)]
+    pub run: RunArgs,
     #[command(flatten)]
     pub pipeline: PipelineArgs,
     #[command(flatten)]
@@ -72,61 +82,99 @@ pub fn run(a: StudyArgs) -> Result<()> {
     match a.study {
         StudyCommand::K(k) => {
             let ks = parse_ks(&k.ks)?;
-            run_common(&k.common, k_settings(&ks))
+            run_common(&k.common, k_settings(&ks), "study k")
         }
         StudyCommand::Prompt(p) => {
             // The prompt study varies the scene description only: the prefix stays as given.
             let prefix = crate::wfm::prompt::DEFAULT_PREFIX;
             let settings = prompt_settings(prefix, p.custom_scene.as_deref());
-            run_common(&p.common, settings)
+            run_common(&p.common, settings, "study prompt")
         }
     }
 }
 
-fn run_common(a: &CommonArgs, settings: Vec<StudySetting>) -> Result<()> {
-    if a.image.wfm.is_none() {
-        return Err(Error::Invalid(
-            "a study needs the image branch: pass --wfm oracle, builtin, cached or cosmos".into(),
-        ));
+/// The settings as JSON (they are part of the run's identity, and `merge` rebuilds the
+/// report from them).
+fn settings_json(settings: &[StudySetting]) -> Value {
+    Value::Array(
+        settings
+            .iter()
+            .map(|s| match s {
+                StudySetting::K(k) => json!({ "k": k }),
+                StudySetting::Prompt { label, prompt } => {
+                    json!({ "label": label, "prompt": prompt })
+                }
+            })
+            .collect(),
+    )
+}
+
+fn settings_from_json(v: &Value) -> Result<Vec<StudySetting>> {
+    let bad = || Error::Invalid("a study run file without readable settings".into());
+    v.as_array()
+        .ok_or_else(bad)?
+        .iter()
+        .map(|s| {
+            if let Some(k) = s.get("k").and_then(Value::as_u64) {
+                Ok(StudySetting::K(k as usize))
+            } else {
+                Ok(StudySetting::Prompt {
+                    label: s
+                        .get("label")
+                        .and_then(Value::as_str)
+                        .ok_or_else(bad)?
+                        .to_string(),
+                    prompt: serde_json::from_value(s.get("prompt").cloned().unwrap_or_default())
+                        .map_err(|_| bad())?,
+                })
+            }
+        })
+        .collect()
+}
+
+/// The report of a study run file (its settings and parameters are in the identity).
+fn report_of(f: &RunFile) -> Result<StudyReport> {
+    let p = &f.run.identity.params;
+    let params: RegisterParams = serde_json::from_value(p["register"].clone())
+        .map_err(|e| Error::Invalid(format!("a study run file's parameters: {e}")))?;
+    let settings = settings_from_json(&p["settings"])?;
+    let plan = plan_study(&params, &settings)?;
+    let mut outcomes = Vec::new();
+    for r in &f.records {
+        let o: Vec<SettingOutcome> = if r.status == FAILED {
+            let why = r.error.clone().unwrap_or_default();
+            plan.rows
+                .iter()
+                .map(|row| match row.setting_skipped {
+                    Some(_) => SettingOutcome::SettingSkipped,
+                    None => SettingOutcome::Failed {
+                        reason: why.clone(),
+                    },
+                })
+                .collect()
+        } else {
+            serde_json::from_value(r.result["outcomes"].clone())
+                .map_err(|e| Error::Invalid(format!("pair {}: not a study result: {e}", r.id)))?
+        };
+        outcomes.push((r.id.clone(), o));
     }
-    let ds = Dataset::load(&a.manifest)?.with_fragment_cache(a.image.fragment_cache_dir());
-    let ids: Vec<String> = ds
-        .select_pairs(a.split.as_deref(), a.limit)
-        .into_iter()
-        .map(|p| p.id.clone())
-        .collect();
-    if ids.is_empty() {
-        return Err(Error::Invalid(format!(
-            "{}: no pairs selected",
-            a.manifest.display()
-        )));
-    }
-    let (params, cache) = a.image.params_and_cache(&a.pipeline)?;
-    let generate = a.generate
-        || !matches!(
-            params.image.as_ref().map(|i| &i.backend),
-            Some(WfmSpec::Cosmos { .. })
-        );
-    let bar = indicatif::ProgressBar::new(0);
-    bar.set_style(
-        indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} {msg} [{elapsed}<{eta}]")
-            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-    );
-    let t = std::time::Instant::now();
-    let rep = run_study(
-        &ds,
-        &ids,
-        &params,
-        &settings,
-        cache.as_ref(),
-        generate,
-        &mut |p| {
-            bar.set_length(p.total as u64);
-            bar.set_position(p.done as u64);
-            bar.set_message(format!("{} · {}", p.pair, p.setting));
-        },
-    )?;
-    bar.finish_and_clear();
+    let ids: Vec<String> = f.records.iter().map(|r| r.id.clone()).collect();
+    Ok(assemble_study(&plan, &params, &ids, &outcomes))
+}
+
+/// Study output bytes for a run file: the report's fields plus `run` and `records`.
+pub fn study_json(f: &RunFile) -> Result<Vec<u8>> {
+    let rep = report_of(f)?;
+    let mut v = serde_json::to_value(&rep)
+        .map_err(|e| Error::Invalid(format!("serialising the study: {e}")))?;
+    v["run"] = serde_json::to_value(&f.run).unwrap_or_default();
+    v["records"] = serde_json::to_value(&f.records).unwrap_or_default();
+    serde_json::to_vec_pretty(&v).map_err(|e| Error::Invalid(format!("serialising the study: {e}")))
+}
+
+/// The study table of a run file, and its skipped / failed pairs.
+pub fn print_study(f: &RunFile) -> Result<()> {
+    let rep = report_of(f)?;
     println!("{}", markdown_table(&rep));
     for r in &rep.rows {
         for s in &r.skipped {
@@ -136,20 +184,95 @@ fn run_common(a: &CommonArgs, settings: Vec<StudySetting>) -> Result<()> {
             eprintln!("{} · {}: failed: {}", r.setting, s.pair_id, s.reason);
         }
     }
+    Ok(())
+}
+
+fn run_common(a: &CommonArgs, settings: Vec<StudySetting>, command: &str) -> Result<()> {
+    if a.image.wfm.is_none() {
+        return Err(Error::Invalid(
+            "a study needs the image branch: pass --wfm oracle, builtin, cached or cosmos".into(),
+        ));
+    }
+    let ds = Dataset::load(&a.manifest)?.with_fragment_cache(a.image.fragment_cache_dir());
+    let specs = selection(&ds, &a.manifest, a.split.as_deref(), a.limit)?;
+    let (params, cache) = a.image.params_and_cache(&a.pipeline)?;
+    let generate = a.generate
+        || !matches!(
+            params.image.as_ref().map(|i| &i.backend),
+            Some(WfmSpec::Cosmos { .. })
+        );
+    let plan = plan_study(&params, &settings)?;
+    let shard = a.run.shard();
+    let identity = RunIdentity::new(
+        command,
+        &a.manifest,
+        a.split.as_deref(),
+        a.limit,
+        json!({
+            "register": serde_json::to_value(&params)
+                .map_err(|e| Error::Invalid(format!("serialising parameters: {e}")))?,
+            "settings": settings_json(&settings),
+            "generate": generate,
+        }),
+        shard.count,
+        specs.iter().map(|s| s.id.clone()).collect(),
+    )?;
+    let (mut progress, message) =
+        Progress::start(identity, shard, a.json.as_deref(), a.run.mode())?;
+    if let Some(m) = message {
+        eprintln!("{m}");
+    }
+    let runnable = plan
+        .rows
+        .iter()
+        .filter(|r| r.setting_skipped.is_none())
+        .count();
+    let bar = progress_bar(progress.positions.len() * runnable);
+    let t = std::time::Instant::now();
+    let mut run_pair = |_pos: usize, id: &str| -> Result<PairRecord> {
+        let t = std::time::Instant::now();
+        let pair = ds.load_pair(id).map_err(|e| e.to_string());
+        let outcomes = study_pair(
+            &plan,
+            pair.as_ref(),
+            &params,
+            cache.as_ref(),
+            generate,
+            &mut |s| {
+                bar.inc(1);
+                bar.set_message(format!("{id} · {s}"));
+            },
+        );
+        Ok(PairRecord {
+            id: id.to_string(),
+            status: DONE.into(),
+            error: None,
+            time_s: t.elapsed().as_secs_f64(),
+            stages: Vec::new(),
+            result: json!({ "outcomes": outcomes }),
+        })
+    };
+    let written = run_pending(
+        &mut progress,
+        &study_json,
+        &mut run_pair,
+        &|_, _| Value::Null,
+        &mut |l| log_line(&bar, l),
+    );
+    bar.finish_and_clear();
+    print_study(&progress.run_file())?;
     eprintln!(
-        "{} settings x {} pairs in {:.1} s (cache: {})",
+        "{} settings x {} pairs in {:.1} s (shard {shard}; cache: {})",
         settings.len(),
-        ids.len(),
+        progress.positions.len(),
         t.elapsed().as_secs_f64(),
         cache
             .as_ref()
             .map(|c| c.root().display().to_string())
             .unwrap_or_else(|| "off".into())
     );
+    written?;
     if let Some(path) = &a.json {
-        let s = serde_json::to_string_pretty(&rep)
-            .map_err(|e| Error::Invalid(format!("serialising the study: {e}")))?;
-        crate::error::write_atomic(path, s.as_bytes())?;
         eprintln!("wrote {}", path.display());
     }
     Ok(())

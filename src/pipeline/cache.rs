@@ -8,8 +8,14 @@
 //! created_unix, files: [{name, size, blake3}]}`. `provenance` is free JSON (backend, model,
 //! command, prompt, seed, ...).
 //!
-//! Writes are atomic: an entry is built in `<root>/.tmp/`, then renamed into place, so readers
-//! see either nothing or a complete entry. [`Cache::get`] re-hashes every file against the
+//! Writes are atomic, also for several processes on several hosts sharing the cache over NFS,
+//! with no reliance on `flock`: an entry is built in a private folder
+//! `<root>/<stage>/.tmp-<hash>-<host>-<pid>-<n>-<ns>` (a name no other writer uses), its files
+//! and the folder are synced, then it is renamed to `<root>/<stage>/<hash>` in the same
+//! directory, so readers see either nothing or a complete entry. When another writer placed the
+//! same key first, the rename fails and its verified entry is used (same key, same inputs: as
+//! good as ours). Removal renames the entry to a `.trash-...` name in the same directory first.
+//! Names starting with `.` are never entries. [`Cache::get`] re-hashes every file against the
 //! manifest; a corrupt or partial entry is an error, never returned as data. Payload helpers:
 //! f32 matrices and [`Features`] as `.npy` (little-endian f32, C order, 2-D), images as PNG,
 //! JSON as pretty-printed UTF-8.
@@ -19,7 +25,6 @@ use crate::features::Features;
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU64, Ordering};
 
 pub const MANIFEST: &str = "manifest.json";
 const FORMAT: u32 = 1;
@@ -190,8 +195,6 @@ pub struct Cache {
     root: PathBuf,
 }
 
-static TMP_COUNTER: AtomicU64 = AtomicU64::new(0);
-
 fn check_name(name: &str) -> Result<()> {
     let ok = !name.is_empty()
         && name != MANIFEST
@@ -246,15 +249,15 @@ impl Cache {
 
     /// Start a new entry for `key`; nothing is visible until [`NewEntry::commit`].
     pub fn put(&self, key: &CacheKey, provenance: Value) -> Result<NewEntry> {
-        let tmp_root = self.root.join(".tmp");
-        let n = TMP_COUNTER.fetch_add(1, Ordering::Relaxed);
-        let tmp = tmp_root.join(format!(
-            "{}-{}-{}-{n}",
-            key.stage,
+        let stage_dir = self.root.join(&key.stage);
+        std::fs::create_dir_all(&stage_dir).map_err(|e| Error::io(&stage_dir, e))?;
+        let tmp = stage_dir.join(format!(
+            ".tmp-{}-{}",
             &key.hash[..16],
-            std::process::id()
+            crate::error::unique_suffix()
         ));
-        std::fs::create_dir_all(&tmp).map_err(|e| Error::io(&tmp, e))?;
+        // create_dir, not create_dir_all: a folder that exists belongs to another writer.
+        std::fs::create_dir(&tmp).map_err(|e| Error::io(&tmp, e))?;
         Ok(NewEntry {
             cache: self.clone(),
             key: key.clone(),
@@ -363,17 +366,15 @@ impl Cache {
         Ok(n)
     }
 
-    /// Move aside atomically, then delete: readers never see a half-deleted entry.
+    /// Move aside atomically (a `.trash-...` name in the same directory), then delete:
+    /// readers never see a half-deleted entry. Once renamed the entry is gone; a delete that
+    /// fails (e.g. NFS keeps a file another host still has open) leaves only a dot-folder.
     fn discard(&self, dir: &Path) -> Result<()> {
-        let trash = self.root.join(".tmp").join(format!(
-            "trash-{}-{}",
-            std::process::id(),
-            TMP_COUNTER.fetch_add(1, Ordering::Relaxed)
-        ));
-        std::fs::create_dir_all(self.root.join(".tmp"))
-            .map_err(|e| Error::io(self.root.join(".tmp"), e))?;
+        let parent = dir.parent().unwrap_or(&self.root);
+        let trash = parent.join(format!(".trash-{}", crate::error::unique_suffix()));
         std::fs::rename(dir, &trash).map_err(|e| Error::io(dir, e))?;
-        std::fs::remove_dir_all(&trash).map_err(|e| Error::io(&trash, e))
+        let _ = std::fs::remove_dir_all(&trash);
+        Ok(())
     }
 
     fn entry_dirs(&self) -> Result<Vec<(String, String, PathBuf)>> {
@@ -387,7 +388,8 @@ impl Cache {
             let sd = s.path();
             let rd2 = std::fs::read_dir(&sd).map_err(|e| Error::io(&sd, e))?;
             for h in rd2.flatten() {
-                if h.path().is_dir() {
+                // Dot-names are writers' private folders and trash, never entries.
+                if h.path().is_dir() && !h.file_name().to_string_lossy().starts_with('.') {
                     out.push((
                         stage.clone(),
                         h.file_name().to_string_lossy().into_owned(),
@@ -462,7 +464,7 @@ impl NewEntry {
         if let Some(parent) = p.parent() {
             std::fs::create_dir_all(parent).map_err(|e| Error::io(parent, e))?;
         }
-        std::fs::write(&p, bytes).map_err(|e| Error::io(&p, e))?;
+        write_synced(&p, bytes)?;
         self.files.push(FileRecord {
             name: name.to_string(),
             size: bytes.len() as u64,
@@ -518,13 +520,14 @@ impl NewEntry {
         let mp = self.tmp.join(MANIFEST);
         let b = serde_json::to_vec_pretty(&manifest)
             .map_err(|e| Error::Invalid(format!("serialising the manifest: {e}")))?;
-        std::fs::write(&mp, b).map_err(|e| Error::io(&mp, e))?;
+        write_synced(&mp, &b)?;
+        sync_dir(&self.tmp);
         let dest = self.cache.entry_dir(&self.key.stage, &self.key.hash);
         let stage_dir = self.cache.root.join(&self.key.stage);
-        std::fs::create_dir_all(&stage_dir).map_err(|e| Error::io(&stage_dir, e))?;
         for attempt in 0..2 {
             match std::fs::rename(&self.tmp, &dest) {
                 Ok(()) => {
+                    sync_dir(&stage_dir);
                     self.committed = true;
                     return Ok(Entry {
                         dir: dest,
@@ -547,6 +550,21 @@ impl NewEntry {
             }
         }
         Err(Error::Cache(format!("could not place {}", dest.display())))
+    }
+}
+
+/// Write and sync a file (an entry's files reach the disk, or the server, before its rename).
+fn write_synced(p: &Path, bytes: &[u8]) -> Result<()> {
+    use std::io::Write;
+    let mut f = std::fs::File::create(p).map_err(|e| Error::io(p, e))?;
+    f.write_all(bytes).map_err(|e| Error::io(p, e))?;
+    f.sync_all().map_err(|e| Error::io(p, e))
+}
+
+/// Best-effort sync of a directory's entries (not supported everywhere; never an error).
+fn sync_dir(d: &Path) {
+    if let Ok(f) = std::fs::File::open(d) {
+        let _ = f.sync_all();
     }
 }
 
@@ -689,6 +707,15 @@ mod tests {
         .unwrap()
     }
 
+    /// Writers' private folders and trash left in a stage folder.
+    fn dot_entries(stage_dir: &Path) -> usize {
+        std::fs::read_dir(stage_dir)
+            .unwrap()
+            .flatten()
+            .filter(|e| e.file_name().to_string_lossy().starts_with('.'))
+            .count()
+    }
+
     fn put_sample(c: &Cache, k: &CacheKey) -> Entry {
         let mut e = c.put(k, json!({"backend": "test", "seed": 1})).unwrap();
         e.add_f32_matrix("m.npy", 2, 3, &[1.0, 2.0, 3.0, 4.0, 5.0, 6.5])
@@ -815,10 +842,7 @@ mod tests {
             w.add_bytes("a.bin", b"abc").unwrap();
         }
         assert!(c.get(&k4).unwrap().is_none());
-        assert_eq!(
-            std::fs::read_dir(dir.path().join(".tmp")).unwrap().count(),
-            0
-        );
+        assert_eq!(dot_entries(&dir.path().join("wfm")), 0);
     }
 
     #[test]
@@ -839,10 +863,7 @@ mod tests {
         });
         assert_eq!(c.list().unwrap().len(), 1);
         assert!(c.verify_all().unwrap().iter().all(|r| r.result.is_ok()));
-        assert_eq!(
-            std::fs::read_dir(dir.path().join(".tmp")).unwrap().count(),
-            0
-        );
+        assert_eq!(dot_entries(&dir.path().join("vfm")), 0);
     }
 
     #[test]

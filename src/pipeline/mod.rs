@@ -5,6 +5,7 @@ pub mod cache;
 pub mod image_branch;
 pub mod params;
 pub mod register;
+pub mod shard;
 pub mod study;
 
 pub use params::{ImageBranchParams, RegisterParams, VfmSpec, WfmSpec};

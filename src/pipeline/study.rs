@@ -22,7 +22,7 @@ use crate::dataset::ScanPair;
 use crate::error::{Error, Result};
 use crate::metrics::{PairMetrics, Summary};
 use crate::wfm::{Prompt, PromptPreset};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::time::Instant;
 
 /// Which parameter a study varies.
@@ -86,7 +86,7 @@ pub fn prompt_settings(prefix: &str, custom_scene: Option<&str>) -> Vec<StudySet
 }
 
 /// One pair under one setting.
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct StudyPairResult {
     pub pair_id: String,
     pub rre_deg: f64,
@@ -264,6 +264,80 @@ pub fn run_study_with(
     progress: &mut dyn FnMut(&StudyProgress),
     cancel: Option<&std::sync::atomic::AtomicBool>,
 ) -> Result<StudyReport> {
+    let plan = plan_study(params, settings)?;
+    let runnable = plan
+        .rows
+        .iter()
+        .filter(|r| r.setting_skipped.is_none())
+        .count();
+    let total = runnable * pair_ids.len();
+    let mut done = 0usize;
+    let mut outcomes: Vec<(String, Vec<SettingOutcome>)> = Vec::new();
+    let mut extra_notes = Vec::new();
+    for id in pair_ids {
+        // Checked between pairs: a cancelled study keeps the pairs already run, says so.
+        if cancel.is_some_and(|c| c.load(std::sync::atomic::Ordering::Relaxed)) {
+            extra_notes.push(format!(
+                "cancelled after {done} of {total} runs: the rows cover only the pairs run"
+            ));
+            break;
+        }
+        let pair = load(id).map_err(|e| e.to_string());
+        let o = study_pair(
+            &plan,
+            pair.as_ref(),
+            params,
+            cache,
+            generate,
+            &mut |setting| {
+                done += 1;
+                progress(&StudyProgress {
+                    done,
+                    total,
+                    pair: id.clone(),
+                    setting: setting.to_string(),
+                });
+            },
+        );
+        outcomes.push((id.clone(), o));
+    }
+    let mut rep = assemble_study(&plan, params, pair_ids, &outcomes);
+    rep.notes.extend(extra_notes);
+    Ok(rep)
+}
+
+/// A study's settings resolved against the base parameters: one image-branch parameter set
+/// and one (empty) row per setting, settings invalid for L and m marked skipped.
+#[derive(Clone, Debug)]
+pub struct StudyPlan {
+    pub kind: StudyKind,
+    pub base: ImageBranchParams,
+    pub ibs: Vec<ImageBranchParams>,
+    pub rows: Vec<StudyRow>,
+    pub notes: Vec<String>,
+}
+
+/// What one pair gave under one setting.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "outcome", rename_all = "kebab-case")]
+pub enum SettingOutcome {
+    Ran {
+        result: StudyPairResult,
+        /// The VFM that described the views.
+        vfm: String,
+    },
+    Skipped {
+        reason: String,
+    },
+    Failed {
+        reason: String,
+    },
+    /// The whole setting is skipped (invalid K for L and m).
+    SettingSkipped,
+}
+
+/// Checks the settings and resolves them (see [`StudyPlan`]).
+pub fn plan_study(params: &RegisterParams, settings: &[StudySetting]) -> Result<StudyPlan> {
     let base = params.image.as_ref().ok_or_else(|| {
         Error::Invalid(
             "a study needs the image branch: choose a WFM backend (e.g. --wfm oracle or \
@@ -285,7 +359,7 @@ pub fn run_study_with(
         ));
     }
     let ibs: Vec<ImageBranchParams> = settings.iter().map(|s| s.apply(base)).collect();
-    let mut rows: Vec<StudyRow> = settings
+    let rows: Vec<StudyRow> = settings
         .iter()
         .zip(&ibs)
         .map(|(s, ib)| {
@@ -310,74 +384,93 @@ pub fn run_study_with(
                 .to_string(),
         );
     }
+    Ok(StudyPlan {
+        kind,
+        base: base.clone(),
+        ibs,
+        rows,
+        notes,
+    })
+}
+
+/// Runs every setting of `plan` on one pair (`pair` is the loaded pair or why it could not
+/// be loaded); `on_setting` is called after each runnable setting with its label.
+pub fn study_pair(
+    plan: &StudyPlan,
+    pair: std::result::Result<&ScanPair, &String>,
+    params: &RegisterParams,
+    cache: Option<&Cache>,
+    generate: bool,
+    on_setting: &mut dyn FnMut(&str),
+) -> Vec<SettingOutcome> {
+    plan.rows
+        .iter()
+        .zip(&plan.ibs)
+        .map(|(row, ib)| {
+            if row.setting_skipped.is_some() {
+                return SettingOutcome::SettingSkipped;
+            }
+            let o = match pair {
+                Ok(pair) => run_one(pair, params, ib, cache, generate, plan.kind),
+                Err(e) => SettingOutcome::Failed {
+                    reason: format!("loading the pair: {e}"),
+                },
+            };
+            on_setting(&row.setting);
+            o
+        })
+        .collect()
+}
+
+/// The report of `plan` from the pairs' outcomes (in the order given, which is the order
+/// the backends are listed in).
+pub fn assemble_study(
+    plan: &StudyPlan,
+    params: &RegisterParams,
+    pair_ids: &[String],
+    outcomes: &[(String, Vec<SettingOutcome>)],
+) -> StudyReport {
+    let mut rows = plan.rows.clone();
     let mut backends: Vec<String> = Vec::new();
     let mut vfm: Option<String> = None;
-    let runnable = rows.iter().filter(|r| r.setting_skipped.is_none()).count();
-    let total = runnable * pair_ids.len();
-    let mut done = 0usize;
-    for id in pair_ids {
-        // Checked between pairs: a cancelled study keeps the pairs already run, says so.
-        if cancel.is_some_and(|c| c.load(std::sync::atomic::Ordering::Relaxed)) {
-            notes.push(format!(
-                "cancelled after {done} of {total} runs: the rows cover only the pairs run"
-            ));
-            break;
-        }
-        let pair = match load(id) {
-            Ok(p) => Some(p),
-            Err(e) => {
-                for r in rows.iter_mut().filter(|r| r.setting_skipped.is_none()) {
-                    r.failed.push(PairNote {
-                        pair_id: id.clone(),
-                        reason: format!("loading the pair: {e}"),
-                    });
+    for (id, os) in outcomes {
+        for (row, o) in rows.iter_mut().zip(os) {
+            let note = |reason: &String| PairNote {
+                pair_id: id.clone(),
+                reason: reason.clone(),
+            };
+            match o {
+                SettingOutcome::Ran { result, vfm: v } => {
+                    if !backends.contains(&result.backend) {
+                        backends.push(result.backend.clone());
+                    }
+                    if vfm.is_none() {
+                        vfm = Some(v.clone());
+                    }
+                    row.per_pair.push(result.clone());
                 }
-                None
+                SettingOutcome::Skipped { reason } => row.skipped.push(note(reason)),
+                SettingOutcome::Failed { reason } => row.failed.push(note(reason)),
+                SettingOutcome::SettingSkipped => {}
             }
-        };
-        for (row, ib) in rows.iter_mut().zip(&ibs) {
-            if row.setting_skipped.is_some() {
-                continue;
-            }
-            if let Some(pair) = &pair {
-                run_one(
-                    pair,
-                    params,
-                    ib,
-                    cache,
-                    generate,
-                    kind,
-                    row,
-                    &mut backends,
-                    &mut vfm,
-                );
-            }
-            done += 1;
-            progress(&StudyProgress {
-                done,
-                total,
-                pair: id.clone(),
-                setting: row.setting.clone(),
-            });
         }
     }
     for r in &mut rows {
         r.summarise();
     }
-    Ok(StudyReport {
-        kind,
+    StudyReport {
+        kind: plan.kind,
         backends,
-        configured_backend: backend_label(&base.backend),
-        vfm: vfm.unwrap_or_else(|| base.vfm.name().to_string()),
+        configured_backend: backend_label(&plan.base.backend),
+        vfm: vfm.unwrap_or_else(|| plan.base.vfm.name().to_string()),
         fusion: format!("{:?}", params.fusion.mode),
         pairs: pair_ids.to_vec(),
         rows,
-        notes,
+        notes: plan.notes.clone(),
         params: params.clone(),
-    })
+    }
 }
 
-#[allow(clippy::too_many_arguments)]
 fn run_one(
     pair: &ScanPair,
     params: &RegisterParams,
@@ -385,77 +478,53 @@ fn run_one(
     cache: Option<&Cache>,
     generate: bool,
     kind: StudyKind,
-    row: &mut StudyRow,
-    backends: &mut Vec<String>,
-    vfm: &mut Option<String>,
-) {
-    let note = |reason: String| PairNote {
-        pair_id: pair.id.clone(),
-        reason,
-    };
+) -> SettingOutcome {
+    let skipped = |reason: String| SettingOutcome::Skipped { reason };
+    let failed = |reason: String| SettingOutcome::Failed { reason };
     if pair.gt_target_from_source.is_none() {
-        row.skipped
-            .push(note("no ground truth: RRE/RTE cannot be measured".into()));
-        return;
+        return skipped("no ground truth: RRE/RTE cannot be measured".into());
     }
     let t = Instant::now();
-    let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-        register_with_image_keep(pair, params, ib, cache, generate)
-    }));
+    let r =
+        super::shard::catch_pair(|| register_with_image_keep(pair, params, ib, cache, generate));
     let r = match r {
-        Ok(Ok((r, _))) => r,
-        Ok(Err(e)) if e.to_string().contains(GENERATION_NOT_CACHED) => {
+        Ok((r, _)) => r,
+        Err(e) if e.to_string().contains(GENERATION_NOT_CACHED) => {
             let e = e.to_string();
             let at = e.find(GENERATION_NOT_CACHED).unwrap_or(0);
-            row.skipped.push(note(e[at..].to_string()));
-            return;
+            return skipped(e[at..].to_string());
         }
-        Ok(Err(e)) => {
-            row.failed.push(note(e.to_string()));
-            return;
-        }
-        Err(_) => {
-            row.failed.push(note("the registration panicked".into()));
-            return;
-        }
+        Err(e) => return failed(e.to_string()),
     };
     let Some(img) = r.image.as_ref() else {
-        row.failed
-            .push(note("the image branch produced no output".into()));
-        return;
+        return failed("the image branch produced no output".into());
     };
     let prov = &img.provenance;
     // A cached Cosmos video keeps the prompt it was made with: in a prompt study, frames from
     // another prompt would be counted under the wrong category.
     let used = prov.prompt.trim();
     if kind == StudyKind::Prompt && !used.is_empty() && used != ib.prompt.text().trim() {
-        row.skipped.push(note(format!(
+        return skipped(format!(
             "the {} frames were generated with another prompt (\"{}\")",
             prov.backend,
             used.chars().take(60).collect::<String>()
-        )));
-        return;
+        ));
     }
     let Some(m) = r.metrics else {
-        row.skipped
-            .push(note("no metrics (no ground truth)".into()));
-        return;
+        return skipped("no metrics (no ground truth)".into());
     };
-    if !backends.contains(&prov.backend) {
-        backends.push(prov.backend.clone());
+    SettingOutcome::Ran {
+        result: StudyPairResult {
+            pair_id: pair.id.clone(),
+            rre_deg: m.rre_deg,
+            rte_m: m.rte_m,
+            inlier_ratio: m.inlier_ratio,
+            success: m.success,
+            backend: prov.backend.clone(),
+            time_s: t.elapsed().as_secs_f64(),
+        },
+        vfm: img.vfm.clone(),
     }
-    if vfm.is_none() {
-        *vfm = Some(img.vfm.clone());
-    }
-    row.per_pair.push(StudyPairResult {
-        pair_id: pair.id.clone(),
-        rre_deg: m.rre_deg,
-        rte_m: m.rte_m,
-        inlier_ratio: m.inlier_ratio,
-        success: m.success,
-        backend: prov.backend.clone(),
-        time_s: t.elapsed().as_secs_f64(),
-    });
 }
 
 /// Parses "1,2,4,8" (spaces allowed) into K values; a bad entry is a clear error.

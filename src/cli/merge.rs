@@ -1,0 +1,318 @@
+//! `cgenreg merge` (shard outputs into one run) and `cgenreg status` (pairs done / failed /
+//! missing per shard, time per stage, projected cost of a full run).
+
+use crate::error::{Error, Result};
+use crate::pipeline::shard::{merge, read_run_file, stage_totals, PairRecord, RunFile, FAILED};
+use clap::Args;
+use std::path::{Path, PathBuf};
+
+#[derive(Args, Debug)]
+pub struct MergeArgs {
+    /// Shard outputs (`bench --json` / `study --json` / `generate --json` of one run), or
+    /// run folders (their `*.json` and `shards/*.json`).
+    #[arg(required = true)]
+    pub inputs: Vec<PathBuf>,
+    /// Write the merged output here.
+    #[arg(long)]
+    pub json: Option<PathBuf>,
+    /// Exit 0 even when pairs are missing (the merged output then says complete: false).
+    #[arg(long)]
+    pub allow_missing: bool,
+}
+
+#[derive(Args, Debug)]
+pub struct StatusArgs {
+    /// A run folder (`cgenreg slurm --out DIR`: its `shards/*.json`), or shard outputs.
+    #[arg(required = true)]
+    pub paths: Vec<PathBuf>,
+    /// Pairs of the full run to project the cost for (3DMatch's test set has 1,623).
+    #[arg(long, default_value_t = 1623)]
+    pub project_pairs: usize,
+}
+
+/// Writes `f` in the format of its command.
+pub fn serialise(f: &RunFile) -> Result<Vec<u8>> {
+    match f.run.identity.command.as_str() {
+        "bench" => super::bench::bench_json(f),
+        c if c.starts_with("study") => super::study::study_json(f),
+        "generate" => super::generate::generate_json(f),
+        c => Err(Error::Invalid(format!(
+            "unknown command {c:?} in a run file"
+        ))),
+    }
+}
+
+/// Prints the command's own table for a (merged) run file.
+fn print_tables(f: &RunFile) -> Result<()> {
+    match f.run.identity.command.as_str() {
+        "bench" => {
+            super::bench::print_table(&super::bench::summarise(&super::bench::rows_of(f)?));
+        }
+        c if c.starts_with("study") => super::study::print_study(f)?,
+        _ => {}
+    }
+    println!();
+    super::bench::print_stage_table(&f.records);
+    Ok(())
+}
+
+pub fn run_merge(a: MergeArgs) -> Result<()> {
+    let inputs: Vec<(String, RunFile)> = collect(&a.inputs)?
+        .into_iter()
+        .map(|(p, f)| (p.display().to_string(), f))
+        .collect();
+    let mut shards: Vec<(usize, &str)> = inputs
+        .iter()
+        .map(|(n, f)| (f.run.shard.index, n.as_str()))
+        .collect();
+    shards.sort();
+    let m = merge(&inputs)?;
+    let count = m.file.run.identity.shard_count;
+    let present: Vec<usize> = shards.iter().map(|s| s.0).collect();
+    let absent: Vec<String> = (0..count)
+        .filter(|i| !present.contains(i))
+        .map(|i| format!("{i}/{count}"))
+        .collect();
+    print_tables(&m.file)?;
+    eprintln!(
+        "merged {} outputs of a {count}-shard {} run: {} of {} pairs ({} failed){}",
+        inputs.len(),
+        m.file.run.identity.command,
+        m.file.records.len(),
+        m.file.run.identity.selected.len(),
+        m.failed.len(),
+        if absent.is_empty() {
+            String::new()
+        } else {
+            format!("; no output for shard(s) {}", absent.join(", "))
+        }
+    );
+    for (id, names) in &m.duplicated {
+        eprintln!(
+            "duplicated: {id} is in {} (same results; kept once)",
+            names.join(", ")
+        );
+    }
+    for (id, why) in &m.failed {
+        eprintln!("failed: {id}: {why}");
+    }
+    for id in &m.missing {
+        eprintln!("missing: {id}");
+    }
+    if let Some(path) = &a.json {
+        crate::error::write_atomic(path, &serialise(&m.file)?)?;
+        eprintln!("wrote {}", path.display());
+    }
+    if !m.missing.is_empty() && !a.allow_missing {
+        return Err(Error::Invalid(format!(
+            "{} of {} pairs missing (listed above): run the missing shards again (they resume) \
+             or pass --allow-missing",
+            m.missing.len(),
+            m.file.run.identity.selected.len()
+        )));
+    }
+    Ok(())
+}
+
+/// The run files under `paths` (folders: `*.json` in them and in their `shards/`).
+fn collect(paths: &[PathBuf]) -> Result<Vec<(PathBuf, RunFile)>> {
+    let mut files: Vec<PathBuf> = Vec::new();
+    for p in paths {
+        if p.is_dir() {
+            for d in [p.clone(), p.join("shards")] {
+                let Ok(rd) = std::fs::read_dir(&d) else {
+                    continue;
+                };
+                let mut v: Vec<PathBuf> = rd
+                    .flatten()
+                    .map(|e| e.path())
+                    .filter(|q| {
+                        q.extension().is_some_and(|e| e == "json")
+                            && !q
+                                .file_name()
+                                .is_some_and(|n| n.to_string_lossy().starts_with('.'))
+                    })
+                    .collect();
+                v.sort();
+                files.extend(v);
+            }
+        } else {
+            files.push(p.clone());
+        }
+    }
+    let mut out = Vec::new();
+    for f in files {
+        // Other JSON in a run folder (merged output, the plan) is not a shard: skip it.
+        match read_run_file(&f) {
+            Ok(r) if r.run.merged_from.is_empty() => out.push((f, r)),
+            Ok(_) => {}
+            Err(e) if paths.contains(&f) => return Err(e),
+            Err(_) => {}
+        }
+    }
+    if out.is_empty() {
+        return Err(Error::Invalid(format!(
+            "no shard outputs found in {}",
+            paths
+                .iter()
+                .map(|p| p.display().to_string())
+                .collect::<Vec<_>>()
+                .join(", ")
+        )));
+    }
+    Ok(out)
+}
+
+fn ago(unix: u64) -> String {
+    let now = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_secs())
+        .unwrap_or(0);
+    let s = now.saturating_sub(unix);
+    if s < 120 {
+        format!("{s} s ago")
+    } else if s < 7200 {
+        format!("{} min ago", s / 60)
+    } else {
+        format!("{:.1} h ago", s as f64 / 3600.0)
+    }
+}
+
+pub fn run_status(a: StatusArgs) -> Result<()> {
+    let files = collect(&a.paths)?;
+    let first = &files[0].1.run.identity;
+    let count = first.shard_count;
+    let n_sel = first.selected.len();
+    println!(
+        "{} of {} ({} pairs selected, {count} shards, {})",
+        first.command, first.manifest, n_sel, first.code_version
+    );
+    // A `cgenreg slurm` run folder also has each task's exit status.
+    let rc_of = |i: usize| -> String {
+        a.paths
+            .iter()
+            .filter(|p| p.is_dir())
+            .find_map(|p| std::fs::read_to_string(p.join("logs").join(format!("task-{i}.rc"))).ok())
+            .map(|s| s.trim().to_string())
+            .unwrap_or_else(|| "-".into())
+    };
+    println!("| shard | file | pairs | done | failed | missing | in flight | updated | exit |");
+    println!("|---|---|---|---|---|---|---|---|---|");
+    let mut seen = vec![false; count];
+    let mut all: Vec<&PairRecord> = Vec::new();
+    for (path, f) in &files {
+        let d = f.run.identity.differences(first);
+        if !d.is_empty() {
+            println!(
+                "| - | {} | another run: {} | | | | | | |",
+                path.display(),
+                d.join("; ")
+            );
+            continue;
+        }
+        let s = f.run.shard;
+        if s.index < count {
+            seen[s.index] = true;
+        }
+        let n = s.positions(n_sel).len();
+        let failed = f.records.iter().filter(|r| r.status == FAILED).count();
+        let done = f.records.len() - failed;
+        println!(
+            "| {s} | {} | {n} | {done} | {failed} | {} | {} | {} | {} |",
+            path.display(),
+            n - f.records.len(),
+            f.run.in_flight.as_deref().unwrap_or("-"),
+            ago(f.run.updated_unix),
+            rc_of(s.index)
+        );
+        all.extend(f.records.iter());
+    }
+    for (i, s) in seen.iter().enumerate() {
+        if !s {
+            let n = crate::pipeline::shard::Shard { index: i, count }
+                .positions(n_sel)
+                .len();
+            println!(
+                "| {i}/{count} | (no output yet) | {n} | 0 | 0 | {n} | - | - | {} |",
+                rc_of(i)
+            );
+        }
+    }
+    let failed = all.iter().filter(|r| r.status == FAILED).count();
+    println!(
+        "\nin all: {} done, {failed} failed, {} missing of {n_sel}",
+        all.len() - failed,
+        n_sel.saturating_sub(all.len())
+    );
+    for r in all.iter().filter(|r| r.status == FAILED) {
+        println!("failed: {}: {}", r.id, r.error.as_deref().unwrap_or(""));
+    }
+    print_cost(&all, a.project_pairs);
+    Ok(())
+}
+
+/// Stage times and the projected cost of `project` pairs from the measured ones.
+fn print_cost(records: &[&PairRecord], project: usize) {
+    let done: Vec<&PairRecord> = records
+        .iter()
+        .copied()
+        .filter(|r| r.status != FAILED)
+        .collect();
+    if done.is_empty() {
+        return;
+    }
+    println!("\n| stage | pairs computed | mean s computed | pairs cached | mean s cached |");
+    println!("|---|---|---|---|---|");
+    let mut computed_ms = vec![];
+    for (stage, _, _, _) in stage_totals(done.iter().copied()) {
+        let (mut c, mut cs, mut h, mut hs) = (0usize, 0.0, 0usize, 0.0);
+        for r in &done {
+            for s in r.stages.iter().filter(|s| s.stage == stage) {
+                if crate::pipeline::image_branch::is_cached(&s.status) {
+                    h += 1;
+                    hs += s.ms;
+                } else {
+                    c += 1;
+                    cs += s.ms;
+                }
+            }
+        }
+        let mean = |t: f64, n: usize| {
+            if n == 0 {
+                "-".to_string()
+            } else {
+                format!("{:.3}", t / 1e3 / n as f64)
+            }
+        };
+        println!(
+            "| {stage} | {c} | {} | {h} | {} |",
+            mean(cs, c),
+            mean(hs, h)
+        );
+        if c > 0 {
+            computed_ms.push((stage, cs / c as f64));
+        }
+    }
+    let per_pair = done.iter().map(|r| r.time_s).sum::<f64>() / done.len() as f64;
+    println!(
+        "\nmeasured: {:.2} s per pair over {} pairs; {project} pairs at that rate: {:.2} h on one \
+         worker",
+        per_pair,
+        done.len(),
+        per_pair * project as f64 / 3600.0
+    );
+    if let Some((_, gen_ms)) = computed_ms.iter().find(|(s, _)| s == "generation") {
+        println!(
+            "generation (computed, not cached): {:.2} s per pair, so {project} pairs need {:.2} \
+             GPU-hours for generation alone (one GPU per task; divide by the array size for \
+             the wall time)",
+            gen_ms / 1e3,
+            gen_ms / 1e3 * project as f64 / 3600.0
+        );
+    }
+}
+
+/// Used by `slurm` to find the shard file names.
+pub fn shard_path(out: &Path, index: usize) -> PathBuf {
+    out.join("shards").join(format!("shard-{index}.json"))
+}
