@@ -257,8 +257,14 @@ fn entries(cache: &Path) -> Vec<(String, Vec<(String, String)>)> {
         .into_iter()
         .map(|e| {
             let m = e.manifest.expect("every entry has a manifest");
-            let mut files: Vec<(String, String)> =
-                m.files.into_iter().map(|f| (f.name, f.blake3)).collect();
+            // provenance.json records when the entry was made (created_unix), so two
+            // writers' copies differ there and only there; every payload must be identical
+            let mut files: Vec<(String, String)> = m
+                .files
+                .into_iter()
+                .filter(|f| f.name != "provenance.json")
+                .map(|f| (f.name, f.blake3))
+                .collect();
             files.sort();
             (format!("{}/{}", e.stage, e.hash), files)
         })
