@@ -1,6 +1,6 @@
 //! The in-app file browser: opens the same kinds as the native dialog (manifest, two clouds
-//! + GT, 3DMatch / RGB-D / Cosmos folders) where no native dialog is available (no xdg
-//! portal and no zenity: rfd then answers "cancelled" at once). A path field with Tab
+//! with an optional GT, 3DMatch / RGB-D / Cosmos folders) where no native dialog is available
+//! (no xdg portal and no zenity: rfd then answers "cancelled" at once). A path field with Tab
 //! completion over a directory listing filtered to the kind's files.
 
 use std::path::{Path, PathBuf};
@@ -189,9 +189,7 @@ impl FileBrowser {
             return self.picked.clone();
         }
         let p = self.typed_path();
-        if self.kind.wants_folder() {
-            vec![p]
-        } else if p.is_file() {
+        if self.kind.wants_folder() || p.is_file() {
             vec![p]
         } else {
             Vec::new()

@@ -400,6 +400,9 @@ pub struct LogLine {
     pub text: String,
 }
 
+/// What a native file dialog sends back: the kind asked for, and the paths (None: cancelled).
+type DialogAnswer = Receiver<(OpenKind, Option<Vec<PathBuf>>)>;
+
 /// The inspector application.
 pub struct App {
     model: InspectorModel,
@@ -416,10 +419,8 @@ pub struct App {
     worker: Option<WorkerHandle>,
     pub log: Vec<LogLine>,
     show_log: bool,
-    dialog: Option<(
-        Receiver<(OpenKind, Option<Vec<PathBuf>>)>,
-        std::time::Instant,
-    )>,
+    /// The native dialog's answer channel and when it was opened.
+    dialog: Option<(DialogAnswer, std::time::Instant)>,
     /// The in-app file browser, while open.
     pub browser: Option<file_browser::FileBrowser>,
     /// Open files with the in-app browser instead of the native dialog (set by the user, or

@@ -142,6 +142,9 @@ pub fn project(vp: &Matrix4<f32>, p: [f32; 3], w: f32, h: f32) -> Option<[f32; 2
     Some([(x + 1.0) * 0.5 * w, (1.0 - y) * 0.5 * h])
 }
 
+/// Per-point display normals of one cloud (shared with the GL thread).
+type DisplayNormals = Arc<Vec<[f32; 3]>>;
+
 /// How a cloud's points are coloured.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
 pub enum CloudColorMode {
@@ -238,7 +241,7 @@ pub struct View3dState {
     source_pos: Arc<Vec<[f32; 3]>>,
     target_pos: Arc<Vec<[f32; 3]>>,
     /// Display normals of both clouds, estimated when normal shading is first asked for.
-    normals: Option<(u64, Arc<Vec<[f32; 3]>>, Arc<Vec<[f32; 3]>>)>,
+    normals: Option<(u64, DisplayNormals, DisplayNormals)>,
     source_colors: ColorCache,
     target_colors: ColorCache,
     /// Last uploaded line sets: the same contents keep their id (no re-upload).
