@@ -31,7 +31,7 @@ use crate::fusion::fuse::FusionMode;
 use crate::pipeline::cache::Cache;
 use crate::pipeline::image_branch::{
     fuse_and_finish, fuse_and_finish_with, register_with_image_keep, similarities, FusionInputs,
-    Similarities, GENERATION_NOT_CACHED,
+    Similarities,
 };
 use crate::pipeline::register::{fpfh_branch, GeoBranch};
 use crate::pipeline::study::{
@@ -910,12 +910,10 @@ impl PipelineWorker {
                 note = Some(n);
             }
             let cache = self.cache.clone();
-            let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-                register_with_image_keep(&pair, &params, ib, cache.as_deref(), generate)
-            }));
-            match r {
-                Ok(Ok(x)) => with_image = Some(x),
-                Ok(Err(e)) if e.to_string().contains(GENERATION_NOT_CACHED) => {
+            // A panic here reaches the worker thread's guard (`spawn_worker`), which reports it.
+            match register_with_image_keep(&pair, &params, ib, cache.as_deref(), generate) {
+                Ok(x) => with_image = Some(x),
+                Err(e @ crate::Error::GenerationNotCached { .. }) => {
                     missing = Some(ib.prompt.text());
                     note = Some(format!(
                         "No cached generation for this prompt ({e}). Press “Run the generator” \
@@ -923,16 +921,10 @@ impl PipelineWorker {
                          shown (never views generated from another prompt)."
                     ));
                 }
-                Ok(Err(e)) => {
+                Err(e) => {
                     note = Some(format!(
                         "image branch unavailable for {id}: {e} — fell back to the geometric \
                          branch alone"
-                    ))
-                }
-                Err(_) => {
-                    note = Some(format!(
-                        "image branch failed (panic) on {id} — fell back to the geometric branch \
-                         alone"
                     ))
                 }
             }

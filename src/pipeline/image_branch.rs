@@ -619,10 +619,6 @@ pub fn register_with_image(
     register_with_image_keep(pair, params, ib, cache, true).map(|(r, _)| r)
 }
 
-/// Start of the error returned by [`register_with_image_keep`] when `generate` is false and the
-/// generation is not in the cache.
-pub const GENERATION_NOT_CACHED: &str = "generation not cached";
-
 /// Inputs of the in-memory stages (similarity onward): with them, a change of temperature,
 /// fusion mode, selection or estimator re-runs only [`fuse_and_finish`] (the GUI keeps them).
 #[derive(Clone, Debug)]
@@ -808,8 +804,8 @@ pub fn fuse_and_finish(
 }
 
 /// [`register_with_image`] that also returns the [`FusionInputs`]. With `generate` false a
-/// generation missing from the cache is not produced: the call fails with an error starting
-/// with [`GENERATION_NOT_CACHED`] (the GUI then offers to run the generator).
+/// generation missing from the cache is not produced: the call fails with
+/// [`Error::GenerationNotCached`] (the GUI then offers to run the generator).
 pub fn register_with_image_keep(
     pair: &ScanPair,
     params: &RegisterParams,
@@ -1030,11 +1026,11 @@ pub fn register_with_image_keep(
         },
         || {
             if !generate {
-                return Err(Error::Invalid(format!(
-                    "{GENERATION_NOT_CACHED}: {backend_id}, prompt {}, seed {}",
-                    short_prompt(&ib.prompt),
-                    ib.seed
-                )));
+                return Err(Error::GenerationNotCached {
+                    backend: backend_id.clone(),
+                    prompt: short_prompt(&ib.prompt),
+                    seed: ib.seed,
+                });
             }
             let depth_video = match video_frames.take() {
                 Some(f) => f,
