@@ -205,9 +205,8 @@ fn pair_conditioned_vfm_end_to_end() {
 #[test]
 fn fuse_from_kept_similarities_equals_full_tail() {
     use cgenreg::fusion::{FusionMode, Selection};
-    use cgenreg::pipeline::image_branch::{
-        fuse_and_finish, fuse_and_finish_with, register_with_image_keep, similarities, FusionInputs,
-    };
+    use cgenreg::pipeline::fuse::{fuse_and_finish, similarities, FusionInputs};
+    use cgenreg::pipeline::image_branch::register_with_image_keep;
     let manifest = common::demo_manifest();
     let ds = Dataset::load(&manifest).unwrap();
     let pair = ds.load_pair(&ds.pairs()[0].id.clone()).unwrap();
@@ -231,8 +230,8 @@ fn fuse_from_kept_similarities_equals_full_tail() {
             q.fusion.calibration_geo = Calibration::RowSoftmax { tau };
             q.fusion.mode = mode;
             q.fusion.selection = sel;
-            let a = fuse_and_finish(&pair, &q, inp).unwrap();
-            let b = fuse_and_finish_with(&pair, &q, inp, &sims).unwrap();
+            let a = fuse_and_finish(&pair, &q, inp, None).unwrap();
+            let b = fuse_and_finish(&pair, &q, inp, Some(&sims)).unwrap();
             let pairs = |r: &cgenreg::pipeline::RegistrationResult| {
                 let mut v = r
                     .correspondences
@@ -242,7 +241,7 @@ fn fuse_from_kept_similarities_equals_full_tail() {
                 v.sort_unstable();
                 v
             };
-            let a2 = fuse_and_finish(&pair, &q, inp).unwrap();
+            let a2 = fuse_and_finish(&pair, &q, inp, None).unwrap();
             let same_order = a.correspondences == a2.correspondences;
             assert_eq!(pairs(&a), pairs(&b), "tau {tau} {mode:?} {sel:?}");
             eprintln!(

@@ -29,11 +29,9 @@ use crate::dataset::manifest::Dataset;
 use crate::dataset::ScanPair;
 use crate::fusion::fuse::FusionMode;
 use crate::pipeline::cache::Cache;
-use crate::pipeline::image_branch::{
-    fuse_and_finish, fuse_and_finish_with, register_with_image_keep, similarities, FusionInputs,
-    Similarities,
-};
-use crate::pipeline::register::{fpfh_branch, GeoBranch};
+use crate::pipeline::fuse::{fuse_and_finish, similarities, FusionInputs, Similarities};
+use crate::pipeline::geo::{fpfh_branch, GeoBranch};
+use crate::pipeline::image_branch::register_with_image_keep;
 use crate::pipeline::study::{
     k_settings, prompt_settings, run_study_with, StudyReport, StudySetting,
 };
@@ -510,7 +508,7 @@ fn top_indices(v: &[f32], n: usize) -> Vec<usize> {
 /// the fused, image and geometric posteriors, plus the ground-truth target.
 pub fn point_posterior(
     inputs: &FusionInputs,
-    sims: Option<&crate::pipeline::image_branch::Similarities>,
+    sims: Option<&Similarities>,
     image: Option<&ImageBranchOutput>,
     fusion: &crate::fusion::FusionParams,
     src: usize,
@@ -950,7 +948,7 @@ impl PipelineWorker {
                 if gp.geo_features == crate::pipeline::params::GeoFeatureSource::Fpfh {
                     let t0 = Instant::now();
                     let (g, mut timings) = self.geometry(id, &pair, gp.voxel)?;
-                    let mut r = fuse_and_finish(&pair, &gp, &g)?;
+                    let mut r = fuse_and_finish(&pair, &gp, &g, None)?;
                     timings.append(&mut r.timings);
                     r.timings = timings;
                     r.total_ms = t0.elapsed().as_secs_f64() * 1e3;
@@ -1023,10 +1021,7 @@ impl PipelineWorker {
             return None;
         }
         let t0 = Instant::now();
-        let run = match &kept.sims {
-            Some(s) => fuse_and_finish_with(&cur.pair, &params, &kept.inputs, s),
-            None => fuse_and_finish(&cur.pair, &params, &kept.inputs),
-        };
+        let run = fuse_and_finish(&cur.pair, &params, &kept.inputs, kept.sims.as_deref());
         let mut result = match run {
             Ok(r) => r,
             Err(e) => return Some(Err(e)),
@@ -1545,9 +1540,9 @@ impl PipelineWorker {
         let t = Instant::now();
         match open_dataset(kind, &paths) {
             Ok(d) => {
-                let d = d.with_fragment_cache(Some(
-                    crate::pipeline::image_branch::default_cache_dir().join("fragments"),
-                ));
+                let d = d.with_fragment_cache(
+                    Cache::open(crate::pipeline::cache::default_cache_dir()).ok(),
+                );
                 let first = d.pairs().first().map(|p| p.id.clone());
                 let pre = match &first {
                     Some(id) => match d.load_pair(id) {

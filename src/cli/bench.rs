@@ -251,7 +251,7 @@ pub fn selection<'a>(
 }
 
 pub fn run(a: BenchArgs) -> Result<()> {
-    let ds = Dataset::load(&a.manifest)?.with_fragment_cache(a.image.fragment_cache_dir());
+    let ds = Dataset::load(&a.manifest)?.with_fragment_cache(a.image.fragment_cache()?);
     if a.list {
         for p in ds.select_pairs(a.split.as_deref(), a.limit) {
             println!("{}\t{}", p.id, p.split);
@@ -297,7 +297,7 @@ pub fn run(a: BenchArgs) -> Result<()> {
             for why in rebuilt {
                 log_line(
                     &bar,
-                    &format!("{}: warning: fragment cache: {why} (rebuilt)", spec.id),
+                    &format!("{}: warning: fragment cache: {why}", spec.id),
                 );
                 warnings += 1;
             }
@@ -391,7 +391,7 @@ pub fn run(a: BenchArgs) -> Result<()> {
             .or_else(|| ds
                 .fragment_cache
                 .as_ref()
-                .map(|d| format!("fragments only: {}", d.display())))
+                .map(|c| format!("fragments only: {}", c.root().display())))
             .unwrap_or_else(|| "off".into()),
         if warnings > 0 {
             format!("; {warnings} cache problems reported above")

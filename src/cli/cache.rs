@@ -40,7 +40,7 @@ fn open(a: &CacheArgs) -> Result<Cache> {
     let dir = a
         .dir
         .clone()
-        .unwrap_or_else(crate::pipeline::image_branch::default_cache_dir);
+        .unwrap_or_else(crate::pipeline::cache::default_cache_dir);
     Cache::open(dir)
 }
 

@@ -65,7 +65,7 @@ pub fn run(a: GenerateArgs) -> Result<()> {
             "generate writes into the stage cache: --no-cache makes no sense here".into(),
         ));
     }
-    let ds = Dataset::load(&a.manifest)?.with_fragment_cache(a.image.fragment_cache_dir());
+    let ds = Dataset::load(&a.manifest)?.with_fragment_cache(a.image.fragment_cache()?);
     let specs = selection(&ds, &a.manifest, a.split.as_deref(), a.limit)?;
     let (params, cache) = a.image.params_and_cache(&a.pipeline)?;
     let Some(ib) = params.image.clone() else {

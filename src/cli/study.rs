@@ -193,7 +193,7 @@ fn run_common(a: &CommonArgs, settings: Vec<StudySetting>, command: &str) -> Res
             "a study needs the image branch: pass --wfm oracle, builtin, cached or cosmos".into(),
         ));
     }
-    let ds = Dataset::load(&a.manifest)?.with_fragment_cache(a.image.fragment_cache_dir());
+    let ds = Dataset::load(&a.manifest)?.with_fragment_cache(a.image.fragment_cache()?);
     let specs = selection(&ds, &a.manifest, a.split.as_deref(), a.limit)?;
     let (params, cache) = a.image.params_and_cache(&a.pipeline)?;
     let generate = a.generate

@@ -29,6 +29,17 @@ use std::path::{Path, PathBuf};
 pub const MANIFEST: &str = "manifest.json";
 const FORMAT: u32 = 1;
 
+/// The default cache directory: `$CGENREG_CACHE`, else `~/.cache/cgenreg`.
+pub fn default_cache_dir() -> PathBuf {
+    if let Some(d) = std::env::var_os("CGENREG_CACHE").filter(|d| !d.is_empty()) {
+        return PathBuf::from(d);
+    }
+    match std::env::var_os("HOME").filter(|d| !d.is_empty()) {
+        Some(h) => PathBuf::from(h).join(".cache").join("cgenreg"),
+        None => PathBuf::from(".cgenreg-cache"),
+    }
+}
+
 /// Identifies one stage output: the stage, its version, the keys of its inputs and its
 /// parameters. `hash` is derived from all of them.
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -473,7 +484,7 @@ impl NewEntry {
         Ok(())
     }
 
-    pub fn add_json<T: Serialize>(&mut self, name: &str, value: &T) -> Result<()> {
+    pub fn add_json<T: Serialize + ?Sized>(&mut self, name: &str, value: &T) -> Result<()> {
         let b = serde_json::to_vec_pretty(value)
             .map_err(|e| Error::Invalid(format!("serialising {name}: {e}")))?;
         self.add_bytes(name, &b)
