@@ -292,9 +292,47 @@ fn cloud_only_pair_renders_virtual_depth_frames() {
         .unwrap()
         .collect();
     assert_eq!(frames.len(), 2, "one folder per scan");
-    // Second run: same frames from disk, same pose.
+    // Second run: same frames from the cache, same pose, and every cached stage a hit (the
+    // poses read back from the virtual-frames entry are bit for bit those computed, so the
+    // lift and image-point keys repeat: no duplicate entries).
     let r2 = register_pair_cached(&pair, &p, Some(&cache)).unwrap();
     assert_eq!(r.target_from_source, r2.target_from_source);
+    for s in [
+        "lift source",
+        "lift target",
+        "image point features",
+        "depth video",
+    ] {
+        let t = r2.timings.iter().find(|t| t.stage == s).unwrap();
+        assert_eq!(t.status, "cached", "{s}: {:?}", r2.timings);
+    }
+    let entries = cache.list().unwrap();
+    let count = |stage: &str| entries.iter().filter(|e| e.stage == stage).count();
+    assert_eq!(count("lift"), 2);
+    assert_eq!(count("image-points"), 1);
+    assert_eq!(count("virtual-frames"), 2);
+    // The virtual frames are verified entries like the others: a clean cache verifies clean.
+    assert!(cache.verify_all().unwrap().iter().all(|r| r.result.is_ok()));
+
+    // A truncated virtual-frame PNG is detected, reported and rebuilt, never used.
+    let vf = entries
+        .iter()
+        .find(|e| e.stage == "virtual-frames")
+        .unwrap();
+    let png = vf.dir.join("frame-000000.depth.png");
+    let bytes = std::fs::read(&png).unwrap();
+    std::fs::write(&png, &bytes[..bytes.len() / 2]).unwrap();
+    let r3 = register_pair_cached(&pair, &p, Some(&cache)).unwrap();
+    assert!(
+        r3.warnings
+            .iter()
+            .any(|w| w.contains("virtual-frames/") && w.contains("rebuilt")),
+        "{:?}",
+        r3.warnings
+    );
+    assert_eq!(r.target_from_source, r3.target_from_source);
+    assert_eq!(std::fs::read(&png).unwrap(), bytes);
+    assert!(cache.verify_all().unwrap().iter().all(|r| r.result.is_ok()));
 }
 
 /// The real LiDAR pair (small_gicp, 70k points with intensity, no images): the image branch
