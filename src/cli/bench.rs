@@ -51,7 +51,7 @@ pub struct PairsArgs {
 impl PairsArgs {
     /// The dataset, with the fragment cache the image options name.
     pub fn dataset(&self, image: &ImageArgs) -> Result<Dataset> {
-        Ok(Dataset::load(&self.manifest)?.with_fragment_cache(image.fragment_cache_dir()))
+        Ok(Dataset::load(&self.manifest)?.with_fragment_cache(image.fragment_cache()?))
     }
 
     /// The selected pairs; none is an error naming the manifest.
@@ -316,7 +316,7 @@ pub fn run(a: BenchArgs) -> Result<()> {
             for why in rebuilt {
                 log_line(
                     &bar,
-                    &format!("{}: warning: fragment cache: {why} (rebuilt)", spec.id),
+                    &format!("{}: warning: fragment cache: {why}", spec.id),
                 );
                 warnings += 1;
             }
@@ -410,7 +410,7 @@ pub fn run(a: BenchArgs) -> Result<()> {
             .or_else(|| ds
                 .fragment_cache
                 .as_ref()
-                .map(|d| format!("fragments only: {}", d.display())))
+                .map(|c| format!("fragments only: {}", c.root().display())))
             .unwrap_or_else(|| "off".into()),
         if warnings > 0 {
             format!("; {warnings} cache problems reported above")

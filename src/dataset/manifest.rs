@@ -150,8 +150,9 @@ pub struct Dataset {
     pub root: PathBuf,
     pub(crate) fragments: Vec<FragmentSpec>,
     pub(crate) pairs: Vec<PairSpec>,
-    /// Where fragments built from raw RGB-D frames are cached (None: rebuilt every time).
-    pub fragment_cache: Option<PathBuf>,
+    /// The stage cache that keeps fragments built from raw RGB-D frames (stage `fragments`;
+    /// None: rebuilt every time).
+    pub fragment_cache: Option<crate::pipeline::cache::Cache>,
 }
 
 fn bad(
@@ -727,9 +728,9 @@ impl Dataset {
             .unwrap_or_else(|| self.root.display().to_string())
     }
 
-    /// Cache fragments built from raw frames under `dir` (see [`super::fragment_cache`]).
-    pub fn with_fragment_cache(mut self, dir: Option<PathBuf>) -> Self {
-        self.fragment_cache = dir;
+    /// Cache fragments built from raw frames in `cache` (see [`super::fragment_cache`]).
+    pub fn with_fragment_cache(mut self, cache: Option<crate::pipeline::cache::Cache>) -> Self {
+        self.fragment_cache = cache;
         self
     }
 
