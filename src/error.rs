@@ -33,6 +33,14 @@ pub enum Error {
     External { what: String, message: String },
     #[error("cache: {0}")]
     Cache(String),
+    /// A model that tract, the pure-Rust fallback, cannot load or run: it needs the native ONNX
+    /// Runtime.
+    #[error(
+        "{model}: tract, the pure-Rust ONNX fallback, cannot run this model ({reason}); it needs \
+         the native ONNX Runtime: `pip install onnxruntime` (found automatically) or set \
+         ORT_DYLIB_PATH"
+    )]
+    NeedsNativeRuntime { model: PathBuf, reason: String },
 }
 
 impl Error {

@@ -166,7 +166,8 @@ pub struct ImageArgs {
     /// Generation seed.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// Vision foundation model: xfeat (per-image; default models/xfeat.onnx) or mast3r
+    /// Vision foundation model: xfeat (per-image, H/8 grid; default models/xfeat.onnx), disk or
+    /// alike (per-image, dense per pixel; default models/disk.onnx, models/alike-t.onnx) or mast3r
     /// (pair-conditioned; needs --vfm-model, an export made with models/export_mast3r.py).
     #[arg(long, value_enum, default_value = "xfeat")]
     pub vfm: VfmSpec,

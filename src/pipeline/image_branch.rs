@@ -337,13 +337,28 @@ fn memoized<T: ?Sized>(
 
 fn load_vfm(spec: &VfmSpec) -> Result<Arc<dyn PerImageModel>> {
     static MODELS: OnceLock<Mutex<HashMap<PathBuf, Arc<dyn PerImageModel>>>> = OnceLock::new();
-    let VfmSpec::Xfeat { model } = spec else {
-        return Err(Error::Invalid(format!(
+    match spec {
+        VfmSpec::Xfeat { model } => memoized(&MODELS, model, load_xfeat),
+        VfmSpec::Disk { model } | VfmSpec::Alike { model } => {
+            memoized(&MODELS, model, |p| load_dense(spec, p))
+        }
+        VfmSpec::Mast3r { .. } => Err(Error::Invalid(format!(
             "{} is a pair-conditioned model, not a per-image one",
             spec.model().display()
-        )));
-    };
-    memoized(&MODELS, model, load_xfeat)
+        ))),
+    }
+}
+
+#[cfg(feature = "onnx")]
+fn load_dense(spec: &VfmSpec, path: &Path) -> Result<Arc<dyn PerImageModel>> {
+    Ok(Arc::new(crate::vfm::dense::DenseModel::load_spec(
+        spec, path,
+    )?))
+}
+
+#[cfg(not(feature = "onnx"))]
+fn load_dense(_: &VfmSpec, path: &Path) -> Result<Arc<dyn PerImageModel>> {
+    Err(no_onnx(path))
 }
 
 fn load_pair_vfm(spec: &VfmSpec) -> Result<Arc<dyn PairModel>> {

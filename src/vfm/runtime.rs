@@ -336,6 +336,41 @@ impl OnnxModel {
         })
     }
 
+    /// Run on f32 inputs and hand one named f32 output, as (shape, data) borrowed from the
+    /// runtime, to `f`: no copy of the output is made, and it is freed when `f` returns (the
+    /// dense models read a few pixels of a full-resolution map this way).
+    pub fn run_with<R>(
+        &self,
+        inputs: Vec<(&str, Vec<i64>, Vec<f32>)>,
+        output: &str,
+        f: impl FnOnce(&[i64], &[f32]) -> Result<R>,
+    ) -> Result<R> {
+        let err = |e: ort::Error| Error::External {
+            what: format!("{} ({})", self.path.display(), backend_name()),
+            message: e.to_string(),
+        };
+        let mut values: Vec<(
+            std::borrow::Cow<'_, str>,
+            ort::session::SessionInputValue<'_>,
+        )> = Vec::new();
+        for (name, shape, data) in inputs {
+            let t = ort::value::Tensor::from_array((shape, data)).map_err(err)?;
+            values.push((name.to_string().into(), t.into()));
+        }
+        let mut session = self
+            .session
+            .lock()
+            .map_err(|_| Error::Invalid("ONNX session poisoned by an earlier panic".into()))?;
+        let out = session.run(values).map_err(err)?;
+        let v = out.get(output).ok_or_else(|| Error::External {
+            what: self.path.display().to_string(),
+            message: format!("no output named {output}"),
+        })?;
+        let (shape, data) = v.try_extract_tensor::<f32>().map_err(err)?;
+        let shape: Vec<i64> = shape.iter().copied().collect();
+        f(&shape, data)
+    }
+
     /// Run on f32 inputs given as (name, shape, data); returns the named f32 outputs as
     /// (shape, data) in the order of `outputs`.
     pub fn run(
