@@ -335,3 +335,92 @@ fn eight_processes_writing_the_same_cache_entries_leave_it_clean() {
         "{ra:?}\n{rb:?}"
     );
 }
+
+/// `generate --wfm cosmos` puts the shard's missing generations in one batch (one run of the
+/// command, the reference's JSONL), stores them under the keys a per-pair run uses, and a
+/// second `generate` finds them all cached and runs nothing.
+#[test]
+fn generate_with_cosmos_runs_one_batch_per_shard_and_then_reads_the_cache() {
+    let Some(data) = cgenreg::test_data_root() else {
+        return;
+    };
+    if Command::new("ffmpeg").arg("-version").output().is_err() {
+        assert!(
+            std::env::var("CI").as_deref() != Ok("true"),
+            "CI=true but no ffmpeg"
+        );
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let script = common::fake_cosmos_batch(d);
+    let gen = |json: &str| {
+        let mut c = bin();
+        c.arg("generate")
+            .arg(staged())
+            .args([
+                "--limit", "2", "--voxel", "0.05", "--wfm", "cosmos", "--k", "2",
+            ])
+            .arg("--cosmos-cmd")
+            .arg(&script);
+        for a in [
+            "--batch_input_path",
+            "{batch_input_path}",
+            "--video_save_folder",
+            "{video_save_folder}",
+            "--controlnet_specs",
+            "{controlnet_specs}",
+            "--seed",
+            "{seed}",
+        ] {
+            c.arg(format!("--cosmos-cmd={a}"));
+        }
+        c.arg("--cosmos-work-dir")
+            .arg(d.join("jobs"))
+            .arg("--cache-dir")
+            .arg(d.join("cache"))
+            .arg("--json")
+            .arg(d.join(json))
+            .env("CGENREG_DATA", &data);
+        run_ok(&mut c)
+    };
+    let o = gen("g1.json");
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("2 generations missing, one batch"), "{err}");
+    let runs = std::fs::read_to_string(d.join("runs.log")).unwrap();
+    assert_eq!(
+        runs.lines().count(),
+        1,
+        "one Cosmos run for the shard: {runs}"
+    );
+    let jobs: Vec<_> = std::fs::read_dir(d.join("jobs")).unwrap().collect();
+    assert_eq!(jobs.len(), 1);
+    let g1 = read(&d.join("g1.json"));
+    let recs = g1["records"].as_array().unwrap();
+    assert_eq!(recs.len(), 2);
+    for r in recs {
+        assert_eq!(r["status"], "done", "{r}");
+        let gen_stage = r["stages"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|s| s["stage"] == "generation")
+            .unwrap();
+        // The per-pair pass read the batch's output from the cache.
+        assert!(
+            gen_stage["status"].as_str().unwrap().contains("cache"),
+            "{gen_stage}"
+        );
+    }
+    // A second run: everything cached, the command is not run again.
+    let o = gen("g2.json");
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("cached already"), "{err}");
+    assert_eq!(
+        std::fs::read_to_string(d.join("runs.log"))
+            .unwrap()
+            .lines()
+            .count(),
+        1
+    );
+}

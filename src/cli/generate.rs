@@ -10,6 +10,7 @@
 
 use super::args::{ImageArgs, PipelineArgs};
 use super::bench::{log_line, progress_bar, PairsArgs, RunArgs};
+use crate::dataset::manifest::Dataset;
 use crate::error::{Error, Result};
 use crate::pipeline::shard::{
     run_pending, stage_totals, PairRecord, Progress, RunFile, RunIdentity, StageTime, DONE,
@@ -26,6 +27,10 @@ pub struct GenerateArgs {
     /// (resumable; `cgenreg status` reads it).
     #[arg(long)]
     pub json: Option<PathBuf>,
+    /// With --wfm cosmos, run the command once per pair (its own job folder) instead of once
+    /// for all of the shard's missing generations (one batch JSONL, as the reference does).
+    #[arg(long)]
+    pub no_batch: bool,
     #[command(flatten)]
     pub run: RunArgs,
     #[command(flatten)]
@@ -80,8 +85,26 @@ pub fn run(a: GenerateArgs) -> Result<()> {
     if let Some(m) = message {
         eprintln!("{m}");
     }
+    // Cosmos loads a 7B model per run: the shard's missing generations go in one batch, then
+    // the per-pair pass below reads them from the cache.
+    let batched = matches!(ib.backend, crate::pipeline::WfmSpec::Cosmos { .. }) && !a.no_batch;
+    let mut batch_errors: std::collections::HashMap<String, String> = Default::default();
+    if batched {
+        if let Some(c) = cache.as_ref() {
+            let ids: Vec<String> = progress
+                .pending()
+                .iter()
+                .map(|&p| progress.id(p).to_string())
+                .collect();
+            batch_errors = generate_batch(&ds, &ids, &ib, c);
+        }
+    }
     let bar = progress_bar(progress.positions.len());
     let mut run_pair = |pos: usize, id: &str| -> Result<PairRecord> {
+        if let Some(e) = batch_errors.get(id) {
+            bar.inc(1);
+            return Err(Error::Invalid(e.clone()));
+        }
         bar.set_message(id.to_string());
         let t = std::time::Instant::now();
         let res = ds.load_pair(&specs[pos].id).and_then(|pair| {
@@ -90,7 +113,7 @@ pub fn run(a: GenerateArgs) -> Result<()> {
                 &params,
                 &ib,
                 cache.as_ref(),
-                true,
+                !batched,
             )
         });
         bar.inc(1);
@@ -140,4 +163,56 @@ pub fn run(a: GenerateArgs) -> Result<()> {
             .unwrap_or_default()
     );
     written
+}
+
+/// One backend run for every missing generation of `ids`; stores what comes back and returns
+/// the pairs whose generation failed, with why (their per-pair pass then records the error
+/// instead of running the generator alone).
+fn generate_batch(
+    ds: &Dataset,
+    ids: &[String],
+    ib: &crate::pipeline::ImageBranchParams,
+    cache: &crate::pipeline::cache::Cache,
+) -> std::collections::HashMap<String, String> {
+    use crate::pipeline::image_branch::{pending_generation, store_pending};
+    let mut errors = std::collections::HashMap::new();
+    let mut pending = Vec::new();
+    for id in ids {
+        match ds
+            .load_pair(id)
+            .and_then(|pair| pending_generation(&pair, ib, cache))
+        {
+            Ok(Some(p)) => pending.push(p),
+            Ok(None) => {}
+            Err(e) => {
+                errors.insert(id.clone(), format!("before generation: {e}"));
+            }
+        }
+    }
+    let Some(first) = pending.first() else {
+        eprintln!("generate: every selected generation is cached already");
+        return errors;
+    };
+    eprintln!(
+        "generate: {} generations missing, one batch for {} ({} cached or failed before)",
+        pending.len(),
+        first.backend.id(),
+        ids.len() - pending.len()
+    );
+    let t = std::time::Instant::now();
+    let reqs: Vec<_> = pending.iter().map(|p| p.request.clone()).collect();
+    let results = first.backend.generate_batch(&reqs);
+    eprintln!(
+        "generate: batch of {} finished in {:.1} s",
+        reqs.len(),
+        t.elapsed().as_secs_f64()
+    );
+    for (p, r) in pending.iter().zip(results) {
+        let stored = r.and_then(|g| store_pending(cache, p, g));
+        if let Err(e) = stored {
+            eprintln!("generate: {}: {e}", p.pair_id);
+            errors.insert(p.pair_id.clone(), format!("generation failed: {e}"));
+        }
+    }
+    errors
 }

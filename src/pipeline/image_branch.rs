@@ -65,6 +65,58 @@ pub fn register_with_image_keep(
     Ok((r, inputs))
 }
 
+/// A generation that `cgenreg generate` hands to a batch: the request, the cache key it is
+/// stored under and the backend that serves it (the same as a per-pair run would use).
+pub struct PendingGeneration {
+    pub pair_id: String,
+    pub key: CacheKey,
+    pub request: crate::wfm::backend::GenerateRequest,
+    pub backend: Box<dyn crate::wfm::backend::WfmBackend>,
+    frames_per_fragment: usize,
+}
+
+/// The pair's generation if `cache` does not hold it yet (None when it does). Runs only the
+/// cached stages before it: virtual frames for point-cloud-only scans, the depth video.
+pub fn pending_generation(
+    pair: &ScanPair,
+    ib: &ImageBranchParams,
+    cache: &Cache,
+) -> Result<Option<PendingGeneration>> {
+    let mut store = FrameStore::new(Some(cache));
+    let owned;
+    let pair = if pair.source.frames.is_some() && pair.target.frames.is_some() {
+        pair
+    } else {
+        owned = with_virtual_frames(&mut store, pair, ib)?.0;
+        &owned
+    };
+    let mut ctx = Ctx::new(Some(cache));
+    let l = ib.frames_per_fragment;
+    let (src_fs, tgt_fs) = (frames_of(&pair.source, l)?, frames_of(&pair.target, l)?);
+    let mut video = depth_video::run(&mut ctx, pair, src_fs, tgt_fs, l)?;
+    let planned = generation::plan(pair, ib, &video, src_fs, tgt_fs, l)?;
+    if generation::is_cached(cache, &planned.key) {
+        return Ok(None);
+    }
+    let request = planned.request(pair, ib, &mut video)?;
+    Ok(Some(PendingGeneration {
+        pair_id: pair.id.clone(),
+        key: planned.key,
+        request,
+        backend: planned.backend,
+        frames_per_fragment: l,
+    }))
+}
+
+/// Check and store a batch's result for `p` (what a per-pair run would have stored).
+pub fn store_pending(
+    cache: &Cache,
+    p: &PendingGeneration,
+    g: crate::wfm::backend::Generation,
+) -> Result<()> {
+    generation::store_generated(cache, &p.key, g, p.frames_per_fragment)
+}
+
 /// One scan's side of the image branch as the result shows it.
 struct Side<'a> {
     frames: &'a FrameSet,

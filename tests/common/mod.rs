@@ -52,3 +52,50 @@ pub fn json_close(a: &serde_json::Value, b: &serde_json::Value) -> bool {
         _ => a == b,
     }
 }
+
+/// A stand-in for batch-mode Cosmos: one run for the whole JSONL; line i's depth video is
+/// transcoded into `video_<i>/output.mp4`, and a prompt containing BLOCKED leaves an empty
+/// `video_<i>/` as the guardrail does. Every run appends a line to `runs.log`.
+pub fn fake_cosmos_batch(dir: &std::path::Path) -> PathBuf {
+    let p = dir.join("fake_cosmos_batch.sh");
+    std::fs::write(
+        &p,
+        format!(
+            r#"#!/bin/sh
+set -e
+batch=""; out=""; seed=""
+while [ $# -gt 0 ]; do
+  case "$1" in
+    --batch_input_path) batch="$2"; shift 2;;
+    --video_save_folder) out="$2"; shift 2;;
+    --controlnet_specs) shift 2;;
+    --seed) seed="$2"; shift 2;;
+    *) echo "unexpected argument: $1" >&2; exit 2;;
+  esac
+done
+echo "seed $seed" >> "{runs}"
+i=0
+while IFS= read -r line; do
+  video=$(printf '%s\n' "$line" | sed -n 's/.*"input_control": "\([^"]*\)".*/\1/p')
+  prompt=$(printf '%s\n' "$line" | sed -n 's/^{{"prompt": "\([^"]*\)".*/\1/p')
+  mkdir -p "$out/video_$i"
+  case "$prompt" in
+    *BLOCKED*) ;;
+    *) ffmpeg -v error -y -i "$video" -vf scale=960:704 -c:v libx264 -pix_fmt yuv420p -crf 18 \
+         "$out/video_$i/output.mp4" </dev/null
+       printf '%s\n' "$prompt" > "$out/video_$i/prompt.txt";;
+  esac
+  i=$((i+1))
+done < "$batch"
+"#,
+            runs = dir.join("runs.log").display()
+        ),
+    )
+    .unwrap();
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        std::fs::set_permissions(&p, std::fs::Permissions::from_mode(0o755)).unwrap();
+    }
+    p
+}

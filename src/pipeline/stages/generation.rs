@@ -9,7 +9,7 @@ use crate::dataset::{FrameSet, ScanPair};
 use crate::error::{Error, Result};
 use crate::pipeline::cache::{hash_file, Cache, CacheKey, Entry};
 use crate::pipeline::params::{ImageBranchParams, WfmSpec};
-use crate::wfm::backend::{GenerateRequest, Provenance, WfmBackend};
+use crate::wfm::backend::{GenerateRequest, Generation, Provenance, WfmBackend};
 use image::RgbImage;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -157,20 +157,18 @@ fn store(g: &GenOut, c: &Cache, k: &CacheKey) -> Result<()> {
     Ok(())
 }
 
-/// Run the backend and check it returned at least 2L frames of one size.
-fn compute(backend: &dyn WfmBackend, req: &GenerateRequest, l: usize) -> Result<GenOut> {
-    let backend_id = backend.id();
-    let g = backend.generate(req)?;
+/// Check a backend's output: at least 2L frames, all of one size.
+pub(crate) fn validate(backend_id: &str, g: Generation, l: usize) -> Result<GenOut> {
     if g.frames.len() < 2 * l {
         return Err(Error::External {
-            what: backend_id,
+            what: backend_id.to_string(),
             message: format!("returned {} frames, {} needed", g.frames.len(), 2 * l),
         });
     }
     let (w, h) = g.frames[0].dimensions();
     if g.frames.iter().any(|f| f.dimensions() != (w, h)) {
         return Err(Error::External {
-            what: backend_id,
+            what: backend_id.to_string(),
             message: "frames of different sizes".into(),
         });
     }
@@ -186,22 +184,50 @@ fn compute(backend: &dyn WfmBackend, req: &GenerateRequest, l: usize) -> Result<
     })
 }
 
-/// The generation for the pair's depth video, timed as "generation". With `generate` false
-/// a generation missing from the cache is [`Error::GenerationNotCached`].
-// The inputs are the stage's own: the pair, its frames, the video and the parameters.
-#[allow(clippy::too_many_arguments)]
-pub(crate) fn run(
-    ctx: &mut Ctx,
+/// The backend, the cache key and the colour frames of a pair's generation.
+pub(crate) struct Planned {
+    pub(crate) backend: Box<dyn WfmBackend>,
+    pub(crate) key: CacheKey,
+    is_oracle: bool,
+    src_col: Option<Vec<PathBuf>>,
+    tgt_col: Option<Vec<PathBuf>>,
+}
+
+impl Planned {
+    /// What the backend is asked (builds the depth video's frames if the stage was a hit).
+    pub(crate) fn request(
+        &self,
+        pair: &ScanPair,
+        ib: &ImageBranchParams,
+        video: &mut DepthVideo,
+    ) -> Result<GenerateRequest> {
+        // The oracle reads the colour frames; it needs no depth video.
+        let depth_video = if video.has_frames() || !self.is_oracle {
+            video.take_frames()?
+        } else {
+            Vec::new()
+        };
+        Ok(GenerateRequest {
+            pair_id: pair.id.clone(),
+            depth_video,
+            depth_video_path: None,
+            prompt: ib.prompt.clone(),
+            seed: ib.seed,
+            source_color: self.src_col.clone(),
+            target_color: self.tgt_col.clone(),
+        })
+    }
+}
+
+pub(crate) fn plan(
     pair: &ScanPair,
     ib: &ImageBranchParams,
-    video: &mut DepthVideo,
+    video: &DepthVideo,
     src_fs: &FrameSet,
     tgt_fs: &FrameSet,
     l: usize,
-    generate: bool,
-) -> Result<(GenOut, CacheKey)> {
+) -> Result<Planned> {
     let backend = make_backend(&ib.backend, video.lidar)?;
-    let backend_id = backend.id();
     let is_oracle = matches!(ib.backend, WfmSpec::Oracle);
     let colour = |fs: &FrameSet| -> Option<Vec<PathBuf>> {
         fs.frames[..l]
@@ -226,7 +252,44 @@ pub(crate) fn run(
             .collect::<Result<_>>()?;
         inputs.extend(h);
     }
-    let key = key(&inputs, &backend_id, ib)?;
+    let key = key(&inputs, &backend.id(), ib)?;
+    Ok(Planned {
+        backend,
+        key,
+        is_oracle,
+        src_col,
+        tgt_col,
+    })
+}
+
+/// Whether `c` holds a usable generation under `k`.
+pub(crate) fn is_cached(c: &Cache, k: &CacheKey) -> bool {
+    matches!(c.get(k), Ok(Some(e)) if load(&e).is_ok())
+}
+
+/// Validate and store a generation made outside [`run`] (a batch).
+pub(crate) fn store_generated(c: &Cache, k: &CacheKey, g: Generation, l: usize) -> Result<()> {
+    let out = validate(&g.provenance.backend.clone(), g, l)?;
+    store(&out, c, k)
+}
+
+/// The generation for the pair's depth video, timed as "generation". With `generate` false
+/// a generation missing from the cache is [`Error::GenerationNotCached`].
+// The inputs are the stage's own: the pair, its frames, the video and the parameters.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn run(
+    ctx: &mut Ctx,
+    pair: &ScanPair,
+    ib: &ImageBranchParams,
+    video: &mut DepthVideo,
+    src_fs: &FrameSet,
+    tgt_fs: &FrameSet,
+    l: usize,
+    generate: bool,
+) -> Result<(GenOut, CacheKey)> {
+    let planned = plan(pair, ib, video, src_fs, tgt_fs, l)?;
+    let backend_id = planned.backend.id();
+    let key = planned.key.clone();
     let t = Instant::now();
     let (gen, hit) = ctx.cached(
         &key,
@@ -239,22 +302,8 @@ pub(crate) fn run(
                     seed: ib.seed,
                 });
             }
-            // The oracle reads the colour frames; it needs no depth video.
-            let depth_video = if video.has_frames() || !is_oracle {
-                video.take_frames()?
-            } else {
-                Vec::new()
-            };
-            let req = GenerateRequest {
-                pair_id: pair.id.clone(),
-                depth_video,
-                depth_video_path: None,
-                prompt: ib.prompt.clone(),
-                seed: ib.seed,
-                source_color: src_col.clone(),
-                target_color: tgt_col.clone(),
-            };
-            compute(backend.as_ref(), &req, l)
+            let req = planned.request(pair, ib, video)?;
+            validate(&backend_id, planned.backend.generate(&req)?, l)
         },
         store,
     )?;
