@@ -521,11 +521,7 @@ fn cosmos_batch_runs_once_per_seed_and_keeps_lines_aligned() {
         assert_eq!(g.provenance.seed, reqs[i].seed);
         assert_eq!(g.provenance.prompt, reqs[i].prompt.text());
     }
-    let blocked = out[1]
-        .as_ref()
-        .err()
-        .expect("blocked line fails")
-        .to_string();
+    let blocked = out[1].as_ref().expect_err("blocked line fails").to_string();
     assert!(blocked.contains("guardrail"), "{blocked}");
     // The seed-7 batch is one job with the reference's JSONL: three lines, i_gen_vid.
     let g0 = out[0].as_ref().unwrap();
