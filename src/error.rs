@@ -33,6 +33,32 @@ pub enum Error {
     External { what: String, message: String },
     #[error("cache: {0}")]
     Cache(String),
+    /// A model that tract, the pure-Rust fallback, cannot load or run: it needs the native ONNX
+    /// Runtime.
+    #[error(
+        "{model}: tract, the pure-Rust ONNX fallback, cannot run this model ({reason}); it needs \
+         the native ONNX Runtime: `pip install onnxruntime` (found automatically) or set \
+         ORT_DYLIB_PATH"
+    )]
+    NeedsNativeRuntime { model: PathBuf, reason: String },
+    /// The image branch was asked not to generate, and the generation for this depth video,
+    /// prompt and seed is not in the cache (the GUI then offers to run the generator; a study
+    /// skips the setting).
+    #[error("generation not cached: {backend}, prompt {prompt}, seed {seed}")]
+    GenerationNotCached {
+        backend: String,
+        prompt: String,
+        seed: u64,
+    },
+    /// A cache command that deletes was pointed at a directory without the marker file a
+    /// cgenreg cache holds (`cgenreg cache init` marks an existing cache).
+    #[error(
+        "{}: not a cgenreg cache (no {marker}); nothing was removed. If this is a cache made \
+         before the marker existed, run `cgenreg cache --dir {} init` first",
+        dir.display(),
+        dir.display()
+    )]
+    NotACache { dir: PathBuf, marker: String },
 }
 
 impl Error {

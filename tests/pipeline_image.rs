@@ -205,9 +205,8 @@ fn pair_conditioned_vfm_end_to_end() {
 #[test]
 fn fuse_from_kept_similarities_equals_full_tail() {
     use cgenreg::fusion::{FusionMode, Selection};
-    use cgenreg::pipeline::image_branch::{
-        fuse_and_finish, fuse_and_finish_with, register_with_image_keep, similarities, FusionInputs,
-    };
+    use cgenreg::pipeline::fuse::{fuse_and_finish, similarities, FusionInputs};
+    use cgenreg::pipeline::image_branch::register_with_image_keep;
     let manifest = common::demo_manifest();
     let ds = Dataset::load(&manifest).unwrap();
     let pair = ds.load_pair(&ds.pairs()[0].id.clone()).unwrap();
@@ -231,8 +230,8 @@ fn fuse_from_kept_similarities_equals_full_tail() {
             q.fusion.calibration_geo = Calibration::RowSoftmax { tau };
             q.fusion.mode = mode;
             q.fusion.selection = sel;
-            let a = fuse_and_finish(&pair, &q, inp).unwrap();
-            let b = fuse_and_finish_with(&pair, &q, inp, &sims).unwrap();
+            let a = fuse_and_finish(&pair, &q, inp, None).unwrap();
+            let b = fuse_and_finish(&pair, &q, inp, Some(&sims)).unwrap();
             let pairs = |r: &cgenreg::pipeline::RegistrationResult| {
                 let mut v = r
                     .correspondences
@@ -242,7 +241,7 @@ fn fuse_from_kept_similarities_equals_full_tail() {
                 v.sort_unstable();
                 v
             };
-            let a2 = fuse_and_finish(&pair, &q, inp).unwrap();
+            let a2 = fuse_and_finish(&pair, &q, inp, None).unwrap();
             let same_order = a.correspondences == a2.correspondences;
             assert_eq!(pairs(&a), pairs(&b), "tau {tau} {mode:?} {sel:?}");
             eprintln!(
@@ -293,9 +292,47 @@ fn cloud_only_pair_renders_virtual_depth_frames() {
         .unwrap()
         .collect();
     assert_eq!(frames.len(), 2, "one folder per scan");
-    // Second run: same frames from disk, same pose.
+    // Second run: same frames from the cache, same pose, and every cached stage a hit (the
+    // poses read back from the virtual-frames entry are bit for bit those computed, so the
+    // lift and image-point keys repeat: no duplicate entries).
     let r2 = register_pair_cached(&pair, &p, Some(&cache)).unwrap();
     assert_eq!(r.target_from_source, r2.target_from_source);
+    for s in [
+        "lift source",
+        "lift target",
+        "image point features",
+        "depth video",
+    ] {
+        let t = r2.timings.iter().find(|t| t.stage == s).unwrap();
+        assert_eq!(t.status, "cached", "{s}: {:?}", r2.timings);
+    }
+    let entries = cache.list().unwrap();
+    let count = |stage: &str| entries.iter().filter(|e| e.stage == stage).count();
+    assert_eq!(count("lift"), 2);
+    assert_eq!(count("image-points"), 1);
+    assert_eq!(count("virtual-frames"), 2);
+    // The virtual frames are verified entries like the others: a clean cache verifies clean.
+    assert!(cache.verify_all().unwrap().iter().all(|r| r.result.is_ok()));
+
+    // A truncated virtual-frame PNG is detected, reported and rebuilt, never used.
+    let vf = entries
+        .iter()
+        .find(|e| e.stage == "virtual-frames")
+        .unwrap();
+    let png = vf.dir.join("frame-000000.depth.png");
+    let bytes = std::fs::read(&png).unwrap();
+    std::fs::write(&png, &bytes[..bytes.len() / 2]).unwrap();
+    let r3 = register_pair_cached(&pair, &p, Some(&cache)).unwrap();
+    assert!(
+        r3.warnings
+            .iter()
+            .any(|w| w.contains("virtual-frames/") && w.contains("rebuilt")),
+        "{:?}",
+        r3.warnings
+    );
+    assert_eq!(r.target_from_source, r3.target_from_source);
+    assert_eq!(std::fs::read(&png).unwrap(), bytes);
+    assert!(cache.verify_all().unwrap().iter().all(|r| r.result.is_ok()));
 }
 
 /// The real LiDAR pair (small_gicp, 70k points with intensity, no images): the image branch

@@ -6,7 +6,7 @@ mod common;
 
 use cgenreg::dataset::Dataset;
 use cgenreg::pipeline::cache::Cache;
-use cgenreg::pipeline::image_branch::{register_with_image, GENERATION_NOT_CACHED};
+use cgenreg::pipeline::image_branch::register_with_image;
 use cgenreg::pipeline::study::{
     k_settings, markdown_table, prompt_settings, run_study, StudyKind, StudyProgress,
 };
@@ -98,7 +98,7 @@ fn prompt_study_has_four_categories_and_never_fakes_missing_generations() {
         assert_eq!(r.pairs_run, 0);
         assert_eq!(r.skipped.len(), ids.len());
         assert!(
-            r.skipped[0].reason.starts_with(GENERATION_NOT_CACHED),
+            r.skipped[0].reason.starts_with("generation not cached: "),
             "{r:?}"
         );
         assert!(r.rre_mean_deg.is_none());

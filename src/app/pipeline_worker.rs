@@ -29,11 +29,9 @@ use crate::dataset::manifest::Dataset;
 use crate::dataset::ScanPair;
 use crate::fusion::fuse::FusionMode;
 use crate::pipeline::cache::Cache;
-use crate::pipeline::image_branch::{
-    fuse_and_finish, fuse_and_finish_with, register_with_image_keep, similarities, FusionInputs,
-    Similarities, GENERATION_NOT_CACHED,
-};
-use crate::pipeline::register::{fpfh_branch, GeoBranch};
+use crate::pipeline::fuse::{fuse_and_finish, similarities, FusionInputs, Similarities};
+use crate::pipeline::geo::{fpfh_branch, GeoBranch};
+use crate::pipeline::image_branch::register_with_image_keep;
 use crate::pipeline::study::{
     k_settings, prompt_settings, run_study_with, StudyReport, StudySetting,
 };
@@ -797,12 +795,10 @@ impl PipelineWorker {
                 note = Some(n);
             }
             let cache = self.cache.clone();
-            let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-                register_with_image_keep(&pair, &params, ib, cache.as_deref(), generate)
-            }));
-            match r {
-                Ok(Ok(x)) => with_image = Some(x),
-                Ok(Err(e)) if e.to_string().contains(GENERATION_NOT_CACHED) => {
+            // A panic here reaches the worker thread's guard (`spawn_worker`), which reports it.
+            match register_with_image_keep(&pair, &params, ib, cache.as_deref(), generate) {
+                Ok(x) => with_image = Some(x),
+                Err(e @ crate::Error::GenerationNotCached { .. }) => {
                     missing = Some(ib.prompt.text());
                     note = Some(format!(
                         "No cached generation for this prompt ({e}). Press “Run the generator” \
@@ -810,16 +806,10 @@ impl PipelineWorker {
                          shown (never views generated from another prompt)."
                     ));
                 }
-                Ok(Err(e)) => {
+                Err(e) => {
                     note = Some(format!(
                         "image branch unavailable for {id}: {e} — fell back to the geometric \
                          branch alone"
-                    ))
-                }
-                Err(_) => {
-                    note = Some(format!(
-                        "image branch failed (panic) on {id} — fell back to the geometric branch \
-                         alone"
                     ))
                 }
             }
@@ -845,7 +835,7 @@ impl PipelineWorker {
                 if gp.geo_features == crate::pipeline::params::GeoFeatureSource::Fpfh {
                     let t0 = Instant::now();
                     let (g, mut timings) = self.geometry(id, &pair, gp.voxel)?;
-                    let mut r = fuse_and_finish(&pair, &gp, &g)?;
+                    let mut r = fuse_and_finish(&pair, &gp, &g, None)?;
                     timings.append(&mut r.timings);
                     r.timings = timings;
                     r.total_ms = t0.elapsed().as_secs_f64() * 1e3;
@@ -948,10 +938,7 @@ impl PipelineWorker {
             return None;
         }
         let t0 = Instant::now();
-        let run = match &kept.sims {
-            Some(s) => fuse_and_finish_with(&cur.pair, &params, &kept.inputs, s),
-            None => fuse_and_finish(&cur.pair, &params, &kept.inputs),
-        };
+        let run = fuse_and_finish(&cur.pair, &params, &kept.inputs, kept.sims.as_deref());
         let mut result = match run {
             Ok(r) => r,
             Err(e) => return Some(Err(e)),
@@ -1471,9 +1458,9 @@ impl PipelineWorker {
         let t = Instant::now();
         match crate::dataset::open::open_dataset(kind, &paths) {
             Ok(d) => {
-                let d = d.with_fragment_cache(Some(
-                    crate::pipeline::image_branch::default_cache_dir().join("fragments"),
-                ));
+                let d = d.with_fragment_cache(
+                    Cache::open(crate::pipeline::cache::default_cache_dir()).ok(),
+                );
                 let first = d.pairs().first().map(|p| p.id.clone());
                 let pre = match &first {
                     Some(id) => match d.load_pair(id) {

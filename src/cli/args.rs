@@ -166,7 +166,8 @@ pub struct ImageArgs {
     /// Generation seed.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// Vision foundation model: xfeat (per-image; default models/xfeat.onnx) or mast3r
+    /// Vision foundation model: xfeat (per-image, H/8 grid; default models/xfeat.onnx), disk or
+    /// alike (per-image, dense per pixel; default models/disk.onnx, models/alike-t.onnx) or mast3r
     /// (pair-conditioned; needs --vfm-model, an export made with models/export_mast3r.py).
     #[arg(long, value_enum, default_value = "xfeat")]
     pub vfm: VfmSpec,
@@ -283,17 +284,10 @@ impl ImageArgs {
         Ok((params, cache))
     }
 
-    /// Where fragments rebuilt from raw RGB-D frames are cached (None with `--no-cache`).
-    pub fn fragment_cache_dir(&self) -> Option<PathBuf> {
-        if self.no_cache {
-            return None;
-        }
-        Some(
-            self.cache_dir
-                .clone()
-                .unwrap_or_else(crate::pipeline::image_branch::default_cache_dir)
-                .join("fragments"),
-        )
+    /// The stage cache that keeps fragments rebuilt from raw RGB-D frames (None with
+    /// `--no-cache`); opened whether or not the image branch is on.
+    pub fn fragment_cache(&self) -> crate::Result<Option<Cache>> {
+        self.open_cache()
     }
 
     pub fn open_cache(&self) -> crate::Result<Option<Cache>> {
@@ -303,7 +297,7 @@ impl ImageArgs {
         let dir = self
             .cache_dir
             .clone()
-            .unwrap_or_else(crate::pipeline::image_branch::default_cache_dir);
+            .unwrap_or_else(crate::pipeline::cache::default_cache_dir);
         Ok(Some(Cache::open(dir)?))
     }
 }

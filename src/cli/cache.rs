@@ -1,4 +1,7 @@
 //! `cgenreg cache`: list, verify and remove entries of the content-addressed stage cache.
+//! The commands that delete (`rm`, `verify --remove-bad`) only act on a directory that carries
+//! the cache's marker file (written when a cache is created; `cache init` marks an existing
+//! one) and only ever remove entry folders (`<stage>/<64 hex digits>`), nothing else.
 
 use crate::error::{Error, Result};
 use crate::pipeline::cache::Cache;
@@ -28,6 +31,9 @@ pub enum CacheAction {
         #[arg(long)]
         remove_bad: bool,
     },
+    /// Mark an existing directory as a cgenreg cache (a cache made before the marker file
+    /// existed), so that `rm` and `verify --remove-bad` may delete its entries.
+    Init,
     /// Remove entries: `STAGE/HASHPREFIX` (as `list` prints), or a whole `STAGE`, or --all.
     Rm {
         targets: Vec<String>,
@@ -36,12 +42,13 @@ pub enum CacheAction {
     },
 }
 
-fn open(a: &CacheArgs) -> Result<Cache> {
+/// The cache as it is: the commands create nothing (except `init`).
+fn open(a: &CacheArgs) -> Cache {
     let dir = a
         .dir
         .clone()
-        .unwrap_or_else(crate::pipeline::image_branch::default_cache_dir);
-    Cache::open(dir)
+        .unwrap_or_else(crate::pipeline::cache::default_cache_dir);
+    Cache::at(dir)
 }
 
 fn human_bytes(b: u64) -> String {
@@ -83,8 +90,23 @@ fn provenance_summary(v: &serde_json::Value) -> String {
 }
 
 pub fn run(a: CacheArgs) -> Result<()> {
-    let cache = open(&a)?;
+    let cache = open(&a);
     match &a.action {
+        CacheAction::Init => {
+            let n = cache.list()?.len();
+            if cache.init()? {
+                println!(
+                    "marked {} as a cgenreg cache ({n} entries)",
+                    cache.root().display()
+                );
+            } else {
+                println!(
+                    "{} is a cgenreg cache already ({n} entries)",
+                    cache.root().display()
+                );
+            }
+            Ok(())
+        }
         CacheAction::List { stage } => {
             let entries = cache.list()?;
             let mut total = 0u64;
@@ -112,8 +134,15 @@ pub fn run(a: CacheArgs) -> Result<()> {
             Ok(())
         }
         CacheAction::Verify { remove_bad } => {
+            if *remove_bad && !cache.is_marked() {
+                return Err(Error::NotACache {
+                    dir: cache.root().to_path_buf(),
+                    marker: crate::pipeline::cache::MARKER.into(),
+                });
+            }
             let reports = cache.verify_all()?;
             let mut bad = 0usize;
+            let mut kept = 0usize;
             for r in &reports {
                 if let Err(e) = &r.result {
                     bad += 1;
@@ -123,8 +152,14 @@ pub fn run(a: CacheArgs) -> Result<()> {
                         &r.hash[..12.min(r.hash.len())]
                     );
                     if *remove_bad {
-                        cache.remove_entry(&r.stage, &r.hash)?;
-                        println!("  removed");
+                        match cache.remove_entry(&r.stage, &r.hash) {
+                            Ok(_) => println!("  removed"),
+                            Err(e @ Error::NotACache { .. }) => return Err(e),
+                            Err(e) => {
+                                kept += 1;
+                                println!("  not removed: {e}");
+                            }
+                        }
                     }
                 }
             }
@@ -132,6 +167,12 @@ pub fn run(a: CacheArgs) -> Result<()> {
                 "{} entries verified, {bad} corrupt or partial",
                 reports.len()
             );
+            if kept > 0 {
+                return Err(Error::Cache(format!(
+                    "{kept} corrupt or partial entries in {} were not removed (see above)",
+                    cache.root().display()
+                )));
+            }
             if bad > 0 && !remove_bad {
                 return Err(Error::Cache(format!(
                     "{bad} corrupt or partial cache entries in {} (they are never used; \
@@ -143,13 +184,7 @@ pub fn run(a: CacheArgs) -> Result<()> {
         }
         CacheAction::Rm { targets, all } => {
             if *all {
-                let stages: std::collections::BTreeSet<String> =
-                    cache.list()?.into_iter().map(|e| e.stage).collect();
-                let mut n = 0;
-                for s in stages {
-                    n += cache.remove_stage(&s)?;
-                }
-                println!("removed {n} entries");
+                println!("removed {} entries", cache.remove_all()?);
                 return Ok(());
             }
             if targets.is_empty() {

@@ -268,7 +268,7 @@ fn print_cost(records: &[&PairRecord], project: usize) {
         let (mut c, mut cs, mut h, mut hs) = (0usize, 0.0, 0usize, 0.0);
         for r in &done {
             for s in r.stages.iter().filter(|s| s.stage == stage) {
-                if crate::pipeline::image_branch::is_cached(&s.status) {
+                if crate::pipeline::result::is_cached(&s.status) {
                     h += 1;
                     hs += s.ms;
                 } else {

@@ -41,11 +41,11 @@ pub(crate) fn load_pair(a: &RegisterArgs) -> Result<(ScanPair, Option<bool>)> {
         }
         (_, _, Some(m), Some(id)) => {
             let (p, st) = Dataset::load(m)?
-                .with_fragment_cache(a.image.fragment_cache_dir())
+                .with_fragment_cache(a.image.fragment_cache()?)
                 .load_pair_status(id)?;
             let (hit, rebuilt) = pair_summary(&st);
             for why in rebuilt {
-                eprintln!("warning: fragment cache: {why} (rebuilt)");
+                eprintln!("warning: fragment cache: {why}");
             }
             Ok((p, hit))
         }

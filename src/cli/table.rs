@@ -54,6 +54,8 @@ fn row_label(path: &Path, params: &Value) -> Result<(String, String, String)> {
             };
             let vfm = match field(path, ib, "/vfm/kind")?.as_str() {
                 Some("xfeat") => "XFeat",
+                Some("disk") => "DISK",
+                Some("alike") => "ALIKE",
                 Some("mast3r") => "MASt3R (user's ONNX export)",
                 _ => "?",
             };

@@ -1,22 +1,29 @@
-//! A content-addressed cache of fragments built from raw RGB-D frames. Building a fragment
-//! decodes and back-projects 50 depth PNGs (seconds); the cache key hashes the bytes of every
-//! input file (depth, pose, colour when used, intrinsics) and the build options, so an edited
-//! frame or option can never return a stale cloud. One `.npy` per fragment (N x 3 points, or
-//! N x 6 with colours 0-255), written atomically; a file that does not decode is reported and
-//! rebuilt, never used.
+//! Stage `fragments`: fragments built from raw RGB-D frames, as entries of the stage cache
+//! ([`Cache`]: verified on every read, listed by `cgenreg cache list`, removable). Building a
+//! fragment decodes and back-projects 50 depth PNGs (seconds); the key hashes the bytes of
+//! every input file (depth, pose, colour when used, intrinsics) and the build options, so an
+//! edited frame or option can never return a stale cloud. The entry holds `points.npy`
+//! (N x 3 points, or N x 6 with colours 0-255); an entry that fails verification or does not
+//! decode is reported and rebuilt, never used, and a store that fails (read-only folder, full
+//! disk) is reported while the fragment built in memory is used.
 
 use super::fragment::{build_fragment_with, fragment_frames, FragmentOptions};
 use super::Scan;
 use crate::error::{Error, Result};
 use crate::geometry::cloud::PointCloud;
 use crate::io::rgbd_sequence::RgbdSequence;
-use crate::pipeline::cache::{decode_npy_f32, encode_npy_f32};
+use crate::pipeline::cache::{Cache, CacheKey, Entry};
 use nalgebra::Point3;
 use rayon::prelude::*;
+use serde_json::json;
 use std::path::{Path, PathBuf};
 
-/// Bumped whenever the fragment builder's output changes for the same inputs.
-const VERSION: &str = "cgenreg-fragment-v1";
+pub const STAGE: &str = "fragments";
+/// Bumped whenever the fragment builder's output changes for the same inputs (2: a stage
+/// cache entry; 1 was a bare `fragments/<key>.npy`).
+pub const VERSION: u32 = 2;
+
+const POINTS: &str = "points.npy";
 
 /// How a cached build went.
 #[derive(Clone, Debug, PartialEq)]
@@ -25,34 +32,39 @@ pub enum FragmentCacheStatus {
     Built,
     /// The entry was unreadable (the message says why) and was rebuilt.
     Rebuilt(String),
+    /// Built (or rebuilt), but the entry could not be written (the message says why); the
+    /// fragment built in memory is used.
+    NotStored(String),
 }
 
 /// How the fragment cache served a pair's scans: whether all of them were hits (None: no
-/// fragment came through the cache), and why any entry had to be rebuilt.
-pub fn pair_summary(st: &[Option<FragmentCacheStatus>]) -> (Option<bool>, Vec<&str>) {
+/// fragment came through the cache), and a warning for each entry that had to be rebuilt or
+/// could not be stored.
+pub fn pair_summary(st: &[Option<FragmentCacheStatus>]) -> (Option<bool>, Vec<String>) {
     let used: Vec<&FragmentCacheStatus> = st.iter().flatten().collect();
     let all_hit = (!used.is_empty()).then(|| used.iter().all(|s| **s == FragmentCacheStatus::Hit));
-    let rebuilt = used
+    let warnings = used
         .iter()
         .filter_map(|s| match s {
-            FragmentCacheStatus::Rebuilt(why) => Some(why.as_str()),
+            FragmentCacheStatus::Rebuilt(why) => Some(format!("{why} (rebuilt)")),
+            FragmentCacheStatus::NotStored(why) => Some(format!("{why} (used from memory)")),
             _ => None,
         })
         .collect();
-    (all_hit, rebuilt)
+    (all_hit, warnings)
 }
 
 fn read(path: &Path) -> Result<Vec<u8>> {
     std::fs::read(path).map_err(|e| Error::io(path, e))
 }
 
-/// blake3 of everything the fragment depends on.
+/// The stage key: the content hash of every input file, and the build options.
 pub fn fragment_key(
     seq: &RgbdSequence,
     first: usize,
     count: usize,
     opts: &FragmentOptions,
-) -> Result<String> {
+) -> Result<CacheKey> {
     let mut files: Vec<PathBuf> = vec![seq.intrinsics_path.clone()];
     for idx in first..first + count {
         let f = super::fragment::fragment_frame(seq, idx, first, count)?;
@@ -68,33 +80,25 @@ pub fn fragment_key(
     }
     let digests = files
         .par_iter()
-        .map(|p| read(p).map(|b| *blake3::hash(&b).as_bytes()))
+        .map(|p| read(p).map(|b| blake3::hash(&b).to_hex().to_string()))
         .collect::<Result<Vec<_>>>()?;
-    let mut h = blake3::Hasher::new();
-    h.update(VERSION.as_bytes());
-    h.update(&(first as u64).to_le_bytes());
-    h.update(&(count as u64).to_le_bytes());
-    for v in [opts.voxel, opts.min_depth, opts.max_depth] {
-        h.update(&v.to_le_bytes());
-    }
-    match &opts.crop {
-        Some(c) => {
-            for v in c.min.iter().chain(c.max.iter()) {
-                h.update(&v.to_le_bytes());
-            }
-        }
-        None => {
-            h.update(b"nocrop");
-        }
-    }
-    h.update(&[opts.with_color as u8]);
-    for d in &digests {
-        h.update(d);
-    }
-    Ok(h.finalize().to_hex().to_string())
+    let inputs: Vec<&str> = digests.iter().map(String::as_str).collect();
+    let crop = opts
+        .crop
+        .as_ref()
+        .map(|c| json!({ "min": c.min, "max": c.max }));
+    CacheKey::new(
+        STAGE,
+        VERSION,
+        &inputs,
+        &json!({
+            "first": first, "count": count, "voxel": opts.voxel, "min_depth": opts.min_depth,
+            "max_depth": opts.max_depth, "crop": crop, "with_color": opts.with_color,
+        }),
+    )
 }
 
-fn encode(cloud: &PointCloud) -> Result<Vec<u8>> {
+fn matrix(cloud: &PointCloud) -> (usize, usize, Vec<f32>) {
     let cols = if cloud.colors.is_some() { 6 } else { 3 };
     let mut data = Vec::with_capacity(cloud.points.len() * cols);
     for (i, p) in cloud.points.iter().enumerate() {
@@ -103,16 +107,16 @@ fn encode(cloud: &PointCloud) -> Result<Vec<u8>> {
             data.extend(c.iter().map(|&v| v as f32));
         }
     }
-    encode_npy_f32(cloud.points.len(), cols, &data)
+    (cloud.points.len(), cols, data)
 }
 
-fn decode(path: &Path, with_color: bool) -> Result<PointCloud> {
-    let bytes = read(path)?;
-    let (rows, cols, data) = decode_npy_f32(&bytes, path)?;
+fn decode(e: &Entry, with_color: bool) -> Result<PointCloud> {
+    let path = e.path(POINTS);
+    let (rows, cols, data) = e.read_f32_matrix(POINTS)?;
     let want = if with_color { 6 } else { 3 };
     if cols != want || rows == 0 {
         return Err(Error::format(
-            path,
+            &path,
             "shape",
             format!("(N > 0, {want})"),
             format!("({rows}, {cols})"),
@@ -123,7 +127,7 @@ fn decode(path: &Path, with_color: bool) -> Result<PointCloud> {
     for r in data.chunks_exact(cols) {
         if !r[..3].iter().all(|v| v.is_finite()) {
             return Err(Error::format(
-                path,
+                &path,
                 "points",
                 "finite coordinates",
                 "NaN or inf",
@@ -141,37 +145,59 @@ fn decode(path: &Path, with_color: bool) -> Result<PointCloud> {
     })
 }
 
-/// [`build_fragment_with`] through the cache in `dir` (created when missing).
+fn store(cache: &Cache, key: &CacheKey, scan: &Scan, seq: &RgbdSequence) -> Result<()> {
+    let (rows, cols, data) = matrix(&scan.cloud);
+    let mut ne = cache.put(
+        key,
+        json!({ "stage": STAGE, "scan": scan.name, "sequence": seq.dir.display().to_string() }),
+    )?;
+    ne.add_f32_matrix(POINTS, rows, cols, &data)?;
+    ne.commit()?;
+    Ok(())
+}
+
+/// [`build_fragment_with`] through the stage cache `cache`.
 pub fn build_fragment_cached(
     seq: &RgbdSequence,
     first: usize,
     count: usize,
     opts: &FragmentOptions,
     name: impl Into<String>,
-    dir: &Path,
+    cache: &Cache,
 ) -> Result<(Scan, FragmentCacheStatus)> {
     let key = fragment_key(seq, first, count, opts)?;
-    let path = dir.join(format!("{key}.npy"));
-    let mut status = FragmentCacheStatus::Built;
-    if path.is_file() {
-        match decode(&path, opts.with_color) {
-            Ok(cloud) => {
-                let frames = fragment_frames(seq, first, count)?;
-                return Ok((
-                    Scan {
-                        name: name.into(),
-                        cloud,
-                        frames: Some(frames),
-                    },
-                    FragmentCacheStatus::Hit,
-                ));
-            }
-            Err(e) => status = FragmentCacheStatus::Rebuilt(format!("corrupt cache entry: {e}")),
+    let mut rebuilt: Option<String> = None;
+    let found = cache
+        .get(&key)
+        .and_then(|e| e.map(|e| decode(&e, opts.with_color)).transpose());
+    match found {
+        Ok(Some(cloud)) => {
+            let frames = fragment_frames(seq, first, count)?;
+            return Ok((
+                Scan {
+                    name: name.into(),
+                    cloud,
+                    frames: Some(frames),
+                },
+                FragmentCacheStatus::Hit,
+            ));
+        }
+        Ok(None) => {}
+        Err(e) => {
+            rebuilt = Some(format!("corrupt cache entry {}: {e}", key.short()));
+            let _ = cache.remove(&key);
         }
     }
     let scan = build_fragment_with(seq, first, count, opts, name)?;
-    std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
-    crate::error::write_atomic(&path, &encode(&scan.cloud)?)?;
+    let status = match (store(cache, &key, &scan, seq), rebuilt) {
+        (Ok(()), None) => FragmentCacheStatus::Built,
+        (Ok(()), Some(why)) => FragmentCacheStatus::Rebuilt(why),
+        (Err(e), why) => FragmentCacheStatus::NotStored(format!(
+            "{}could not write cache entry {}: {e}",
+            why.map(|w| format!("{w}; ")).unwrap_or_default(),
+            key.short()
+        )),
+    };
     Ok((scan, status))
 }
 
@@ -191,9 +217,10 @@ mod tests {
         let first = seq.frames[0].index;
         let opts = FragmentOptions::default();
         let tmp = tempfile::tempdir().unwrap();
-        let (a, s1) = build_fragment_cached(&seq, first, n, &opts, "a", tmp.path()).unwrap();
+        let cache = Cache::open(tmp.path()).unwrap();
+        let (a, s1) = build_fragment_cached(&seq, first, n, &opts, "a", &cache).unwrap();
         assert_eq!(s1, FragmentCacheStatus::Built);
-        let (b, s2) = build_fragment_cached(&seq, first, n, &opts, "a", tmp.path()).unwrap();
+        let (b, s2) = build_fragment_cached(&seq, first, n, &opts, "a", &cache).unwrap();
         assert_eq!(s2, FragmentCacheStatus::Hit);
         assert_eq!(a.cloud.points, b.cloud.points);
         assert_eq!(
@@ -205,17 +232,60 @@ mod tests {
             voxel: 0.02,
             ..Default::default()
         };
-        let (c, s3) = build_fragment_cached(&seq, first, n, &opts2, "a", tmp.path()).unwrap();
+        let (c, s3) = build_fragment_cached(&seq, first, n, &opts2, "a", &cache).unwrap();
         assert_eq!(s3, FragmentCacheStatus::Built);
         assert!(c.cloud.points.len() < a.cloud.points.len());
-        // Truncate the first entry: it is reported and rebuilt, never used.
+        assert_eq!(cache.list().unwrap().len(), 2);
+        assert!(cache.verify_all().unwrap().iter().all(|r| r.result.is_ok()));
         let key = fragment_key(&seq, first, n, &opts).unwrap();
-        let p = tmp.path().join(format!("{key}.npy"));
+        let p = cache.get(&key).unwrap().unwrap().path(POINTS);
         let bytes = std::fs::read(&p).unwrap();
-        std::fs::write(&p, &bytes[..bytes.len() / 2]).unwrap();
-        let (d, s4) = build_fragment_cached(&seq, first, n, &opts, "a", tmp.path()).unwrap();
-        assert!(matches!(s4, FragmentCacheStatus::Rebuilt(_)), "{s4:?}");
-        assert_eq!(d.cloud.points, a.cloud.points);
+        // A flipped bit in one coordinate (still a valid .npy), a moved point, a truncation:
+        // each is reported and rebuilt, never used.
+        let mut flipped = bytes.clone();
+        let last = flipped.len() - 2;
+        flipped[last] ^= 0x10;
+        let mut moved = bytes.clone();
+        let at = moved.len() - 12;
+        moved[at..at + 4].copy_from_slice(&7.5f32.to_le_bytes());
+        for bad in [flipped, moved, bytes[..bytes.len() / 2].to_vec()] {
+            std::fs::write(&p, &bad).unwrap();
+            let (d, s4) = build_fragment_cached(&seq, first, n, &opts, "a", &cache).unwrap();
+            assert!(matches!(s4, FragmentCacheStatus::Rebuilt(_)), "{s4:?}");
+            assert_eq!(d.cloud.points, a.cloud.points);
+            assert_eq!(std::fs::read(&p).unwrap(), bytes, "the entry is rebuilt");
+        }
+    }
+
+    /// A cache that cannot be written: the fragment built in memory is used, with a warning.
+    #[cfg(unix)]
+    #[test]
+    fn unwritable_cache_warns_and_goes_on() {
+        use std::os::unix::fs::PermissionsExt;
+        let seq = demo_seq();
+        let first = seq.frames[0].index;
+        let opts = FragmentOptions::default();
+        let tmp = tempfile::tempdir().unwrap();
+        let cache = Cache::open(tmp.path()).unwrap();
+        let stage = tmp.path().join(STAGE);
+        std::fs::create_dir_all(&stage).unwrap();
+        std::fs::set_permissions(&stage, std::fs::Permissions::from_mode(0o555)).unwrap();
+        // Root ignores permissions: then there is nothing to test.
+        let probe = stage.join(".probe");
+        let writable = std::fs::write(&probe, b"x").is_ok();
+        let _ = std::fs::remove_file(&probe);
+        let r = build_fragment_cached(&seq, first, 2, &opts, "a", &cache);
+        std::fs::set_permissions(&stage, std::fs::Permissions::from_mode(0o755)).unwrap();
+        let (scan, st) = r.unwrap();
+        assert!(!scan.cloud.is_empty());
+        if !writable {
+            assert!(
+                matches!(&st, FragmentCacheStatus::NotStored(w) if w.contains("could not write")),
+                "{st:?}"
+            );
+            let (_, w) = pair_summary(&[Some(st)]);
+            assert_eq!(w.len(), 1);
+        }
     }
 
     #[test]

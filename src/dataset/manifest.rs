@@ -17,6 +17,8 @@
 //! sequence = "7scenes-redkitchen-rgbd"   # optional: the frames it was made from
 //! first = 0
 //! count = 50
+//! # kitti_fields = 3             # .bin only: 3 for x,y,z files, 4 for KITTI x,y,z,intensity
+//!                                # (default: CGENREG_KITTI_FIELDS, else the file size)
 //!
 //! [[fragments]]                  # ... or a fragment built from raw RGB-D frames
 //! id = "3"                       # (per-fragment voxel/max_depth/crop/color override)
@@ -44,6 +46,7 @@ use super::{Scan, ScanPair};
 use crate::error::{Error, Result};
 use crate::geometry::transform::isometry_from_matrix;
 use crate::io::gtlog::{read_gt_log, GtEntry};
+use crate::io::kitti::KittiFields;
 use crate::io::rgbd_sequence::RgbdSequence;
 use nalgebra::{Isometry3, Matrix4};
 use serde::Deserialize;
@@ -77,6 +80,7 @@ struct RawOptions {
 struct RawFragment {
     id: String,
     cloud: Option<String>,
+    kitti_fields: Option<u64>,
     sequence: Option<String>,
     first: Option<usize>,
     count: Option<usize>,
@@ -113,6 +117,8 @@ pub enum FragmentSource {
     Cloud {
         path: PathBuf,
         frames: Option<SequenceRange>,
+        /// Fields per point of a `.bin` file, when the manifest says (`kitti_fields`).
+        kitti_fields: Option<KittiFields>,
     },
     /// Built from raw RGB-D frames (see [`super::fragment`]).
     Rgbd {
@@ -150,8 +156,9 @@ pub struct Dataset {
     pub root: PathBuf,
     pub(crate) fragments: Vec<FragmentSpec>,
     pub(crate) pairs: Vec<PairSpec>,
-    /// Where fragments built from raw RGB-D frames are cached (None: rebuilt every time).
-    pub fragment_cache: Option<PathBuf>,
+    /// The stage cache that keeps fragments built from raw RGB-D frames (stage `fragments`;
+    /// None: rebuilt every time).
+    pub fragment_cache: Option<crate::pipeline::cache::Cache>,
 }
 
 fn bad(
@@ -402,10 +409,37 @@ impl Dataset {
                 }),
                 None => None,
             };
+            let kitti_fields = match f.kitti_fields {
+                None => None,
+                Some(n) => {
+                    let is_bin = f.cloud.as_deref().is_some_and(|c| {
+                        Path::new(c)
+                            .extension()
+                            .is_some_and(|e| e.eq_ignore_ascii_case("bin"))
+                    });
+                    if !is_bin {
+                        return Err(bad(
+                            path,
+                            format!("{field}.kitti_fields"),
+                            "kitti_fields only with a `cloud = \"....bin\"` file",
+                            format!("{:?}", f.cloud.as_deref().unwrap_or("no cloud")),
+                        ));
+                    }
+                    Some(KittiFields::from_count(n).ok_or_else(|| {
+                        bad(
+                            path,
+                            format!("{field}.kitti_fields"),
+                            "3 (x, y, z) or 4 (x, y, z, intensity)",
+                            n.to_string(),
+                        )
+                    })?)
+                }
+            };
             let source = match (&f.cloud, range) {
                 (Some(c), frames) => FragmentSource::Cloud {
                     path: resolve(&format!("{field}.cloud"), c, false)?,
                     frames,
+                    kitti_fields,
                 },
                 (None, Some(range)) => {
                     let o = RawOptions {
@@ -589,6 +623,7 @@ impl Dataset {
             source: FragmentSource::Cloud {
                 path: p.to_path_buf(),
                 frames: None,
+                kitti_fields: None,
             },
         };
         Ok(Dataset {
@@ -727,9 +762,9 @@ impl Dataset {
             .unwrap_or_else(|| self.root.display().to_string())
     }
 
-    /// Cache fragments built from raw frames under `dir` (see [`super::fragment_cache`]).
-    pub fn with_fragment_cache(mut self, dir: Option<PathBuf>) -> Self {
-        self.fragment_cache = dir;
+    /// Cache fragments built from raw frames in `cache` (see [`super::fragment_cache`]).
+    pub fn with_fragment_cache(mut self, cache: Option<crate::pipeline::cache::Cache>) -> Self {
+        self.fragment_cache = cache;
         self
     }
 
@@ -745,8 +780,15 @@ impl Dataset {
         })?;
         let name = format!("{}/{}", self.name, spec.id);
         match &spec.source {
-            FragmentSource::Cloud { path, frames } => {
-                let cloud = crate::io::cloud::load_cloud(path)?;
+            FragmentSource::Cloud {
+                path,
+                frames,
+                kitti_fields,
+            } => {
+                let cloud = match kitti_fields {
+                    Some(k) => crate::io::kitti::read_kitti_bin_fields(path, Some(*k))?,
+                    None => crate::io::cloud::load_cloud(path)?,
+                };
                 if cloud.is_empty() {
                     return Err(Error::Invalid(format!(
                         "{}: empty point cloud",
@@ -951,6 +993,38 @@ gt_matrix = [[1,0,0,0],[0,1,0,2],[0,0,1,0],[0,0,0,1]]
         let ds = Dataset::load(&m).unwrap();
         let e = ds.load_pair("t/0-9").unwrap_err().to_string();
         assert!(e.contains("ok.toml") && e.contains("t/0-9"), "{e}");
+    }
+
+    /// `kitti_fields = 3` reads an x,y,z `.bin` whose size also fits 16-byte points (48 bytes
+    /// per 4 or 3 points), which the size rule alone refuses; misuse is a clear error.
+    #[test]
+    fn kitti_fields_in_a_manifest() {
+        let d = tempfile::tempdir().unwrap();
+        let xyz: Vec<u8> = (0..36)
+            .flat_map(|i| ((i as f32 - 20.0) * 0.25).to_le_bytes())
+            .collect();
+        std::fs::write(d.path().join("s.bin"), &xyz).unwrap();
+        let frag = |extra: &str| {
+            format!("name = \"t\"\n[[fragments]]\nid = \"0\"\ncloud = \"s.bin\"\n{extra}")
+        };
+        let ds = Dataset::load(&write(d.path(), "m3.toml", &frag("kitti_fields = 3\n"))).unwrap();
+        let s = ds.load_fragment("0").unwrap();
+        assert_eq!(s.cloud.len(), 12);
+        assert!(s.cloud.intensity.is_none());
+        let ds = Dataset::load(&write(d.path(), "m.toml", &frag(""))).unwrap();
+        let e = ds.load_fragment("0").unwrap_err().to_string();
+        assert!(e.contains("s.bin") && e.contains("kitti_fields"), "{e}");
+        let e = err_of(d.path(), &frag("kitti_fields = 5\n"));
+        assert!(
+            e.contains("fragments[0]") && e.contains(".kitti_fields") && e.contains("3 (x, y, z)"),
+            "{e}"
+        );
+        std::fs::write(d.path().join("a.ply"), b"").unwrap();
+        let e = err_of(
+            d.path(),
+            "name = \"t\"\n[[fragments]]\nid = \"0\"\ncloud = \"a.ply\"\nkitti_fields = 3\n",
+        );
+        assert!(e.contains("kitti_fields only with"), "{e}");
     }
 
     #[test]

@@ -118,7 +118,11 @@ pub fn open_folder(dir: &Path) -> Result<Dataset> {
             .into_iter()
             .map(|(k, path)| FragmentSpec {
                 id: k.to_string(),
-                source: FragmentSource::Cloud { path, frames: None },
+                source: FragmentSource::Cloud {
+                    path,
+                    frames: None,
+                    kitti_fields: None,
+                },
             })
             .collect(),
         pairs,

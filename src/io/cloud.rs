@@ -1,7 +1,8 @@
 //! Load or save a point cloud by file extension, and the checks every cloud reader shares.
 //!
 //! Extensions (case-insensitive): `.ply`, `.pcd`, `.npy` (an (N,3) float array), `.pth`
-//! (legacy PyTorch pickle of an (N,3) NumPy array), `.bin` (KITTI x,y,z,intensity f32),
+//! (legacy PyTorch pickle of an (N,3) NumPy array), `.bin` (KITTI x,y,z,intensity f32, or
+//! x,y,z f32 when `CGENREG_KITTI_FIELDS=3` or the size allows nothing else; see [`super::kitti`]),
 //! `.xyz` / `.txt` / `.pts` (whitespace text, x y z per line). Coordinates are taken as stored
 //! (metres for all staged data); no frame change is applied.
 

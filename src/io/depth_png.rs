@@ -89,6 +89,11 @@ pub fn decode_image(
 
 /// Write a 16-bit depth PNG (millimetres, 0 = invalid).
 pub fn write_depth_png(path: &Path, depth: &DepthImage) -> Result<()> {
+    crate::error::write_atomic(path, &encode_depth_png(path, depth)?)
+}
+
+/// The bytes [`write_depth_png`] writes; `path` names the image in errors.
+pub fn encode_depth_png(path: &Path, depth: &DepthImage) -> Result<Vec<u8>> {
     let buf = image::ImageBuffer::<image::Luma<u16>, _>::from_raw(
         depth.width,
         depth.height,
@@ -102,7 +107,7 @@ pub fn write_depth_png(path: &Path, depth: &DepthImage) -> Result<()> {
             what: format!("png encoder for {}", path.display()),
             message: e.to_string(),
         })?;
-    crate::error::write_atomic(path, &out)
+    Ok(out)
 }
 
 #[cfg(test)]

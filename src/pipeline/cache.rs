@@ -27,7 +27,21 @@ use serde_json::Value;
 use std::path::{Path, PathBuf};
 
 pub const MANIFEST: &str = "manifest.json";
+/// The file that marks a directory as a cgenreg cache: commands that delete refuse a
+/// directory without it.
+pub const MARKER: &str = "cgenreg-cache.json";
 const FORMAT: u32 = 1;
+
+/// The default cache directory: `$CGENREG_CACHE`, else `~/.cache/cgenreg`.
+pub fn default_cache_dir() -> PathBuf {
+    if let Some(d) = std::env::var_os("CGENREG_CACHE").filter(|d| !d.is_empty()) {
+        return PathBuf::from(d);
+    }
+    match std::env::var_os("HOME").filter(|d| !d.is_empty()) {
+        Some(h) => PathBuf::from(h).join(".cache").join("cgenreg"),
+        None => PathBuf::from(".cgenreg-cache"),
+    }
+}
 
 /// Identifies one stage output: the stage, its version, the keys of its inputs and its
 /// parameters. `hash` is derived from all of them.
@@ -211,12 +225,91 @@ fn check_name(name: &str) -> Result<()> {
     }
 }
 
+/// Whether `name` is an entry folder's name: the 64 lowercase hex digits of a key hash.
+fn is_entry_name(name: &str) -> bool {
+    name.len() == 64
+        && name
+            .bytes()
+            .all(|b| b.is_ascii_digit() || (b'a'..=b'f').contains(&b))
+}
+
+/// Whether `name` can be a stage folder's name (as [`CacheKey::new`] allows).
+fn is_stage_name(name: &str) -> bool {
+    !name.is_empty()
+        && name
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-')
+}
+
+/// The marker file's content.
+#[derive(Serialize, Deserialize)]
+struct Marker {
+    tool: String,
+    format: u32,
+    created_unix: u64,
+}
+
 impl Cache {
-    /// Open (creating if needed) a cache rooted at `dir`.
+    /// Open (creating if needed) a cache rooted at `dir`. A new or empty directory gets the
+    /// marker file [`MARKER`]; an existing one without it is read and written as before, but
+    /// the cache commands that delete refuse it until `cgenreg cache init` marks it.
     pub fn open(dir: impl Into<PathBuf>) -> Result<Cache> {
         let root = dir.into();
         std::fs::create_dir_all(&root).map_err(|e| Error::io(&root, e))?;
-        Ok(Cache { root })
+        let c = Cache { root };
+        let empty = std::fs::read_dir(&c.root)
+            .map_err(|e| Error::io(&c.root, e))?
+            .next()
+            .is_none();
+        if empty {
+            c.init()?;
+        }
+        Ok(c)
+    }
+
+    /// A cache at `dir` as it is: nothing is created (the cache commands use this; a missing
+    /// directory lists as empty).
+    pub fn at(dir: impl Into<PathBuf>) -> Cache {
+        Cache { root: dir.into() }
+    }
+
+    /// Whether the directory carries the marker of a cgenreg cache.
+    pub fn is_marked(&self) -> bool {
+        self.root.join(MARKER).is_file()
+    }
+
+    /// Mark the directory as a cgenreg cache (created when missing); false when it was
+    /// marked already.
+    pub fn init(&self) -> Result<bool> {
+        if self.is_marked() {
+            return Ok(false);
+        }
+        std::fs::create_dir_all(&self.root).map_err(|e| Error::io(&self.root, e))?;
+        let m = Marker {
+            tool: "cgenreg".into(),
+            format: FORMAT,
+            created_unix: std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map(|d| d.as_secs())
+                .unwrap_or(0),
+        };
+        let b = serde_json::to_vec_pretty(&m)
+            .map_err(|e| Error::Invalid(format!("serialising the cache marker: {e}")))?;
+        crate::error::write_atomic(&self.root.join(MARKER), &b)?;
+        Ok(true)
+    }
+
+    /// [`Error::NotACache`] unless the directory carries the marker: checked before a
+    /// command deletes anything.
+    fn require_marker(&self) -> Result<()> {
+        if self.is_marked() {
+            Ok(())
+        } else {
+            Err(Error::NotACache {
+                dir: self.root.clone(),
+                marker: MARKER.into(),
+            })
+        }
     }
 
     pub fn root(&self) -> &Path {
@@ -320,27 +413,38 @@ impl Cache {
             .collect())
     }
 
-    /// Remove one entry (a no-op when absent). Returns whether something was removed.
+    /// Remove the entry of `key` (a no-op when absent): the pipeline's own removal of a
+    /// corrupt entry, at the exact path its key names. Returns whether something was removed.
     pub fn remove(&self, key: &CacheKey) -> Result<bool> {
-        self.remove_entry(&key.stage, &key.hash)
+        let dir = self.entry_dir(&key.stage, &key.hash);
+        if !is_stage_name(&key.stage) || !is_entry_name(&key.hash) || !dir.is_dir() {
+            return Ok(false);
+        }
+        self.discard(&dir)?;
+        Ok(true)
     }
 
     /// Remove the entry `<stage>/<hash>`; `hash` may be a unique prefix (as `list` prints it).
+    /// Only in a marked cache ([`Error::NotACache`] otherwise), and only entry folders.
     pub fn remove_entry(&self, stage: &str, hash: &str) -> Result<bool> {
+        self.require_marker()?;
         let stage_dir = self.root.join(stage);
-        if stage.is_empty() || stage.starts_with('.') || stage.contains('/') || !stage_dir.is_dir()
-        {
+        if !is_stage_name(stage) || !stage_dir.is_dir() {
             return Ok(false);
         }
         let matches: Vec<PathBuf> = std::fs::read_dir(&stage_dir)
             .map_err(|e| Error::io(&stage_dir, e))?
             .flatten()
-            .filter(|e| !hash.is_empty() && e.file_name().to_string_lossy().starts_with(hash))
+            .filter(|e| {
+                let n = e.file_name().to_string_lossy().into_owned();
+                !hash.is_empty() && is_entry_name(&n) && n.starts_with(hash) && e.path().is_dir()
+            })
             .map(|e| e.path())
             .collect();
         match matches.len() {
             0 => Ok(false),
             1 => {
+                owned_entry(&matches[0]).map_err(Error::Cache)?;
                 self.discard(&matches[0])?;
                 Ok(true)
             }
@@ -350,17 +454,33 @@ impl Cache {
         }
     }
 
-    /// Remove every entry of a stage. Returns how many were removed.
+    /// Remove every entry of every stage (only in a marked cache; only entry folders: any
+    /// other file or folder stays). Returns how many were removed.
+    pub fn remove_all(&self) -> Result<usize> {
+        self.require_marker()?;
+        let stages: std::collections::BTreeSet<String> =
+            self.entry_dirs()?.into_iter().map(|(s, _, _)| s).collect();
+        let mut n = 0;
+        for s in stages {
+            n += self.remove_stage(&s)?;
+        }
+        Ok(n)
+    }
+
+    /// Remove every entry of a stage (only in a marked cache; only entry folders). Returns
+    /// how many were removed.
     pub fn remove_stage(&self, stage: &str) -> Result<usize> {
+        self.require_marker()?;
         let mut n = 0;
         for (s, _, dir) in self.entry_dirs()? {
-            if s == stage {
+            if s == stage && owned_entry(&dir).is_ok() {
                 self.discard(&dir)?;
                 n += 1;
             }
         }
+        // The stage folder goes when it held entries and nothing else is left in it.
         let d = self.root.join(stage);
-        if d.is_dir() {
+        if n > 0 && d.is_dir() {
             let _ = std::fs::remove_dir(&d);
         }
         Ok(n)
@@ -377,19 +497,23 @@ impl Cache {
         Ok(())
     }
 
+    /// Every entry folder: `<stage>/<64 hex digits>`. Anything else (writers' private
+    /// dot-folders and trash, files, folders with other names) is never an entry.
     fn entry_dirs(&self) -> Result<Vec<(String, String, PathBuf)>> {
         let mut out = Vec::new();
+        if !self.root.exists() {
+            return Ok(out);
+        }
         let rd = std::fs::read_dir(&self.root).map_err(|e| Error::io(&self.root, e))?;
         for s in rd.flatten() {
             let stage = s.file_name().to_string_lossy().into_owned();
-            if stage.starts_with('.') || !s.path().is_dir() {
+            if !is_stage_name(&stage) || !s.path().is_dir() {
                 continue;
             }
             let sd = s.path();
             let rd2 = std::fs::read_dir(&sd).map_err(|e| Error::io(&sd, e))?;
             for h in rd2.flatten() {
-                // Dot-names are writers' private folders and trash, never entries.
-                if h.path().is_dir() && !h.file_name().to_string_lossy().starts_with('.') {
+                if h.path().is_dir() && is_entry_name(&h.file_name().to_string_lossy()) {
                     out.push((
                         stage.clone(),
                         h.file_name().to_string_lossy().into_owned(),
@@ -400,6 +524,45 @@ impl Cache {
         }
         out.sort();
         Ok(out)
+    }
+}
+
+/// Ok when `dir` is an entry this cache wrote: its `manifest.json` parses (as far as the
+/// stage and key) and names the folder it is in. The commands delete nothing else, so a
+/// user's folder that happens to have an entry's name survives; an entry whose manifest is
+/// gone or unreadable is reported and left for the user (or replaced by the pipeline when it
+/// writes that key again).
+pub fn owned_entry(dir: &Path) -> std::result::Result<(), String> {
+    #[derive(Deserialize)]
+    struct Names {
+        stage: String,
+        key: String,
+    }
+    let mp = dir.join(MANIFEST);
+    let n: Names = std::fs::read(&mp)
+        .ok()
+        .and_then(|b| serde_json::from_slice(&b).ok())
+        .ok_or_else(|| {
+            format!(
+                "{}: no readable {MANIFEST}, so not removed (delete it by hand if it is a \
+                 broken entry)",
+                dir.display()
+            )
+        })?;
+    let hash = dir.file_name().map(|h| h.to_string_lossy().into_owned());
+    let stage = dir
+        .parent()
+        .and_then(|p| p.file_name())
+        .map(|s| s.to_string_lossy().into_owned());
+    if hash.as_deref() == Some(n.key.as_str()) && stage.as_deref() == Some(n.stage.as_str()) {
+        Ok(())
+    } else {
+        Err(format!(
+            "{}: its {MANIFEST} names {}/{}, so not removed",
+            dir.display(),
+            n.stage,
+            n.key
+        ))
     }
 }
 
@@ -473,7 +636,7 @@ impl NewEntry {
         Ok(())
     }
 
-    pub fn add_json<T: Serialize>(&mut self, name: &str, value: &T) -> Result<()> {
+    pub fn add_json<T: Serialize + ?Sized>(&mut self, name: &str, value: &T) -> Result<()> {
         let b = serde_json::to_vec_pretty(value)
             .map_err(|e| Error::Invalid(format!("serialising {name}: {e}")))?;
         self.add_bytes(name, &b)
@@ -693,186 +856,5 @@ pub fn decode_npy_f32(b: &[u8], path: &Path) -> Result<(usize, usize, Vec<f32>)>
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-    use serde_json::json;
-
-    fn key(stage: &str, p: i64) -> CacheKey {
-        CacheKey::new(
-            stage,
-            1,
-            &["abc", "def"],
-            &json!({"k": p, "t": 0.1, "mode": "noisy_and"}),
-        )
-        .unwrap()
-    }
-
-    /// Writers' private folders and trash left in a stage folder.
-    fn dot_entries(stage_dir: &Path) -> usize {
-        std::fs::read_dir(stage_dir)
-            .unwrap()
-            .flatten()
-            .filter(|e| e.file_name().to_string_lossy().starts_with('.'))
-            .count()
-    }
-
-    fn put_sample(c: &Cache, k: &CacheKey) -> Entry {
-        let mut e = c.put(k, json!({"backend": "test", "seed": 1})).unwrap();
-        e.add_f32_matrix("m.npy", 2, 3, &[1.0, 2.0, 3.0, 4.0, 5.0, 6.5])
-            .unwrap();
-        e.add_json("info.json", &json!({"n": 2})).unwrap();
-        let img =
-            image::RgbImage::from_fn(5, 4, |x, y| image::Rgb([x as u8 * 40, y as u8 * 50, 7]));
-        e.add_png("frames/000.png", &img).unwrap();
-        e.commit().unwrap()
-    }
-
-    #[test]
-    fn key_is_canonical_and_sensitive() {
-        let a = CacheKey::new("s", 1, &["x"], &json!({"a": 1, "b": [1, 2]})).unwrap();
-        let b = CacheKey::new("s", 1, &["x"], &json!({"b": [1, 2], "a": 1})).unwrap();
-        assert_eq!(a.hash, b.hash);
-        assert_eq!(a.hash.len(), 64);
-        for other in [
-            CacheKey::new("s", 2, &["x"], &json!({"a": 1, "b": [1, 2]})).unwrap(),
-            CacheKey::new("t", 1, &["x"], &json!({"a": 1, "b": [1, 2]})).unwrap(),
-            CacheKey::new("s", 1, &["y"], &json!({"a": 1, "b": [1, 2]})).unwrap(),
-            CacheKey::new("s", 1, &["x"], &json!({"a": 1, "b": [2, 1]})).unwrap(),
-            CacheKey::new("s", 1, &["x"], &json!({"a": 1.0, "b": [1, 2]})).unwrap(),
-        ] {
-            assert_ne!(a.hash, other.hash);
-        }
-        assert!(CacheKey::new("../x", 1, &[], &json!({})).is_err());
-    }
-
-    #[test]
-    fn roundtrip_and_listing() {
-        let dir = tempfile::tempdir().unwrap();
-        let c = Cache::open(dir.path()).unwrap();
-        let k = key("vfm", 4);
-        assert!(c.get(&k).unwrap().is_none());
-        put_sample(&c, &k);
-        let e = c.get(&k).unwrap().unwrap();
-        assert_eq!(
-            e.read_f32_matrix("m.npy").unwrap(),
-            (2, 3, vec![1.0, 2.0, 3.0, 4.0, 5.0, 6.5])
-        );
-        assert_eq!(e.read_json::<Value>("info.json").unwrap(), json!({"n": 2}));
-        let img = e.read_png("frames/000.png").unwrap();
-        assert_eq!(img.get_pixel(3, 2).0, [120, 100, 7]);
-        assert_eq!(e.provenance()["backend"], "test");
-        assert_eq!(e.manifest.params["k"], 4);
-        assert!(e.read_bytes("nope").is_err());
-        let f = e.read_features("m.npy").unwrap();
-        assert_eq!((f.len(), f.dim), (2, 3));
-
-        put_sample(&c, &key("vfm", 5));
-        put_sample(&c, &key("lift", 1));
-        let l = c.list().unwrap();
-        assert_eq!(l.len(), 3);
-        assert!(l.iter().all(|s| s.problem.is_none() && s.total_bytes > 0));
-        assert!(c.verify_all().unwrap().iter().all(|r| r.result.is_ok()));
-        assert!(c.remove(&k).unwrap());
-        assert!(!c.remove(&k).unwrap());
-        assert!(c.get(&k).unwrap().is_none());
-        assert_eq!(c.remove_stage("vfm").unwrap(), 1);
-        let l = c.list().unwrap();
-        assert_eq!(l.len(), 1);
-        assert!(c.remove_entry("lift", &l[0].hash[..10]).unwrap());
-        assert!(c.list().unwrap().is_empty());
-    }
-
-    #[test]
-    fn corrupted_payload_is_detected() {
-        let dir = tempfile::tempdir().unwrap();
-        let c = Cache::open(dir.path()).unwrap();
-        let k = key("vfm", 4);
-        let e = put_sample(&c, &k);
-        let p = e.path("m.npy");
-        let mut b = std::fs::read(&p).unwrap();
-        let last = b.len() - 1;
-        b[last] ^= 0x01;
-        std::fs::write(&p, &b).unwrap();
-        let err = c.get(&k).unwrap_err().to_string();
-        assert!(err.contains("corrupt") && err.contains("m.npy"), "{err}");
-        let bad: Vec<_> = c
-            .verify_all()
-            .unwrap()
-            .into_iter()
-            .filter(|r| r.result.is_err())
-            .collect();
-        assert_eq!(bad.len(), 1);
-        // truncated file: size mismatch
-        std::fs::write(&p, &b[..10]).unwrap();
-        assert!(c.get(&k).unwrap_err().to_string().contains("bytes"));
-        // a fresh put replaces the corrupt entry
-        put_sample(&c, &k);
-        assert!(c.get(&k).unwrap().is_some());
-    }
-
-    #[test]
-    fn partial_entries_are_detected() {
-        let dir = tempfile::tempdir().unwrap();
-        let c = Cache::open(dir.path()).unwrap();
-        let k = key("wfm", 1);
-        let e = put_sample(&c, &k);
-        std::fs::remove_file(e.path("frames/000.png")).unwrap();
-        let err = c.get(&k).unwrap_err().to_string();
-        assert!(
-            err.contains("partial") && err.contains("frames/000.png"),
-            "{err}"
-        );
-
-        let k2 = key("wfm", 2);
-        let e2 = put_sample(&c, &k2);
-        std::fs::remove_file(e2.path(MANIFEST)).unwrap();
-        assert!(c.get(&k2).unwrap_err().to_string().contains("partial"));
-        let l = c.list().unwrap();
-        assert_eq!(l.iter().filter(|s| s.problem.is_some()).count(), 1);
-
-        let k3 = key("wfm", 3);
-        let e3 = put_sample(&c, &k3);
-        std::fs::write(e3.path(MANIFEST), b"{\"format\": 1, \"stage\"").unwrap();
-        assert!(c.get(&k3).unwrap_err().to_string().contains("corrupt"));
-
-        // an uncommitted writer leaves nothing visible
-        let k4 = key("wfm", 4);
-        {
-            let mut w = c.put(&k4, json!({})).unwrap();
-            w.add_bytes("a.bin", b"abc").unwrap();
-        }
-        assert!(c.get(&k4).unwrap().is_none());
-        assert_eq!(dot_entries(&dir.path().join("wfm")), 0);
-    }
-
-    #[test]
-    fn concurrent_put_of_the_same_key_is_safe() {
-        let dir = tempfile::tempdir().unwrap();
-        let c = Cache::open(dir.path()).unwrap();
-        let k = key("vfm", 9);
-        std::thread::scope(|s| {
-            for _ in 0..8 {
-                s.spawn(|| {
-                    for _ in 0..5 {
-                        let e = put_sample(&c, &k);
-                        assert_eq!(e.manifest.key, k.hash);
-                        assert!(c.get(&k).unwrap().is_some());
-                    }
-                });
-            }
-        });
-        assert_eq!(c.list().unwrap().len(), 1);
-        assert!(c.verify_all().unwrap().iter().all(|r| r.result.is_ok()));
-        assert_eq!(dot_entries(&dir.path().join("vfm")), 0);
-    }
-
-    #[test]
-    fn npy_is_numpy_compatible_header() {
-        let b = encode_npy_f32(3, 2, &[0.0; 6]).unwrap();
-        let hlen = u16::from_le_bytes([b[8], b[9]]) as usize;
-        assert_eq!((10 + hlen) % 64, 0);
-        assert_eq!(b[10 + hlen - 1], b'\n');
-        assert!(decode_npy_f32(&b[..b.len() - 1], Path::new("x")).is_err());
-        assert!(encode_npy_f32(3, 2, &[0.0; 5]).is_err());
-    }
-}
+#[path = "cache_tests.rs"]
+mod tests;

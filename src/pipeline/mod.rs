@@ -1,15 +1,23 @@
 //! The stage graph: each stage is a pure function of its inputs and parameters; results are
 //! keyed by content so the GUI and `bench` re-run only what changed.
+//!
+//! Modules, leaves first: `params` (the parameter types), `result` (what a registration
+//! returns, the stage timer), `cache` (the content-addressed store), `geo` (the geometric
+//! branch), `fuse` (the in-memory tail: similarity to evaluation), `stages` (one file per
+//! cached stage), `image_branch` (wires the stages), `register` (entry points), then `study`
+//! and `shard` (many pairs).
 
 pub mod cache;
+pub mod fuse;
+pub mod geo;
 pub mod image_branch;
 pub mod params;
 pub mod register;
+pub mod result;
 pub mod shard;
+pub mod stages;
 pub mod study;
 
 pub use params::{ImageBranchParams, RegisterParams, VfmSpec, WfmSpec};
-pub use register::{
-    register_pair, register_pair_cached, ImageBranchOutput, RegistrationResult, StageTiming,
-    ViewInfo,
-};
+pub use register::{register_pair, register_pair_cached};
+pub use result::{ImageBranchOutput, RegistrationResult, StageTiming, ViewInfo};

@@ -120,10 +120,10 @@ impl clap::ValueEnum for WfmSpec {
     }
 }
 
-/// `--vfm xfeat|mast3r`; the model file comes from `--vfm-model`.
+/// `--vfm xfeat|disk|alike|mast3r`; the model file comes from `--vfm-model`.
 impl clap::ValueEnum for VfmSpec {
     fn value_variants<'a>() -> &'a [Self] {
-        static V: std::sync::LazyLock<[VfmSpec; 2]> = std::sync::LazyLock::new(VfmSpec::all);
+        static V: std::sync::LazyLock<[VfmSpec; 4]> = std::sync::LazyLock::new(VfmSpec::all);
         &*V
     }
 
@@ -138,6 +138,12 @@ impl clap::ValueEnum for VfmSpec {
 pub enum VfmSpec {
     /// XFeat through ONNX (default `models/xfeat.onnx`): one descriptor grid per view.
     Xfeat { model: PathBuf },
+    /// DISK through ONNX (default `models/disk.onnx`): dense 128-D descriptors at every pixel,
+    /// sampled at the lifted pixels.
+    Disk { model: PathBuf },
+    /// ALIKE through ONNX (default `models/alike-t.onnx`, 64-D; `models/alike-n.onnx` is 128-D):
+    /// dense descriptors at every pixel, sampled at the lifted pixels.
+    Alike { model: PathBuf },
     /// A MASt3R ONNX export (reference §13 signature): descriptors of every ordered
     /// (source view, target view) pair, compared pair-conditioned (reference §8.1).
     Mast3r { model: PathBuf },
@@ -146,22 +152,34 @@ pub enum VfmSpec {
 impl VfmSpec {
     pub fn model(&self) -> &std::path::Path {
         match self {
-            VfmSpec::Xfeat { model } | VfmSpec::Mast3r { model } => model,
+            VfmSpec::Xfeat { model }
+            | VfmSpec::Disk { model }
+            | VfmSpec::Alike { model }
+            | VfmSpec::Mast3r { model } => model,
         }
     }
 
     /// The model file, for the field that edits it.
     pub fn model_mut(&mut self) -> &mut PathBuf {
         match self {
-            VfmSpec::Xfeat { model } | VfmSpec::Mast3r { model } => model,
+            VfmSpec::Xfeat { model }
+            | VfmSpec::Disk { model }
+            | VfmSpec::Alike { model }
+            | VfmSpec::Mast3r { model } => model,
         }
     }
 
     /// Every VFM with its default model file (MASt3R has none: no weights ship with cgenreg,
     /// so its path is empty until the user gives an export).
-    pub fn all() -> [VfmSpec; 2] {
+    pub fn all() -> [VfmSpec; 4] {
         [
             VfmSpec::default(),
+            VfmSpec::Disk {
+                model: crate::vfm::default_model_path("disk.onnx"),
+            },
+            VfmSpec::Alike {
+                model: crate::vfm::default_model_path("alike-t.onnx"),
+            },
             VfmSpec::Mast3r {
                 model: PathBuf::new(),
             },
@@ -172,6 +190,8 @@ impl VfmSpec {
     pub fn label(&self) -> &'static str {
         match self {
             VfmSpec::Xfeat { .. } => "xfeat",
+            VfmSpec::Disk { .. } => "disk (dense per pixel)",
+            VfmSpec::Alike { .. } => "alike (dense per pixel)",
             VfmSpec::Mast3r { .. } => "mast3r (your ONNX export)",
         }
     }
@@ -183,6 +203,8 @@ impl VfmSpec {
     pub fn name(&self) -> &'static str {
         match self {
             VfmSpec::Xfeat { .. } => "xfeat",
+            VfmSpec::Disk { .. } => "disk",
+            VfmSpec::Alike { .. } => "alike",
             VfmSpec::Mast3r { .. } => "mast3r",
         }
     }

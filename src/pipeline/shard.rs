@@ -599,7 +599,7 @@ pub fn stage_totals<'a>(
     let mut out: Vec<(String, f64, usize, usize)> = Vec::new();
     for r in records {
         for s in &r.stages {
-            let cached = super::image_branch::is_cached(&s.status);
+            let cached = super::result::is_cached(&s.status);
             match out.iter_mut().find(|x| x.0 == s.stage) {
                 Some(x) => {
                     x.1 += s.ms;

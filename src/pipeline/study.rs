@@ -15,7 +15,7 @@
 //! unsuccessful, as in `bench`); skipped pairs enter no aggregate.
 
 use super::cache::Cache;
-use super::image_branch::{register_with_image_keep, GENERATION_NOT_CACHED};
+use super::image_branch::register_with_image_keep;
 use super::params::{ImageBranchParams, RegisterParams};
 use crate::dataset::manifest::Dataset;
 use crate::dataset::ScanPair;
@@ -489,11 +489,7 @@ fn run_one(
         super::shard::catch_pair(|| register_with_image_keep(pair, params, ib, cache, generate));
     let r = match r {
         Ok((r, _)) => r,
-        Err(e) if e.to_string().contains(GENERATION_NOT_CACHED) => {
-            let e = e.to_string();
-            let at = e.find(GENERATION_NOT_CACHED).unwrap_or(0);
-            return skipped(e[at..].to_string());
-        }
+        Err(e @ Error::GenerationNotCached { .. }) => return skipped(e.to_string()),
         Err(e) => return failed(e.to_string()),
     };
     let Some(img) = r.image.as_ref() else {

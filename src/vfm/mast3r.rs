@@ -2,7 +2,9 @@
 //!
 //! ONNX contract (written by `models/export_mast3r.py`): inputs `img1`, `img2` float32
 //! [B, 3, 384, 512] in [-1, 1]; outputs `desc_1`, `desc_2` float32 [B, 384, 512, 24] (unit-norm
-//! per pixel); other outputs (pts3d, conf) are ignored.
+//! per pixel); other outputs (pts3d, conf) are ignored. The weights sit in an external-data
+//! file beside the graph (`X.onnx.data`); both belong to the model id. Verified against the real
+//! MASt3R code (random small weights) in tests/mast3r_export.rs.
 //!
 //! Preprocessing per image (reference collate): resize so the long side is 512 (PIL LANCZOS when
 //! shrinking, BICUBIC when enlarging; size rounded half-to-even as Python's `round`), so a
@@ -101,8 +103,10 @@ pub struct Mast3r {
 
 impl Mast3r {
     pub fn load(path: &Path) -> Result<Mast3r> {
-        let model = OnnxModel::load(path, &INPUTS, &OUTPUTS, EXPECTED)?;
+        // The id first: it reads the external-data file (all the weights) and names it when it
+        // is missing, which the runtimes report less plainly.
         let id = format!("mast3r@{}", file_id(path)?);
+        let model = OnnxModel::load(path, &INPUTS, &OUTPUTS, EXPECTED)?;
         Ok(Mast3r {
             model,
             id,

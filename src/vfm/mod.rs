@@ -2,7 +2,9 @@
 //! image pixels to the 3-D points of the geometric branch.
 //!
 //! Two kinds of model:
-//! - [`PerImageModel`]: one image in, one descriptor grid out (XFeat, the default).
+//! - [`PerImageModel`]: one image in, one descriptor grid out (XFeat, the default, on an H/8
+//!   grid; DISK and ALIKE, [`dense`], at every pixel, sampled at given pixels by
+//!   [`PerImageModel::describe_at`] so that no full-resolution map outlives its image).
 //! - [`PairModel`]: two images in, one descriptor grid per image, each conditioned on the other
 //!   (MASt3R as in the reference, §6). [`describe_all_pairs`] runs all K² ordered pairs,
 //!   src-major: pair `k = s·K + t` is (src view s, tgt view t).
@@ -16,6 +18,8 @@
 //! ONNX models run through `ort` (cargo feature `onnx`): the native ONNX Runtime library when
 //! one is found at run time, the pure-Rust tract backend otherwise; [`backend_name`] says which.
 
+#[cfg(feature = "onnx")]
+pub mod dense;
 pub mod lift;
 #[cfg(feature = "onnx")]
 pub mod mast3r;
@@ -124,7 +128,7 @@ impl DenseDescriptors {
 /// Source cells and weight along one axis, torch `area_pixel_compute_source_index` semantics:
 /// src = max(0, (dst + 0.5) / stride - 0.5), i1 = min(i0 + 1, n - 1).
 #[inline]
-fn axis(p: f32, stride: f32, n: u32) -> (u32, u32, f32) {
+pub(crate) fn axis(p: f32, stride: f32, n: u32) -> (u32, u32, f32) {
     let s = ((p + 0.5) / stride - 0.5).max(0.0);
     let i0 = (s.floor() as u32).min(n.saturating_sub(1));
     let i1 = (i0 + 1).min(n.saturating_sub(1));
@@ -137,6 +141,43 @@ pub trait PerImageModel: Send + Sync {
     /// Names the model and its weights (e.g. `xfeat@sha256:…`), for cache keys and provenance.
     fn id(&self) -> String;
     fn describe(&self, img: &RgbImage) -> Result<DenseDescriptors>;
+    /// Unit descriptors at image pixels `(u, v)` (column, row), row-major `pixels.len() × dim`,
+    /// sampled as [`DenseDescriptors::sample`] then L2-normalised; a descriptor of norm < 1e-12
+    /// stays zero. Dense per-pixel models override this to sample their full-resolution map and
+    /// drop it, instead of returning it.
+    fn describe_at(&self, img: &RgbImage, pixels: &[(f32, f32)]) -> Result<PointDescriptors> {
+        let g = self.describe(img)?;
+        let mut data = vec![0.0f32; pixels.len() * g.dim];
+        for (row, &(u, v)) in data.chunks_mut(g.dim.max(1)).zip(pixels) {
+            g.sample_into(u, v, row);
+            normalize(row);
+        }
+        Ok(PointDescriptors { dim: g.dim, data })
+    }
+}
+
+/// Descriptors of a list of pixels: row i is `data[i * dim..][..dim]`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PointDescriptors {
+    pub dim: usize,
+    pub data: Vec<f32>,
+}
+
+impl PointDescriptors {
+    pub fn row(&self, i: usize) -> &[f32] {
+        &self.data[i * self.dim..(i + 1) * self.dim]
+    }
+}
+
+/// Scale to unit L2 norm in place (left as is below 1e-12); true when scaled.
+pub fn normalize(v: &mut [f32]) -> bool {
+    let n = v.iter().map(|x| x * x).sum::<f32>().sqrt();
+    if n > 1e-12 {
+        v.iter_mut().for_each(|x| *x /= n);
+        true
+    } else {
+        false
+    }
 }
 
 /// A model that describes two images jointly (each output conditioned on both inputs).
@@ -202,7 +243,14 @@ pub fn backend_name() -> String {
 
 /// Default location of the bundled XFeat model (`<crate>/models/xfeat.onnx`).
 pub fn default_xfeat_path() -> std::path::PathBuf {
-    std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("models/xfeat.onnx")
+    default_model_path("xfeat.onnx")
+}
+
+/// A bundled model file: `<crate>/models/<name>`.
+pub fn default_model_path(name: &str) -> std::path::PathBuf {
+    std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("models")
+        .join(name)
 }
 
 #[cfg(test)]

@@ -336,6 +336,41 @@ impl OnnxModel {
         })
     }
 
+    /// Run on f32 inputs and hand one named f32 output, as (shape, data) borrowed from the
+    /// runtime, to `f`: no copy of the output is made, and it is freed when `f` returns (the
+    /// dense models read a few pixels of a full-resolution map this way).
+    pub fn run_with<R>(
+        &self,
+        inputs: Vec<(&str, Vec<i64>, Vec<f32>)>,
+        output: &str,
+        f: impl FnOnce(&[i64], &[f32]) -> Result<R>,
+    ) -> Result<R> {
+        let err = |e: ort::Error| Error::External {
+            what: format!("{} ({})", self.path.display(), backend_name()),
+            message: e.to_string(),
+        };
+        let mut values: Vec<(
+            std::borrow::Cow<'_, str>,
+            ort::session::SessionInputValue<'_>,
+        )> = Vec::new();
+        for (name, shape, data) in inputs {
+            let t = ort::value::Tensor::from_array((shape, data)).map_err(err)?;
+            values.push((name.to_string().into(), t.into()));
+        }
+        let mut session = self
+            .session
+            .lock()
+            .map_err(|_| Error::Invalid("ONNX session poisoned by an earlier panic".into()))?;
+        let out = session.run(values).map_err(err)?;
+        let v = out.get(output).ok_or_else(|| Error::External {
+            what: self.path.display().to_string(),
+            message: format!("no output named {output}"),
+        })?;
+        let (shape, data) = v.try_extract_tensor::<f32>().map_err(err)?;
+        let shape: Vec<i64> = shape.iter().copied().collect();
+        f(&shape, data)
+    }
+
     /// Run on f32 inputs given as (name, shape, data); returns the named f32 outputs as
     /// (shape, data) in the order of `outputs`.
     pub fn run(
@@ -373,8 +408,135 @@ impl OnnxModel {
     }
 }
 
-/// sha256-free short content id of a model file (blake3, first 16 hex digits), for cache keys.
+/// Short content id of a model (blake3, first 16 hex digits), for cache keys: the `.onnx` file
+/// and, in order, every external-data file it names (`mast3r_512.onnx.data` for an export made
+/// by models/export_mast3r.py, where all the weights live). A model without external data keeps
+/// the id of its bytes alone.
 pub fn file_id(path: &Path) -> Result<String> {
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-    Ok(blake3::hash(&bytes).to_hex()[..16].to_string())
+    let locations = external_data_locations(&bytes);
+    if locations.is_empty() {
+        return Ok(blake3::hash(&bytes).to_hex()[..16].to_string());
+    }
+    let dir = path.parent().unwrap_or(Path::new("."));
+    let mut h = blake3::Hasher::new();
+    h.update(&bytes);
+    for loc in locations {
+        let rel = Path::new(&loc);
+        if rel.is_absolute()
+            || rel
+                .components()
+                .any(|c| c == std::path::Component::ParentDir)
+        {
+            return Err(Error::format(
+                path,
+                "external_data location",
+                "a file name beside the model",
+                loc,
+            ));
+        }
+        let p = dir.join(rel);
+        let f = std::fs::File::open(&p).map_err(|e| {
+            Error::format(
+                path,
+                "external_data location",
+                format!("{} (the model's weights) beside the model", p.display()),
+                format!("no readable file: {e}"),
+            )
+        })?;
+        h.update(loc.as_bytes());
+        h.update_reader(f).map_err(|e| Error::io(&p, e))?;
+    }
+    Ok(h.finalize().to_hex()[..16].to_string())
+}
+
+/// The distinct external-data file names an ONNX model refers to, in order of first use. Each
+/// one is a `StringStringEntryProto { key: "location", value }` of a tensor's `external_data`:
+/// the bytes `0a 08 "location" 12 <varint length> <value>`.
+pub fn external_data_locations(onnx: &[u8]) -> Vec<String> {
+    const KEY: &[u8] = b"\x0a\x08location\x12";
+    let mut out: Vec<String> = Vec::new();
+    let mut i = 0;
+    while let Some(at) = onnx[i..].windows(KEY.len()).position(|w| w == KEY) {
+        let mut j = i + at + KEY.len();
+        i = j;
+        let (mut len, mut shift) = (0usize, 0u32);
+        while let Some(&b) = onnx.get(j) {
+            j += 1;
+            len |= ((b & 0x7f) as usize) << shift;
+            shift += 7;
+            if b & 0x80 == 0 || shift > 28 {
+                break;
+            }
+        }
+        let Some(name) = onnx.get(j..j.saturating_add(len)) else {
+            continue;
+        };
+        if let Ok(name) = std::str::from_utf8(name) {
+            if !name.is_empty() && !out.iter().any(|n| n == name) {
+                out.push(name.to_string());
+            }
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// An ONNX-like byte string with two tensors stored in `w.data` and one in `v.data`.
+    fn with_locations() -> Vec<u8> {
+        let entry = |name: &str| {
+            let mut e = b"\x0a\x08location\x12".to_vec();
+            e.push(name.len() as u8);
+            e.extend_from_slice(name.as_bytes());
+            e.extend_from_slice(b"\x0a\x06offset\x12\x010");
+            e
+        };
+        let mut b = b"\x08\x08\x12\x0bpytorch".to_vec();
+        for n in ["w.data", "w.data", "v.data"] {
+            b.extend(entry(n));
+        }
+        b
+    }
+
+    #[test]
+    fn external_data_locations_are_found_once_each() {
+        assert_eq!(
+            external_data_locations(&with_locations()),
+            vec!["w.data".to_string(), "v.data".to_string()]
+        );
+        assert!(external_data_locations(b"\x08\x08 no external data").is_empty());
+        // A truncated entry at the end is ignored, not a panic.
+        let mut cut = with_locations();
+        cut.extend_from_slice(b"\x0a\x08location\x12\x7f");
+        assert_eq!(external_data_locations(&cut).len(), 2);
+    }
+
+    #[test]
+    fn file_id_covers_the_external_data_and_names_a_missing_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let model = dir.path().join("m.onnx");
+        std::fs::write(&model, with_locations()).unwrap();
+        let e = file_id(&model).unwrap_err().to_string();
+        assert!(e.contains("m.onnx") && e.contains("w.data"), "{e}");
+        std::fs::write(dir.path().join("w.data"), [1u8; 64]).unwrap();
+        std::fs::write(dir.path().join("v.data"), [2u8; 64]).unwrap();
+        let a = file_id(&model).unwrap();
+        std::fs::write(dir.path().join("v.data"), [3u8; 64]).unwrap();
+        let b = file_id(&model).unwrap();
+        assert_ne!(a, b, "changed weights must change the model id");
+        // Without external data the id is that of the bytes alone (existing cache keys hold).
+        let plain = dir.path().join("p.onnx");
+        std::fs::write(&plain, b"plain model bytes").unwrap();
+        assert_eq!(
+            file_id(&plain).unwrap(),
+            blake3::hash(b"plain model bytes").to_hex()[..16].to_string()
+        );
+        let mut bad = b"\x0a\x08location\x12\x09../x.data".to_vec();
+        bad.insert(0, 8);
+        std::fs::write(&model, bad).unwrap();
+        assert!(file_id(&model).is_err());
+    }
 }

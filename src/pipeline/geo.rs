@@ -1,0 +1,99 @@
+//! The geometric branch of one scan: keypoints and features (FPFH computed here, or learned
+//! features read from files). The cached FPFH stage is `stages::geo`.
+
+use super::params::{GeoFeatureSource, RegisterParams};
+use super::result::Timer;
+use crate::dataset::ScanPair;
+use crate::error::{Error, Result};
+use crate::features::fpfh::{compute_fpfh, FpfhParams};
+use crate::features::Features;
+use crate::geometry::knn::KdIndex;
+use crate::geometry::normals::{estimate_normals, orient_towards_viewpoint};
+use crate::geometry::voxel::voxel_downsample;
+use crate::geometry::PointCloud;
+use nalgebra::Point3;
+
+/// Keypoints and their geometric features for one scan.
+#[derive(Clone, Debug)]
+pub struct GeoBranch {
+    pub keypoints: PointCloud,
+    pub features: Features,
+    pub label: String,
+}
+
+/// FPFH on the voxel-downsampled cloud: normals from local PCA (radius 2v, 30 neighbours)
+/// oriented towards the scan origin (the first camera of a fragment), features radius 5v.
+pub fn fpfh_branch(cloud: &PointCloud, voxel: f64) -> Result<GeoBranch> {
+    if cloud.is_empty() {
+        return Err(Error::Invalid(
+            "cannot compute FPFH of an empty cloud".into(),
+        ));
+    }
+    let mut kp = voxel_downsample(cloud, voxel);
+    let index = KdIndex::new(&kp.points);
+    let params = FpfhParams::for_voxel(voxel);
+    let mut normals = estimate_normals(
+        &kp.points,
+        &index,
+        params.normal_radius,
+        params.normal_max_nn,
+    );
+    orient_towards_viewpoint(&kp.points, &mut normals, Point3::origin());
+    let features = compute_fpfh(&kp.points, &normals, &index, &params);
+    kp.normals = Some(normals);
+    Ok(GeoBranch {
+        keypoints: kp,
+        features,
+        label: format!("fpfh(v={voxel:.3})"),
+    })
+}
+
+pub(crate) fn geo_branches(
+    pair: &ScanPair,
+    params: &RegisterParams,
+    timer: &mut Timer,
+) -> Result<(GeoBranch, GeoBranch)> {
+    match &params.geo_features {
+        GeoFeatureSource::Fpfh => {
+            let s = timer.stage("fpfh source", || {
+                fpfh_branch(&pair.source.cloud, params.voxel)
+            })?;
+            let t = timer.stage("fpfh target", || {
+                fpfh_branch(&pair.target.cloud, params.voxel)
+            })?;
+            Ok((s, t))
+        }
+        GeoFeatureSource::Files { source, target } => timer.stage("load learned features", || {
+            let s = crate::features::learned::load_learned_features(source)?;
+            let t = crate::features::learned::load_learned_features(target)?;
+            Ok((
+                GeoBranch {
+                    keypoints: s.points,
+                    features: s.feats,
+                    label: s.source,
+                },
+                GeoBranch {
+                    keypoints: t.points,
+                    features: t.feats,
+                    label: t.source,
+                },
+            ))
+        }),
+        GeoFeatureSource::GeoTransformerPkl { path } => timer.stage("load geotransformer", || {
+            let (r, s) = crate::features::learned::load_geotransformer_pkl(path)?;
+            // Reference §5 (3DMatch): GeoTransformer's ref is C-GenReg's source.
+            Ok((
+                GeoBranch {
+                    keypoints: r.points,
+                    features: r.feats,
+                    label: r.source,
+                },
+                GeoBranch {
+                    keypoints: s.points,
+                    features: s.feats,
+                    label: s.source,
+                },
+            ))
+        }),
+    }
+}

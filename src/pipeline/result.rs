@@ -1,0 +1,139 @@
+//! What a registration produces (result, views, stage timings) and the timer that records
+//! the stages. A leaf module: the stages and the registration entry points all use it.
+
+use crate::error::Result;
+use crate::fusion::Correspondence;
+use crate::metrics::PairMetrics;
+use nalgebra::{Isometry3, Point3};
+use serde::Serialize;
+use std::time::Instant;
+
+#[derive(Clone, Debug, Serialize)]
+pub struct StageTiming {
+    pub stage: String,
+    pub ms: f64,
+    /// "computed" or "cached".
+    pub status: String,
+}
+
+/// One selected view of the image branch, as shown in the GUI.
+#[derive(Clone, Debug)]
+pub struct ViewInfo {
+    /// The (generated, oracle or built-in) RGB frame the VFM saw.
+    pub image: image::RgbImage,
+    /// Index into the generated video, and into the scan's depth frames.
+    pub generated_index: usize,
+    pub depth_index: usize,
+    /// Backend, prompt and cache entry, e.g. "oracle (real RGB) | cache 3f2a..".
+    pub label: String,
+    /// The sensor (or virtual) depth frame the view was generated from.
+    pub depth_path: Option<std::path::PathBuf>,
+    /// Its camera pose in the scan: p_scan = scan_from_camera * p_camera.
+    pub scan_from_camera: Option<Isometry3<f64>>,
+    /// Its camera model (depth in this model's convention: z or range).
+    pub camera: crate::camera::CameraModel,
+}
+
+/// What the image branch produced for one pair (None in `RegistrationResult` when it was off).
+#[derive(Clone, Debug)]
+pub struct ImageBranchOutput {
+    pub source_views: Vec<ViewInfo>,
+    pub target_views: Vec<ViewInfo>,
+    /// Pixel of each source / target keypoint in its view (None: no pixel within the radius).
+    pub source_links: Vec<Option<crate::vfm::lift::PixelLink>>,
+    pub target_links: Vec<Option<crate::vfm::lift::PixelLink>>,
+    pub provenance: crate::wfm::backend::Provenance,
+    /// The VFM that described the views, e.g. "xfeat (onnx, native ORT 1.31)".
+    pub vfm: String,
+}
+
+/// Everything a registration produced, for the CLI, JSON output and the GUI.
+#[derive(Clone, Debug, Serialize)]
+pub struct RegistrationResult {
+    pub pair_id: String,
+    pub source_name: String,
+    pub target_name: String,
+    /// Estimated p_target = T * p_source, as a row-major 4x4.
+    pub target_from_source: [[f64; 4]; 4],
+    #[serde(skip)]
+    pub estimate: Isometry3<f64>,
+    pub gt_target_from_source: Option<[[f64; 4]; 4]>,
+    pub metrics: Option<PairMetrics>,
+    pub estimator: String,
+    pub warnings: Vec<String>,
+    /// Label of the geometric features actually used (e.g. "fpfh(v=0.050)").
+    pub geo_features: String,
+    /// Label of the image branch, None when it was off.
+    pub image_branch: Option<String>,
+    pub n_source_keypoints: usize,
+    pub n_target_keypoints: usize,
+    pub n_correspondences: usize,
+    pub n_inliers: usize,
+    pub timings: Vec<StageTiming>,
+    pub total_ms: f64,
+    #[serde(skip)]
+    pub source_keypoints: Vec<Point3<f32>>,
+    #[serde(skip)]
+    pub target_keypoints: Vec<Point3<f32>>,
+    #[serde(skip)]
+    pub correspondences: Vec<Correspondence>,
+    #[serde(skip)]
+    pub inliers: Vec<usize>,
+    #[serde(skip)]
+    pub image: Option<ImageBranchOutput>,
+}
+
+pub fn matrix_rows(t: &Isometry3<f64>) -> [[f64; 4]; 4] {
+    let m = t.to_homogeneous();
+    let mut out = [[0.0; 4]; 4];
+    for (r, row) in out.iter_mut().enumerate() {
+        for (c, v) in row.iter_mut().enumerate() {
+            *v = m[(r, c)];
+        }
+    }
+    out
+}
+
+pub(crate) struct Timer {
+    pub(crate) timings: Vec<StageTiming>,
+    pub(crate) t0: Instant,
+}
+
+impl Timer {
+    pub(crate) fn new() -> Self {
+        Timer {
+            timings: Vec::new(),
+            t0: Instant::now(),
+        }
+    }
+    /// Record a stage that ran (or was read from the cache) outside `stage`.
+    pub(crate) fn record(&mut self, name: &str, elapsed: std::time::Duration, cached: bool) {
+        self.timings.push(StageTiming {
+            stage: name.to_string(),
+            ms: elapsed.as_secs_f64() * 1e3,
+            status: status_word(cached).into(),
+        });
+    }
+    /// Run `f` as the in-memory stage `name` and record its time.
+    pub(crate) fn stage<T>(&mut self, name: &str, f: impl FnOnce() -> Result<T>) -> Result<T> {
+        let t = Instant::now();
+        let out = f()?;
+        self.record(name, t.elapsed(), false);
+        Ok(out)
+    }
+}
+
+/// The status word of a stage timing: "cached" (read from the cache or kept in memory) or
+/// "computed".
+pub fn status_word(hit: bool) -> &'static str {
+    if hit {
+        "cached"
+    } else {
+        "computed"
+    }
+}
+
+/// Whether a [`StageTiming::status`] says the stage was served from the cache.
+pub fn is_cached(status: &str) -> bool {
+    status == status_word(true)
+}

@@ -1,0 +1,179 @@
+//! Stage `depth-video`: the pair's depth video (reference §1: the first L depth frames of
+//! the source, then of the target, clipped and colour-mapped). Key: the content hashes of
+//! those 2L depth files; parameters: L, and the clip for LiDAR pairs. The entry holds the
+//! hash of the encoded frames only: the frames are rebuilt in memory when generation misses.
+
+use super::Ctx;
+use crate::camera::CameraModel;
+use crate::dataset::{FrameSet, Scan, ScanPair};
+use crate::error::{Error, Result};
+use crate::pipeline::cache::{hash_file, Cache, CacheKey};
+use image::RgbImage;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use serde_json::json;
+use std::path::PathBuf;
+use std::time::Instant;
+
+pub const STAGE: &str = "depth-video";
+pub const VERSION: u32 = 1;
+
+/// Range limit for f-theta (LiDAR) frames, in lifting and in the depth video: the reference's
+/// indoor clips (5 m, 4 m) would flatten a LiDAR scan, so only the 16-bit millimetre range of
+/// the depth PNGs limits them.
+pub(crate) const LIDAR_MAX_RANGE: f32 = 65.0;
+
+/// Depth-video clip (metres) for frames of `camera`: the reference's 4 m for RGB-D frames,
+/// the whole range for LiDAR (f-theta) frames. The GUI shows depth frames with the same clip.
+pub fn depth_video_clip(camera: &CameraModel) -> f64 {
+    match camera {
+        CameraModel::Pinhole(_) => crate::wfm::depth_video::CLIP_METERS,
+        CameraModel::FTheta(_) => LIDAR_MAX_RANGE as f64,
+    }
+}
+
+/// The scan's frames, at least `l` of them.
+pub(crate) fn frames_of(scan: &Scan, l: usize) -> Result<&FrameSet> {
+    let fs = scan.frames.as_ref().ok_or_else(|| {
+        Error::Invalid(format!(
+            "{}: the image branch needs the RGB-D frames the scan was made from (a raw-sequence \
+             fragment, or a cloud with `frames` in the manifest)",
+            scan.name
+        ))
+    })?;
+    if fs.frames.len() < l {
+        return Err(Error::Invalid(format!(
+            "{}: {} frames, but the depth video needs L = {l} per fragment (set \
+             frames_per_fragment / --frames)",
+            scan.name,
+            fs.frames.len()
+        )));
+    }
+    Ok(fs)
+}
+
+#[derive(Serialize, Deserialize)]
+pub(crate) struct VideoMeta {
+    /// blake3 of the frames' sizes and pixels: the generation's input key.
+    pub(crate) hash: String,
+    frames: usize,
+    width: u32,
+    height: u32,
+}
+
+/// The depth video of a pair: its hash always, its frames when they were just built.
+pub(crate) struct DepthVideo {
+    pub(crate) meta: VideoMeta,
+    frames: Option<Vec<RgbImage>>,
+    src_paths: Vec<PathBuf>,
+    tgt_paths: Vec<PathBuf>,
+    clip: f64,
+    /// Either scan is a LiDAR (f-theta) scan.
+    pub(crate) lidar: bool,
+}
+
+impl DepthVideo {
+    /// The frames (built now when the stage was a cache hit).
+    pub(crate) fn take_frames(&mut self) -> Result<Vec<RgbImage>> {
+        match self.frames.take() {
+            Some(f) => Ok(f),
+            None => build(&self.src_paths, &self.tgt_paths, self.clip),
+        }
+    }
+
+    /// Whether the frames are in memory.
+    pub(crate) fn has_frames(&self) -> bool {
+        self.frames.is_some()
+    }
+}
+
+fn build(src: &[PathBuf], tgt: &[PathBuf], clip: f64) -> Result<Vec<RgbImage>> {
+    crate::wfm::depth_video::pair_video_from_files_clip(src, tgt, clip)
+}
+
+fn meta_of(frames: &[RgbImage]) -> VideoMeta {
+    let mut h = blake3::Hasher::new();
+    for f in frames {
+        h.update(&f.width().to_le_bytes());
+        h.update(&f.height().to_le_bytes());
+        h.update(f.as_raw());
+    }
+    VideoMeta {
+        hash: h.finalize().to_hex().to_string(),
+        frames: frames.len(),
+        width: frames.first().map_or(0, |f| f.width()),
+        height: frames.first().map_or(0, |f| f.height()),
+    }
+}
+
+/// Key from the depth files' hashes, L and the clip (LiDAR pairs only: the indoor key is
+/// unchanged since before the clip existed).
+pub fn key(depth_hashes: &[String], l: usize, lidar: bool, clip: f64) -> Result<CacheKey> {
+    let dh: Vec<&str> = depth_hashes.iter().map(String::as_str).collect();
+    let params = if lidar {
+        json!({ "L": l, "clip": clip })
+    } else {
+        json!({ "L": l })
+    };
+    CacheKey::new(STAGE, VERSION, &dh, &params)
+}
+
+fn store(m: &VideoMeta, pair: &ScanPair, l: usize, c: &Cache, k: &CacheKey) -> Result<()> {
+    let mut ne = c.put(
+        k,
+        json!({ "L": l, "source": pair.source.name, "target": pair.target.name }),
+    )?;
+    ne.add_json("video.json", m)?;
+    ne.commit()?;
+    Ok(())
+}
+
+/// The depth video of the first `l` frames of each scan, timed as "depth video".
+pub(crate) fn run(
+    ctx: &mut Ctx,
+    pair: &ScanPair,
+    src_fs: &FrameSet,
+    tgt_fs: &FrameSet,
+    l: usize,
+) -> Result<DepthVideo> {
+    let paths = |fs: &FrameSet| -> Vec<PathBuf> {
+        fs.frames[..l]
+            .iter()
+            .map(|f| f.depth_path.clone())
+            .collect()
+    };
+    let (src_paths, tgt_paths) = (paths(src_fs), paths(tgt_fs));
+    let t = Instant::now();
+    let depth_hashes: Vec<String> = src_paths
+        .par_iter()
+        .chain(tgt_paths.par_iter())
+        .map(|p| hash_file(p))
+        .collect::<Result<_>>()?;
+    // One video, one clip: the larger of the two scans' (a LiDAR scan keeps its range).
+    let lidar = [src_fs, tgt_fs]
+        .iter()
+        .any(|fs| matches!(fs.camera, CameraModel::FTheta(_)));
+    let clip = depth_video_clip(&src_fs.camera).max(depth_video_clip(&tgt_fs.camera));
+    let key = key(&depth_hashes, l, lidar, clip)?;
+    let mut frames: Option<Vec<RgbImage>> = None;
+    let (meta, hit) = ctx.cached(
+        &key,
+        |e| e.read_json::<VideoMeta>("video.json"),
+        || {
+            let f = build(&src_paths, &tgt_paths, clip)?;
+            let m = meta_of(&f);
+            frames = Some(f);
+            Ok(m)
+        },
+        |m, c, k| store(m, pair, l, c, k),
+    )?;
+    ctx.timer.record("depth video", t.elapsed(), hit);
+    Ok(DepthVideo {
+        meta,
+        frames,
+        src_paths,
+        tgt_paths,
+        clip,
+        lidar,
+    })
+}

@@ -1,0 +1,87 @@
+//! Stage `geo-fpfh`: keypoints, normals and FPFH of one scan
+//! ([`crate::pipeline::geo::fpfh_branch`]). Key: the cloud's content hash; parameters: the
+//! voxel size and the point count.
+
+use super::{cloud_hash, points_flat, points_from, Ctx};
+use crate::dataset::Scan;
+use crate::error::{Error, Result};
+use crate::geometry::PointCloud;
+use crate::pipeline::cache::{Cache, CacheKey, Entry};
+use crate::pipeline::geo::{fpfh_branch, GeoBranch};
+use nalgebra::Point3;
+use serde_json::json;
+
+pub const STAGE: &str = "geo-fpfh";
+pub const VERSION: u32 = 1;
+
+pub fn key(scan: &Scan, voxel: f64) -> Result<CacheKey> {
+    CacheKey::new(
+        STAGE,
+        VERSION,
+        &[&cloud_hash(&scan.cloud)],
+        &json!({ "voxel": voxel, "n_points": scan.cloud.len() }),
+    )
+}
+
+fn load(e: &Entry, voxel: f64) -> Result<GeoBranch> {
+    let (r, c, d) = e.read_f32_matrix("keypoints.npy")?;
+    let points = points_from(r, c, &d, &e.path("keypoints.npy"))?;
+    let (rn, cn, dn) = e.read_f32_matrix("normals.npy")?;
+    let normals = points_from(rn, cn, &dn, &e.path("normals.npy"))?
+        .into_iter()
+        .map(|p| p.coords)
+        .collect::<Vec<_>>();
+    let features = e.read_features("fpfh.npy")?;
+    if features.len() != points.len() || normals.len() != points.len() {
+        return Err(Error::Cache(format!(
+            "{}: keypoints, normals and features disagree in length",
+            e.dir.display()
+        )));
+    }
+    let mut kp = PointCloud::from_points(points);
+    kp.normals = Some(normals);
+    Ok(GeoBranch {
+        keypoints: kp,
+        features,
+        label: format!("fpfh(v={voxel:.3})"),
+    })
+}
+
+fn store(g: &GeoBranch, scan: &Scan, c: &Cache, k: &CacheKey) -> Result<()> {
+    let mut ne = c.put(k, json!({ "scan": scan.name, "features": g.label }))?;
+    ne.add_f32_matrix(
+        "keypoints.npy",
+        g.keypoints.len(),
+        3,
+        &points_flat(&g.keypoints.points),
+    )?;
+    let normals: Vec<Point3<f32>> = g
+        .keypoints
+        .normals
+        .as_ref()
+        .map(|n| n.iter().map(|v| Point3::from(*v)).collect())
+        .unwrap_or_default();
+    ne.add_f32_matrix("normals.npy", normals.len(), 3, &points_flat(&normals))?;
+    ne.add_features("fpfh.npy", &g.features)?;
+    ne.commit()?;
+    Ok(())
+}
+
+/// The scan's geometric branch through the cache, timed as `name`; with its key (the lift
+/// stage chains it).
+pub(crate) fn run(
+    ctx: &mut Ctx,
+    name: &str,
+    scan: &Scan,
+    voxel: f64,
+) -> Result<(GeoBranch, CacheKey)> {
+    let key = key(scan, voxel)?;
+    let g = ctx.stage(
+        name,
+        &key,
+        |e| load(e, voxel),
+        || fpfh_branch(&scan.cloud, voxel),
+        |g, c, k| store(g, scan, c, k),
+    )?;
+    Ok((g, key))
+}

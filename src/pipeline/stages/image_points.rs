@@ -1,0 +1,99 @@
+//! Stage `image-points`: one image descriptor per keypoint for per-image VFMs, sampled at its
+//! linked pixel (bilinear, unit norm); unlinked keypoints are invalid (reference §8.1). Key:
+//! both scans' `lift` keys and every selected view's `vfm-view` key; parameter: the sampling.
+
+use super::Ctx;
+use crate::error::{Error, Result};
+use crate::features::Features;
+use crate::pipeline::cache::{Cache, CacheKey, Entry};
+use crate::vfm::lift::PixelLink;
+use crate::vfm::DenseDescriptors;
+use rayon::prelude::*;
+use serde_json::json;
+
+pub const STAGE: &str = "image-points";
+pub const VERSION: u32 = 1;
+
+/// (source descriptors, valid, target descriptors, valid).
+pub(crate) type Pts = (Features, Vec<bool>, Features, Vec<bool>);
+
+/// Each keypoint's descriptor at its linked pixel (unit norm), zeros and invalid when unlinked.
+fn point_descriptors(
+    links: &[Option<PixelLink>],
+    grids: &[DenseDescriptors],
+) -> (Features, Vec<bool>) {
+    let dim = grids.first().map_or(0, |g| g.dim);
+    let mut data = vec![0.0f32; links.len() * dim];
+    let mut valid = vec![false; links.len()];
+    data.par_chunks_mut(dim.max(1))
+        .zip(valid.par_iter_mut())
+        .zip(links.par_iter())
+        .for_each(|((row, ok), l)| {
+            if let Some(l) = l {
+                if let Some(g) = grids.get(l.view as usize) {
+                    g.sample_into(l.u as f32, l.v as f32, row);
+                    let n = row.iter().map(|v| v * v).sum::<f32>().sqrt();
+                    if n > 1e-12 {
+                        row.iter_mut().for_each(|v| *v /= n);
+                        *ok = true;
+                    }
+                }
+            }
+        });
+    (Features::new(dim, data), valid)
+}
+
+pub fn key(
+    lift_keys: (&CacheKey, &CacheKey),
+    view_keys: (&[String], &[String]),
+) -> Result<CacheKey> {
+    let mut pk: Vec<&str> = vec![&lift_keys.0.hash, &lift_keys.1.hash];
+    pk.extend(view_keys.0.iter().map(String::as_str));
+    pk.extend(view_keys.1.iter().map(String::as_str));
+    CacheKey::new(STAGE, VERSION, &pk, &json!({ "sample": "bilinear-l2" }))
+}
+
+fn load(e: &Entry, n_src: usize, n_tgt: usize) -> Result<Pts> {
+    let fs = e.read_features("source.npy")?;
+    let ft = e.read_features("target.npy")?;
+    let (vs, vt): (Vec<bool>, Vec<bool>) = e.read_json("valid.json")?;
+    if fs.len() != n_src || ft.len() != n_tgt || vs.len() != fs.len() || vt.len() != ft.len() {
+        return Err(Error::Cache(format!(
+            "{}: sizes disagree with the keypoints",
+            e.dir.display()
+        )));
+    }
+    Ok((fs, vs, ft, vt))
+}
+
+fn store((fs, vs, ft, vt): &Pts, c: &Cache, k: &CacheKey) -> Result<()> {
+    let mut ne = c.put(k, json!({ "stage": STAGE }))?;
+    ne.add_features("source.npy", fs)?;
+    ne.add_features("target.npy", ft)?;
+    ne.add_json("valid.json", &(vs, vt))?;
+    ne.commit()?;
+    Ok(())
+}
+
+/// Both scans' point descriptors, timed as "image point features".
+pub(crate) fn run(
+    ctx: &mut Ctx,
+    lift_keys: (&CacheKey, &CacheKey),
+    view_keys: (&[String], &[String]),
+    links: (&[Option<PixelLink>], &[Option<PixelLink>]),
+    grids: (&[DenseDescriptors], &[DenseDescriptors]),
+) -> Result<Pts> {
+    let (src_links, tgt_links) = links;
+    let key = key(lift_keys, view_keys)?;
+    ctx.stage(
+        "image point features",
+        &key,
+        |e| load(e, src_links.len(), tgt_links.len()),
+        || {
+            let (fs, vs) = point_descriptors(src_links, grids.0);
+            let (ft, vt) = point_descriptors(tgt_links, grids.1);
+            Ok((fs, vs, ft, vt))
+        },
+        store,
+    )
+}

@@ -1,0 +1,140 @@
+//! The cached stages of the registration, one file each. Every stage has a `VERSION`
+//! (bumped when its output changes for the same inputs), a key function (the keys or content
+//! hashes of its inputs plus the parameters it reads), its compute, and the load / store of
+//! its cache entry through [`Cache`]; [`Ctx::stage`] runs one: a verified hit is loaded, a
+//! corrupt entry is reported, removed and recomputed, a store that fails only warns.
+//!
+//! | stage (cache dir)      | file                   | inputs                                  |
+//! |------------------------|------------------------|-----------------------------------------|
+//! | `fragments`            | `dataset/fragment_cache.rs` | raw RGB-D frames' bytes            |
+//! | `virtual-frames`       | `virtual_frames.rs`    | cloud (scans without sensor frames)     |
+//! | `geo-fpfh`             | `geo.rs`               | cloud                                   |
+//! | `depth-video`          | `depth_video.rs`       | first L depth frames of both scans      |
+//! | `generation`           | `generation.rs`        | depth video (colour frames for oracle)  |
+//! | (in memory)            | `view_select.rs`       | video length, L, m, K                   |
+//! | `vfm-view`             | `vfm.rs`               | generation, frame                       |
+//! | `lift`                 | `lift.rs`              | geo keypoints, selected depth frames    |
+//! | `image-points`         | `image_points.rs`      | lifts, vfm views                        |
+//! | `image-points-pair`    | `pair_vfm.rs`          | lifts, generation (pair models)         |
+//!
+//! `docs/architecture.md` has the parameters and keys of each.
+
+pub mod depth_video;
+pub mod generation;
+pub mod geo;
+pub mod image_points;
+pub mod lift;
+pub mod pair_vfm;
+pub mod vfm;
+pub mod view_select;
+pub mod virtual_frames;
+
+use super::cache::{Cache, CacheKey, Entry};
+use super::result::Timer;
+use crate::error::{Error, Result};
+use crate::geometry::PointCloud;
+use nalgebra::Point3;
+use std::path::Path;
+use std::time::Instant;
+
+/// What the stages of one registration share: the cache (None: all in memory), the timer and
+/// the warnings that go into the result.
+pub(crate) struct Ctx<'a> {
+    pub(crate) cache: Option<&'a Cache>,
+    pub(crate) timer: Timer,
+    pub(crate) warnings: Vec<String>,
+}
+
+impl<'a> Ctx<'a> {
+    pub(crate) fn new(cache: Option<&'a Cache>) -> Self {
+        Ctx {
+            cache,
+            timer: Timer::new(),
+            warnings: Vec::new(),
+        }
+    }
+
+    /// The cached value for `key` (verified), or `compute` then `store`. A corrupt entry is
+    /// reported in the warnings, removed and recomputed, never used; a failed store warns.
+    /// Returns the value and whether it was a hit.
+    pub(crate) fn cached<T>(
+        &mut self,
+        key: &CacheKey,
+        load: impl FnOnce(&Entry) -> Result<T>,
+        compute: impl FnOnce() -> Result<T>,
+        store: impl FnOnce(&T, &Cache, &CacheKey) -> Result<()>,
+    ) -> Result<(T, bool)> {
+        if let Some(c) = self.cache {
+            let problem = match c.get(key) {
+                Ok(Some(e)) => match load(&e) {
+                    Ok(v) => return Ok((v, true)),
+                    Err(err) => Some(err.to_string()),
+                },
+                Ok(None) => None,
+                Err(err) => Some(err.to_string()),
+            };
+            if let Some(p) = problem {
+                self.warnings.push(format!(
+                    "cache entry {} is corrupt ({p}); not used, recomputed",
+                    key.short()
+                ));
+                let _ = c.remove(key);
+            }
+        }
+        let v = compute()?;
+        if let Some(c) = self.cache {
+            if let Err(e) = store(&v, c, key) {
+                self.warnings
+                    .push(format!("could not write cache entry {}: {e}", key.short()));
+            }
+        }
+        Ok((v, false))
+    }
+
+    /// [`Self::cached`], timed as the stage `name`.
+    pub(crate) fn stage<T>(
+        &mut self,
+        name: &str,
+        key: &CacheKey,
+        load: impl FnOnce(&Entry) -> Result<T>,
+        compute: impl FnOnce() -> Result<T>,
+        store: impl FnOnce(&T, &Cache, &CacheKey) -> Result<()>,
+    ) -> Result<T> {
+        let t = Instant::now();
+        let (v, hit) = self.cached(key, load, compute, store)?;
+        self.timer.record(name, t.elapsed(), hit);
+        Ok(v)
+    }
+}
+
+/// Content hash of a cloud's points (x, y, z little-endian f32).
+pub(crate) fn cloud_hash(c: &PointCloud) -> String {
+    let mut h = blake3::Hasher::new();
+    for p in &c.points {
+        h.update(&p.x.to_le_bytes());
+        h.update(&p.y.to_le_bytes());
+        h.update(&p.z.to_le_bytes());
+    }
+    h.finalize().to_hex().to_string()
+}
+
+pub(crate) fn points_flat(p: &[Point3<f32>]) -> Vec<f32> {
+    p.iter().flat_map(|q| [q.x, q.y, q.z]).collect()
+}
+
+pub(crate) fn points_from(
+    rows: usize,
+    cols: usize,
+    d: &[f32],
+    what: &Path,
+) -> Result<Vec<Point3<f32>>> {
+    if cols != 3 || d.len() != rows * 3 {
+        return Err(Error::format(
+            what,
+            "shape",
+            "(N, 3)",
+            format!("({rows}, {cols})"),
+        ));
+    }
+    Ok(d.chunks(3).map(|c| Point3::new(c[0], c[1], c[2])).collect())
+}

@@ -1,0 +1,35 @@
+//! View selection (reference §2: K views per side by the stride rule, m frames of safeguard
+//! margin): in memory, trivial, so not cached. Parameters: L, m, K and the generated video's
+//! length.
+
+use super::Ctx;
+use crate::error::Result;
+use crate::pipeline::params::ImageBranchParams;
+use crate::wfm::ViewSelection;
+use std::time::Instant;
+
+/// The selection for a video of exactly 2L frames: run before anything expensive, so a bad
+/// K or m fails early.
+pub(crate) fn planned(ib: &ImageBranchParams) -> Result<ViewSelection> {
+    let l = ib.frames_per_fragment;
+    crate::wfm::select_views(2 * l, l, ib.margin, ib.k)
+}
+
+/// The selection on the generated video's actual length (a backend may return more than 2L
+/// frames), timed as "view selection".
+pub(crate) fn run(
+    ctx: &mut Ctx,
+    planned: ViewSelection,
+    n_generated: usize,
+    ib: &ImageBranchParams,
+) -> Result<ViewSelection> {
+    let t = Instant::now();
+    let l = ib.frames_per_fragment;
+    let sel = if n_generated == 2 * l {
+        planned
+    } else {
+        crate::wfm::select_views(n_generated, l, ib.margin, ib.k)?
+    };
+    ctx.timer.record("view selection", t.elapsed(), false);
+    Ok(sel)
+}

@@ -1,0 +1,98 @@
+//! Guards assets/manifests/pandaset-lidar.toml: the four PandaSet frames load with the counts of
+//! the data's MANIFEST, the GT direction is right (T_ego000000_from_world maps world_000000 onto
+//! ego_000000 point for point), and under the GT the two clouds of each pair overlap far more
+//! than under identity. Fast: loading and nearest neighbours only, no registration.
+
+use cgenreg::dataset::Dataset;
+use kiddo::{ImmutableKdTree, SquaredEuclidean};
+use nalgebra::{Isometry3, Point3};
+use std::path::Path;
+
+fn manifest() -> std::path::PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/manifests/pandaset-lidar.toml")
+}
+
+/// Fraction of every 10th point of `query`, moved by `t`, with a `reference` point within `r`.
+fn overlap(query: &[Point3<f32>], reference: &[Point3<f32>], t: &Isometry3<f64>, r: f32) -> f64 {
+    let pts: Vec<[f32; 3]> = reference.iter().map(|p| [p.x, p.y, p.z]).collect();
+    let tree = ImmutableKdTree::new_from_slice(&pts).unwrap();
+    let t = t.cast::<f32>();
+    let sub: Vec<_> = query.iter().step_by(10).collect();
+    let hits = sub
+        .iter()
+        .filter(|q| {
+            let p = t * **q;
+            tree.query(&[p.x, p.y, p.z])
+                .nearest_one::<SquaredEuclidean<f32>>()
+                .execute()
+                .distance
+                <= r * r
+        })
+        .count();
+    hits as f64 / sub.len() as f64
+}
+
+#[test]
+fn pandaset_manifest_loads_with_the_right_ground_truth() {
+    let Some(_root) = cgenreg::test_data_root() else {
+        return;
+    };
+    let ds = Dataset::load(&manifest()).unwrap();
+    for (id, n) in [
+        ("ego_000000", 105_227),
+        ("world_000000", 105_227),
+        ("world_000040", 107_146),
+        ("world_000070", 106_928),
+    ] {
+        let s = ds.load_fragment(id).unwrap();
+        assert_eq!(s.cloud.len(), n, "{id}");
+        let it = s.cloud.intensity.as_ref().expect("LiDAR intensity");
+        assert!(
+            it.iter().all(|v| (0.0..=255.0).contains(v)),
+            "{id}: intensity 0-255"
+        );
+        assert!(s.frames.is_none(), "{id}: no camera frames");
+    }
+    let ids: Vec<String> = ds.pairs().iter().map(|p| p.id.clone()).collect();
+    assert_eq!(
+        ids,
+        [
+            "pandaset/ego_000000-world_000040",
+            "pandaset/ego_000000-world_000070"
+        ]
+    );
+
+    // Direction: the same scan in both frames, same order. p_ego = T * p_world.
+    let gt = ds.pairs()[0].gt_target_from_source.unwrap();
+    let ego = ds.load_fragment("ego_000000").unwrap().cloud;
+    let w0 = ds.load_fragment("world_000000").unwrap().cloud;
+    let worst = w0
+        .points
+        .iter()
+        .zip(&ego.points)
+        .map(|(w, e)| ((gt * w.cast::<f64>()) - e.cast::<f64>()).norm())
+        .fold(0.0, f64::max);
+    println!("T_ego000000_from_world * world_000000 vs ego_000000: max residual {worst:.2e} m");
+    assert!(worst < 1e-3, "{worst}");
+    let angle = gt.rotation.angle().to_degrees();
+    assert!((angle - 130.7).abs() < 0.2, "{angle}");
+
+    // Each pair: overlap within 0.5 m under GT is high, under identity low.
+    for (k, p) in ds.pairs().iter().enumerate() {
+        let pair = ds.load_pair(&p.id).unwrap();
+        let gt = pair.gt_target_from_source.unwrap();
+        let (s, t) = (&pair.source.cloud.points, &pair.target.cloud.points);
+        let with_gt = overlap(s, t, &gt, 0.5);
+        let ident = overlap(s, t, &Isometry3::identity(), 0.5);
+        println!(
+            "{}: source points within 0.5 m of the target: GT {with_gt:.3}, identity {ident:.3}",
+            p.id
+        );
+        let floor = if k == 0 { 0.35 } else { 0.15 };
+        assert!(
+            with_gt > floor && with_gt > 3.0 * ident,
+            "{}: {with_gt} vs {ident}",
+            p.id
+        );
+    }
+}
