@@ -572,10 +572,14 @@ fn open_an_rgbd_sequence() {
     let ds =
         cgenreg::dataset::open::open_dataset(OpenKind::RgbdSequence, std::slice::from_ref(&seq))
             .unwrap()
-            .with_fragment_cache(Some(
-                cgenreg::pipeline::cache::Cache::open(cgenreg::pipeline::cache::default_cache_dir())
+            .with_fragment_cache(
+                Some(
+                    cgenreg::pipeline::cache::Cache::open(
+                        cgenreg::pipeline::cache::default_cache_dir(),
+                    )
                     .unwrap(),
-            ));
+                ),
+            );
     let n = ds.pairs().len();
     assert_eq!(n, 9, "500 frames: 10 fragments, 9 neighbouring pairs");
     let spec = &ds.pairs()[0];
