@@ -145,6 +145,8 @@ pub struct Posterior {
     pub gt_target: Option<usize>,
     /// Whether this point's selected match survived SC2-PCR.
     pub survived: Option<bool>,
+    /// Why this point is shown ("chosen by click", or why the tab opened on it).
+    pub reason: String,
 }
 
 /// State of one pipeline stage.
@@ -228,6 +230,8 @@ pub struct InspectorModel {
     pub source_views: Vec<ViewImage>,
     pub target_views: Vec<ViewImage>,
     pub posteriors: Vec<Posterior>,
+    /// The source point the posterior tab opens on (see `pipeline_worker::default_posterior_point`).
+    pub default_posterior: Option<usize>,
     pub stages: Vec<StageInfo>,
     pub plots: PlotData,
     /// A changed prompt whose generation is not cached: the UI offers to run the generator.
@@ -250,6 +254,7 @@ impl Default for InspectorModel {
             source_views: Vec::new(),
             target_views: Vec::new(),
             posteriors: Vec::new(),
+            default_posterior: None,
             stages: Vec::new(),
             plots: PlotData::default(),
             generation_missing: None,
@@ -678,6 +683,7 @@ mod demo {
                 candidate_pixels,
                 gt_target,
                 survived: m.survived,
+                reason: "demo fixture (made-up posterior)".into(),
             });
         }
 
@@ -787,6 +793,7 @@ mod demo {
             matches,
             source_views,
             target_views,
+            default_posterior: posteriors.first().map(|p: &Posterior| p.source_point),
             posteriors,
             stages,
             plots,

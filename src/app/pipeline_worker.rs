@@ -363,6 +363,7 @@ pub fn result_to_model(
         source_views,
         target_views,
         posteriors: Vec::new(),
+        default_posterior: None,
         stages,
         plots,
         generation_missing: None,
@@ -473,7 +474,52 @@ pub fn point_posterior(
         target_view,
         gt_target,
         survived,
+        reason: String::new(),
     })
+}
+
+/// The source point the posterior tab opens on after a run, and why: the strongest selected
+/// match that fails under the ground truth (its target more than 10 cm from where the GT
+/// puts the source point), else the strongest match. None without matches.
+pub fn default_posterior_point(matches: &[MatchInfo]) -> Option<(usize, String)> {
+    let strongest = |keep: &dyn Fn(&MatchInfo) -> bool| {
+        matches
+            .iter()
+            .enumerate()
+            .filter(|(_, m)| keep(m))
+            .max_by(|(i, a), (j, b)| a.score.total_cmp(&b.score).then(j.cmp(i)))
+    };
+    let rank = |m: &MatchInfo| 1 + matches.iter().filter(|o| o.score > m.score).count();
+    let n = matches.len();
+    if let Some((_, m)) = strongest(&|m| m.inlier_gt == Some(false)) {
+        let wrong = matches
+            .iter()
+            .filter(|m| m.inlier_gt == Some(false))
+            .count();
+        return Some((
+            m.src,
+            format!(
+                "opened on the strongest selected match that fails under GT: source #{} →                  target #{}, fused score {:.3} (rank {} of {n}; {wrong} of {n} matches are                  > 10 cm off GT)",
+                m.src,
+                m.tgt,
+                m.score,
+                rank(m)
+            ),
+        ));
+    }
+    let (_, m) = strongest(&|_| true)?;
+    let why = if matches.iter().any(|m| m.inlier_gt.is_some()) {
+        "every selected match is within 10 cm of GT"
+    } else {
+        "no ground truth for this pair"
+    };
+    Some((
+        m.src,
+        format!(
+            "opened on the strongest selected match ({why}): source #{} → target #{}, fused              score {:.3}",
+            m.src, m.tgt, m.score
+        ),
+    ))
 }
 
 /// What a run left in memory for fast re-runs of the stages after it.
@@ -836,10 +882,40 @@ impl PipelineWorker {
         self.current = Some(Current {
             pair,
             result,
-            model: model.clone(),
+            model,
             kept,
         });
-        Ok(model)
+        Ok(self.with_default_posterior())
+    }
+
+    /// The current model with the posterior of [`default_posterior_point`] added (the
+    /// posterior tab opens on it); the model unchanged when no posterior can be formed.
+    fn with_default_posterior(&mut self) -> InspectorModel {
+        let chosen = self
+            .current
+            .as_ref()
+            .and_then(|c| default_posterior_point(&c.model.matches));
+        if let Some((src, why)) = chosen {
+            if let Ok(m) = self.inspect_point(src) {
+                if let Some(c) = self.current.as_mut() {
+                    if let Some(p) = c
+                        .model
+                        .posteriors
+                        .iter_mut()
+                        .find(|p| p.source_point == src)
+                    {
+                        p.reason = why;
+                    }
+                    c.model.default_posterior = Some(src);
+                    return c.model.clone();
+                }
+                return m;
+            }
+        }
+        self.current
+            .as_ref()
+            .map(|c| c.model.clone())
+            .unwrap_or_default()
     }
 
     fn fusion_label(&self, result: &RegistrationResult) -> String {
@@ -904,9 +980,9 @@ impl PipelineWorker {
         model.generation_missing = kept.generation_missing.clone();
         self.studies.fill(&mut model.plots);
         self.pairs = model.pairs.clone();
-        cur.model = model.clone();
+        cur.model = model;
         cur.result = result;
-        Some(Ok(model))
+        Some(Ok(self.with_default_posterior()))
     }
 
     /// Adds the branch posteriors of source keypoint `src` to the current model.
@@ -946,6 +1022,8 @@ impl PipelineWorker {
             cur.pair.gt_target_from_source.as_ref(),
             survived,
         )?;
+        let mut post = post;
+        post.reason = "chosen by click".into();
         cur.model.posteriors.retain(|p| p.source_point != src);
         cur.model.posteriors.push(post);
         Ok(cur.model.clone())
@@ -1637,4 +1715,45 @@ pub fn cosmos_output_settings(p: &RegisterParams, dir: &Path) -> crate::Result<R
         spec,
     };
     Ok(p)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn m(src: usize, score: f32, inlier: Option<bool>) -> MatchInfo {
+        MatchInfo {
+            src,
+            tgt: src + 100,
+            score,
+            inlier_gt: inlier,
+            branch: Branch::Both,
+            survived: None,
+        }
+    }
+
+    #[test]
+    fn default_point_is_the_strongest_wrong_match_else_the_strongest() {
+        let ms = [
+            m(1, 0.9, Some(true)),
+            m(2, 0.5, Some(false)),
+            m(3, 0.7, Some(false)),
+            m(4, 0.95, Some(true)),
+        ];
+        let (src, why) = default_posterior_point(&ms).unwrap();
+        assert_eq!(src, 3);
+        assert!(
+            why.contains("fails under GT") && why.contains("rank 3 of 4"),
+            "{why}"
+        );
+        assert!(why.contains("2 of 4"), "{why}");
+        let ok = [m(1, 0.9, Some(true)), m(4, 0.95, Some(true))];
+        let (src, why) = default_posterior_point(&ok).unwrap();
+        assert_eq!(src, 4);
+        assert!(why.contains("within 10 cm"), "{why}");
+        let (src, why) = default_posterior_point(&[m(7, 0.2, None), m(8, 0.1, None)]).unwrap();
+        assert_eq!(src, 7);
+        assert!(why.contains("no ground truth"), "{why}");
+        assert!(default_posterior_point(&[]).is_none());
+    }
 }

@@ -231,10 +231,16 @@ pub fn posterior_panel(
 ) {
     let model = shared.model;
     if model.posteriors.is_empty() {
-        ui.label("No posteriors: click a source point in the Views or 3D tab to request one.");
+        ui.label(if model.matches.is_empty() {
+            "No posteriors: this run selected no correspondences (see the log)."
+        } else {
+            "No posteriors: they need the kept features of a run (FPFH); click a source point \
+             in the Views or 3D tab to request one."
+        });
         return;
     }
     let sel = shared.ui.selected_source_point;
+    let opened = model.default_posterior.and_then(|s| model.posterior_for(s));
     let p = match sel.and_then(|s| model.posterior_for(s)) {
         Some(p) => p,
         None => {
@@ -244,9 +250,14 @@ pub fn posterior_panel(
                     format!("posterior of source point {s} requested; showing the first available"),
                 );
             }
-            &model.posteriors[0]
+            opened.unwrap_or(&model.posteriors[0])
         }
     };
+    if !p.reason.is_empty() {
+        ui.label(
+            egui::RichText::new(format!("Source point #{}: {}", p.source_point, p.reason)).strong(),
+        );
+    }
     ui.horizontal_wrapped(|ui| {
         egui::ComboBox::from_label("Source point")
             .selected_text(format!("#{}", p.source_point))

@@ -14,7 +14,7 @@ use crate::pipeline::shard::{
     Shard, StageTime, DONE, FAILED,
 };
 use clap::Args;
-use serde::{Deserialize, Serialize};
+use serde::Serialize;
 use std::path::PathBuf;
 
 #[derive(Args, Debug)]
@@ -89,37 +89,7 @@ impl RunArgs {
     }
 }
 
-/// One pair's row of the JSON (`pairs`) and of the table.
-#[derive(Clone, Debug, Serialize, Deserialize)]
-pub struct PairRow {
-    pub id: String,
-    pub split: String,
-    pub source: String,
-    pub target: String,
-    pub rre_deg: Option<f64>,
-    pub rte_m: Option<f64>,
-    pub inlier_ratio: Option<f64>,
-    pub success: Option<bool>,
-    pub time_s: f64,
-    pub error: Option<String>,
-}
-
-impl PairRow {
-    fn failed(spec_id: &str, split: &str, why: &str, time_s: f64) -> PairRow {
-        PairRow {
-            id: spec_id.to_string(),
-            split: split.to_string(),
-            source: String::new(),
-            target: String::new(),
-            rre_deg: None,
-            rte_m: None,
-            inlier_ratio: None,
-            success: Some(false),
-            time_s,
-            error: Some(why.to_string()),
-        }
-    }
-}
+pub use crate::metrics::compare::PairRow;
 
 #[derive(Serialize)]
 struct BenchJson<'a> {

@@ -3,6 +3,7 @@
 mod args;
 mod bench;
 mod cache;
+mod diff;
 mod generate;
 #[cfg(feature = "gui")]
 mod gui;
@@ -37,6 +38,9 @@ pub enum Command {
     Study(study::StudyArgs),
     /// Several `bench --json` results as one table in the layout of the paper's Table 4.
     Table(table::TableArgs),
+    /// Two bench JSONs compared pair by pair: flipped successes, ΔRRE / ΔRTE, quadrants and
+    /// the parameters that differ (`--json` for machine-readable output).
+    Diff(diff::DiffArgs),
     /// List, verify or remove cache entries.
     Cache(cache::CacheArgs),
     /// Fill the stage cache with the expensive stages (depth video, generator, descriptors)
@@ -65,6 +69,7 @@ pub fn run_command(c: Command) -> crate::Result<()> {
         Command::Register(a) => register::run(a),
         Command::Bench(a) => bench::run(a),
         Command::Cache(a) => cache::run(a),
+        Command::Diff(a) => diff::run(a),
         Command::Study(a) => study::run(a),
         Command::Table(a) => table::run(a),
         Command::Generate(a) => generate::run(a),

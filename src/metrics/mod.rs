@@ -4,6 +4,8 @@
 //! Conventions: transforms are `target_from_source`; correspondences are endpoint pairs
 //! `src[i] ↔ tgt[i]` in their own frames. RRE is in degrees, RTE in metres.
 
+pub mod compare;
+
 use crate::{Error, Result};
 use nalgebra::{Isometry3, Point3};
 use serde::{Deserialize, Serialize};

@@ -125,7 +125,7 @@ impl RunIdentity {
         let a = serde_json::to_value(self).unwrap_or(Value::Null);
         let b = serde_json::to_value(other).unwrap_or(Value::Null);
         let mut out = Vec::new();
-        json_diff("", &a, &b, &mut out);
+        crate::metrics::compare::json_diff("", &a, &b, ("here", "there"), &mut out);
         out
     }
 }
@@ -145,47 +145,6 @@ pub fn binary_hash() -> Result<String> {
     })
     .clone()
     .map_err(Error::Invalid)
-}
-
-/// Leaf-by-leaf differences of two JSON values: "params.voxel: 0.05 here, 0.1 there".
-/// Long arrays (the selected pairs) are summarised.
-fn json_diff(path: &str, a: &Value, b: &Value, out: &mut Vec<String>) {
-    if a == b {
-        return;
-    }
-    let name = if path.is_empty() { "(root)" } else { path };
-    match (a, b) {
-        (Value::Object(x), Value::Object(y)) => {
-            let mut keys: Vec<&String> = x.keys().chain(y.keys()).collect();
-            keys.sort();
-            keys.dedup();
-            for k in keys {
-                let p = if path.is_empty() {
-                    k.clone()
-                } else {
-                    format!("{path}.{k}")
-                };
-                json_diff(
-                    &p,
-                    x.get(k).unwrap_or(&Value::Null),
-                    y.get(k).unwrap_or(&Value::Null),
-                    out,
-                );
-            }
-        }
-        (Value::Array(x), Value::Array(y)) if x.len() > 8 || y.len() > 8 => {
-            let first = x.iter().zip(y).position(|(p, q)| p != q);
-            out.push(format!(
-                "{name}: {} entries here, {} there{}",
-                x.len(),
-                y.len(),
-                first
-                    .map(|i| format!(", first difference at entry {i}"))
-                    .unwrap_or_default()
-            ));
-        }
-        _ => out.push(format!("{name}: {a} here, {b} there")),
-    }
 }
 
 /// The header of a run's JSON output (the `run` field).
