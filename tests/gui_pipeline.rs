@@ -406,7 +406,10 @@ fn open_two_cloud_files_registers_them_against_the_gt() {
         dir.path().join("gt.txt"),
         dir.path().join("src.ply"),
     ];
-    assert_eq!(cgenreg::app::classify_drop(&paths), OpenKind::TwoClouds);
+    assert_eq!(
+        cgenreg::dataset::open::classify_drop(&paths),
+        OpenKind::TwoClouds
+    );
     open(&handle, OpenKind::Auto, paths);
     let (logs, m) = wait_for_result(&handle, 300);
     let m = m.unwrap_or_else(|| panic!("open failed: {logs:?}"));
@@ -534,7 +537,7 @@ fn open_a_threedmatch_folder() {
     assert!(logs.last().unwrap().1.contains("cloud_bin_"), "{logs:?}");
     // dropped folder: classified, opened, first pair registered with the gt.log GT
     assert_eq!(
-        cgenreg::app::classify_drop(std::slice::from_ref(&scene)),
+        cgenreg::dataset::open::classify_drop(std::slice::from_ref(&scene)),
         OpenKind::ThreeDMatchFolder
     );
     open(&handle, OpenKind::Auto, vec![scene.clone()]);
@@ -566,14 +569,12 @@ fn open_an_rgbd_sequence() {
         return;
     };
     let seq = root.join("7scenes-redkitchen-rgbd");
-    let ds = cgenreg::app::pipeline_worker::open_dataset(
-        OpenKind::RgbdSequence,
-        std::slice::from_ref(&seq),
-    )
-    .unwrap()
-    .with_fragment_cache(Some(
-        cgenreg::pipeline::image_branch::default_cache_dir().join("fragments"),
-    ));
+    let ds =
+        cgenreg::dataset::open::open_dataset(OpenKind::RgbdSequence, std::slice::from_ref(&seq))
+            .unwrap()
+            .with_fragment_cache(Some(
+                cgenreg::pipeline::image_branch::default_cache_dir().join("fragments"),
+            ));
     let n = ds.pairs().len();
     assert_eq!(n, 9, "500 frames: 10 fragments, 9 neighbouring pairs");
     let spec = &ds.pairs()[0];
@@ -596,7 +597,7 @@ fn open_an_rgbd_sequence() {
 
     // through the worker (the fragments now come from the fragment cache)
     assert_eq!(
-        cgenreg::app::classify_drop(std::slice::from_ref(&seq)),
+        cgenreg::dataset::open::classify_drop(std::slice::from_ref(&seq)),
         OpenKind::RgbdSequence
     );
     let worker = PipelineWorker::open_manifest(&demo_manifest(), params()).unwrap();

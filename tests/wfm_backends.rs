@@ -467,3 +467,120 @@ fn real_redkitchen_depth_video_builtin_and_oracle() {
     assert_eq!(g.frames.len(), 100);
     assert_eq!(g.frames[0].dimensions(), (640, 480));
 }
+
+/// A stand-in for batch-mode Cosmos: one run for the whole JSONL; line i's depth video is
+/// transcoded into `video_<i>/output.mp4`, and a prompt containing BLOCKED leaves an empty
+/// `video_<i>/` as the guardrail does. Every run appends a line to `runs.log`.
+fn fake_cosmos_batch(dir: &Path) -> PathBuf {
+    let p = dir.join("fake_cosmos_batch.sh");
+    std::fs::write(
+        &p,
+        format!(
+            r#"#!/bin/sh
+set -e
+batch=""; out=""; seed=""
+while [ $# -gt 0 ]; do
+  case "$1" in
+    --batch_input_path) batch="$2"; shift 2;;
+    --video_save_folder) out="$2"; shift 2;;
+    --controlnet_specs) shift 2;;
+    --seed) seed="$2"; shift 2;;
+    *) echo "unexpected argument: $1" >&2; exit 2;;
+  esac
+done
+echo "seed $seed" >> "{runs}"
+i=0
+while IFS= read -r line; do
+  video=$(printf '%s\n' "$line" | sed -n 's/.*"input_control": "\([^"]*\)".*/\1/p')
+  prompt=$(printf '%s\n' "$line" | sed -n 's/^{{"prompt": "\([^"]*\)".*/\1/p')
+  mkdir -p "$out/video_$i"
+  case "$prompt" in
+    *BLOCKED*) ;;
+    *) ffmpeg -v error -y -i "$video" -vf scale=960:704 -c:v libx264 -pix_fmt yuv420p -crf 18 \
+         "$out/video_$i/output.mp4" </dev/null
+       printf '%s\n' "$prompt" > "$out/video_$i/prompt.txt";;
+  esac
+  i=$((i+1))
+done < "$batch"
+"#,
+            runs = dir.join("runs.log").display()
+        ),
+    )
+    .unwrap();
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        std::fs::set_permissions(&p, std::fs::Permissions::from_mode(0o755)).unwrap();
+    }
+    p
+}
+
+#[test]
+fn cosmos_batch_runs_once_per_seed_and_keeps_lines_aligned() {
+    if !ffmpeg_available() {
+        return;
+    }
+    let work = tempfile::tempdir().unwrap();
+    let script = fake_cosmos_batch(work.path());
+    let cfg = CosmosConfig::new(
+        args(&[
+            &script.to_string_lossy(),
+            "--batch_input_path",
+            "{batch_input_path}",
+            "--video_save_folder",
+            "{video_save_folder}",
+            "--controlnet_specs",
+            "{controlnet_specs}",
+            "--seed",
+            "{seed}",
+        ]),
+        work.path().join("jobs"),
+        Duration::from_secs(120),
+    );
+    let b = CosmosBackend::new(cfg).unwrap();
+    // Four pairs with different videos (so a swapped line shows), one blocked by the
+    // "guardrail", one with another seed.
+    let videos: Vec<Vec<RgbImage>> = [6, 8, 10, 4].iter().map(|&n| depth_video(n)).collect();
+    let mut reqs: Vec<GenerateRequest> = videos
+        .iter()
+        .enumerate()
+        .map(|(i, v)| request(&format!("redkitchen/{i}-{}", i + 1), v.clone()))
+        .collect();
+    reqs[1].prompt = Prompt::verbatim("BLOCKED by the guardrail");
+    reqs[3].seed = 9;
+    let out = b.generate_batch(&reqs);
+    assert_eq!(out.len(), 4);
+    let runs = std::fs::read_to_string(work.path().join("runs.log")).unwrap();
+    assert_eq!(runs, "seed 7\nseed 9\n", "one run per seed");
+    for i in [0usize, 2, 3] {
+        let g = out[i].as_ref().unwrap_or_else(|e| panic!("line {i}: {e}"));
+        assert_eq!(
+            g.frames.len(),
+            videos[i].len(),
+            "line {i} got its own video"
+        );
+        let up = cgenreg::wfm::backend::resize_bilinear(&videos[i][1], 960, 704);
+        let q = psnr(&up, &g.frames[1]).unwrap();
+        assert!(q > 30.0, "line {i}: psnr {q}");
+        assert_eq!(g.provenance.seed, reqs[i].seed);
+        assert_eq!(g.provenance.prompt, reqs[i].prompt.text());
+    }
+    let blocked = out[1]
+        .as_ref()
+        .err()
+        .expect("blocked line fails")
+        .to_string();
+    assert!(blocked.contains("guardrail"), "{blocked}");
+    // The seed-7 batch is one job with the reference's JSONL: three lines, i_gen_vid.
+    let g0 = out[0].as_ref().unwrap();
+    assert_eq!(g0.provenance.params["batch_size"], 3);
+    assert_eq!(g0.provenance.params["batch_line"], 0);
+    assert_eq!(out[2].as_ref().unwrap().provenance.params["batch_line"], 2);
+    let job = PathBuf::from(g0.provenance.params["job_dir"].as_str().unwrap());
+    let lines = read_reference_jsonl(&job.join("batch_input.jsonl")).unwrap();
+    assert_eq!(lines.len(), 3);
+    assert_eq!(lines[2].video_save_name.as_deref(), Some("2_gen_vid"));
+    // The single-seed-9 batch is a batch of one: same layout as `generate`.
+    let g3 = out[3].as_ref().unwrap();
+    assert!(g3.provenance.params.get("batch_size").is_none());
+}

@@ -10,7 +10,6 @@ use std::path::PathBuf;
 use std::sync::mpsc::{channel, Receiver, Sender, TryRecvError};
 
 use eframe::egui;
-use serde::{Deserialize, Serialize};
 
 use super::model::{InspectorModel, StageInfo};
 use crate::estimate::EstimatorKind;
@@ -21,37 +20,7 @@ use crate::wfm::PromptPreset;
 /// k of top-k selection when the inspector switches to it (the reference's 8000).
 pub const DEFAULT_TOPK: usize = crate::fusion::select::REFERENCE_TOP_K;
 
-/// What a dropped or chosen path is meant to be.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-pub enum OpenKind {
-    /// Decide from the file names (drag and drop).
-    Auto,
-    Manifest,
-    ThreeDMatchFolder,
-    RgbdSequence,
-    /// Exactly two cloud files: source then target.
-    TwoClouds,
-    CosmosOutput,
-}
-
-impl OpenKind {
-    pub fn label(self) -> &'static str {
-        match self {
-            Self::Auto => "Auto",
-            Self::Manifest => "Dataset manifest…",
-            Self::ThreeDMatchFolder => "3DMatch folder…",
-            Self::RgbdSequence => "RGB-D sequence…",
-            Self::TwoClouds => "Two cloud files…",
-            Self::CosmosOutput => "Cosmos output folder…",
-        }
-    }
-    pub fn wants_folder(self) -> bool {
-        matches!(
-            self,
-            Self::ThreeDMatchFolder | Self::RgbdSequence | Self::CosmosOutput
-        )
-    }
-}
+pub use crate::dataset::open::OpenKind;
 
 /// A request from the UI to the worker.
 // ApplySettings carries the whole parameter set; commands are few per frame, so the size

@@ -109,7 +109,7 @@ pub fn validate(kind: OpenKind, paths: &[PathBuf]) -> Result<(), String> {
         }
     }
     match kind {
-        OpenKind::TwoClouds => super::split_two_clouds(paths).map(|_| ()),
+        OpenKind::TwoClouds => crate::dataset::open::split_two_clouds(paths).map(|_| ()),
         _ if paths.len() == 1 => Ok(()),
         _ => Err("choose one file".into()),
     }

@@ -372,123 +372,6 @@ pub fn result_to_model(
     }
 }
 
-fn cos_row(f: &crate::features::Features, i: usize, g: &crate::features::Features) -> Vec<f32> {
-    let a = f.row(i);
-    let na = a.iter().map(|x| x * x).sum::<f32>().sqrt().max(1e-12);
-    (0..g.len())
-        .map(|j| {
-            let b = g.row(j);
-            let nb = b.iter().map(|x| x * x).sum::<f32>().sqrt().max(1e-12);
-            a.iter().zip(b).map(|(x, y)| x * y).sum::<f32>() / (na * nb)
-        })
-        .collect()
-}
-
-/// Row softmax of `sims` at temperature `tau` over the entries `valid` keeps (others 0).
-fn softmax_row(sims: &[f32], valid: Option<&[bool]>, tau: f32) -> Vec<f32> {
-    let ok = |j: usize| valid.is_none_or(|v| v.get(j).copied().unwrap_or(false));
-    let m = (0..sims.len())
-        .filter(|&j| ok(j))
-        .map(|j| sims[j])
-        .fold(f32::NEG_INFINITY, f32::max);
-    if !m.is_finite() {
-        return vec![0.0; sims.len()];
-    }
-    let e: Vec<f32> = (0..sims.len())
-        .map(|j| {
-            if ok(j) {
-                ((sims[j] - m) / tau.max(1e-4)).exp()
-            } else {
-                0.0
-            }
-        })
-        .collect();
-    let z = e.iter().sum::<f32>().max(1e-30);
-    e.into_iter().map(|x| x / z).collect()
-}
-
-/// Column softmax statistics of `sim / tau` over the valid rows: per column its maximum and
-/// sum_i exp((s_ij - max_j) / tau) (max -inf and sum 0 for a column with no valid row). With a
-/// row's softmax they give that row of the reference's dual softmax without an N x M copy.
-fn column_stats(
-    sim: &crate::fusion::matrix::DenseMatrix,
-    row_valid: Option<&[bool]>,
-    tau: f32,
-) -> (Vec<f32>, Vec<f32>) {
-    use rayon::prelude::*;
-    let m = sim.cols;
-    let ok = |i: usize| row_valid.is_none_or(|v| v.get(i).copied().unwrap_or(false));
-    let rows = || {
-        sim.data
-            .par_chunks(m.max(1))
-            .enumerate()
-            .filter(|(i, _)| ok(*i))
-    };
-    let mx = rows()
-        .fold(
-            || vec![f32::NEG_INFINITY; m],
-            |mut a, (_, r)| {
-                for (x, &v) in a.iter_mut().zip(r) {
-                    *x = x.max(v);
-                }
-                a
-            },
-        )
-        .reduce(
-            || vec![f32::NEG_INFINITY; m],
-            |mut a, b| {
-                for (x, y) in a.iter_mut().zip(b) {
-                    *x = x.max(y);
-                }
-                a
-            },
-        );
-    let it = 1.0 / tau.max(1e-4);
-    let sum = rows()
-        .fold(
-            || vec![0.0f32; m],
-            |mut a, (_, r)| {
-                for ((x, &v), &c) in a.iter_mut().zip(r).zip(&mx) {
-                    *x += ((v - c) * it).exp();
-                }
-                a
-            },
-        )
-        .reduce(
-            || vec![0.0f32; m],
-            |mut a, b| {
-                for (x, y) in a.iter_mut().zip(b) {
-                    *x += y;
-                }
-                a
-            },
-        );
-    (mx, sum)
-}
-
-/// Row `i` of the dual softmax sqrt(Pr * Pc + 1e-9) (reference §8.3) from the row softmax
-/// `p_row` of that row, its similarities and the column statistics; invalid entries 0.
-fn dual_row(
-    p_row: &[f32],
-    sims: &[f32],
-    col_valid: Option<&[bool]>,
-    stats: &(Vec<f32>, Vec<f32>),
-    tau: f32,
-) -> Vec<f32> {
-    let it = 1.0 / tau.max(1e-4);
-    (0..sims.len())
-        .map(|j| {
-            let ok = col_valid.is_none_or(|v| v.get(j).copied().unwrap_or(false));
-            let (c, z) = (stats.0[j], stats.1[j]);
-            if !ok || z == 0.0 || !c.is_finite() {
-                return 0.0;
-            }
-            let pc = ((sims[j] - c) * it).exp() / z;
-            (p_row[j] * pc + crate::fusion::calibrate::DUAL_SOFTMAX_EPS).sqrt()
-        })
-        .collect()
-}
-
 fn top_indices(v: &[f32], n: usize) -> Vec<usize> {
     let mut idx: Vec<usize> = (0..v.len()).collect();
     let n = n.min(idx.len());
@@ -501,78 +384,36 @@ fn top_indices(v: &[f32], n: usize) -> Vec<usize> {
     idx
 }
 
-/// Branch posteriors of source keypoint `src` over the target keypoints, from the kept
-/// [`FusionInputs`]: each branch's calibration at its temperature (row softmax; the dual
-/// softmax needs the column statistics of the whole kept similarity `sims`, and without it
-/// falls back to the row part), fused per `fusion.mode` with the pipeline's formulas
-/// (Noisy-AND with its prior, Noisy-OR, concatenated cosine, or one branch). Points without a
-/// pixel have an image posterior of 0, as in the pipeline. Candidates: the most likely under
-/// the fused, image and geometric posteriors, plus the ground-truth target.
+/// Branch posteriors of source keypoint `src` over the target keypoints: row `src` of the
+/// posteriors `match_then_fuse` forms from the kept similarities `sims` with `fusion`
+/// ([`crate::fusion::posterior_row`]; without the image branch the mode is geometry only).
+/// Points without a pixel have an image posterior of 0, as in the pipeline. Candidates: the
+/// most likely under the fused, image and geometric posteriors, plus the ground-truth target.
 pub fn point_posterior(
     inputs: &FusionInputs,
-    sims: Option<&crate::pipeline::image_branch::Similarities>,
+    sims: &Similarities,
     image: Option<&ImageBranchOutput>,
     fusion: &crate::fusion::FusionParams,
     src: usize,
     gt: Option<&Isometry3<f64>>,
     survived: Option<bool>,
-) -> Option<Posterior> {
+) -> crate::Result<Posterior> {
     let (sg, tg) = (&inputs.source_geo, &inputs.target_geo);
-    if src >= sg.features.len() || tg.features.is_empty() {
-        return None;
+    let mut fusion = *fusion;
+    if sims.image.is_none() {
+        fusion.mode = FusionMode::GeometryOnly;
     }
-    use crate::fusion::Calibration;
-    let cos_geo = cos_row(&sg.features, src, &tg.features);
-    let tau_geo = fusion.calibration_geo.tau();
-    let mut p_geo = softmax_row(&cos_geo, None, tau_geo);
-    if let (Calibration::DualSoftmax { .. }, Some(s)) = (fusion.calibration_geo, sims) {
-        let stats = column_stats(&s.geo, None, tau_geo);
-        p_geo = dual_row(&p_geo, &cos_geo, None, &stats, tau_geo);
-    }
-    let img = inputs.image.as_ref().map(|im| {
-        let (vs, vt) = im.validity();
-        let cos = im.similarity_row(src);
-        let tau = fusion.calibration_img.tau();
-        let p = if vs.get(src).copied().unwrap_or(false) {
-            let p = softmax_row(&cos, Some(vt.as_slice()), tau);
-            match (fusion.calibration_img, sims.and_then(|s| s.image.as_ref())) {
-                (Calibration::DualSoftmax { .. }, Some((sim, rv, cv))) => {
-                    let stats = column_stats(sim, Some(rv), tau);
-                    dual_row(&p, &cos, Some(cv), &stats, tau)
-                }
-                _ => p,
-            }
-        } else {
-            vec![0.0; cos.len()]
-        };
-        (cos, p)
-    });
-    let prior = fusion.prior.unwrap_or_else(|| {
-        crate::fusion::fuse::default_prior(sg.features.len(), tg.features.len())
-    });
-    let fused: Vec<f32> = match (&img, fusion.mode) {
-        (None, _) | (_, FusionMode::GeometryOnly) => p_geo.clone(),
-        (Some((_, pi)), FusionMode::ImageOnly) => pi.clone(),
-        (Some((_, pi)), FusionMode::NoisyAnd) => pi
-            .iter()
-            .zip(&p_geo)
-            .map(|(a, b)| crate::fusion::fuse::noisy_and(*a, *b, prior))
-            .collect(),
-        (Some((_, pi)), FusionMode::NoisyOr) => pi
-            .iter()
-            .zip(&p_geo)
-            .map(|(a, b)| crate::fusion::fuse::noisy_or(*a, *b))
-            .collect(),
-        (Some((ci, _)), FusionMode::Concat) => {
-            let w = fusion.concat_w_img;
-            let c: Vec<f32> = ci
-                .iter()
-                .zip(&cos_geo)
-                .map(|(a, b)| w * a + (1.0 - w) * b)
-                .collect();
-            softmax_row(&c, None, fusion.calibration_geo.tau())
-        }
-    };
+    let row = crate::fusion::posterior_row(
+        sims.image
+            .as_ref()
+            .map(|(s, rv, cv)| (s, Some(rv.as_slice()), Some(cv.as_slice()))),
+        Some(&sims.geo),
+        &fusion,
+        src,
+    )?;
+    let p_geo = row.geometric.unwrap_or_default();
+    let p_img = row.image;
+    let fused = row.fused;
     let gt_target = gt.map(|g| {
         let q = g * sg.keypoints.points[src].cast::<f64>();
         let mut best = (0, f64::INFINITY);
@@ -588,7 +429,7 @@ pub fn point_posterior(
     let mut seen: std::collections::HashSet<usize> = candidates.iter().copied().collect();
     let extra = POSTERIOR_CANDIDATES / 4;
     let mut more = top_indices(&p_geo, extra);
-    if let Some((_, pi)) = &img {
+    if let Some(pi) = &p_img {
         more.extend(top_indices(pi, extra));
     }
     more.extend(gt_target);
@@ -622,11 +463,11 @@ pub fn point_posterior(
         })
         .collect();
     let pick = |v: &[f32]| candidates.iter().map(|&j| v[j]).collect::<Vec<f32>>();
-    Some(Posterior {
+    Ok(Posterior {
         source_point: src,
         source_pixel,
         source_view,
-        image: img.as_ref().map(|(_, p)| pick(p)).unwrap_or_default(),
+        image: p_img.as_ref().map(|p| pick(p)).unwrap_or_default(),
         geometric: pick(&p_geo),
         fused: pick(&fused),
         candidates,
@@ -1105,20 +946,19 @@ impl PipelineWorker {
             .iter()
             .find(|m| m.src == src)
             .and_then(|m| m.survived);
-        let mut fusion = fusion;
-        if kept.inputs.image.is_none() {
-            fusion.mode = FusionMode::GeometryOnly;
-        }
+        let sims = match &kept.sims {
+            Some(s) => s.clone(),
+            None => Arc::new(similarities(&kept.inputs)?),
+        };
         let post = point_posterior(
             &kept.inputs,
-            kept.sims.as_deref(),
+            &sims,
             kept.image.as_ref(),
             &fusion,
             src,
             cur.pair.gt_target_from_source.as_ref(),
             survived,
-        )
-        .ok_or_else(|| crate::Error::Invalid(format!("no features for source keypoint {src}")))?;
+        )?;
         cur.model.posteriors.retain(|p| p.source_point != src);
         cur.model.posteriors.push(post);
         Ok(cur.model.clone())
@@ -1544,14 +1384,14 @@ impl PipelineWorker {
             .collect::<Vec<_>>()
             .join(", ");
         let kind = match kind {
-            super::OpenKind::Auto => super::classify_drop(&paths),
+            super::OpenKind::Auto => crate::dataset::open::classify_drop(&paths),
             k => k,
         };
         if kind == super::OpenKind::CosmosOutput {
             return self.open_cosmos_output(&paths, events);
         }
         let t = Instant::now();
-        match open_dataset(kind, &paths) {
+        match crate::dataset::open::open_dataset(kind, &paths) {
             Ok(d) => {
                 let d = d.with_fragment_cache(Some(
                     crate::pipeline::image_branch::default_cache_dir().join("fragments"),
@@ -1810,123 +1650,4 @@ pub fn cosmos_output_settings(p: &RegisterParams, dir: &Path) -> crate::Result<R
         spec,
     };
     Ok(p)
-}
-
-/// Frames per fragment when an RGB-D sequence is opened (3DMatch's fragment length).
-pub const SEQUENCE_FRAGMENT_LEN: usize = crate::dataset::fragment::FRAGMENT_LEN;
-
-/// The dataset behind an open request (`Auto` is decided by [`super::classify_drop`]). Errors
-/// name the path and what was expected there.
-pub fn open_dataset(kind: super::OpenKind, paths: &[PathBuf]) -> crate::Result<Dataset> {
-    use super::OpenKind;
-    use crate::Error;
-    let kind = match kind {
-        OpenKind::Auto => super::classify_drop(paths),
-        k => k,
-    };
-    let one = |expected: &str| -> crate::Result<&PathBuf> {
-        match paths {
-            [p] => Ok(p),
-            _ => Err(Error::Invalid(format!(
-                "{}: expected {expected}, got {} paths",
-                paths
-                    .iter()
-                    .map(|p| p.display().to_string())
-                    .collect::<Vec<_>>()
-                    .join(", "),
-                paths.len()
-            ))),
-        }
-    };
-    let folder = |expected: &str| -> crate::Result<&PathBuf> {
-        let p = one(expected)?;
-        if !p.is_dir() {
-            return Err(Error::format(p, "folder", expected, "not a folder"));
-        }
-        Ok(p)
-    };
-    match kind {
-        OpenKind::Manifest => Dataset::load(one("one dataset manifest (.toml)")?),
-        OpenKind::ThreeDMatchFolder => crate::dataset::threedmatch::open_folder(folder(
-            "a 3DMatch-style folder (cloud_bin_<k>.ply + gt.log)",
-        )?),
-        OpenKind::RgbdSequence => {
-            let mut dir = folder(
-                "an RGB-D sequence folder (camera-intrinsics.txt + frame-XXXXXX.depth.png)",
-            )?
-            .clone();
-            // 3DMatch's raw layout keeps the frames in seq-01/
-            if !dir.join("camera-intrinsics.txt").is_file()
-                && dir.join("seq-01/camera-intrinsics.txt").is_file()
-            {
-                dir = dir.join("seq-01");
-            }
-            Dataset::from_rgbd_sequence(&dir, SEQUENCE_FRAGMENT_LEN)
-        }
-        OpenKind::TwoClouds => {
-            let (s, t, gt) = super::split_two_clouds(paths).map_err(Error::Invalid)?;
-            Dataset::from_two_files(&s, &t, gt.as_deref())
-        }
-        OpenKind::CosmosOutput => Err(Error::Invalid(format!(
-            "{}: a Cosmos output folder holds generated frames, not scans: it is opened as the \
-             image branch's cached Cosmos backend for the open dataset",
-            one("one folder")?.display()
-        ))),
-        OpenKind::Auto => Err(Error::Invalid(format!(
-            "cannot tell what {} is: expected a dataset manifest (.toml), a 3DMatch folder, an \
-             RGB-D sequence folder, or two cloud files (+ an optional 4x4 GT .txt/.npy)",
-            paths
-                .iter()
-                .map(|p| p.display().to_string())
-                .collect::<Vec<_>>()
-                .join(", ")
-        ))),
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::fusion::matrix::DenseMatrix;
-    use crate::fusion::Calibration;
-
-    /// The inspector's dual-softmax row equals that row of the pipeline's calibrated matrix,
-    /// masks included.
-    #[test]
-    fn dual_row_equals_the_calibrated_matrix() {
-        let (n, m, tau) = (37, 53, 0.07f32);
-        let mut x = 12345u64;
-        let data: Vec<f32> = (0..n * m)
-            .map(|_| {
-                x = x
-                    .wrapping_mul(6364136223846793005)
-                    .wrapping_add(1442695040888963407);
-                ((x >> 40) as f32 / (1u64 << 24) as f32) * 2.0 - 1.0
-            })
-            .collect();
-        let sim = DenseMatrix::from_vec(n, m, data).unwrap();
-        let rv: Vec<bool> = (0..n).map(|i| i % 7 != 3).collect();
-        let cv: Vec<bool> = (0..m).map(|j| j % 5 != 1).collect();
-        for masks in [false, true] {
-            let (r, c) = if masks {
-                (Some(rv.as_slice()), Some(cv.as_slice()))
-            } else {
-                (None, None)
-            };
-            let want =
-                crate::fusion::calibrate::calibrate(&sim, r, c, Calibration::DualSoftmax { tau })
-                    .unwrap();
-            let stats = column_stats(&sim, r, tau);
-            for i in (0..n).filter(|&i| r.is_none_or(|r| r[i])) {
-                let row = &sim.data[i * m..(i + 1) * m];
-                let got = dual_row(&softmax_row(row, c, tau), row, c, &stats, tau);
-                for (j, (g, w)) in got.iter().zip(&want.data[i * m..(i + 1) * m]).enumerate() {
-                    assert!(
-                        (g - w).abs() <= 1e-5 * w.max(1e-3),
-                        "masks {masks} ({i}, {j}): {g} vs {w}"
-                    );
-                }
-            }
-        }
-    }
 }

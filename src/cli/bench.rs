@@ -19,14 +19,8 @@ use std::path::PathBuf;
 
 #[derive(Args, Debug)]
 pub struct BenchArgs {
-    /// Dataset manifest (TOML).
-    pub manifest: PathBuf,
-    /// Only pairs of this split (e.g. 3DMatch, 3DLoMatch); default all, reported per split.
-    #[arg(long)]
-    pub split: Option<String>,
-    /// Only the first N pairs.
-    #[arg(long)]
-    pub limit: Option<usize>,
+    #[command(flatten)]
+    pub pairs: PairsArgs,
     /// List the pairs and exit.
     #[arg(long)]
     pub list: bool,
@@ -39,6 +33,31 @@ pub struct BenchArgs {
     pub pipeline: PipelineArgs,
     #[command(flatten)]
     pub image: ImageArgs,
+}
+
+/// The pairs a run covers, shared by `bench`, `study` and `generate`.
+#[derive(Args, Debug, Clone)]
+pub struct PairsArgs {
+    /// Dataset manifest (TOML).
+    pub manifest: PathBuf,
+    /// Only pairs of this split (e.g. 3DMatch, 3DLoMatch); default all, reported per split.
+    #[arg(long)]
+    pub split: Option<String>,
+    /// Only the first N pairs.
+    #[arg(long)]
+    pub limit: Option<usize>,
+}
+
+impl PairsArgs {
+    /// The dataset, with the fragment cache the image options name.
+    pub fn dataset(&self, image: &ImageArgs) -> Result<Dataset> {
+        Ok(Dataset::load(&self.manifest)?.with_fragment_cache(image.fragment_cache_dir()))
+    }
+
+    /// The selected pairs; none is an error naming the manifest.
+    pub fn select<'a>(&self, ds: &'a Dataset) -> Result<Vec<&'a PairSpec>> {
+        selection(ds, &self.manifest, self.split.as_deref(), self.limit)
+    }
 }
 
 /// Sharding and resuming, shared by `bench`, `study` and `generate`.
@@ -251,23 +270,23 @@ pub fn selection<'a>(
 }
 
 pub fn run(a: BenchArgs) -> Result<()> {
-    let ds = Dataset::load(&a.manifest)?.with_fragment_cache(a.image.fragment_cache_dir());
+    let ds = a.pairs.dataset(&a.image)?;
     if a.list {
-        for p in ds.select_pairs(a.split.as_deref(), a.limit) {
+        for p in ds.select_pairs(a.pairs.split.as_deref(), a.pairs.limit) {
             println!("{}\t{}", p.id, p.split);
         }
         return Ok(());
     }
-    let specs = selection(&ds, &a.manifest, a.split.as_deref(), a.limit)?;
+    let specs = a.pairs.select(&ds)?;
     let (params, cache) = a.image.params_and_cache(&a.pipeline)?;
     let shard = a.run.shard();
     let params_json = serde_json::to_value(&params)
         .map_err(|e| Error::Invalid(format!("serialising parameters: {e}")))?;
     let identity = RunIdentity::new(
         "bench",
-        &a.manifest,
-        a.split.as_deref(),
-        a.limit,
+        &a.pairs.manifest,
+        a.pairs.split.as_deref(),
+        a.pairs.limit,
         params_json,
         shard.count,
         specs.iter().map(|s| s.id.clone()).collect(),

@@ -9,8 +9,7 @@
 //! metrics are kept in the output as a by-product.
 
 use super::args::{ImageArgs, PipelineArgs};
-use super::bench::{log_line, progress_bar, selection, RunArgs};
-use crate::dataset::manifest::Dataset;
+use super::bench::{log_line, progress_bar, PairsArgs, RunArgs};
 use crate::error::{Error, Result};
 use crate::pipeline::shard::{
     run_pending, stage_totals, PairRecord, Progress, RunFile, RunIdentity, StageTime, DONE,
@@ -21,14 +20,8 @@ use std::path::PathBuf;
 
 #[derive(Args, Debug)]
 pub struct GenerateArgs {
-    /// Dataset manifest (TOML).
-    pub manifest: PathBuf,
-    /// Only pairs of this split.
-    #[arg(long)]
-    pub split: Option<String>,
-    /// Only the first N pairs.
-    #[arg(long)]
-    pub limit: Option<usize>,
+    #[command(flatten)]
+    pub pairs: PairsArgs,
     /// Record per-pair stage times and cache status as JSON, rewritten after every pair
     /// (resumable; `cgenreg status` reads it).
     #[arg(long)]
@@ -65,8 +58,8 @@ pub fn run(a: GenerateArgs) -> Result<()> {
             "generate writes into the stage cache: --no-cache makes no sense here".into(),
         ));
     }
-    let ds = Dataset::load(&a.manifest)?.with_fragment_cache(a.image.fragment_cache_dir());
-    let specs = selection(&ds, &a.manifest, a.split.as_deref(), a.limit)?;
+    let ds = a.pairs.dataset(&a.image)?;
+    let specs = a.pairs.select(&ds)?;
     let (params, cache) = a.image.params_and_cache(&a.pipeline)?;
     let Some(ib) = params.image.clone() else {
         return Err(Error::Invalid("no image branch".into()));
@@ -74,9 +67,9 @@ pub fn run(a: GenerateArgs) -> Result<()> {
     let shard = a.run.shard();
     let identity = RunIdentity::new(
         "generate",
-        &a.manifest,
-        a.split.as_deref(),
-        a.limit,
+        &a.pairs.manifest,
+        a.pairs.split.as_deref(),
+        a.pairs.limit,
         serde_json::to_value(&params)
             .map_err(|e| Error::Invalid(format!("serialising parameters: {e}")))?,
         shard.count,

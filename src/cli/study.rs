@@ -2,8 +2,7 @@
 //! (figure 4) over the pairs of a manifest, with the same image-branch options as `bench`.
 
 use super::args::{ImageArgs, PipelineArgs};
-use super::bench::{log_line, progress_bar, selection, RunArgs};
-use crate::dataset::manifest::Dataset;
+use super::bench::{log_line, progress_bar, PairsArgs, RunArgs};
 use crate::error::{Error, Result};
 use crate::pipeline::params::WfmSpec;
 use crate::pipeline::shard::{
@@ -53,14 +52,8 @@ pub struct PromptArgs {
 
 #[derive(Args, Debug)]
 pub struct CommonArgs {
-    /// Dataset manifest (TOML).
-    pub manifest: PathBuf,
-    /// Only pairs of this split (e.g. 3DMatch, 3DLoMatch).
-    #[arg(long)]
-    pub split: Option<String>,
-    /// Only the first N pairs.
-    #[arg(long)]
-    pub limit: Option<usize>,
+    #[command(flatten)]
+    pub pairs: PairsArgs,
     /// Run the generator when a generation is not cached. Default: on for the oracle, the
     /// built-in generator and a cached Cosmos folder (they only read or shade frames), off for
     /// --wfm cosmos (pairs without a cached generation are then skipped and counted).
@@ -193,8 +186,8 @@ fn run_common(a: &CommonArgs, settings: Vec<StudySetting>, command: &str) -> Res
             "a study needs the image branch: pass --wfm oracle, builtin, cached or cosmos".into(),
         ));
     }
-    let ds = Dataset::load(&a.manifest)?.with_fragment_cache(a.image.fragment_cache_dir());
-    let specs = selection(&ds, &a.manifest, a.split.as_deref(), a.limit)?;
+    let ds = a.pairs.dataset(&a.image)?;
+    let specs = a.pairs.select(&ds)?;
     let (params, cache) = a.image.params_and_cache(&a.pipeline)?;
     let generate = a.generate
         || !matches!(
@@ -205,9 +198,9 @@ fn run_common(a: &CommonArgs, settings: Vec<StudySetting>, command: &str) -> Res
     let shard = a.run.shard();
     let identity = RunIdentity::new(
         command,
-        &a.manifest,
-        a.split.as_deref(),
-        a.limit,
+        &a.pairs.manifest,
+        a.pairs.split.as_deref(),
+        a.pairs.limit,
         json!({
             "register": serde_json::to_value(&params)
                 .map_err(|e| Error::Invalid(format!("serialising parameters: {e}")))?,

@@ -130,15 +130,7 @@ pub fn calibrate_in_place(
     if m.rows == 0 || m.cols == 0 {
         return Ok(());
     }
-    // Additive column bias: 0 for valid columns, -inf for invalid ones, so `s + bias` is the
-    // masked logit without a branch in the inner loops.
-    let bias: Vec<f32> = match col_valid {
-        Some(c) => c
-            .iter()
-            .map(|&v| if v { 0.0 } else { f32::NEG_INFINITY })
-            .collect(),
-        None => vec![0.0; m.cols],
-    };
+    let bias = col_bias(m.cols, col_valid);
     match cal {
         Calibration::RowSoftmax { .. } => row_softmax(m, row_valid, &bias, 1.0 / tau),
         Calibration::DualSoftmax { .. } => dual_softmax(m, row_valid, col_valid, &bias, 1.0 / tau),
@@ -189,8 +181,113 @@ fn dual_softmax(
     it: f32,
 ) {
     let (rows, cols) = (m.rows, m.cols);
-    let band = rows_per_task(rows, cols, 1 << 18);
-    let row_ok = |i: usize| row_valid.is_none_or(|r| r[i]);
+    let st = dual_stats(m, row_valid, col_valid, bias, it);
+    // Pass 3: P = sqrt(Pr * Pc + eps), row by row.
+    m.data
+        .par_chunks_mut(cols)
+        .enumerate()
+        .with_min_len(rows_per_task(rows, cols, 1 << 15))
+        .for_each(|(i, row)| st.row_in_place(i, row));
+}
+
+/// The row and column statistics of the dual softmax of `S / tau` (passes 1 and 2 of
+/// [`calibrate`]'s dual softmax): with them any row of the calibrated matrix follows from that
+/// row of `S` alone ([`DualStats::row_in_place`]), so the posterior inspector gets one row
+/// without an N x M copy, computed by the same code as the whole matrix.
+pub(crate) struct DualStats {
+    row_ok: Vec<bool>,
+    rmax: Vec<f32>,
+    rlse: Vec<f32>,
+    cmax_f: Vec<f32>,
+    clse_f: Vec<f32>,
+    cgate: Vec<f32>,
+    it: f32,
+}
+
+impl DualStats {
+    /// Row `i` of the dual softmax, in place on that row of the similarity.
+    #[inline]
+    pub(crate) fn row_in_place(&self, i: usize, row: &mut [f32]) {
+        if !self.row_ok[i] || self.rmax[i] == f32::NEG_INFINITY {
+            row.fill(0.0);
+            return;
+        }
+        let it = self.it;
+        let (a, la) = (self.rmax[i], self.rlse[i]);
+        for (v, ((m, l), g)) in row
+            .iter_mut()
+            .zip(self.cmax_f.iter().zip(&self.clse_f).zip(&self.cgate))
+        {
+            let s = *v;
+            let z = (s - a) * it - la + ((s - m) * it - l);
+            *v = (fast_exp(z) + DUAL_SOFTMAX_EPS).sqrt() * g;
+        }
+    }
+}
+
+/// [`DualStats`] of `m` (masks as in [`calibrate`]); errors as [`calibrate`] does.
+pub(crate) fn dual_stats_of(
+    m: &DenseMatrix,
+    row_valid: Option<&[bool]>,
+    col_valid: Option<&[bool]>,
+    tau: f32,
+) -> Result<DualStats> {
+    check_masks("calibrate", m.rows, m.cols, row_valid, col_valid)?;
+    if m.data.len() != m.rows * m.cols {
+        return Err(Error::Invalid(format!(
+            "calibrate: matrix holds {} values, expected {} x {}",
+            m.data.len(),
+            m.rows,
+            m.cols
+        )));
+    }
+    if !(tau.is_finite() && tau > 0.0) {
+        return Err(Error::Invalid(format!(
+            "calibrate: temperature must be a positive finite number, found {tau}"
+        )));
+    }
+    Ok(dual_stats(
+        m,
+        row_valid,
+        col_valid,
+        &col_bias(m.cols, col_valid),
+        1.0 / tau,
+    ))
+}
+
+/// Additive column bias: 0 for valid columns, -inf for invalid ones, so `s + bias` is the
+/// masked logit without a branch in the inner loops.
+fn col_bias(cols: usize, col_valid: Option<&[bool]>) -> Vec<f32> {
+    match col_valid {
+        Some(c) => c
+            .iter()
+            .map(|&v| if v { 0.0 } else { f32::NEG_INFINITY })
+            .collect(),
+        None => vec![0.0; cols],
+    }
+}
+
+fn dual_stats(
+    m: &DenseMatrix,
+    row_valid: Option<&[bool]>,
+    col_valid: Option<&[bool]>,
+    bias: &[f32],
+    it: f32,
+) -> DualStats {
+    let (rows, cols) = (m.rows, m.cols);
+    let band = rows_per_task(rows, cols, 1 << 18).max(1);
+    let row_ok: Vec<bool> = (0..rows).map(|i| row_valid.is_none_or(|r| r[i])).collect();
+    if cols == 0 {
+        return DualStats {
+            row_ok,
+            rmax: vec![f32::NEG_INFINITY; rows],
+            rlse: vec![0.0; rows],
+            cmax_f: Vec::new(),
+            clse_f: Vec::new(),
+            cgate: Vec::new(),
+            it,
+        };
+    }
 
     // Pass 1: row maxima and column maxima of the masked similarities.
     let mut rmax = vec![f32::NEG_INFINITY; rows];
@@ -202,7 +299,7 @@ fn dual_softmax(
         .map(|(t, (chunk, rm))| {
             let mut cm = vec![f32::NEG_INFINITY; cols];
             for (k, (row, r)) in chunk.chunks(cols).zip(rm.iter_mut()).enumerate() {
-                if !row_ok(t * band + k) {
+                if !row_ok[t * band + k] {
                     continue;
                 }
                 for ((s, b), c) in row.iter().zip(bias).zip(cm.iter_mut()) {
@@ -232,7 +329,7 @@ fn dual_softmax(
             }
         })
         .collect();
-    // Invalid columns get finite stand-ins so the gated product below stays 0, not NaN.
+    // Invalid columns get finite stand-ins so the gated product stays 0, not NaN.
     let cmax_f: Vec<f32> = cmax
         .iter()
         .zip(&cgate)
@@ -251,7 +348,7 @@ fn dual_softmax(
             let mut cs = vec![0.0f32; cols];
             let mut scratch = vec![0.0f32; cols];
             for (k, row) in chunk.chunks(cols).enumerate() {
-                if !row_ok(t * band + k) || rm[k] == f32::NEG_INFINITY {
+                if !row_ok[t * band + k] || rm[k] == f32::NEG_INFINITY {
                     continue;
                 }
                 let a = rm[k];
@@ -281,23 +378,15 @@ fn dual_softmax(
         .zip(&cgate)
         .map(|(&c, &g)| if g > 0.0 { c.ln() } else { 0.0 })
         .collect();
-    // Pass 3: P = sqrt(Pr * Pc + eps) = sqrt(exp((s-rmax)/tau - rlse + (s-cmax)/tau - clse) + eps).
-    m.data
-        .par_chunks_mut(cols)
-        .enumerate()
-        .with_min_len(rows_per_task(rows, cols, 1 << 15))
-        .for_each(|(i, row)| {
-            if !row_ok(i) || rmax[i] == f32::NEG_INFINITY {
-                row.fill(0.0);
-                return;
-            }
-            let (a, la) = (rmax[i], rlse[i]);
-            for (v, ((m, l), g)) in row.iter_mut().zip(cmax_f.iter().zip(&clse_f).zip(&cgate)) {
-                let s = *v;
-                let z = (s - a) * it - la + ((s - m) * it - l);
-                *v = (fast_exp(z) + DUAL_SOFTMAX_EPS).sqrt() * g;
-            }
-        });
+    DualStats {
+        row_ok,
+        rmax,
+        rlse,
+        cmax_f,
+        clse_f,
+        cgate,
+        it,
+    }
 }
 
 /// Sum with 8 independent accumulators so the loop vectorises.

@@ -57,6 +57,12 @@ pub trait WfmBackend: Send + Sync {
     fn id(&self) -> String;
     /// Produce the RGB frames for one pair's depth video.
     fn generate(&self, req: &GenerateRequest) -> Result<Generation>;
+
+    /// Generate several requests; a backend that amortises start-up (Cosmos loads a 7B model
+    /// per run) does them in one run. One result per request, in order.
+    fn generate_batch(&self, reqs: &[GenerateRequest]) -> Vec<Result<Generation>> {
+        reqs.iter().map(|r| self.generate(r)).collect()
+    }
 }
 
 pub(crate) fn now_unix() -> u64 {

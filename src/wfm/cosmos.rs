@@ -434,51 +434,125 @@ impl WfmBackend for CosmosBackend {
     }
 
     fn generate(&self, req: &GenerateRequest) -> Result<Generation> {
+        let mut out = self.run_batch(&req.pair_id, std::slice::from_ref(req))?;
+        out.pop().expect("one result per request")
+    }
+
+    /// One job folder and one run of the command for every request of the same seed (the
+    /// reference's `--seed` is global to a batch): line i of `batch_input.jsonl` is request i,
+    /// and its video comes back from `output/video_<i>/`. A line the guardrail blocked fails
+    /// alone; a failing command fails every line of its batch.
+    fn generate_batch(&self, reqs: &[GenerateRequest]) -> Vec<Result<Generation>> {
+        let mut out: Vec<Option<Result<Generation>>> = (0..reqs.len()).map(|_| None).collect();
+        let mut seeds: Vec<u64> = reqs.iter().map(|r| r.seed).collect();
+        seeds.sort_unstable();
+        seeds.dedup();
+        for seed in seeds {
+            let idx: Vec<usize> = (0..reqs.len()).filter(|&i| reqs[i].seed == seed).collect();
+            let batch: Vec<GenerateRequest> = idx.iter().map(|&i| reqs[i].clone()).collect();
+            let label = format!("batch{}-seed{seed}", batch.len());
+            match self.run_batch(&label, &batch) {
+                Ok(rs) => {
+                    for (i, r) in idx.iter().zip(rs) {
+                        out[*i] = Some(r);
+                    }
+                }
+                Err(e) => {
+                    let msg = e.to_string();
+                    for i in &idx {
+                        out[*i] = Some(Err(Error::Invalid(format!(
+                            "cosmos batch of {} pairs (seed {seed}) failed: {msg}",
+                            idx.len()
+                        ))));
+                    }
+                }
+            }
+        }
+        out.into_iter()
+            .map(|r| r.expect("every request is in one seed group"))
+            .collect()
+    }
+}
+
+impl CosmosBackend {
+    /// Write the inputs of `reqs` (all with one seed) into one job folder, run the command
+    /// once and ingest one video per line. The outer error is the command's (or the inputs');
+    /// the inner ones are per line.
+    fn run_batch(&self, label: &str, reqs: &[GenerateRequest]) -> Result<Vec<Result<Generation>>> {
         let c = &self.config;
-        let job = abs(&self.job_dir(&req.pair_id))?;
+        let Some(first) = reqs.first() else {
+            return Ok(Vec::new());
+        };
+        if let Some(r) = reqs.iter().find(|r| r.seed != first.seed) {
+            return Err(Error::Invalid(format!(
+                "cosmos batch: seeds {} and {} in one batch (the command takes one --seed)",
+                first.seed, r.seed
+            )));
+        }
+        let single = reqs.len() == 1;
+        let job = abs(&self.job_dir(label))?;
         let input = job.join("input");
         let output = job.join("output");
         std::fs::create_dir_all(&input).map_err(|e| Error::io(&input, e))?;
         std::fs::create_dir_all(&output).map_err(|e| Error::io(&output, e))?;
 
-        let depth_mp4 = match &req.depth_video_path {
-            Some(p) => {
-                if !p.is_file() {
-                    return Err(Error::format(
-                        p,
-                        "depth video",
-                        "an existing mp4 file",
-                        "no such file",
-                    ));
+        let mut depth_mp4s = Vec::with_capacity(reqs.len());
+        let mut jsonl = String::new();
+        for (i, req) in reqs.iter().enumerate() {
+            let depth_mp4 = match &req.depth_video_path {
+                Some(p) => {
+                    if !p.is_file() {
+                        return Err(Error::format(
+                            p,
+                            "depth video",
+                            "an existing mp4 file",
+                            "no such file",
+                        ));
+                    }
+                    abs(p)?
                 }
-                abs(p)?
-            }
-            None => {
-                let p = input.join("depth.mp4");
-                write_mp4_h264(&p, &req.depth_video, super::depth_video::FPS)?;
-                p
-            }
-        };
-        let prompt = req.prompt.text();
+                None => {
+                    // A single request keeps the historical name `input/depth.mp4`.
+                    let name = if single {
+                        "depth.mp4".to_string()
+                    } else {
+                        format!("{i}_{}_depth.mp4", sanitize(&req.pair_id))
+                    };
+                    let p = input.join(name);
+                    write_mp4_h264(&p, &req.depth_video, super::depth_video::FPS)?;
+                    p
+                }
+            };
+            let line = BatchLine {
+                line: i,
+                prompt: req.prompt.text(),
+                input_control: depth_mp4.to_string_lossy().into_owned(),
+                control_weight: Some(c.control_weight),
+                video_save_name: Some(format!("{i}_gen_vid")),
+            };
+            jsonl.push_str(&line.to_json_line());
+            jsonl.push('\n');
+            depth_mp4s.push(depth_mp4);
+        }
         let batch = job.join("batch_input.jsonl");
-        let line = BatchLine {
-            line: 0,
-            prompt: prompt.clone(),
-            input_control: depth_mp4.to_string_lossy().into_owned(),
-            control_weight: Some(c.control_weight),
-            video_save_name: Some("0_gen_vid".into()),
-        };
-        write_atomic(&batch, format!("{}\n", line.to_json_line()).as_bytes())?;
+        write_atomic(&batch, jsonl.as_bytes())?;
+        // Batch mode reads the prompt and depth input from the JSONL; the spec's own values
+        // (the first line's) are defaults transfer.py requires to be present.
         let spec = job.join("controlnet_spec.json");
-        write_controlnet_spec(&spec, &prompt, &depth_mp4, c.control_weight)?;
+        write_controlnet_spec(
+            &spec,
+            &first.prompt.text(),
+            &depth_mp4s[0],
+            c.control_weight,
+        )?;
 
         let value = |ph: &str| -> Result<String> {
             Ok(match ph {
                 "{batch_input_path}" => batch.to_string_lossy().into_owned(),
                 "{video_save_folder}" => output.to_string_lossy().into_owned(),
                 "{controlnet_specs}" => spec.to_string_lossy().into_owned(),
-                "{depth_video}" => depth_mp4.to_string_lossy().into_owned(),
-                "{seed}" => req.seed.to_string(),
+                "{depth_video}" => depth_mp4s[0].to_string_lossy().into_owned(),
+                "{seed}" => first.seed.to_string(),
                 "{job_dir}" => job.to_string_lossy().into_owned(),
                 "{checkpoint_dir}" => c
                     .checkpoint_dir
@@ -494,14 +568,14 @@ impl WfmBackend for CosmosBackend {
                 other => other.to_string(),
             })
         };
-        let argv: Vec<String> = c.command.iter().map(|a| value(a)).collect::<Result<_>>()?;
-        let mut warnings = Vec::new();
-        if !c.command.iter().any(|a| a == "{seed}") {
-            warnings.push(format!(
-                "the command has no {{seed}} argument: seed {} was not passed to the generator",
-                req.seed
+        if !single && c.command.iter().any(|a| a == "{depth_video}") {
+            return Err(Error::Invalid(
+                "cosmos batch: the command uses {depth_video}, which names one video; a batch \
+                 of several pairs needs {batch_input_path}"
+                    .into(),
             ));
         }
+        let argv: Vec<String> = c.command.iter().map(|a| value(a)).collect::<Result<_>>()?;
         let started = Instant::now();
         run_logged(
             &argv,
@@ -512,7 +586,37 @@ impl WfmBackend for CosmosBackend {
             c.timeout,
         )?;
         let elapsed = started.elapsed().as_secs_f64();
-        let (frames, used_prompt) = ingest_output(&output.join("video_0"))?;
+        Ok(reqs
+            .iter()
+            .enumerate()
+            .map(|(i, req)| {
+                self.ingest_line(req, i, reqs.len(), &job, &depth_mp4s[i], &argv, elapsed)
+            })
+            .collect())
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn ingest_line(
+        &self,
+        req: &GenerateRequest,
+        line: usize,
+        batch_size: usize,
+        job: &Path,
+        depth_mp4: &Path,
+        argv: &[String],
+        elapsed: f64,
+    ) -> Result<Generation> {
+        let c = &self.config;
+        let prompt = req.prompt.text();
+        let (frames, used_prompt) =
+            ingest_output(&job.join("output").join(format!("video_{line}")))?;
+        let mut warnings = Vec::new();
+        if !c.command.iter().any(|a| a == "{seed}") {
+            warnings.push(format!(
+                "the command has no {{seed}} argument: seed {} was not passed to the generator",
+                req.seed
+            ));
+        }
         if let Some(p) = &used_prompt {
             if p.trim() != prompt.trim() {
                 warnings
@@ -526,25 +630,34 @@ impl WfmBackend for CosmosBackend {
                 req.depth_video.len()
             ));
         }
-        let provenance = Provenance {
-            backend: self.id(),
-            model: c.model.clone(),
-            command: Some(argv),
-            prompt: used_prompt.unwrap_or(prompt),
-            seed: req.seed,
-            params: serde_json::json!({
-                "control_weight": c.control_weight,
-                "timeout_s": c.timeout.as_secs_f64(),
-                "job_dir": job.to_string_lossy(),
-                "depth_video": depth_mp4.to_string_lossy(),
-                "cwd": c.cwd.as_ref().map(|p| p.to_string_lossy().into_owned()),
-                "elapsed_s": elapsed,
-            }),
-            created_unix: now_unix(),
-            frame_count: frames.len(),
-            warnings,
-        };
-        Ok(Generation { frames, provenance })
+        let mut params = serde_json::json!({
+            "control_weight": c.control_weight,
+            "timeout_s": c.timeout.as_secs_f64(),
+            "job_dir": job.to_string_lossy(),
+            "depth_video": depth_mp4.to_string_lossy(),
+            "cwd": c.cwd.as_ref().map(|p| p.to_string_lossy().into_owned()),
+            "elapsed_s": elapsed,
+        });
+        if batch_size > 1 {
+            // Elapsed time is the whole batch's; per pair it is shared.
+            params["batch_line"] = line.into();
+            params["batch_size"] = batch_size.into();
+        }
+        let frame_count = frames.len();
+        Ok(Generation {
+            frames,
+            provenance: Provenance {
+                backend: self.id(),
+                model: c.model.clone(),
+                command: Some(argv.to_vec()),
+                prompt: used_prompt.unwrap_or(prompt),
+                seed: req.seed,
+                params,
+                created_unix: now_unix(),
+                frame_count,
+                warnings,
+            },
+        })
     }
 }
 
