@@ -499,7 +499,8 @@ pub fn default_posterior_point(matches: &[MatchInfo]) -> Option<(usize, String)>
         return Some((
             m.src,
             format!(
-                "opened on the strongest selected match that fails under GT: source #{} →                  target #{}, fused score {:.3} (rank {} of {n}; {wrong} of {n} matches are                  > 10 cm off GT)",
+                "opened on the strongest selected match that fails under GT: source #{} -> target #{}, \
+                 fused score {:.3} (rank {} of {n}; {wrong} of {n} matches are > 10 cm off GT)",
                 m.src,
                 m.tgt,
                 m.score,
@@ -516,7 +517,8 @@ pub fn default_posterior_point(matches: &[MatchInfo]) -> Option<(usize, String)>
     Some((
         m.src,
         format!(
-            "opened on the strongest selected match ({why}): source #{} → target #{}, fused              score {:.3}",
+            "opened on the strongest selected match ({why}): source #{} -> target #{}, fused \
+             score {:.3}",
             m.src, m.tgt, m.score
         ),
     ))
@@ -1687,7 +1689,7 @@ pub fn find_cosmos_spec(dir: &Path) -> crate::Result<PathBuf> {
                 }
                 return Err(Error::Invalid(format!(
                     "{}: several JSONL batch specs ({}), none named like {}; choose one under \
-                     Image branch → JSONL spec",
+                     Image branch > JSONL spec",
                     d.display(),
                     names(many),
                     dir.display()
@@ -1697,7 +1699,7 @@ pub fn find_cosmos_spec(dir: &Path) -> crate::Result<PathBuf> {
     }
     Err(Error::Invalid(format!(
         "no JSONL batch spec (*.jsonl, or a .json of JSON lines) for the Cosmos output folder \
-         {}: looked in {}; put the spec there or choose it under Image branch → JSONL spec",
+         {}: looked in {}; put the spec there or choose it under Image branch > JSONL spec",
         dir.display(),
         names(&places)
     )))
