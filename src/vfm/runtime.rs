@@ -345,30 +345,14 @@ impl OnnxModel {
         output: &str,
         f: impl FnOnce(&[i64], &[f32]) -> Result<R>,
     ) -> Result<R> {
-        let err = |e: ort::Error| Error::External {
-            what: format!("{} ({})", self.path.display(), backend_name()),
-            message: e.to_string(),
-        };
-        let mut values: Vec<(
-            std::borrow::Cow<'_, str>,
-            ort::session::SessionInputValue<'_>,
-        )> = Vec::new();
-        for (name, shape, data) in inputs {
-            let t = ort::value::Tensor::from_array((shape, data)).map_err(err)?;
-            values.push((name.to_string().into(), t.into()));
-        }
-        let mut session = self
-            .session
-            .lock()
-            .map_err(|_| Error::Invalid("ONNX session poisoned by an earlier panic".into()))?;
-        let out = session.run(values).map_err(err)?;
-        let v = out.get(output).ok_or_else(|| Error::External {
-            what: self.path.display().to_string(),
-            message: format!("no output named {output}"),
-        })?;
-        let (shape, data) = v.try_extract_tensor::<f32>().map_err(err)?;
-        let shape: Vec<i64> = shape.iter().copied().collect();
-        f(&shape, data)
+        // One output asked, so `f` runs once.
+        let mut f = Some(f);
+        self.run_each(inputs, &[output], |shape, data| match f.take() {
+            Some(f) => f(shape, data),
+            None => Err(Error::Invalid(format!("output {output} seen twice"))),
+        })?
+        .pop()
+        .ok_or_else(|| Error::Invalid(format!("no result for output {output}")))
     }
 
     /// Run on f32 inputs given as (name, shape, data); returns the named f32 outputs as
@@ -378,6 +362,19 @@ impl OnnxModel {
         inputs: Vec<(&str, Vec<i64>, Vec<f32>)>,
         outputs: &[&str],
     ) -> Result<Vec<(Vec<i64>, Vec<f32>)>> {
+        self.run_each(inputs, outputs, |shape, data| {
+            Ok((shape.to_vec(), data.to_vec()))
+        })
+    }
+
+    /// Run on f32 inputs and hand each named f32 output, in the order of `outputs`, to `f` as
+    /// (shape, data) while it is still the runtime's buffer.
+    fn run_each<R>(
+        &self,
+        inputs: Vec<(&str, Vec<i64>, Vec<f32>)>,
+        outputs: &[&str],
+        mut f: impl FnMut(&[i64], &[f32]) -> Result<R>,
+    ) -> Result<Vec<R>> {
         let err = |e: ort::Error| Error::External {
             what: format!("{} ({})", self.path.display(), backend_name()),
             message: e.to_string(),
@@ -402,7 +399,8 @@ impl OnnxModel {
                 message: format!("no output named {name}"),
             })?;
             let (shape, data) = v.try_extract_tensor::<f32>().map_err(err)?;
-            res.push((shape.iter().copied().collect(), data.to_vec()));
+            let shape: Vec<i64> = shape.iter().copied().collect();
+            res.push(f(&shape, data)?);
         }
         Ok(res)
     }
