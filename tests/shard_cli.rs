@@ -363,16 +363,7 @@ fn generate_with_cosmos_runs_one_batch_per_shard_and_then_reads_the_cache() {
             ])
             .arg("--cosmos-cmd")
             .arg(&script);
-        for a in [
-            "--batch_input_path",
-            "{batch_input_path}",
-            "--video_save_folder",
-            "{video_save_folder}",
-            "--controlnet_specs",
-            "{controlnet_specs}",
-            "--seed",
-            "{seed}",
-        ] {
+        for a in common::FAKE_COSMOS_ARGS {
             c.arg(format!("--cosmos-cmd={a}"));
         }
         c.arg("--cosmos-work-dir")

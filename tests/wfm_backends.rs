@@ -194,17 +194,9 @@ fn cosmos_fake_generator_is_ingested() {
     let work = tempfile::tempdir().unwrap();
     let script = fake_cosmos(work.path());
     let cfg = CosmosConfig::new(
-        vec![
-            script.to_string_lossy().into_owned(),
-            "--batch_input_path".into(),
-            "{batch_input_path}".into(),
-            "--video_save_folder".into(),
-            "{video_save_folder}".into(),
-            "--controlnet_specs".into(),
-            "{controlnet_specs}".into(),
-            "--seed".into(),
-            "{seed}".into(),
-        ],
+        std::iter::once(script.to_string_lossy().into_owned())
+            .chain(common::FAKE_COSMOS_ARGS.iter().map(|a| a.to_string()))
+            .collect(),
         work.path().join("jobs"),
         Duration::from_secs(60),
     );
@@ -479,17 +471,9 @@ fn cosmos_batch_runs_once_per_seed_and_keeps_lines_aligned() {
     let work = tempfile::tempdir().unwrap();
     let script = fake_cosmos_batch(work.path());
     let cfg = CosmosConfig::new(
-        args(&[
-            &script.to_string_lossy(),
-            "--batch_input_path",
-            "{batch_input_path}",
-            "--video_save_folder",
-            "{video_save_folder}",
-            "--controlnet_specs",
-            "{controlnet_specs}",
-            "--seed",
-            "{seed}",
-        ]),
+        std::iter::once(script.to_string_lossy().into_owned())
+            .chain(common::FAKE_COSMOS_ARGS.iter().map(|a| a.to_string()))
+            .collect(),
         work.path().join("jobs"),
         Duration::from_secs(120),
     );

@@ -56,6 +56,19 @@ pub fn json_close(a: &serde_json::Value, b: &serde_json::Value) -> bool {
 /// A stand-in for batch-mode Cosmos: one run for the whole JSONL; line i's depth video is
 /// transcoded into `video_<i>/output.mp4`, and a prompt containing BLOCKED leaves an empty
 /// `video_<i>/` as the guardrail does. Every run appends a line to `runs.log`.
+/// The arguments after the program that the fake Cosmos scripts parse: the reference's
+/// placeholders, substituted by the backend.
+pub const FAKE_COSMOS_ARGS: [&str; 8] = [
+    "--batch_input_path",
+    "{batch_input_path}",
+    "--video_save_folder",
+    "{video_save_folder}",
+    "--controlnet_specs",
+    "{controlnet_specs}",
+    "--seed",
+    "{seed}",
+];
+
 pub fn fake_cosmos_batch(dir: &std::path::Path) -> PathBuf {
     let p = dir.join("fake_cosmos_batch.sh");
     std::fs::write(
