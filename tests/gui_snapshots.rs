@@ -100,6 +100,32 @@ fn snapshot_stages() {
     snapshot_panel(Panel::Stages, "stages");
 }
 
+/// The Compare tab over two real bench runs of docs/ablation: FPFH NN (A) against oracle RGB
+/// + XFeat with FPFH, Noisy-AND, NN (B), the first row (flipped first) selected.
+#[test]
+fn snapshot_compare() {
+    use cgenreg::app::compare_panel::load_comparison;
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/ablation");
+    let mut l = load_comparison(
+        &dir.join("fpfh-nn.json"),
+        &dir.join("oracle-noisy-and-nn.json"),
+    )
+    .unwrap();
+    // whether run B's VFM model file exists depends on the machine: not in the image
+    l.b.missing.clear();
+    let mut app = demo_app();
+    app.ui_state.tab = Panel::Compare;
+    app.compare.set_loaded(l);
+    let first = app.compare.rows()[0];
+    let id = app.compare.loaded.as_ref().unwrap().comparison.pairs[first]
+        .id
+        .clone();
+    app.compare.selected = Some(id);
+    let Some(mut h) = harness(app) else { return };
+    h.run_steps(4);
+    h.snapshot("compare");
+}
+
 struct Recorder(Arc<Mutex<Vec<Command>>>);
 impl Worker for Recorder {
     fn handle(&mut self, command: Command, _events: &EventSink) {

@@ -33,6 +33,13 @@ pub enum Command {
         paths: Vec<PathBuf>,
     },
     SelectPair(String),
+    /// Register `pair` with `params` (another run's settings, from the Compare tab): the
+    /// settings change and the pair is selected in one step, so the current pair is not
+    /// re-run with the new settings first.
+    OpenPairWith {
+        pair: String,
+        params: RegisterParams,
+    },
     /// New parameters; re-run the stages that depend on what changed, from the cache.
     ApplySettings(RegisterParams),
     /// Run the configured generator for a prompt whose generation is not cached.
@@ -77,6 +84,7 @@ impl Command {
                     Command::InspectSourcePoint(_)
                 )
                 | (Command::SelectPair(_), Command::SelectPair(_))
+                | (Command::OpenPairWith { .. }, Command::OpenPairWith { .. })
                 | (Command::Figure7, Command::Figure7)
         )
     }

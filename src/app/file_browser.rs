@@ -14,8 +14,14 @@ pub fn extensions(kind: OpenKind) -> &'static [&'static str] {
     match kind {
         OpenKind::Manifest => &["json", "toml", "txt"],
         OpenKind::TwoClouds => &["ply", "pcd", "xyz", "npy", "bin", "pth", "txt"],
+        OpenKind::Comparison => &["json"],
         _ => &[],
     }
+}
+
+/// Kinds opened from several picked files (clicking a file picks it instead of opening it).
+fn picks_files(kind: OpenKind) -> bool {
+    matches!(kind, OpenKind::TwoClouds | OpenKind::Comparison)
 }
 
 /// One row of the listing.
@@ -110,6 +116,8 @@ pub fn validate(kind: OpenKind, paths: &[PathBuf]) -> Result<(), String> {
     }
     match kind {
         OpenKind::TwoClouds => crate::dataset::open::split_two_clouds(paths).map(|_| ()),
+        OpenKind::Comparison if paths.len() == 2 => Ok(()),
+        OpenKind::Comparison => Err("choose two bench JSONs: run A, then run B".into()),
         _ if paths.len() == 1 => Ok(()),
         _ => Err("choose one file".into()),
     }
@@ -185,7 +193,7 @@ impl FileBrowser {
 
     /// The paths an "Open" now would send.
     pub fn chosen(&self) -> Vec<PathBuf> {
-        if self.kind == OpenKind::TwoClouds {
+        if picks_files(self.kind) {
             return self.picked.clone();
         }
         let p = self.typed_path();
@@ -208,7 +216,7 @@ impl FileBrowser {
             return None;
         }
         if p.is_file() {
-            if self.kind == OpenKind::TwoClouds {
+            if picks_files(self.kind) {
                 self.pick(p);
                 return None;
             }
@@ -221,6 +229,10 @@ impl FileBrowser {
     fn pick(&mut self, p: PathBuf) {
         if let Some(i) = self.picked.iter().position(|q| *q == p) {
             self.picked.remove(i);
+        } else if self.kind == OpenKind::Comparison && self.picked.len() < 2 {
+            self.picked.push(p);
+        } else if self.kind == OpenKind::Comparison {
+            self.message = Some("two runs: A, then B (click a picked file to drop it)".into());
         } else if self.picked.len() < 3 {
             self.picked.push(p);
         } else {
@@ -342,7 +354,7 @@ impl FileBrowser {
                     } else if r.clicked() {
                         if e.is_dir {
                             self.enter(p);
-                        } else if self.kind == OpenKind::TwoClouds {
+                        } else if picks_files(self.kind) {
                             self.pick(p);
                         } else {
                             self.text = p.display().to_string();
@@ -350,9 +362,14 @@ impl FileBrowser {
                     }
                 }
             });
-        if self.kind == OpenKind::TwoClouds {
+        if picks_files(self.kind) {
             ui.label(format!(
-                "picked (source, target, optional 4x4 GT): {}",
+                "picked ({}): {}",
+                if self.kind == OpenKind::Comparison {
+                    "run A, run B"
+                } else {
+                    "source, target, optional 4x4 GT"
+                },
                 if self.picked.is_empty() {
                     "none".to_string()
                 } else {

@@ -5,6 +5,7 @@
 //! [`WorkerEvent`]s replace the model, update stages and fill the log.
 
 pub mod colormap;
+pub mod compare_panel;
 pub mod controls;
 pub mod file_browser;
 pub mod headless;
@@ -47,15 +48,17 @@ pub enum Panel {
     Posterior,
     Plots,
     Stages,
+    Compare,
 }
 
 impl Panel {
-    pub const ALL: [Panel; 5] = [
+    pub const ALL: [Panel; 6] = [
         Self::Views,
         Self::View3d,
         Self::Posterior,
         Self::Plots,
         Self::Stages,
+        Self::Compare,
     ];
     pub fn label(self) -> &'static str {
         match self {
@@ -64,9 +67,10 @@ impl Panel {
             Self::Posterior => "Posterior",
             Self::Plots => "Plots",
             Self::Stages => "Stages",
+            Self::Compare => "Compare",
         }
     }
-    /// Parses a CLI name ("views", "3d", "posterior", "plots", "stages").
+    /// Parses a CLI name ("views", "3d", "posterior", "plots", "stages", "compare").
     pub fn from_name(s: &str) -> Option<Panel> {
         match s.to_ascii_lowercase().as_str() {
             "views" => Some(Self::Views),
@@ -74,6 +78,7 @@ impl Panel {
             "posterior" => Some(Self::Posterior),
             "plots" => Some(Self::Plots),
             "stages" => Some(Self::Stages),
+            "compare" => Some(Self::Compare),
             _ => None,
         }
     }
@@ -308,6 +313,8 @@ pub struct App {
     views: ViewsState,
     posterior: PosteriorState,
     pub plots: plots_panel::PlotsState,
+    /// The Compare tab: two bench runs side by side.
+    pub compare: compare_panel::CompareState,
     worker: Option<WorkerHandle>,
     pub log: Vec<LogLine>,
     show_log: bool,
@@ -342,6 +349,7 @@ impl App {
             views: ViewsState::default(),
             posterior: PosteriorState::default(),
             plots: plots_panel::PlotsState::default(),
+            compare: compare_panel::CompareState::default(),
             worker,
             log: Vec::new(),
             show_log: false,
@@ -499,7 +507,7 @@ impl App {
                 let fast = started.elapsed() < NO_DIALOG_WITHIN;
                 self.dialog = None;
                 match paths {
-                    Some(paths) if !paths.is_empty() => self.send(Command::Open { kind, paths }),
+                    Some(paths) if !paths.is_empty() => self.open_paths(kind, paths),
                     // rfd answers None at once when it has neither a portal nor zenity
                     _ if fast => {
                         self.push_log(
@@ -510,6 +518,70 @@ impl App {
                         self.open_browser(kind);
                     }
                     _ => self.push_log(LogLevel::Info, "open cancelled"),
+                }
+            }
+        }
+    }
+
+    /// Compares two bench runs in the Compare tab (read off the UI thread).
+    pub fn compare_runs(&mut self, a: PathBuf, b: PathBuf) {
+        self.compare.request(a, b);
+        self.ui_state.tab = Panel::Compare;
+    }
+
+    /// What a file dialog or the in-app browser chose: data for the worker, or two runs to
+    /// compare.
+    fn open_paths(&mut self, kind: OpenKind, paths: Vec<PathBuf>) {
+        if kind != OpenKind::Comparison {
+            return self.send(Command::Open { kind, paths });
+        }
+        match <[PathBuf; 2]>::try_from(paths) {
+            Ok([a, b]) => self.compare_runs(a, b),
+            Err(p) => self.push_log(
+                LogLevel::Error,
+                format!(
+                    "compare runs: choose two bench JSONs (run A, then run B), got {}",
+                    p.len()
+                ),
+            ),
+        }
+    }
+
+    /// Carries out what the Compare tab asked for.
+    fn compare_action(
+        &mut self,
+        action: compare_panel::CompareAction,
+        commands: &mut Vec<Command>,
+        open_request: &mut Option<OpenKind>,
+    ) {
+        use compare_panel::CompareAction;
+        match action {
+            CompareAction::Browse => *open_request = Some(OpenKind::Comparison),
+            CompareAction::OpenManifest(m) => commands.push(Command::Open {
+                kind: OpenKind::Manifest,
+                paths: vec![m],
+            }),
+            CompareAction::Open(side, pair) => {
+                let Some(l) = &self.compare.loaded else {
+                    return;
+                };
+                let run = l.run(side);
+                match &run.params {
+                    Ok(p) => {
+                        let text = format!(
+                            "{pair}: opening with run {}'s settings ({})",
+                            side.label(),
+                            run.path.display()
+                        );
+                        self.params = p.clone();
+                        commands.push(Command::OpenPairWith {
+                            pair,
+                            params: p.clone(),
+                        });
+                        self.push_log(LogLevel::Info, text);
+                        self.ui_state.tab = Panel::Views;
+                    }
+                    Err(e) => self.push_log(LogLevel::Error, e.clone()),
                 }
             }
         }
@@ -544,6 +616,11 @@ impl App {
                     let d = rfd::AsyncFileDialog::new();
                     if kind.wants_folder() {
                         d.pick_folder().await.map(|h| vec![h.path().to_path_buf()])
+                    } else if kind == OpenKind::Comparison {
+                        d.add_filter("bench JSON (run A, then run B)", &["json"])
+                            .pick_files()
+                            .await
+                            .map(|v| v.iter().map(|h| h.path().to_path_buf()).collect())
                     } else if kind == OpenKind::TwoClouds {
                         // a third file may be the 4x4 ground truth (.txt / gt.npy)
                         d.add_filter(
@@ -606,10 +683,14 @@ impl App {
     pub fn show(&mut self, ui: &mut egui::Ui) {
         let ctx = ui.ctx().clone();
         self.poll_worker();
+        for (level, text) in self.compare.poll(&ctx) {
+            self.push_log(level, text);
+        }
         self.handle_drops(&ctx);
         self.ui_state.prev_hovered = self.ui_state.hovered_match.take();
         let mut commands: Vec<Command> = Vec::new();
         let mut open_request: Option<OpenKind> = None;
+        let mut compare_action = None;
         let scene = self.scene_specific_prompt();
 
         egui::Panel::bottom("log_bar").show(ui, |ui| self.log_bar(ui));
@@ -631,6 +712,7 @@ impl App {
                                 OpenKind::RgbdSequence,
                                 OpenKind::TwoClouds,
                                 OpenKind::CosmosOutput,
+                                OpenKind::Comparison,
                             ] {
                                 if ui.button(k.label()).clicked() {
                                     open_request = Some(k);
@@ -793,14 +875,29 @@ impl App {
                     plots_panel::plots_panel(ui, shared.model, &mut self.plots, shared.commands)
                 }
                 Panel::Stages => stages_panel::stages_panel(ui, &self.model),
+                Panel::Compare => {
+                    compare_action =
+                        compare_panel::compare_panel(ui, shared.model, &mut self.compare)
+                }
             }
         });
+        if let Some(a) = compare_action {
+            self.compare_action(a, &mut commands, &mut open_request);
+        }
 
         if let Some(k) = open_request {
             self.open_dialog(k, &ctx);
         }
         if let Some(b) = &mut self.browser {
             match b.show(&ctx) {
+                Some(file_browser::BrowserOutcome::Open(kind, paths))
+                    if kind == OpenKind::Comparison =>
+                {
+                    self.browser = None;
+                    if let [a, b] = &paths[..] {
+                        self.compare_runs(a.clone(), b.clone());
+                    }
+                }
                 Some(file_browser::BrowserOutcome::Open(kind, paths)) => {
                     self.browser = None;
                     commands.push(Command::Open { kind, paths });
@@ -936,6 +1033,18 @@ pub fn run_gui_with(
     initial: Vec<Command>,
     worker_settings: Option<RegisterParams>,
 ) -> Result<(), String> {
+    run_gui_configured(model, worker, initial, worker_settings, |_| {})
+}
+
+/// [`run_gui_with`], with the app configured before the first frame (e.g. two runs to
+/// compare, [`App::compare_runs`]).
+pub fn run_gui_configured(
+    model: InspectorModel,
+    worker: Box<dyn Worker>,
+    initial: Vec<Command>,
+    worker_settings: Option<RegisterParams>,
+    configure: impl FnOnce(&mut App) + 'static,
+) -> Result<(), String> {
     let options = eframe::NativeOptions {
         renderer: eframe::Renderer::Glow,
         depth_buffer: 24,
@@ -964,6 +1073,7 @@ pub fn run_gui_with(
                 handle.send(c);
             }
             app.worker = Some(handle);
+            configure(&mut app);
             Ok(Box::new(EframeApp(app)))
         }),
     )

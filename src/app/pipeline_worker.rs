@@ -1212,6 +1212,10 @@ impl Worker for PipelineWorker {
     fn handle(&mut self, command: Command, events: &EventSink) {
         match command {
             Command::SelectPair(id) => self.run_and_report(&id, true, events),
+            Command::OpenPairWith { pair, params } => {
+                self.params = params;
+                self.run_and_report(&pair, true, events);
+            }
             Command::Figure7 => self.send_figure7(events),
             Command::ApplySettings(s) => {
                 // a new prompt or seed is not generated without asking (the button)

@@ -19,6 +19,9 @@ pub struct InspectArgs {
     /// Open the bundled demo even when other data was opened last time.
     #[arg(long, conflicts_with = "manifest")]
     pub demo: bool,
+    /// Two `cgenreg bench --json` outputs to compare in the Compare tab (run A, then run B).
+    #[arg(long, num_args = 2, value_names = ["A.json", "B.json"])]
+    pub compare: Option<Vec<PathBuf>>,
     #[command(flatten)]
     pub pipeline: Option<PipelineArgs>,
     /// Image branch (WFM backend, prompt, VFM, K, margin) and stage cache; the controls
@@ -35,9 +38,18 @@ pub struct ScreenshotArgs {
     /// Pair id within the manifest (default: its first pair).
     #[arg(long)]
     pub pair: Option<String>,
-    /// Panel to render: views, 3d, posterior, plots or stages.
+    /// Panel to render: views, 3d, posterior, plots, stages or compare.
     #[arg(long, default_value = "3d")]
     pub panel: String,
+    /// Two `cgenreg bench --json` outputs (run A, then run B) shown in the Compare tab; with
+    /// `--panel compare` nothing is registered, and the dataset shown is --manifest, else run
+    /// A's manifest when it is found here.
+    #[arg(long, num_args = 2, value_names = ["A.json", "B.json"])]
+    pub compare: Option<Vec<PathBuf>>,
+    /// With --compare: the pair selected in the Compare tab (default: the first row, flipped
+    /// pairs first).
+    #[arg(long, requires = "compare")]
+    pub compare_pair: Option<String>,
     /// Output PNG.
     #[arg(long)]
     pub out: PathBuf,
@@ -188,17 +200,84 @@ pub fn run_inspect(a: InspectArgs) -> Result<()> {
     // last time do, when there are any. Either way the controls show what runs.
     let persisted = crate::app::default_settings_path().is_some_and(|p| p.is_file());
     let worker_settings = (explicit || a.demo || !persisted).then(|| worker.params().clone());
-    crate::app::run_gui_with(model, Box::new(worker), initial, worker_settings)
-        .map_err(Error::Invalid)
+    let compare = a.compare.map(|v| (v[0].clone(), v[1].clone()));
+    crate::app::run_gui_configured(model, Box::new(worker), initial, worker_settings, |app| {
+        if let Some((x, y)) = compare {
+            app.compare_runs(x, y);
+        }
+    })
+    .map_err(Error::Invalid)
+}
+
+/// `screenshot --compare A B --panel compare`: the Compare tab over the two runs, without
+/// registering anything.
+fn run_compare_screenshot(a: &ScreenshotArgs, runs: &[PathBuf], panel: Panel) -> Result<()> {
+    let loaded =
+        crate::app::compare_panel::load_comparison(&runs[0], &runs[1]).map_err(Error::Invalid)?;
+    let manifest = a.manifest.clone().or_else(|| loaded.a.manifest.clone());
+    let worker = PipelineWorker::open_manifest(
+        &manifest.unwrap_or_else(demo_manifest),
+        a.pipeline.to_params(false),
+    )?;
+    let mut model = worker.initial_model(None);
+    // nothing runs: no "load + register" stage in progress
+    model.stages.clear();
+    model.image_branch_note = None;
+    let c = &loaded.comparison;
+    let rows = {
+        let mut st = crate::app::compare_panel::CompareState::default();
+        st.set_loaded(loaded.clone());
+        st.rows()
+    };
+    let selected = match &a.compare_pair {
+        Some(id) if c.pairs.iter().any(|p| &p.id == id) => Some(id.clone()),
+        Some(id) => {
+            return Err(Error::Invalid(format!(
+                "--compare-pair {id:?}: not a pair of both runs"
+            )))
+        }
+        None => rows.first().map(|&i| c.pairs[i].id.clone()),
+    };
+    eprint!("{}", crate::metrics::compare::table(c));
+    // the controls show what the worker would run (nothing runs for this screenshot)
+    let params = worker.params().clone();
+    crate::app::headless::render_screenshot_with(
+        &model,
+        panel,
+        (a.width, a.height),
+        &a.out,
+        |app| {
+            app.params = params;
+            app.compare.set_loaded(loaded);
+            app.compare.selected = selected;
+        },
+    )
+    .map_err(|e| Error::Invalid(format!("cannot render the screenshot headless: {e}")))?;
+    eprintln!("wrote {}", a.out.display());
+    Ok(())
 }
 
 pub fn run_screenshot(a: ScreenshotArgs) -> Result<()> {
     let panel = Panel::from_name(&a.panel).ok_or_else(|| {
         Error::Invalid(format!(
-            "--panel {:?}: expected views, 3d, posterior, plots or stages",
+            "--panel {:?}: expected views, 3d, posterior, plots, stages or compare",
             a.panel
         ))
     })?;
+    match (&a.compare, panel) {
+        (Some(runs), Panel::Compare) => return run_compare_screenshot(&a, runs, panel),
+        (Some(_), _) => {
+            return Err(Error::Invalid(
+                "--compare renders the Compare tab: use it with --panel compare".into(),
+            ))
+        }
+        (None, Panel::Compare) => {
+            return Err(Error::Invalid(
+                "--panel compare needs two runs: --compare A.json B.json".into(),
+            ))
+        }
+        (None, _) => {}
+    }
     let (mut worker, id) = open(
         a.manifest.as_deref(),
         a.pair.as_deref(),

@@ -57,6 +57,7 @@ pub enum Command {
     SlurmTask(slurm::SlurmTaskArgs),
     /// Open the inspector GUI (the default command; the bundled demo pair when no data is given).
     #[cfg(feature = "gui")]
+    #[command(alias = "gui")]
     Inspect(gui::InspectArgs),
     /// Render the inspector headless (no X server) to a PNG.
     #[cfg(feature = "gui")]

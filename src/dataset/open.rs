@@ -19,6 +19,9 @@ pub enum OpenKind {
     /// Exactly two cloud files: source then target.
     TwoClouds,
     CosmosOutput,
+    /// Two `cgenreg bench --json` outputs compared pair by pair (the inspector's Compare
+    /// tab); not a dataset.
+    Comparison,
 }
 
 impl OpenKind {
@@ -30,6 +33,7 @@ impl OpenKind {
             Self::RgbdSequence => "RGB-D sequence…",
             Self::TwoClouds => "Two cloud files…",
             Self::CosmosOutput => "Cosmos output folder…",
+            Self::Comparison => "Compare runs (two bench JSONs)…",
         }
     }
     pub fn wants_folder(self) -> bool {
@@ -208,6 +212,14 @@ pub fn open_dataset(kind: OpenKind, paths: &[PathBuf]) -> Result<Dataset> {
             "{}: a Cosmos output folder holds generated frames, not scans: it is opened as the \
              image branch's cached Cosmos backend for the open dataset",
             one("one folder")?.display()
+        ))),
+        OpenKind::Comparison => Err(Error::Invalid(format!(
+            "{}: two bench runs are compared in the Compare tab, not opened as a dataset",
+            paths
+                .iter()
+                .map(|p| p.display().to_string())
+                .collect::<Vec<_>>()
+                .join(", ")
         ))),
         OpenKind::Auto => Err(Error::Invalid(format!(
             "cannot tell what {} is: expected a dataset manifest (.toml), a 3DMatch folder, an \

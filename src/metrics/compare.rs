@@ -3,6 +3,7 @@
 //! parameters. `cgenreg diff` prints it; the inspector's Compare tab draws it. The comparison
 //! itself is pure ([`compare`]); [`load_bench_run`] reads a `cgenreg bench --json` output.
 
+use crate::pipeline::params::RegisterParams;
 use crate::{Error, Result};
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
@@ -51,7 +52,117 @@ pub struct BenchRun {
     pub params: Value,
     /// The run identity without parameters and pair list (manifest, split, limit, code).
     pub identity: Value,
+    /// The manifest the run was made on, as recorded (`manifest`; relative to where the run
+    /// was started), when the file names one.
+    pub manifest: Option<String>,
     pub pairs: Vec<PairRow>,
+}
+
+impl BenchRun {
+    /// The run's parameters as the pipeline's own type (a `bench` run records the whole
+    /// [`RegisterParams`]); the error names the field that does not fit.
+    pub fn register_params(&self) -> std::result::Result<RegisterParams, String> {
+        if self.params.is_null() {
+            return Err("params: missing".into());
+        }
+        serde_json::from_value(self.params.clone()).map_err(|e| format!("params: {e}"))
+    }
+
+    /// A one-line description of the run's settings ("FPFH · geometry only · NN · SC2-PCR").
+    pub fn settings_summary(&self) -> String {
+        match self.register_params() {
+            Ok(p) => settings_summary(&p),
+            Err(e) => format!("settings not readable ({e})"),
+        }
+    }
+
+    /// The recorded manifest as a path here: as recorded when it is a file (absolute, or
+    /// relative to the working directory), else relative to the folder of the run file
+    /// `run_file` or one of its parents (a run kept in the repository next to its manifest).
+    pub fn resolve_manifest(&self, run_file: &Path) -> Option<std::path::PathBuf> {
+        let m = Path::new(self.manifest.as_deref()?);
+        if m.is_file() {
+            return Some(m.to_path_buf());
+        }
+        if m.is_absolute() {
+            return None;
+        }
+        let dir = run_file.parent()?;
+        let dir = if dir.as_os_str().is_empty() {
+            Path::new(".")
+        } else {
+            dir
+        };
+        dir.ancestors().map(|d| d.join(m)).find(|p| p.is_file())
+    }
+}
+
+/// Files the settings name that are not on this machine (a VFM model, learned feature files,
+/// a cached Cosmos output): a run made elsewhere cannot be re-run here without them.
+pub fn missing_files(p: &RegisterParams) -> Vec<std::path::PathBuf> {
+    use crate::pipeline::params::{GeoFeatureSource, WfmSpec};
+    let mut files: Vec<(&Path, bool)> = Vec::new();
+    match &p.geo_features {
+        GeoFeatureSource::Fpfh => {}
+        GeoFeatureSource::Files { source, target } => {
+            files.push((source, false));
+            files.push((target, false));
+        }
+        GeoFeatureSource::GeoTransformerPkl { path } => files.push((path, false)),
+    }
+    if let Some(ib) = &p.image {
+        files.push((ib.vfm.model(), false));
+        if let WfmSpec::Cached { dir, spec } = &ib.backend {
+            files.push((dir, true));
+            files.push((spec, false));
+        }
+    }
+    files
+        .into_iter()
+        .filter(|(f, dir)| if *dir { !f.is_dir() } else { !f.is_file() })
+        .map(|(f, _)| f.to_path_buf())
+        .collect()
+}
+
+/// A one-line description of registration settings: geometric features, image branch (WFM,
+/// VFM, K), fusion, selection, estimator.
+pub fn settings_summary(p: &RegisterParams) -> String {
+    use crate::fusion::{FusionMode, Selection};
+    use crate::pipeline::params::{GeoFeatureSource, WfmSpec};
+    let geo = match &p.geo_features {
+        GeoFeatureSource::Fpfh => "FPFH".to_string(),
+        GeoFeatureSource::Files { .. } => "learned features (files)".to_string(),
+        GeoFeatureSource::GeoTransformerPkl { .. } => "GeoTransformer pkl".to_string(),
+    };
+    let mut parts = vec![format!(
+        "{geo} (voxel {} cm)",
+        (p.voxel * 1000.0).round() / 10.0
+    )];
+    match &p.image {
+        None => parts.push("no image branch".into()),
+        Some(ib) => {
+            let wfm = match &ib.backend {
+                WfmSpec::Oracle => "oracle RGB",
+                WfmSpec::Builtin => "built-in shading (not a WFM)",
+                WfmSpec::Cached { .. } => "cached Cosmos output",
+                WfmSpec::Cosmos { .. } => "Cosmos-Transfer1",
+            };
+            parts.push(format!("{wfm} + {} K={}", ib.vfm.name(), ib.k));
+        }
+    }
+    let mode = if p.image.is_none() {
+        FusionMode::GeometryOnly
+    } else {
+        p.fusion.mode
+    };
+    parts.push(mode.label().to_string());
+    parts.push(match p.fusion.selection {
+        Selection::MutualNn => "mutual NN".to_string(),
+        Selection::RowNn => "NN".to_string(),
+        Selection::TopK(k) => format!("top-{k}"),
+    });
+    parts.push(p.estimator.label().to_string());
+    parts.join(" | ")
 }
 
 /// Reads a `cgenreg bench --json` (or `cgenreg merge`) output.
@@ -96,10 +207,16 @@ pub fn bench_run_from_json(
             m.remove(k);
         }
     }
+    let manifest = match v.get("manifest") {
+        None | Some(Value::Null) => None,
+        Some(Value::String(s)) => Some(s.clone()),
+        Some(_) => return Err(("manifest".to_string(), "not a string".to_string())),
+    };
     Ok(BenchRun {
         label: label.to_string(),
         params,
         identity,
+        manifest,
         pairs,
     })
 }
@@ -166,6 +283,10 @@ pub struct Comparison {
     pub quadrants: Quadrants,
     /// "fusion.mode: \"NoisyAnd\" in A, \"GeometryOnly\" in B", one line per parameter.
     pub param_differences: Vec<String>,
+    /// The settings behind `param_differences`: leaf paths ("fusion.selection"), or one path
+    /// for a whole branch that is off in one run ("image"). More than one: the runs differ in
+    /// more than the setting compared.
+    pub differing_settings: Vec<String>,
     /// Other differences of the run identities (manifest, split, limit, code version).
     pub run_differences: Vec<String>,
     /// Recall of each run over the pairs in both (success / pairs with known success).
@@ -235,9 +356,16 @@ pub fn compare(a: &BenchRun, b: &BenchRun) -> Comparison {
         .collect();
     let known = pairs.len() - q.unknown;
     let recall = |n: usize| (known > 0).then(|| n as f64 / known as f64);
-    let mut param_differences = Vec::new();
     let ab = ("in A", "in B");
-    json_diff("", &a.params, &b.params, ab, &mut param_differences);
+    let mut by_setting = Vec::new();
+    json_diff_settings("", &a.params, &b.params, ab, None, &mut by_setting);
+    let mut differing_settings: Vec<String> = Vec::new();
+    for (setting, _) in &by_setting {
+        if !differing_settings.contains(setting) {
+            differing_settings.push(setting.clone());
+        }
+    }
+    let param_differences = by_setting.into_iter().map(|(_, l)| l).collect();
     let mut run_differences = Vec::new();
     json_diff("", &a.identity, &b.identity, ab, &mut run_differences);
     Comparison {
@@ -252,20 +380,70 @@ pub fn compare(a: &BenchRun, b: &BenchRun) -> Comparison {
         only_in_b,
         quadrants: q,
         param_differences,
+        differing_settings,
         run_differences,
     }
 }
 
 /// Leaf-by-leaf differences of two JSON values, `labels` naming the two sides:
-/// "params.voxel: 0.05 here, 0.1 there". Long arrays (the selected pairs) are summarised.
+/// "params.voxel: 0.05 here, 0.1 there". Long arrays (the selected pairs) are summarised, an
+/// object against null (a branch on in one run, off in the other) is listed leaf by leaf, and
+/// long values are cut.
 pub fn json_diff(path: &str, a: &Value, b: &Value, labels: (&str, &str), out: &mut Vec<String>) {
+    let mut both = Vec::new();
+    json_diff_settings(path, a, b, labels, None, &mut both);
+    out.extend(both.into_iter().map(|(_, line)| line));
+}
+
+/// Longest rendering of one value in a difference line (characters).
+const MAX_VALUE_CHARS: usize = 60;
+
+fn short_value(v: &Value) -> String {
+    let s = v.to_string();
+    if s.chars().count() <= MAX_VALUE_CHARS {
+        s
+    } else {
+        let cut: String = s.chars().take(MAX_VALUE_CHARS - 1).collect();
+        format!("{cut}…")
+    }
+}
+
+/// An object's entries; null counts as an object without entries.
+fn as_map<'a>(
+    v: &'a Value,
+    empty: &'a serde_json::Map<String, Value>,
+) -> Option<&'a serde_json::Map<String, Value>> {
+    match v {
+        Value::Object(m) => Some(m),
+        Value::Null => Some(empty),
+        _ => None,
+    }
+}
+
+/// [`json_diff`] with each line's setting: the leaf path, or the path of the object that is
+/// null (absent) on one side, so "image on in B only" is one setting however many leaves it
+/// has.
+fn json_diff_settings(
+    path: &str,
+    a: &Value,
+    b: &Value,
+    labels: (&str, &str),
+    setting: Option<&str>,
+    out: &mut Vec<(String, String)>,
+) {
     let (la, lb) = labels;
     if a == b {
         return;
     }
     let name = if path.is_empty() { "(root)" } else { path };
-    match (a, b) {
-        (Value::Object(x), Value::Object(y)) => {
+    let empty = serde_json::Map::new();
+    let objects = matches!(a, Value::Object(_)) || matches!(b, Value::Object(_));
+    match (as_map(a, &empty), as_map(b, &empty)) {
+        (Some(x), Some(y)) if objects => {
+            // a side that is null: every leaf below belongs to this one setting
+            let setting = setting
+                .map(str::to_string)
+                .or_else(|| (a.is_null() || b.is_null()).then(|| name.to_string()));
             let mut keys: Vec<&String> = x.keys().chain(y.keys()).collect();
             keys.sort();
             keys.dedup();
@@ -275,28 +453,103 @@ pub fn json_diff(path: &str, a: &Value, b: &Value, labels: (&str, &str), out: &m
                 } else {
                     format!("{path}.{k}")
                 };
-                json_diff(
+                json_diff_settings(
                     &p,
                     x.get(k).unwrap_or(&Value::Null),
                     y.get(k).unwrap_or(&Value::Null),
                     labels,
+                    setting.as_deref(),
                     out,
                 );
             }
         }
-        (Value::Array(x), Value::Array(y)) if x.len() > 8 || y.len() > 8 => {
-            let first = x.iter().zip(y).position(|(p, q)| p != q);
-            out.push(format!(
-                "{name}: {} entries {la}, {} {lb}{}",
-                x.len(),
-                y.len(),
-                first
-                    .map(|i| format!(", first difference at entry {i}"))
-                    .unwrap_or_default()
-            ));
+        _ => {
+            let line = match (a, b) {
+                (Value::Array(x), Value::Array(y)) if x.len() > 8 || y.len() > 8 => {
+                    let first = x.iter().zip(y).position(|(p, q)| p != q);
+                    format!(
+                        "{name}: {} entries {la}, {} {lb}{}",
+                        x.len(),
+                        y.len(),
+                        first
+                            .map(|i| format!(", first difference at entry {i}"))
+                            .unwrap_or_default()
+                    )
+                }
+                _ => format!("{name}: {} {la}, {} {lb}", short_value(a), short_value(b)),
+            };
+            out.push((setting.unwrap_or(name).to_string(), line));
         }
-        _ => out.push(format!("{name}: {a} {la}, {b} {lb}")),
     }
+}
+
+/// Orders of the compared pairs (the table of `cgenreg diff` and the inspector's Compare tab).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum PairOrder {
+    /// Flipped pairs (gained or lost) first, then by |ΔRRE|, largest first.
+    FlippedFirst,
+    Id,
+    Flip,
+    RreA,
+    RreB,
+    DRre,
+    RteA,
+    RteB,
+    DRte,
+}
+
+/// Indices into `c.pairs` in `order` (`descending` reverses it; missing values go last
+/// either way, ties keep A's order).
+pub fn order(c: &Comparison, order: PairOrder, descending: bool) -> Vec<usize> {
+    use std::cmp::Ordering;
+    let mut idx: Vec<usize> = (0..c.pairs.len()).collect();
+    let flip_rank = |f: Flip| match f {
+        Flip::Lost => 0,
+        Flip::Gained => 1,
+        Flip::BothFailure => 2,
+        Flip::BothSuccess => 3,
+        Flip::Unknown => 4,
+    };
+    // missing values last in both directions
+    let by_value = |x: Option<f64>, y: Option<f64>| -> Ordering {
+        match (x, y) {
+            (Some(x), Some(y)) => {
+                let o = x.total_cmp(&y);
+                if descending {
+                    o.reverse()
+                } else {
+                    o
+                }
+            }
+            (Some(_), None) => Ordering::Less,
+            (None, Some(_)) => Ordering::Greater,
+            (None, None) => Ordering::Equal,
+        }
+    };
+    let dir = |o: Ordering| if descending { o.reverse() } else { o };
+    idx.sort_by(|&i, &j| {
+        let (p, q) = (&c.pairs[i], &c.pairs[j]);
+        match order {
+            PairOrder::FlippedFirst => {
+                let flipped = |p: &PairDiff| !matches!(p.flip, Flip::Gained | Flip::Lost);
+                dir(flipped(p).cmp(&flipped(q))).then(
+                    q.d_rre_deg
+                        .map(f64::abs)
+                        .unwrap_or(-1.0)
+                        .total_cmp(&p.d_rre_deg.map(f64::abs).unwrap_or(-1.0)),
+                )
+            }
+            PairOrder::Id => dir(p.id.cmp(&q.id)),
+            PairOrder::Flip => dir(flip_rank(p.flip).cmp(&flip_rank(q.flip))),
+            PairOrder::RreA => by_value(p.a.rre_deg, q.a.rre_deg),
+            PairOrder::RreB => by_value(p.b.rre_deg, q.b.rre_deg),
+            PairOrder::DRre => by_value(p.d_rre_deg, q.d_rre_deg),
+            PairOrder::RteA => by_value(p.a.rte_m, q.a.rte_m),
+            PairOrder::RteB => by_value(p.b.rte_m, q.b.rte_m),
+            PairOrder::DRte => by_value(p.d_rte_m, q.d_rte_m),
+        }
+    });
+    idx
 }
 
 /// The comparison as a plain-text table: one row per pair (flipped pairs first, then by
@@ -326,17 +579,10 @@ pub fn table(c: &Comparison) -> String {
         "\n{:<w$}  {:<16} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8}",
         "pair", "flip", "RRE A°", "RRE B°", "ΔRRE°", "RTE A cm", "RTE B cm", "ΔRTE cm"
     );
-    let mut order: Vec<&PairDiff> = c.pairs.iter().collect();
-    let flipped = |p: &PairDiff| !matches!(p.flip, Flip::Gained | Flip::Lost);
-    order.sort_by(|x, y| {
-        flipped(x).cmp(&flipped(y)).then(
-            y.d_rre_deg
-                .map(f64::abs)
-                .unwrap_or(-1.0)
-                .total_cmp(&x.d_rre_deg.map(f64::abs).unwrap_or(-1.0)),
-        )
-    });
-    for p in order {
+    for p in order(c, PairOrder::FlippedFirst, false)
+        .into_iter()
+        .map(|i| &c.pairs[i])
+    {
         let _ = writeln!(
             s,
             "{:<w$}  {:<16} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8}",
@@ -412,6 +658,7 @@ mod tests {
             label: label.into(),
             params: json!({"voxel": 0.05, "fusion": {"mode": mode}}),
             identity: json!({"manifest": "m.toml", "split": null}),
+            manifest: Some("m.toml".into()),
             pairs,
         }
     }
@@ -512,5 +759,107 @@ mod tests {
         std::fs::write(&p, b"{not json").unwrap();
         let e = load_bench_run(&p).unwrap_err().to_string();
         assert!(e.contains("bad.json"), "{e}");
+    }
+
+    fn ablation(name: &str) -> std::path::PathBuf {
+        Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("docs/ablation")
+            .join(name)
+    }
+
+    #[test]
+    fn the_ablation_runs_rebuild_their_parameters_and_compare() {
+        // every bench JSON of docs/ablation carries the whole RegisterParams
+        let mut n = 0;
+        for e in std::fs::read_dir(ablation("")).unwrap() {
+            let p = e.unwrap().path();
+            if p.extension().is_some_and(|x| x == "json") {
+                let r = load_bench_run(&p).unwrap();
+                r.register_params()
+                    .unwrap_or_else(|e| panic!("{}: {e}", p.display()));
+                assert!(r.resolve_manifest(&p).is_some(), "{}", p.display());
+                n += 1;
+            }
+        }
+        assert!(n >= 10, "{n} runs");
+        let a = load_bench_run(&ablation("fpfh-nn.json")).unwrap();
+        let b = load_bench_run(&ablation("oracle-noisy-and-nn.json")).unwrap();
+        assert_eq!(a.register_params().unwrap().image, None);
+        assert!(b.register_params().unwrap().image.is_some());
+        assert_eq!(
+            a.settings_summary(),
+            "FPFH (voxel 5 cm) | no image branch | Geometry only | NN | SC2-PCR"
+        );
+        assert!(
+            b.settings_summary().contains("oracle RGB + xfeat K=4"),
+            "{}",
+            b.settings_summary()
+        );
+        let c = compare(&a, &b);
+        // FPFH NN against oracle + FPFH Noisy-AND NN: only the image branch differs, one
+        // setting however many of its values
+        assert_eq!(c.differing_settings, ["image"]);
+        assert!(c.param_differences.len() > 3, "{:?}", c.param_differences);
+        assert!(c
+            .param_differences
+            .iter()
+            .all(|d| d.starts_with("image.") && d.chars().count() < 160));
+        // the quadrants, counted here from the files' own success fields
+        let raw = |p: &str| -> std::collections::HashMap<String, bool> {
+            let v: Value = serde_json::from_slice(&std::fs::read(ablation(p)).unwrap()).unwrap();
+            v["pairs"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|r| (r["id"].as_str().unwrap().to_string(), r["success"] == true))
+                .collect()
+        };
+        let (ra, rb) = (raw("fpfh-nn.json"), raw("oracle-noisy-and-nn.json"));
+        let count = |x: bool, y: bool| ra.iter().filter(|(id, s)| **s == x && rb[*id] == y).count();
+        let q = c.quadrants;
+        assert_eq!(
+            (
+                q.both_success,
+                q.only_a,
+                q.only_b,
+                q.both_failure,
+                q.unknown
+            ),
+            (
+                count(true, true),
+                count(true, false),
+                count(false, true),
+                count(false, false),
+                0
+            )
+        );
+        assert_eq!(c.pairs.len(), 37);
+        // a second setting differs: said so
+        let m = load_bench_run(&ablation("oracle-noisy-and.json")).unwrap();
+        let c2 = compare(&a, &m);
+        assert_eq!(c2.differing_settings, ["fusion.selection", "image"]);
+        // flipped first, then by |dRRE|
+        let o = order(&c, PairOrder::FlippedFirst, false);
+        let flipped = o
+            .iter()
+            .take_while(|&&i| matches!(c.pairs[i].flip, Flip::Gained | Flip::Lost))
+            .count();
+        assert_eq!(flipped, q.only_a + q.only_b);
+        let by = order(&c, PairOrder::DRre, true);
+        let d: Vec<f64> = by.iter().filter_map(|&i| c.pairs[i].d_rre_deg).collect();
+        assert!(d.windows(2).all(|w| w[0] >= w[1]));
+    }
+
+    #[test]
+    fn bad_params_name_the_field() {
+        let mut a = run("a", "NoisyAnd", vec![]);
+        a.params = json!({"voxel": "five"});
+        let e = a.register_params().unwrap_err();
+        assert!(e.starts_with("params:"), "{e}");
+        a.params = Value::Null;
+        assert_eq!(a.register_params().unwrap_err(), "params: missing");
+        let e = bench_run_from_json("x", &json!({"pairs": [], "params": {}, "manifest": 3}))
+            .unwrap_err();
+        assert_eq!(e.0, "manifest");
     }
 }
