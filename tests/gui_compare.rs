@@ -187,6 +187,10 @@ fn compare_two_real_runs_and_open_a_pair_with_run_b() {
                     rec.rre_deg.unwrap(),
                     pb.display()
                 );
+                // the run's outcome comes back: the pair B lost fails here too
+                let success = p.rre_deg.unwrap() <= cgenreg::metrics::RECALL_RRE_DEG
+                    && p.rte_m.unwrap() <= cgenreg::metrics::RECALL_RTE_M;
+                assert_eq!(Some(success), rec.success);
                 break;
             }
         }
