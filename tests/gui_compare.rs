@@ -178,21 +178,23 @@ fn compare_two_real_runs_and_open_a_pair_with_run_b() {
     loop {
         h.run_steps(1);
         let m = h.state().model();
-        if let Some(p) = m.current_pair.map(|i| &m.pairs[i]) {
-            if p.id == id && p.rre_deg.is_some() {
-                let rec = run_b.pairs.iter().find(|r| r.id == id).unwrap();
-                eprintln!(
-                    "{id} with run B's settings: RRE {:.2} deg here, {:.2} deg in {}",
-                    p.rre_deg.unwrap(),
-                    rec.rre_deg.unwrap(),
-                    pb.display()
-                );
-                // the run's outcome comes back: the pair B lost fails here too
-                let success = p.rre_deg.unwrap() <= cgenreg::metrics::RECALL_RRE_DEG
-                    && p.rte_m.unwrap() <= cgenreg::metrics::RECALL_RTE_M;
-                assert_eq!(Some(success), rec.success);
-                break;
-            }
+        if let Some((p, rre)) = m
+            .current_pair
+            .map(|i| &m.pairs[i])
+            .filter(|p| p.id == id)
+            .and_then(|p| Some((p, p.rre_deg?)))
+        {
+            let rec = run_b.pairs.iter().find(|r| r.id == id).unwrap();
+            eprintln!(
+                "{id} with run B's settings: RRE {rre:.2} deg here, {:.2} deg in {}",
+                rec.rre_deg.unwrap(),
+                pb.display()
+            );
+            // the run's outcome comes back: the pair B lost fails here too
+            let success = rre <= cgenreg::metrics::RECALL_RRE_DEG
+                && p.rte_m.unwrap() <= cgenreg::metrics::RECALL_RTE_M;
+            assert_eq!(Some(success), rec.success);
+            break;
         }
         assert!(
             t0.elapsed() < Duration::from_secs(60),

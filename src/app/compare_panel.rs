@@ -149,12 +149,15 @@ fn flip_short(f: Flip) -> &'static str {
     }
 }
 
+/// A load in progress: the loader thread's answer channel and the two files.
+type Loading = (Receiver<Result<LoadedComparison, String>>, PathBuf, PathBuf);
+
 /// The Compare tab's state: the loaded comparison, the loader thread, filters and sorting.
 pub struct CompareState {
     pub loaded: Option<LoadedComparison>,
     /// Paths asked for and not yet handed to a loader thread (started on the next frame).
     request: Option<(PathBuf, PathBuf)>,
-    loading: Option<(Receiver<Result<LoadedComparison, String>>, PathBuf, PathBuf)>,
+    loading: Option<Loading>,
     /// Why the last load failed.
     pub error: Option<String>,
     /// Which quadrants the table and the scatter show (indexed by [`flip_index`]).

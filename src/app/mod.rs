@@ -890,9 +890,7 @@ impl App {
         }
         if let Some(b) = &mut self.browser {
             match b.show(&ctx) {
-                Some(file_browser::BrowserOutcome::Open(kind, paths))
-                    if kind == OpenKind::Comparison =>
-                {
+                Some(file_browser::BrowserOutcome::Open(OpenKind::Comparison, paths)) => {
                     self.browser = None;
                     if let [a, b] = &paths[..] {
                         self.compare_runs(a.clone(), b.clone());
