@@ -332,8 +332,9 @@ mod tests {
         let h = h.unwrap();
         assert_eq!(est.target_from_source, plain.target_from_source);
         assert_eq!(est.inliers, plain.inliers);
-        assert_eq!(h.list.len(), 20);
-        assert!(h.total >= 20);
+        // the early stop may leave fewer than 20 that passed the checks
+        assert!(h.total >= 1);
+        assert_eq!(h.list.len(), h.total.min(20));
         assert!(h.list[0].winner && h.list.iter().filter(|x| x.winner).count() == 1);
         assert_eq!(h.refined, est.target_from_source);
         for w in h.list.windows(2) {
