@@ -35,7 +35,7 @@ pub struct ScreenshotArgs {
     /// Pair id within the manifest (default: its first pair).
     #[arg(long)]
     pub pair: Option<String>,
-    /// Panel to render: views, 3d, posterior, plots or stages.
+    /// Panel to render: views, 3d, posterior, plots, stages or hypotheses.
     #[arg(long, default_value = "3d")]
     pub panel: String,
     /// Output PNG.
@@ -195,7 +195,7 @@ pub fn run_inspect(a: InspectArgs) -> Result<()> {
 pub fn run_screenshot(a: ScreenshotArgs) -> Result<()> {
     let panel = Panel::from_name(&a.panel).ok_or_else(|| {
         Error::Invalid(format!(
-            "--panel {:?}: expected views, 3d, posterior, plots or stages",
+            "--panel {:?}: expected views, 3d, posterior, plots, stages or hypotheses",
             a.panel
         ))
     })?;
@@ -253,6 +253,10 @@ pub fn run_screenshot(a: ScreenshotArgs) -> Result<()> {
     if let Some(curves) = worker.fusion_pr_curves() {
         model.plots.pr_curves = curves;
         model.plots.figure7_pending = false;
+    }
+    if panel == Panel::Hypotheses {
+        // the estimator's ranked hypotheses, as the tab asks the worker for them
+        model = worker.hypotheses()?;
     }
     if panel == Panel::Posterior {
         // posteriors of the best-scored surviving matches (inliers under GT first)
