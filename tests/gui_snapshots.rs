@@ -126,6 +126,90 @@ fn snapshot_compare() {
     h.snapshot("compare");
 }
 
+/// The hypothesis browser on the demo with its UI fixture list: selecting a row shows that
+/// hypothesis in the 3D view (its pose, only its consensus drawn).
+#[test]
+fn snapshot_hypotheses() {
+    use cgenreg::app::hypotheses_panel::HypothesisList;
+    let mut model = InspectorModel::demo();
+    model.hypotheses = Some(HypothesisList::fixture(&model));
+    let mut app = App::new(model, None, None);
+    app.allow_dialogs = false;
+    app.ui_state.tab = Panel::Hypotheses;
+    let Some(mut h) = harness(app) else { return };
+    h.run_steps(3);
+    h.get_by_label("#2").click();
+    h.run_steps(3);
+    let sel = h
+        .state()
+        .ui_state
+        .hypothesis
+        .clone()
+        .expect("a hypothesis selected");
+    assert_eq!(sel.rank, 2);
+    let list = h.state().model().hypotheses.clone().unwrap();
+    assert_eq!(sel.pose, list.rows[1].pose);
+    let n_in = sel.inlier.iter().filter(|x| **x).count();
+    assert_eq!(n_in, list.rows[1].consensus);
+    h.snapshot("hypotheses");
+    // clicking it again clears the selection
+    h.get_by_label("#2").click();
+    h.run_steps(2);
+    assert!(h.state().ui_state.hypothesis.is_none());
+}
+
+/// "Save plots (PNG + CSV)": every plot as a PNG cropped from the window's screenshot (the
+/// headless renderer answers screenshot requests as eframe does) and its data as CSV.
+#[test]
+fn plots_save_as_png_and_csv() {
+    use cgenreg::app::headless::HeadlessRenderer;
+    use cgenreg::app::plots_panel::PLOT_NAMES;
+    if renderer().is_none() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("plots");
+    let mut r = HeadlessRenderer::new(InspectorModel::demo(), (1280, 800)).unwrap();
+    r.app.ui_state.tab = Panel::Plots;
+    r.settled_frame().unwrap();
+    r.app.plots.save_dir = out.display().to_string();
+    r.app.plots.save_now = true;
+    for _ in 0..4 {
+        r.frame(false).unwrap();
+    }
+    assert!(
+        r.app.plots.pending_png.is_none(),
+        "the screenshot never came"
+    );
+    for name in PLOT_NAMES {
+        let csv = std::fs::read_to_string(out.join(format!("{name}.csv"))).unwrap();
+        assert!(csv.lines().count() >= 1, "{name}.csv is empty");
+        let png = image::open(out.join(format!("{name}.png"))).unwrap();
+        let rect = r
+            .app
+            .plots
+            .rects
+            .iter()
+            .find(|(n, _)| *n == name)
+            .unwrap()
+            .1;
+        assert!(
+            (png.width() as f32 - rect.width()).abs() <= 1.0
+                && (png.height() as f32 - rect.height()).abs() <= 1.0,
+            "{name}.png is {}x{}, the plot {rect:?}",
+            png.width(),
+            png.height()
+        );
+    }
+    // the demo's pairs are in the per-pair CSV, one row each
+    let per_pair = std::fs::read_to_string(out.join("rre_rte_per_pair.csv")).unwrap();
+    assert_eq!(
+        per_pair.lines().count(),
+        1 + InspectorModel::demo().pairs.len()
+    );
+    assert!(r.app.plots.last_save.as_deref().unwrap().contains("PNG"));
+}
+
 struct Recorder(Arc<Mutex<Vec<Command>>>);
 impl Worker for Recorder {
     fn handle(&mut self, command: Command, _events: &EventSink) {

@@ -60,6 +60,12 @@ pub enum Command {
         paths: Vec<PathBuf>,
         fallback_pair: String,
     },
+    /// Write the current pair's selected correspondences to an `.npz`
+    /// ([`crate::pipeline::export`], the same as `register --export-corr`).
+    ExportCorrespondences(PathBuf),
+    /// The estimator's ranked hypotheses for the current pair (the hypothesis browser, sent
+    /// while it is shown and the model has none).
+    Hypotheses,
     Cancel,
 }
 
@@ -86,6 +92,7 @@ impl Command {
                 | (Command::SelectPair(_), Command::SelectPair(_))
                 | (Command::OpenPairWith { .. }, Command::OpenPairWith { .. })
                 | (Command::Figure7, Command::Figure7)
+                | (Command::Hypotheses, Command::Hypotheses)
         )
     }
 }

@@ -325,8 +325,36 @@ impl HeadlessRenderer {
         let app = &mut self.app;
         let mut out = self.ctx.run_ui(input, |ui| app.show(ui));
         self.gl.update_textures(&mut out.textures_delta);
-        self.gl
-            .paint(&self.ctx, out.shapes, out.pixels_per_point, read_back)
+        // Answer screenshot requests as eframe does: the callback gets this frame's pixels.
+        let asked: Vec<egui::ScreenshotCallback> = out
+            .viewport_output
+            .get(&egui::ViewportId::ROOT)
+            .map(|v| {
+                v.commands
+                    .iter()
+                    .filter_map(|c| match c {
+                        egui::ViewportCommand::Screenshot(u) => Some(u.clone()),
+                        _ => None,
+                    })
+                    .collect()
+            })
+            .unwrap_or_default();
+        let img = self.gl.paint(
+            &self.ctx,
+            out.shapes,
+            out.pixels_per_point,
+            read_back || !asked.is_empty(),
+        )?;
+        if let (false, Some(shot)) = (asked.is_empty(), img.as_ref()) {
+            let image = Arc::new(egui::ColorImage::from_rgba_unmultiplied(
+                [shot.width() as usize, shot.height() as usize],
+                shot.as_raw(),
+            ));
+            for callback in asked {
+                callback.complete(image.clone());
+            }
+        }
+        Ok(if read_back { img } else { None })
     }
 
     /// Runs enough frames for layout and textures to settle, returns the last one.

@@ -9,6 +9,7 @@ pub mod compare_panel;
 pub mod controls;
 pub mod file_browser;
 pub mod headless;
+pub mod hypotheses_panel;
 pub mod model;
 pub mod pairs_panel;
 pub mod pipeline_worker;
@@ -49,6 +50,7 @@ pub enum Panel {
     Plots,
     Stages,
     Compare,
+    Hypotheses,
 }
 
 impl Panel {
@@ -59,6 +61,7 @@ impl Panel {
         Self::Plots,
         Self::Stages,
         Self::Compare,
+        Self::Hypotheses,
     ];
     pub fn label(self) -> &'static str {
         match self {
@@ -68,6 +71,7 @@ impl Panel {
             Self::Plots => "Plots",
             Self::Stages => "Stages",
             Self::Compare => "Compare",
+            Self::Hypotheses => "Hypotheses",
         }
     }
     /// Parses a CLI name ("views", "3d", "posterior", "plots", "stages", "compare").
@@ -79,6 +83,7 @@ impl Panel {
             "plots" => Some(Self::Plots),
             "stages" => Some(Self::Stages),
             "compare" => Some(Self::Compare),
+            "hypotheses" => Some(Self::Hypotheses),
             _ => None,
         }
     }
@@ -123,6 +128,9 @@ pub struct UiState {
     pub show_3d_below_views: bool,
     /// Draw only the matches the estimator kept (SC2-PCR inliers).
     pub only_survivors: bool,
+    /// The hypothesis selected in the hypothesis browser: the 3D view shows the source under
+    /// its pose and only its consensus is drawn.
+    pub hypothesis: Option<hypotheses_panel::HypothesisView>,
 }
 
 impl Default for UiState {
@@ -138,6 +146,7 @@ impl Default for UiState {
             pair_sort: PairSort::RreWorstFirst,
             show_3d_below_views: true,
             only_survivors: false,
+            hypothesis: None,
         }
     }
 }
@@ -157,6 +166,12 @@ impl Shared<'_> {
     pub fn shown_matches(&self) -> Vec<usize> {
         let mut idx: Vec<usize> = (0..self.model.matches.len())
             .filter(|&i| !self.ui.only_survivors || self.model.matches[i].survived == Some(true))
+            .filter(|&i| {
+                self.ui
+                    .hypothesis
+                    .as_ref()
+                    .is_none_or(|h| h.inlier.get(i) == Some(&true))
+            })
             .collect();
         idx.sort_by(|&a, &b| {
             self.model.matches[b]
@@ -315,6 +330,8 @@ pub struct App {
     pub plots: plots_panel::PlotsState,
     /// The Compare tab: two bench runs side by side.
     pub compare: compare_panel::CompareState,
+    pub stages: stages_panel::StagesState,
+    hypotheses: hypotheses_panel::HypothesesState,
     worker: Option<WorkerHandle>,
     pub log: Vec<LogLine>,
     show_log: bool,
@@ -350,6 +367,8 @@ impl App {
             posterior: PosteriorState::default(),
             plots: plots_panel::PlotsState::default(),
             compare: compare_panel::CompareState::default(),
+            stages: stages_panel::StagesState::default(),
+            hypotheses: hypotheses_panel::HypothesesState::default(),
             worker,
             log: Vec::new(),
             show_log: false,
@@ -412,6 +431,8 @@ impl App {
     pub fn set_model(&mut self, model: InspectorModel) {
         self.model = model;
         self.model_gen = view3d::next_id();
+        // a hypothesis indexes the old model's matches
+        self.ui_state.hypothesis = None;
         if self
             .ui_state
             .selected_match
@@ -846,6 +867,10 @@ impl App {
                     }
                 }
             });
+            if let Some(w) = &self.model.convention_warning {
+                // next to the metrics: the GT they are computed against may be inverted
+                ui.colored_label(egui::Color32::from_rgb(240, 150, 60), w);
+            }
             ui.separator();
             let mut shared = Shared {
                 model: &self.model,
@@ -874,7 +899,15 @@ impl App {
                 Panel::Plots => {
                     plots_panel::plots_panel(ui, shared.model, &mut self.plots, shared.commands)
                 }
-                Panel::Stages => stages_panel::stages_panel(ui, &self.model),
+                Panel::Hypotheses => hypotheses_panel::hypotheses_panel(
+                    ui,
+                    &mut shared,
+                    &mut self.hypotheses,
+                    &mut self.view3d,
+                ),
+                Panel::Stages => {
+                    stages_panel::stages_panel(ui, shared.model, &mut self.stages, shared.commands)
+                }
                 Panel::Compare => {
                     compare_action =
                         compare_panel::compare_panel(ui, shared.model, &mut self.compare)

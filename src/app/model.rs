@@ -238,6 +238,11 @@ pub struct InspectorModel {
     pub generation_missing: Option<String>,
     /// Why no views are shown (image branch off, or not available for this pair/build).
     pub image_branch_note: Option<String>,
+    /// The inverse of the ground truth explains the data better than the ground truth
+    /// (`metrics::convention`): shown next to the metrics.
+    pub convention_warning: Option<String>,
+    /// The estimator's ranked hypotheses (computed on demand by the hypothesis browser).
+    pub hypotheses: Option<super::hypotheses_panel::HypothesisList>,
 }
 
 impl Default for InspectorModel {
@@ -259,6 +264,8 @@ impl Default for InspectorModel {
             plots: PlotData::default(),
             generation_missing: None,
             image_branch_note: None,
+            convention_warning: None,
+            hypotheses: None,
         }
     }
 }
@@ -799,6 +806,8 @@ mod demo {
             plots,
             generation_missing: None,
             image_branch_note: None,
+            convention_warning: None,
+            hypotheses: None,
         }
     }
 }

@@ -36,8 +36,7 @@ use crate::pipeline::study::{
     k_settings, prompt_settings, run_study_with, StudyReport, StudySetting,
 };
 use crate::pipeline::{
-    register_pair, ImageBranchOutput, ImageBranchParams, RegisterParams, RegistrationResult,
-    WfmSpec,
+    ImageBranchOutput, ImageBranchParams, RegisterParams, RegistrationResult, WfmSpec,
 };
 
 /// Inlier threshold of the GT flags on correspondences (metres).
@@ -368,6 +367,8 @@ pub fn result_to_model(
         plots,
         generation_missing: None,
         image_branch_note: note,
+        convention_warning: result.convention.as_ref().and_then(|c| c.warning.clone()),
+        hypotheses: None,
     }
 }
 
@@ -843,7 +844,9 @@ impl PipelineWorker {
                     r.total_ms = t0.elapsed().as_secs_f64() * 1e3;
                     (r, Some(g))
                 } else {
-                    (register_pair(&pair, &gp)?, None)
+                    // learned features: keep the inputs too (posteriors, export)
+                    let (r, i) = crate::pipeline::register_pair_cached_keep(&pair, &gp, None)?;
+                    (r, Some(Arc::new(i)))
                 }
             }
         };
@@ -985,6 +988,53 @@ impl PipelineWorker {
         cur.model = model;
         cur.result = result;
         Some(Ok(self.with_default_posterior()))
+    }
+
+    /// Writes the current pair's selected correspondences to `path` (an `.npz`, see
+    /// [`crate::pipeline::export`]) from the kept fusion inputs; returns how many.
+    pub fn export_correspondences(&self, path: &Path) -> crate::Result<usize> {
+        let cur = self
+            .current
+            .as_ref()
+            .ok_or_else(|| crate::Error::Invalid("no registered pair to export".into()))?;
+        let kept = cur.kept.as_ref().ok_or_else(|| {
+            crate::Error::Invalid("the fusion inputs of this pair were not kept".into())
+        })?;
+        let t = crate::pipeline::export::export_correspondences(
+            path,
+            &cur.pair,
+            &self.params,
+            &kept.inputs,
+            kept.sims.as_deref(),
+            &cur.result,
+        )?;
+        Ok(t.len())
+    }
+
+    /// Adds the estimator's ranked hypotheses to the current model (an explanation instead
+    /// when there are none or they could not be formed).
+    pub fn hypotheses(&mut self) -> crate::Result<InspectorModel> {
+        use super::hypotheses_panel::HypothesisList;
+        let params = self.params.clone();
+        let cur = self
+            .current
+            .as_mut()
+            .ok_or_else(|| crate::Error::Invalid("no registered pair".into()))?;
+        let list = match crate::pipeline::hypotheses::estimator_hypotheses(
+            &cur.result,
+            &params,
+            cur.pair.gt_target_from_source.as_ref(),
+            crate::estimate::hypotheses::DEFAULT_TOP_N,
+        ) {
+            Ok(Some(r)) => HypothesisList::from_ranked(&r),
+            Ok(None) => HypothesisList::none(format!(
+                "{} forms no hypotheses: one least-squares solution",
+                cur.result.estimator
+            )),
+            Err(e) => HypothesisList::none(format!("no hypotheses: {e}")),
+        };
+        cur.model.hypotheses = Some(list);
+        Ok(cur.model.clone())
     }
 
     /// Adds the branch posteriors of source keypoint `src` to the current model.
@@ -1283,6 +1333,17 @@ impl Worker for PipelineWorker {
                     None => events.log(LogLevel::Warn, "select a pair first"),
                 }
             }
+            Command::ExportCorrespondences(path) => match self.export_correspondences(&path) {
+                Ok(n) => events.log(
+                    LogLevel::Info,
+                    format!("wrote {n} correspondences to {}", path.display()),
+                ),
+                Err(e) => events.log(LogLevel::Error, format!("export correspondences: {e}")),
+            },
+            Command::Hypotheses => match self.hypotheses() {
+                Ok(m) => events.send(WorkerEvent::Model(Box::new(m))),
+                Err(e) => events.log(LogLevel::Warn, format!("hypotheses: {e}")),
+            },
             Command::Cancel => events.log(
                 LogLevel::Info,
                 "cancel: a running study stops before its next pair; registrations run to completion",

@@ -4,20 +4,207 @@
 use eframe::egui;
 use egui_plot::{Bar, BarChart, Legend, Line, Plot, PlotPoints, Points};
 
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
+
 use super::controls::{Command, StudyRequest};
 use super::model::InspectorModel;
 
-/// The plots panel's own inputs (the K list of the sweep).
-#[derive(Clone, Debug, PartialEq)]
+/// The plots panel's own inputs (the K list of the sweep, where plots are saved) and the
+/// screen rectangles of its four plots in the last frame (to crop the PNGs from).
+#[derive(Clone, Debug)]
 pub struct PlotsState {
     pub k_list: String,
+    /// Folder of "Save plots": `<name>.png` and `<name>.csv` per plot.
+    pub save_dir: String,
+    /// A screenshot was asked for; its PNGs go to this folder when it arrives.
+    pub pending_png: Option<PathBuf>,
+    /// Where the screenshot callback puts the window's pixels.
+    shot: Arc<Mutex<Option<Arc<egui::ColorImage>>>>,
+    /// (plot file name, rectangle in points) as drawn in the last frame.
+    pub rects: Vec<(&'static str, egui::Rect)>,
+    /// What the last "Save plots" wrote (or why not).
+    pub last_save: Option<String>,
+    /// Save on the next frame as if the button were pressed (scripts and tests).
+    pub save_now: bool,
 }
 
 impl Default for PlotsState {
     fn default() -> Self {
         Self {
             k_list: "1,2,4,8".into(),
+            save_dir: "cgenreg-plots".into(),
+            pending_png: None,
+            shot: Arc::default(),
+            rects: Vec::new(),
+            last_save: None,
+            save_now: false,
         }
+    }
+}
+
+/// The file stems of the four plots, in drawing order.
+pub const PLOT_NAMES: [&str; 4] = [
+    "rre_rte_per_pair",
+    "rre_rte_vs_k",
+    "match_pr",
+    "prompt_study",
+];
+
+fn csv_field(s: &str) -> String {
+    if s.contains([',', '"', '\n']) {
+        format!("\"{}\"", s.replace('"', "\"\""))
+    } else {
+        s.to_string()
+    }
+}
+
+fn opt(v: Option<f64>) -> String {
+    v.map(|x| format!("{x}")).unwrap_or_default()
+}
+
+/// The data of each plot as CSV text, `(file stem, text)` in [`PLOT_NAMES`] order (a header
+/// row, then one row per bar / point; empty cells for unknown values).
+pub fn plot_csvs(model: &InspectorModel) -> Vec<(&'static str, String)> {
+    let mut per_pair = String::from("pair,status,rre_deg,rte_m\n");
+    for p in &model.pairs {
+        let status = match &p.status {
+            super::model::PairStatus::Failed(_) => "failed",
+            super::model::PairStatus::Done => "done",
+            super::model::PairStatus::Running => "running",
+            _ => "pending",
+        };
+        per_pair += &format!(
+            "{},{status},{},{}\n",
+            csv_field(&p.id),
+            opt(p.rre_deg),
+            opt(p.rte_m)
+        );
+    }
+    let mut vs_k = String::from("k,rre_mean_deg,rte_mean_m,pairs,skipped,recall\n");
+    for k in &model.plots.vs_k {
+        vs_k += &format!(
+            "{},{},{},{},{},{}\n",
+            k.k,
+            k.rre_deg,
+            k.rte_m,
+            k.pairs,
+            k.skipped,
+            opt(k.recall)
+        );
+    }
+    let mut pr = String::from("curve,recall,precision\n");
+    for c in &model.plots.pr_curves {
+        for [r, p] in &c.points {
+            pr += &format!("{},{r},{p}\n", csv_field(&c.name));
+        }
+    }
+    let mut prompt = String::from("category,rre_mean_deg,rte_mean_m,pairs,skipped,recall\n");
+    for b in &model.plots.prompt_study {
+        prompt += &format!(
+            "{},{},{},{},{},{}\n",
+            csv_field(&b.category),
+            b.rre_deg,
+            b.rte_m,
+            b.pairs,
+            b.skipped,
+            opt(b.recall)
+        );
+    }
+    vec![
+        (PLOT_NAMES[0], per_pair),
+        (PLOT_NAMES[1], vs_k),
+        (PLOT_NAMES[2], pr),
+        (PLOT_NAMES[3], prompt),
+    ]
+}
+
+/// Writes [`plot_csvs`] into `dir` (atomically, one file per plot); returns the files.
+pub fn save_plot_csvs(dir: &Path, model: &InspectorModel) -> crate::Result<Vec<PathBuf>> {
+    plot_csvs(model)
+        .into_iter()
+        .map(|(name, text)| {
+            let p = dir.join(format!("{name}.csv"));
+            crate::error::write_atomic(&p, text.as_bytes()).map(|_| p)
+        })
+        .collect()
+}
+
+/// Crops each plot's rectangle (points, scaled by `pixels_per_point`) out of a screenshot of
+/// the window and writes it to `dir/<name>.png` (atomically); returns the files.
+pub fn save_plot_pngs(
+    dir: &Path,
+    shot: &egui::ColorImage,
+    pixels_per_point: f32,
+    rects: &[(&'static str, egui::Rect)],
+) -> crate::Result<Vec<PathBuf>> {
+    let mut out = Vec::new();
+    for (name, rect) in rects {
+        let part = shot.region(rect, Some(pixels_per_point));
+        let [w, h] = part.size;
+        if w == 0 || h == 0 {
+            continue;
+        }
+        let rgba: Vec<u8> = part.pixels.iter().flat_map(|c| c.to_array()).collect();
+        let img = image::RgbaImage::from_raw(w as u32, h as u32, rgba).ok_or_else(|| {
+            crate::Error::Invalid(format!("plot {name}: {w} x {h} pixels do not match"))
+        })?;
+        let mut png = Vec::new();
+        img.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
+            .map_err(|e| crate::Error::Invalid(format!("encoding {name}.png: {e}")))?;
+        let p = dir.join(format!("{name}.png"));
+        crate::error::write_atomic(&p, &png)?;
+        out.push(p);
+    }
+    Ok(out)
+}
+
+/// "Save plots" with its folder: the CSVs at once, the PNGs from the next frame's screenshot.
+fn save_bar(ui: &mut egui::Ui, model: &InspectorModel, state: &mut PlotsState) {
+    let mut log = None;
+    let arrived = state.shot.lock().ok().and_then(|mut s| s.take());
+    if let (Some(dir), Some(shot)) = (state.pending_png.clone(), arrived) {
+        state.pending_png = None;
+        let ppp = ui.ctx().pixels_per_point();
+        log = Some(match save_plot_pngs(&dir, &shot, ppp, &state.rects) {
+            Ok(files) => format!("saved {} plot PNGs in {}", files.len(), dir.display()),
+            Err(e) => format!("plot PNGs not saved: {e}"),
+        });
+    }
+    ui.horizontal(|ui| {
+        let l = ui.label("Save plots to");
+        ui.add(egui::TextEdit::singleline(&mut state.save_dir).desired_width(200.0))
+            .labelled_by(l.id);
+        let clicked = ui
+            .add_enabled(
+                state.pending_png.is_none() && !state.save_dir.trim().is_empty(),
+                egui::Button::new("Save plots (PNG + CSV)"),
+            )
+            .on_hover_text("each plot as <name>.png (as drawn) and its data as <name>.csv")
+            .clicked();
+        if clicked || std::mem::take(&mut state.save_now) {
+            let dir = PathBuf::from(state.save_dir.trim());
+            log = Some(match save_plot_csvs(&dir, model) {
+                Ok(files) => {
+                    state.pending_png = Some(dir.clone());
+                    let (slot, ctx) = (state.shot.clone(), ui.ctx().clone());
+                    ui.ctx().request_screenshot(move |img| {
+                        if let Ok(mut s) = slot.lock() {
+                            *s = Some(img);
+                        }
+                        ctx.request_repaint();
+                    });
+                    format!("saved {} plot CSVs in {}", files.len(), dir.display())
+                }
+                Err(e) => format!("plot CSVs not saved: {e}"),
+            });
+        }
+        if let Some(m) = &state.last_save {
+            ui.weak(m);
+        }
+    });
+    if log.is_some() {
+        state.last_save = log;
     }
 }
 
@@ -38,7 +225,7 @@ fn plot(id: &str, title: &str, x: &str, y: &str, ui: &mut egui::Ui, h: f32) -> P
 }
 
 /// RRE (degrees) and RTE (centimetres) share an axis so both read at a glance.
-pub fn per_pair_plot(ui: &mut egui::Ui, model: &InspectorModel, h: f32) {
+pub fn per_pair_plot(ui: &mut egui::Ui, model: &InspectorModel, h: f32) -> egui::Rect {
     let done: Vec<_> = model.pairs.iter().filter(|p| p.rre_deg.is_some()).collect();
     let rre: Vec<Bar> = done
         .iter()
@@ -91,10 +278,12 @@ pub fn per_pair_plot(ui: &mut egui::Ui, model: &InspectorModel, h: f32) {
     .show(ui, |p| {
         p.bar_chart(BarChart::new("RRE (°)", rre).color(RRE_COLOR));
         p.bar_chart(BarChart::new("RTE (cm)", rte).color(RTE_COLOR));
-    });
+    })
+    .response
+    .rect
 }
 
-pub fn pr_plot(ui: &mut egui::Ui, model: &InspectorModel, h: f32) {
+pub fn pr_plot(ui: &mut egui::Ui, model: &InspectorModel, h: f32) -> egui::Rect {
     let colors = [
         egui::Color32::from_rgb(60, 200, 90),
         egui::Color32::from_rgb(230, 80, 60),
@@ -119,14 +308,15 @@ pub fn pr_plot(ui: &mut egui::Ui, model: &InspectorModel, h: f32) {
                         .width(2.0),
                 );
             }
-        });
+        })
+        .response
+        .rect
 }
 
-pub fn vs_k_plot(ui: &mut egui::Ui, model: &InspectorModel, h: f32) {
+pub fn vs_k_plot(ui: &mut egui::Ui, model: &InspectorModel, h: f32) -> egui::Rect {
     let title = titled("RRE / RTE against K", &model.plots.vs_k_source);
     if model.plots.vs_k.is_empty() {
-        no_data(ui, &title, K_EMPTY, h);
-        return;
+        return no_data(ui, &title, K_EMPTY, h);
     }
     let pts = &model.plots.vs_k;
     let rre: Vec<[f64; 2]> = pts.iter().map(|k| [k.k as f64, k.rre_deg]).collect();
@@ -182,7 +372,9 @@ pub fn vs_k_plot(ui: &mut egui::Ui, model: &InspectorModel, h: f32) {
                 .color(RTE_COLOR)
                 .radius(3.0),
         );
-    });
+    })
+    .response
+    .rect
 }
 
 /// "title — source" when the source is known.
@@ -195,7 +387,7 @@ fn titled(title: &str, source: &str) -> String {
 }
 
 /// An empty plot area that says why it is empty.
-fn no_data(ui: &mut egui::Ui, title: &str, why: &str, h: f32) {
+fn no_data(ui: &mut egui::Ui, title: &str, why: &str, h: f32) -> egui::Rect {
     ui.strong(title);
     let (rect, _) =
         ui.allocate_exact_size(egui::vec2(ui.available_width(), h), egui::Sense::hover());
@@ -212,14 +404,14 @@ fn no_data(ui: &mut egui::Ui, title: &str, why: &str, h: f32) {
         egui::FontId::proportional(14.0),
         egui::Color32::from_gray(170),
     );
+    rect
 }
 
-pub fn prompt_plot(ui: &mut egui::Ui, model: &InspectorModel, h: f32) {
+pub fn prompt_plot(ui: &mut egui::Ui, model: &InspectorModel, h: f32) -> egui::Rect {
     let bars = &model.plots.prompt_study;
     let title = titled("Prompt study", &model.plots.prompt_source);
     if bars.is_empty() {
-        no_data(ui, &title, PROMPT_EMPTY, h);
-        return;
+        return no_data(ui, &title, PROMPT_EMPTY, h);
     }
     let rre: Vec<Bar> = bars
         .iter()
@@ -291,7 +483,9 @@ pub fn prompt_plot(ui: &mut egui::Ui, model: &InspectorModel, h: f32) {
         .show(ui, |p| {
             p.bar_chart(BarChart::new("RRE (°)", rre).color(RRE_COLOR));
             p.bar_chart(BarChart::new("RTE (cm)", rte).color(RTE_COLOR));
-        });
+        })
+        .response
+        .rect
 }
 
 /// The study buttons and progress, then the four plots in a 2 x 2 grid.
@@ -302,17 +496,20 @@ pub fn plots_panel(
     commands: &mut Vec<Command>,
 ) {
     study_bar(ui, model, state, commands);
+    save_bar(ui, model, state);
     if model.plots.figure7_pending && !commands.contains(&Command::Figure7) {
         // Repeated each frame until the worker answers; queued copies coalesce.
         commands.push(Command::Figure7);
     }
     let h = ((ui.available_height() - 60.0) / 2.0).max(120.0);
-    ui.columns(2, |cols| {
-        per_pair_plot(&mut cols[0], model, h);
-        vs_k_plot(&mut cols[0], model, h);
-        pr_plot(&mut cols[1], model, h);
-        prompt_plot(&mut cols[1], model, h);
+    let rects = ui.columns(2, |cols| {
+        let a = per_pair_plot(&mut cols[0], model, h);
+        let b = vs_k_plot(&mut cols[0], model, h);
+        let c = pr_plot(&mut cols[1], model, h);
+        let d = prompt_plot(&mut cols[1], model, h);
+        [a, b, c, d]
     });
+    state.rects = PLOT_NAMES.into_iter().zip(rects).collect();
 }
 
 /// "Run K sweep" (with its K list) and "Run prompt study": commands for the worker thread,

@@ -2,7 +2,72 @@
 
 use eframe::egui;
 
+use super::controls::Command;
 use super::model::{InspectorModel, StageState};
+
+/// The stage panel's own input: where "Export correspondences..." writes.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct StagesState {
+    /// Empty: `correspondences-<pair>.npz` in the working directory.
+    pub export_path: String,
+}
+
+/// The default export file of a pair: `correspondences-<pair id, '/' as '_'>.npz`.
+pub fn default_export_name(pair_id: &str) -> String {
+    let safe: String = pair_id
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || "-_.".contains(c) {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect();
+    format!("correspondences-{safe}.npz")
+}
+
+/// "Export correspondences..." with its file: the worker writes the current pair's selected
+/// correspondences there (the library's `pipeline::export`, as `register --export-corr`).
+pub fn export_bar(
+    ui: &mut egui::Ui,
+    model: &InspectorModel,
+    state: &mut StagesState,
+    commands: &mut Vec<Command>,
+) {
+    let pair = model
+        .current_pair
+        .and_then(|i| model.pairs.get(i))
+        .map(|p| p.id.clone());
+    ui.horizontal(|ui| {
+        let clicked = ui
+            .add_enabled(
+                pair.is_some() && !model.matches.is_empty(),
+                egui::Button::new("Export correspondences..."),
+            )
+            .on_hover_text(
+                "write the selected correspondences (indices, xyz, fused / image / geometric \
+                 posterior, proposing branch, inlier under the estimate and under GT) to this \
+                 .npz",
+            )
+            .clicked();
+        let hint = pair.as_deref().map(default_export_name).unwrap_or_default();
+        ui.add(
+            egui::TextEdit::singleline(&mut state.export_path)
+                .hint_text(hint.clone())
+                .desired_width(320.0),
+        );
+        if clicked {
+            let path = if state.export_path.trim().is_empty() {
+                hint
+            } else {
+                state.export_path.trim().to_string()
+            };
+            commands.push(Command::ExportCorrespondences(path.into()));
+        }
+    });
+    ui.separator();
+}
 
 pub fn state_text(s: &StageState) -> (String, egui::Color32) {
     match s {
@@ -14,7 +79,13 @@ pub fn state_text(s: &StageState) -> (String, egui::Color32) {
     }
 }
 
-pub fn stages_panel(ui: &mut egui::Ui, model: &InspectorModel) {
+pub fn stages_panel(
+    ui: &mut egui::Ui,
+    model: &InspectorModel,
+    state: &mut StagesState,
+    commands: &mut Vec<Command>,
+) {
+    export_bar(ui, model, state, commands);
     if model.stages.is_empty() {
         ui.label("No pipeline run yet.");
         return;

@@ -600,7 +600,9 @@ pub fn scene_ui(
 
     let prefs = state.prefs.clone();
     let vp = state.camera.view_projection(rect.width(), rect.height());
-    let src_xf = primary_alignment(model, &prefs);
+    // a hypothesis selected in the hypothesis browser replaces the estimate
+    let hyp_pose = shared.ui.hypothesis.as_ref().map(|h| h.pose);
+    let src_xf = hyp_pose.unwrap_or_else(|| primary_alignment(model, &prefs));
 
     // colours, recomputed only when the mode or the model changes
     for (is_src, cache, mode, pos) in [
@@ -670,7 +672,10 @@ pub fn scene_ui(
         model.ground_truth,
         [0.55, 1.0, 0.55, 1.0],
     );
-    add_inst(prefs.show_estimated, model.estimated, [1.0, 1.0, 1.0, 1.0]);
+    match hyp_pose {
+        Some(h) => add_inst(true, Some(h), [0.6, 0.8, 1.0, 1.0]),
+        None => add_inst(prefs.show_estimated, model.estimated, [1.0, 1.0, 1.0, 1.0]),
+    }
 
     // correspondence lines (source endpoint under the primary alignment)
     let shown = shared.shown_matches();

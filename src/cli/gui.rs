@@ -38,7 +38,7 @@ pub struct ScreenshotArgs {
     /// Pair id within the manifest (default: its first pair).
     #[arg(long)]
     pub pair: Option<String>,
-    /// Panel to render: views, 3d, posterior, plots, stages or compare.
+    /// Panel to render: views, 3d, posterior, plots, stages, compare or hypotheses.
     #[arg(long, default_value = "3d")]
     pub panel: String,
     /// Two `cgenreg bench --json` outputs (run A, then run B) shown in the Compare tab; with
@@ -260,7 +260,7 @@ fn run_compare_screenshot(a: &ScreenshotArgs, runs: &[PathBuf], panel: Panel) ->
 pub fn run_screenshot(a: ScreenshotArgs) -> Result<()> {
     let panel = Panel::from_name(&a.panel).ok_or_else(|| {
         Error::Invalid(format!(
-            "--panel {:?}: expected views, 3d, posterior, plots, stages or compare",
+            "--panel {:?}: expected views, 3d, posterior, plots, stages, compare or hypotheses",
             a.panel
         ))
     })?;
@@ -332,6 +332,10 @@ pub fn run_screenshot(a: ScreenshotArgs) -> Result<()> {
     if let Some(curves) = worker.fusion_pr_curves() {
         model.plots.pr_curves = curves;
         model.plots.figure7_pending = false;
+    }
+    if panel == Panel::Hypotheses {
+        // the estimator's ranked hypotheses, as the tab asks the worker for them
+        model = worker.hypotheses()?;
     }
     if panel == Panel::Posterior {
         // posteriors of the best-scored surviving matches (inliers under GT first)

@@ -3,7 +3,7 @@ use crate::dataset::fragment_cache::pair_summary;
 use crate::dataset::manifest::Dataset;
 use crate::dataset::ScanPair;
 use crate::error::{Error, Result};
-use crate::pipeline::{register_pair_cached, RegistrationResult};
+use crate::pipeline::{register_pair_cached_keep, RegistrationResult};
 use clap::Args;
 use std::path::PathBuf;
 
@@ -27,6 +27,10 @@ pub struct RegisterArgs {
     /// Print the result as JSON.
     #[arg(long)]
     pub json: bool,
+    /// Write the selected correspondences (indices, coordinates, scores, posteriors, branch,
+    /// inlier flags under the estimate and the ground truth) to this .npz file.
+    #[arg(long, value_name = "FILE.npz")]
+    pub export_corr: Option<PathBuf>,
     #[command(flatten)]
     pub pipeline: PipelineArgs,
     #[command(flatten)]
@@ -60,7 +64,7 @@ pub fn run(a: RegisterArgs) -> Result<()> {
     let (pair, load_hit) = load_pair(&a)?;
     let load_ms = t0.elapsed().as_secs_f64() * 1e3;
     let (params, cache) = a.image.params_and_cache(&a.pipeline)?;
-    let mut res = register_pair_cached(&pair, &params, cache.as_ref())?;
+    let (mut res, inputs) = register_pair_cached_keep(&pair, &params, cache.as_ref())?;
     res.timings.insert(
         0,
         crate::pipeline::StageTiming {
@@ -73,6 +77,13 @@ pub fn run(a: RegisterArgs) -> Result<()> {
         },
     );
     res.total_ms += load_ms;
+    if let Some(path) = &a.export_corr {
+        let t = crate::pipeline::export::export_correspondences(
+            path, &pair, &params, &inputs, None, &res,
+        )?;
+        // stderr: stdout stays the result (JSON with --json)
+        eprintln!("wrote {} correspondences to {}", t.len(), path.display());
+    }
     if a.json {
         let s = serde_json::to_string_pretty(&res)
             .map_err(|e| Error::Invalid(format!("serialising the result: {e}")))?;
@@ -118,6 +129,18 @@ pub fn print_human(r: &RegistrationResult) {
         ),
         None => println!("no ground truth: metrics not computed"),
     }
+    if let Some(c) = &r.convention {
+        match &c.warning {
+            Some(w) => println!("WARNING: {w}"),
+            None => println!(
+                "ground truth convention: consistent ({:.0} % of source keypoints within {:.0} cm \
+                 under the GT, {:.0} % under its inverse)",
+                100.0 * c.overlap_gt,
+                100.0 * c.threshold_m,
+                100.0 * c.overlap_inverse
+            ),
+        }
+    }
     if let Some(img) = &r.image {
         println!(
             "image branch: frames from {} ({}); VFM {}",
@@ -141,7 +164,8 @@ pub fn print_human(r: &RegistrationResult) {
             img.target_links.len()
         );
     }
-    for w in &r.warnings {
+    let shown = r.convention.as_ref().and_then(|c| c.warning.as_ref());
+    for w in r.warnings.iter().filter(|w| Some(*w) != shown) {
         println!("warning: {w}");
     }
     println!("stage timings:");

@@ -3,6 +3,7 @@
 //! Every estimator takes correspondence endpoints `src[i] ↔ tgt[i]` (source and target frames)
 //! and returns `target_from_source` (`tgt[i] ≈ T * src[i]` for inliers).
 
+pub mod hypotheses;
 pub mod kabsch;
 pub mod ransac;
 pub(crate) mod rng;
@@ -10,6 +11,7 @@ pub mod sc2pcr;
 pub mod synthetic;
 
 use crate::{Error, Result};
+pub use hypotheses::{Hypotheses, Hypothesis};
 use nalgebra::{Isometry3, Point3, Rotation3, Translation3, UnitQuaternion};
 pub use ransac::RansacParams;
 pub use sc2pcr::Sc2PcrParams;
@@ -115,6 +117,32 @@ pub fn estimate_pose(
         },
         EstimatorKind::Ransac(p) => ransac::ransac(src, tgt, p),
         EstimatorKind::WeightedSvd => weighted_svd(src, tgt, weights),
+    }
+}
+
+/// [`estimate_pose`] that also returns the estimator's best `top_n` hypotheses, ranked by its
+/// own rule (SC2-PCR: seeds by consensus size; RANSAC: its inlier count, then squared error).
+/// The estimate is the same as [`estimate_pose`]'s. None: weighted SVD (one solution, no
+/// hypotheses), SC2-PCR's fallback to it, or `top_n` 0.
+pub fn estimate_pose_with_hypotheses(
+    src: &[Point3<f32>],
+    tgt: &[Point3<f32>],
+    weights: &[f32],
+    method: &EstimatorKind,
+    top_n: usize,
+) -> Result<(Estimate, Option<Hypotheses>)> {
+    match method {
+        EstimatorKind::Sc2Pcr(p) if src.len() == tgt.len() && weights.len() == src.len() => {
+            match sc2pcr::sc2pcr_with(src, tgt, p, top_n) {
+                Ok(x) => Ok(x),
+                // the fallback, exactly as estimate_pose words it
+                Err(_) => estimate_pose(src, tgt, weights, method).map(|e| (e, None)),
+            }
+        }
+        EstimatorKind::Ransac(p) if src.len() == tgt.len() && weights.len() == src.len() => {
+            ransac::ransac_with(src, tgt, p, top_n)
+        }
+        _ => estimate_pose(src, tgt, weights, method).map(|e| (e, None)),
     }
 }
 

@@ -9,6 +9,7 @@
 //! chunks whose best is reduced by a total order, so the result does not depend on the number
 //! of threads.
 
+use super::hypotheses::{Hypotheses, Hypothesis, TopN};
 use super::kabsch;
 use super::rng::Pcg32;
 use super::sc2pcr::{inlier_warning, Soa};
@@ -62,6 +63,19 @@ fn better(a: &Hyp, b: &Hyp) -> bool {
 }
 
 pub fn ransac(src: &[Point3<f32>], tgt: &[Point3<f32>], params: &RansacParams) -> Result<Estimate> {
+    ransac_with(src, tgt, params, 0).map(|(e, _)| e)
+}
+
+/// [`ransac`] that also keeps its best `top_n` hypotheses (None when `top_n` is 0), ranked by
+/// RANSAC's own order: more inliers, then the lower sum of squared inlier residuals, then the
+/// earlier hypothesis. Rank 1 is the hypothesis refitted into the estimate. The estimate is
+/// the same as [`ransac`]'s.
+pub fn ransac_with(
+    src: &[Point3<f32>],
+    tgt: &[Point3<f32>],
+    params: &RansacParams,
+    top_n: usize,
+) -> Result<(Estimate, Option<Hypotheses>)> {
     if src.len() != tgt.len() {
         return Err(Error::Invalid(format!(
             "ransac: {} source points but {} target points",
@@ -95,12 +109,25 @@ pub fn ransac(src: &[Point3<f32>], tgt: &[Point3<f32>], params: &RansacParams) -
     let mut best: Option<Hyp> = None;
     let mut limit = params.max_iterations;
     let mut done = 0usize;
+    let mut top = TopN::new(top_n);
+    let mut scored = 0usize;
     while done < limit {
         let end = (done + CHUNK).min(limit);
-        let chunk_best = (done..end)
+        let hyps = (done..end)
             .into_par_iter()
-            .filter_map(|k| hypothesis(&p, src, tgt, params.seed, k, thr))
-            .reduce_with(|a, b| if better(&b, &a) { b } else { a });
+            .filter_map(|k| hypothesis(&p, src, tgt, params.seed, k, thr));
+        let chunk_best = if top_n == 0 {
+            hyps.reduce_with(|a, b| if better(&b, &a) { b } else { a })
+        } else {
+            // the same best (a total order), and the chunk's hypotheses for the top list
+            let all: Vec<Hyp> = hyps.collect();
+            scored += all.len();
+            for h in &all {
+                top.push(*h, better);
+            }
+            all.into_iter()
+                .reduce(|a, b| if better(&b, &a) { b } else { a })
+        };
         if let Some(c) = chunk_best {
             if best.is_none_or(|b| better(&c, &b)) {
                 best = Some(c);
@@ -137,23 +164,46 @@ pub fn ransac(src: &[Point3<f32>], tgt: &[Point3<f32>], params: &RansacParams) -
     }
     let (_, inliers) = score(&p, &t, thr, true);
     let warning = inlier_warning("ransac", &p, &inliers);
-    Ok(Estimate {
-        target_from_source: t,
-        inliers,
-        method: format!("ransac ({done} hypotheses)"),
-        warning,
-    })
+    let hyps = (top_n > 0).then(|| Hypotheses {
+        estimator: "ransac".into(),
+        rule: format!(
+            "RANSAC's order: more inliers within {:.3} m, then the lower sum of squared inlier \
+             residuals, then the earlier hypothesis; the best is refitted (least squares, \
+             twice) into the estimate",
+            thr
+        ),
+        threshold_m: thr as f64,
+        total: scored,
+        list: top
+            .into_vec()
+            .into_iter()
+            .enumerate()
+            .map(|(r, h)| Hypothesis {
+                rank: r + 1,
+                sample: sample(params.seed, h.k, n).to_vec(),
+                consensus: h.inliers,
+                sse: Some(h.sse),
+                pose: h.t,
+                inliers: score(&p, &h.t, thr, true).1,
+                winner: h.k == b.k,
+            })
+            .collect(),
+        refined: t,
+    });
+    Ok((
+        Estimate {
+            target_from_source: t,
+            inliers,
+            method: format!("ransac ({done} hypotheses)"),
+            warning,
+        },
+        hyps,
+    ))
 }
 
-fn hypothesis(
-    p: &Soa,
-    src: &[Point3<f32>],
-    tgt: &[Point3<f32>],
-    seed: u64,
-    k: usize,
-    thr: f32,
-) -> Option<Hyp> {
-    let n = src.len() as u32;
+/// The 3 distinct correspondences of hypothesis `k` (its own PCG32 stream).
+fn sample(seed: u64, k: usize, n: usize) -> [usize; 3] {
+    let n = n as u32;
     let mut rng = Pcg32::new(seed, k as u64);
     let a = rng.below(n);
     let mut b = rng.below(n - 1);
@@ -168,7 +218,18 @@ fn hypothesis(
     if c >= hi {
         c += 1;
     }
-    let idx = [a as usize, b as usize, c as usize];
+    [a as usize, b as usize, c as usize]
+}
+
+fn hypothesis(
+    p: &Soa,
+    src: &[Point3<f32>],
+    tgt: &[Point3<f32>],
+    seed: u64,
+    k: usize,
+    thr: f32,
+) -> Option<Hyp> {
+    let idx = sample(seed, k, src.len());
     for (i, j) in [(0, 1), (0, 2), (1, 2)] {
         let ds = (src[idx[i]] - src[idx[j]]).norm();
         let dt = (tgt[idx[i]] - tgt[idx[j]]).norm();
@@ -258,6 +319,39 @@ mod tests {
     #[test]
     fn recovers_pose_at_10_percent_inliers() {
         check(0.1, 32);
+    }
+
+    /// The kept hypotheses are RANSAC's best by its own order, the winner is rank 1 and the
+    /// estimate is the same as without them.
+    #[test]
+    fn hypotheses_ranked_winner_first_same_estimate() {
+        let data = synthetic_correspondences(2000, 1500, 0.2, 0.01, 41);
+        let prm = RansacParams::default();
+        let plain = ransac(&data.src, &data.tgt, &prm).unwrap();
+        let (est, h) = ransac_with(&data.src, &data.tgt, &prm, 20).unwrap();
+        let h = h.unwrap();
+        assert_eq!(est.target_from_source, plain.target_from_source);
+        assert_eq!(est.inliers, plain.inliers);
+        // the early stop may leave fewer than 20 that passed the checks
+        assert!(h.total >= 1);
+        assert_eq!(h.list.len(), h.total.min(20));
+        assert!(h.list[0].winner && h.list.iter().filter(|x| x.winner).count() == 1);
+        assert_eq!(h.refined, est.target_from_source);
+        for w in h.list.windows(2) {
+            let (a, b) = (&w[0], &w[1]);
+            assert!(
+                a.consensus > b.consensus
+                    || a.consensus == b.consensus && a.sse.unwrap() <= b.sse.unwrap()
+            );
+        }
+        for x in &h.list {
+            assert_eq!(x.inliers.len(), x.consensus);
+            assert_eq!(x.sample.len(), 3);
+        }
+        assert!(ransac_with(&data.src, &data.tgt, &prm, 0)
+            .unwrap()
+            .1
+            .is_none());
     }
 
     #[test]

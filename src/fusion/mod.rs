@@ -18,7 +18,7 @@ pub mod streaming;
 pub use calibrate::{calibrate, calibrate_in_place, Calibration};
 pub use fuse::{concat_features, concat_similarity, fuse, noisy_and, noisy_or, FusionMode};
 pub use matrix::DenseMatrix;
-pub use posterior::{posterior_row, PosteriorRow};
+pub use posterior::{posterior_row, PosteriorRow, PosteriorRows};
 pub use select::{select, Selection};
 pub use similarity::{cosine_similarity, max_similarity};
 

@@ -8,7 +8,7 @@
 //! read-only pass over the whole similarity (no N x M copy); concatenation with a dual softmax
 //! forms the concatenated similarity (one N x M matrix), as `match_then_fuse` does.
 
-use super::calibrate::{calibrate_in_place, dual_stats_of, Calibration};
+use super::calibrate::{calibrate_in_place, dual_stats_of, Calibration, DualStats};
 use super::fuse::{
     concat_similarity, default_prior, fuse_into, noisy_and_rank_keys, rank_keys_to_posteriors,
     FusionMode,
@@ -29,142 +29,239 @@ pub struct PosteriorRow {
     pub fused: Vec<f32>,
 }
 
-/// Row `i` of `sim` calibrated as [`calibrate`](super::calibrate) calibrates the whole matrix.
-fn calibrated_row(
-    sim: &DenseMatrix,
-    row_valid: Option<&[bool]>,
-    col_valid: Option<&[bool]>,
+/// One branch's similarity with what its calibration needs beyond row `i` (the column
+/// statistics of a dual softmax, computed once).
+struct Calibrated<'a> {
+    sim: &'a DenseMatrix,
+    row_valid: Option<&'a [bool]>,
+    col_valid: Option<&'a [bool]>,
     cal: Calibration,
-    i: usize,
-) -> Result<Vec<f32>> {
-    check_masks("posterior row", sim.rows, sim.cols, row_valid, col_valid)?;
-    let mut row = DenseMatrix::from_vec(1, sim.cols, sim.row(i).to_vec())?;
-    match cal {
-        Calibration::RowSoftmax { .. } => {
-            // A row softmax of row i depends on row i only.
-            let rv = row_valid.map(|r| [r[i]]);
-            calibrate_in_place(&mut row, rv.as_ref().map(|r| &r[..]), col_valid, cal)?;
-        }
-        Calibration::DualSoftmax { tau } => {
-            let st = dual_stats_of(sim, row_valid, col_valid, tau)?;
-            st.row_in_place(i, &mut row.data);
-        }
+    dual: Option<DualStats>,
+}
+
+impl<'a> Calibrated<'a> {
+    fn new(
+        sim: &'a DenseMatrix,
+        row_valid: Option<&'a [bool]>,
+        col_valid: Option<&'a [bool]>,
+        cal: Calibration,
+    ) -> Result<Self> {
+        check_masks("posterior row", sim.rows, sim.cols, row_valid, col_valid)?;
+        let dual = match cal {
+            Calibration::RowSoftmax { .. } => None,
+            Calibration::DualSoftmax { tau } => {
+                Some(dual_stats_of(sim, row_valid, col_valid, tau)?)
+            }
+        };
+        Ok(Calibrated {
+            sim,
+            row_valid,
+            col_valid,
+            cal,
+            dual,
+        })
     }
-    Ok(row.data)
+
+    /// Row `i` of the matrix [`calibrate`](super::calibrate) makes of the whole similarity.
+    fn row(&self, i: usize) -> Result<Vec<f32>> {
+        let mut row = DenseMatrix::from_vec(1, self.sim.cols, self.sim.row(i).to_vec())?;
+        match &self.dual {
+            None => {
+                // A row softmax of row i depends on row i only.
+                let rv = self.row_valid.map(|r| [r[i]]);
+                calibrate_in_place(
+                    &mut row,
+                    rv.as_ref().map(|r| &r[..]),
+                    self.col_valid,
+                    self.cal,
+                )?;
+            }
+            Some(st) => st.row_in_place(i, &mut row.data),
+        }
+        Ok(row.data)
+    }
 }
 
 /// The image, geometric and fused posterior of source point `i`: row `i` of the matrices
 /// [`match_then_fuse`](super::match_then_fuse) returns for the same inputs and parameters
 /// (`p_img`, `p_geo`, `fused`). Errors as `match_then_fuse` does, and when `i` is not a row.
+/// For many rows use [`PosteriorRows`] (a dual softmax's column statistics once).
 pub fn posterior_row(
     sim_img: Option<ImageSimilarity<'_>>,
     sim_geo: Option<&DenseMatrix>,
     params: &FusionParams,
     i: usize,
 ) -> Result<PosteriorRow> {
-    let (rows, cols) = match (sim_img, sim_geo) {
-        (Some((a, _, _)), Some(b)) if a.shape() != b.shape() => {
-            return Err(Error::Invalid(format!(
-                "posterior row: image similarity is {} x {}, geometric similarity is {} x {}",
-                a.rows, a.cols, b.rows, b.cols
-            )))
-        }
-        (Some((a, _, _)), _) => a.shape(),
-        (None, Some(b)) => b.shape(),
-        (None, None) => return Err(Error::Invalid("posterior row: no similarity given".into())),
-    };
-    if i >= rows {
-        return Err(Error::Invalid(format!(
-            "posterior row: source point {i} out of range (the similarity has {rows} rows)"
-        )));
-    }
-    for (what, m) in [("image", sim_img.map(|s| s.0)), ("geometric", sim_geo)] {
-        if let Some(m) = m {
-            if m.data.len() != m.rows * m.cols {
+    PosteriorRows::new(sim_img, sim_geo, params)?.row(i)
+}
+
+/// Rows of Match-then-Fuse's posteriors, one at a time, with everything that does not
+/// depend on the row (a dual softmax's column statistics, a concatenated similarity under a
+/// dual softmax) computed once by [`PosteriorRows::new`]. Memory: O(N + M) beyond the
+/// similarities, except concatenation with a dual softmax (one N x M matrix, as
+/// `match_then_fuse` forms).
+pub struct PosteriorRows<'a> {
+    sim_img: Option<ImageSimilarity<'a>>,
+    sim_geo: Option<&'a DenseMatrix>,
+    params: FusionParams,
+    rows: usize,
+    cols: usize,
+    image: Option<Calibrated<'a>>,
+    geometric: Option<Calibrated<'a>>,
+    /// The concatenated similarity (Concat with a dual softmax) and its column statistics.
+    concat_dual: Option<(DenseMatrix, DualStats)>,
+}
+
+impl<'a> PosteriorRows<'a> {
+    /// Checks the inputs as [`match_then_fuse`](super::match_then_fuse) does.
+    pub fn new(
+        sim_img: Option<ImageSimilarity<'a>>,
+        sim_geo: Option<&'a DenseMatrix>,
+        params: &FusionParams,
+    ) -> Result<Self> {
+        let (rows, cols) = match (sim_img, sim_geo) {
+            (Some((a, _, _)), Some(b)) if a.shape() != b.shape() => {
                 return Err(Error::Invalid(format!(
-                    "posterior row: {what} similarity holds {} values, expected {} x {}",
-                    m.data.len(),
-                    m.rows,
-                    m.cols
-                )));
+                    "posterior row: image similarity is {} x {}, geometric similarity is {} x {}",
+                    a.rows, a.cols, b.rows, b.cols
+                )))
+            }
+            (Some((a, _, _)), _) => a.shape(),
+            (None, Some(b)) => b.shape(),
+            (None, None) => {
+                return Err(Error::Invalid("posterior row: no similarity given".into()))
+            }
+        };
+        for (what, m) in [("image", sim_img.map(|s| s.0)), ("geometric", sim_geo)] {
+            if let Some(m) = m {
+                if m.data.len() != m.rows * m.cols {
+                    return Err(Error::Invalid(format!(
+                        "posterior row: {what} similarity holds {} values, expected {} x {}",
+                        m.data.len(),
+                        m.rows,
+                        m.cols
+                    )));
+                }
             }
         }
-    }
-    let image = sim_img
-        .map(|(s, rv, cv)| calibrated_row(s, rv, cv, params.calibration_img, i))
-        .transpose()?;
-    let geometric = sim_geo
-        .map(|s| calibrated_row(s, None, None, params.calibration_geo, i))
-        .transpose()?;
-    let need = |p: &Option<Vec<f32>>, what: &str| {
-        p.clone().ok_or_else(|| {
-            Error::Invalid(format!(
-                "posterior row: fusion mode {:?} needs the {what} similarity",
-                params.mode
-            ))
+        let image = sim_img
+            .map(|(s, rv, cv)| Calibrated::new(s, rv, cv, params.calibration_img))
+            .transpose()?;
+        let geometric = sim_geo
+            .map(|s| Calibrated::new(s, None, None, params.calibration_geo))
+            .transpose()?;
+        let concat_dual = match (params.mode, params.calibration_geo, sim_img, sim_geo) {
+            (
+                FusionMode::Concat,
+                Calibration::DualSoftmax { tau },
+                Some((si, rv, cv)),
+                Some(sg),
+            ) => {
+                let s = concat_similarity(si, rv, cv, sg, params.concat_w_img)?;
+                // match_then_fuse calibrates the concatenation without masks
+                let st = dual_stats_of(&s, None, None, tau)?;
+                Some((s, st))
+            }
+            _ => None,
+        };
+        Ok(PosteriorRows {
+            sim_img,
+            sim_geo,
+            params: *params,
+            rows,
+            cols,
+            image,
+            geometric,
+            concat_dual,
         })
-    };
-    // The prior of the whole matrix, not of a 1 x M row.
-    let prior = params.prior.unwrap_or_else(|| default_prior(rows, cols));
-    let as_row = |v: Vec<f32>| DenseMatrix::from_vec(1, cols, v);
-    let fused = match params.mode {
-        FusionMode::ImageOnly => need(&image, "image")?,
-        FusionMode::GeometryOnly => need(&geometric, "geometric")?,
-        FusionMode::NoisyAnd if !params.exact_reference => {
-            let (a, b) = (
-                as_row(need(&image, "image")?)?,
-                as_row(need(&geometric, "geometric")?)?,
-            );
-            let mut keys = noisy_and_rank_keys(&a, &b)?;
-            rank_keys_to_posteriors(&mut keys, Some(prior))?;
-            keys.data
+    }
+
+    /// Number of source points (rows).
+    pub fn rows(&self) -> usize {
+        self.rows
+    }
+
+    /// Row `i`: as [`posterior_row`] with the same inputs.
+    pub fn row(&self, i: usize) -> Result<PosteriorRow> {
+        let (rows, cols, params) = (self.rows, self.cols, &self.params);
+        if i >= rows {
+            return Err(Error::Invalid(format!(
+                "posterior row: source point {i} out of range (the similarity has {rows} rows)"
+            )));
         }
-        mode @ (FusionMode::NoisyAnd | FusionMode::NoisyOr) => {
-            let (a, b) = (
-                as_row(need(&image, "image")?)?,
-                as_row(need(&geometric, "geometric")?)?,
-            );
-            let mut out = DenseMatrix::zeros(1, cols)?;
-            fuse_into(&mut out, &a, &b, mode, Some(prior), params.exact_reference)?;
-            out.data
-        }
-        FusionMode::Concat => {
-            let ((si, rv, cv), sg) = match (sim_img, sim_geo) {
-                (Some(a), Some(b)) => (a, b),
-                _ => {
-                    return Err(Error::Invalid(
-                        "posterior row: fusion mode Concat needs both similarities".into(),
-                    ))
-                }
-            };
-            match params.calibration_geo {
-                Calibration::RowSoftmax { .. } => {
-                    // Entry (i, j) of the concatenated similarity depends on row i only.
-                    let a = as_row(si.row(i).to_vec())?;
-                    let b = as_row(sg.row(i).to_vec())?;
-                    let rvi = rv.map(|r| [r[i]]);
-                    let s = concat_similarity(
-                        &a,
-                        rvi.as_ref().map(|r| &r[..]),
-                        cv,
-                        &b,
-                        params.concat_w_img,
-                    )?;
-                    // match_then_fuse calibrates the concatenation without masks
-                    calibrated_row(&s, None, None, params.calibration_geo, 0)?
-                }
-                cal @ Calibration::DualSoftmax { .. } => {
-                    let s = concat_similarity(si, rv, cv, sg, params.concat_w_img)?;
-                    calibrated_row(&s, None, None, cal, i)?
+        let image = self.image.as_ref().map(|c| c.row(i)).transpose()?;
+        let geometric = self.geometric.as_ref().map(|c| c.row(i)).transpose()?;
+        let need = |p: &Option<Vec<f32>>, what: &str| {
+            p.clone().ok_or_else(|| {
+                Error::Invalid(format!(
+                    "posterior row: fusion mode {:?} needs the {what} similarity",
+                    params.mode
+                ))
+            })
+        };
+        // The prior of the whole matrix, not of a 1 x M row.
+        let prior = params.prior.unwrap_or_else(|| default_prior(rows, cols));
+        let as_row = |v: Vec<f32>| DenseMatrix::from_vec(1, cols, v);
+        let fused = match params.mode {
+            FusionMode::ImageOnly => need(&image, "image")?,
+            FusionMode::GeometryOnly => need(&geometric, "geometric")?,
+            FusionMode::NoisyAnd if !params.exact_reference => {
+                let (a, b) = (
+                    as_row(need(&image, "image")?)?,
+                    as_row(need(&geometric, "geometric")?)?,
+                );
+                let mut keys = noisy_and_rank_keys(&a, &b)?;
+                rank_keys_to_posteriors(&mut keys, Some(prior))?;
+                keys.data
+            }
+            mode @ (FusionMode::NoisyAnd | FusionMode::NoisyOr) => {
+                let (a, b) = (
+                    as_row(need(&image, "image")?)?,
+                    as_row(need(&geometric, "geometric")?)?,
+                );
+                let mut out = DenseMatrix::zeros(1, cols)?;
+                fuse_into(&mut out, &a, &b, mode, Some(prior), params.exact_reference)?;
+                out.data
+            }
+            FusionMode::Concat => {
+                let ((si, rv, cv), sg) = match (self.sim_img, self.sim_geo) {
+                    (Some(a), Some(b)) => (a, b),
+                    _ => {
+                        return Err(Error::Invalid(
+                            "posterior row: fusion mode Concat needs both similarities".into(),
+                        ))
+                    }
+                };
+                match &self.concat_dual {
+                    None => {
+                        // Entry (i, j) of the concatenated similarity depends on row i only.
+                        let a = as_row(si.row(i).to_vec())?;
+                        let b = as_row(sg.row(i).to_vec())?;
+                        let rvi = rv.map(|r| [r[i]]);
+                        let mut s = concat_similarity(
+                            &a,
+                            rvi.as_ref().map(|r| &r[..]),
+                            cv,
+                            &b,
+                            params.concat_w_img,
+                        )?;
+                        calibrate_in_place(&mut s, None, None, params.calibration_geo)?;
+                        s.data
+                    }
+                    Some((s, st)) => {
+                        let mut row = s.row(i).to_vec();
+                        st.row_in_place(i, &mut row);
+                        row
+                    }
                 }
             }
-        }
-    };
-    Ok(PosteriorRow {
-        image,
-        geometric,
-        fused,
-    })
+        };
+        Ok(PosteriorRow {
+            image,
+            geometric,
+            fused,
+        })
+    }
 }
 
 #[cfg(test)]

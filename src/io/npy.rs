@@ -487,6 +487,38 @@ pub fn encode_npy_f32(shape: &[usize], data: &[f32]) -> Vec<u8> {
     out
 }
 
+/// Encode a C-order little-endian float64 array as NPY v1 bytes (an `.npz` entry, say).
+pub fn encode_npy_f64(shape: &[usize], data: &[f64]) -> Vec<u8> {
+    let mut out = npy_header("<f8", shape);
+    out.reserve(data.len() * 8);
+    for v in data {
+        out.extend_from_slice(&v.to_le_bytes());
+    }
+    out
+}
+
+/// An `.npz` archive (a zip, entries deflated) of `(entry name, bytes)`: `name.npy` entries
+/// from [`encode_npy_f32`] / [`encode_npy_f64`], and any other member (e.g. `meta.json`, which
+/// NumPy's `np.load(..)["meta.json"]` returns as bytes and [`read_npz`] skips).
+pub fn encode_npz(entries: &[(String, Vec<u8>)]) -> Result<Vec<u8>> {
+    use std::io::Write;
+    let zerr = |e: &dyn std::fmt::Display| Error::Invalid(format!("encoding an .npz: {e}"));
+    let mut w = zip::ZipWriter::new(std::io::Cursor::new(Vec::new()));
+    let opts = zip::write::SimpleFileOptions::default()
+        .compression_method(zip::CompressionMethod::Deflated)
+        .large_file(entries.iter().any(|(_, b)| b.len() >= u32::MAX as usize));
+    for (name, bytes) in entries {
+        w.start_file(name.as_str(), opts).map_err(|e| zerr(&e))?;
+        w.write_all(bytes).map_err(|e| zerr(&e))?;
+    }
+    Ok(w.finish().map_err(|e| zerr(&e))?.into_inner())
+}
+
+/// Write [`encode_npz`] of `entries` to `path` atomically (temporary file, then rename).
+pub fn write_npz(path: &Path, entries: &[(String, Vec<u8>)]) -> Result<()> {
+    write_atomic(path, &encode_npz(entries)?)
+}
+
 /// A float32 matrix from NPY bytes: a 2-D array as (rows, cols, data), a 1-D array as
 /// (n, 1, data); any other rank, or a float64 array, is an error naming `path`. Reads what
 /// [`encode_npy_f32`] writes (the stage cache's `.npy` payloads).

@@ -240,6 +240,18 @@ fn finish(
         )),
         None => None,
     };
+    let convention = pair.gt_target_from_source.as_ref().and_then(|gt| {
+        crate::metrics::convention::check_gt_convention(
+            &src.keypoints.points,
+            &tgt.keypoints.points,
+            &sp,
+            &tp,
+            gt,
+            params.inlier_threshold,
+        )
+    });
+    let mut warnings: Vec<String> = est.warning.iter().cloned().collect();
+    warnings.extend(convention.as_ref().and_then(|c| c.warning.clone()));
     let total_ms = timer.t0.elapsed().as_secs_f64() * 1e3;
     Ok(RegistrationResult {
         pair_id: pair.id.clone(),
@@ -249,8 +261,9 @@ fn finish(
         estimate: est.target_from_source,
         gt_target_from_source: pair.gt_target_from_source.as_ref().map(matrix_rows),
         metrics,
+        convention,
         estimator: est.method.clone(),
-        warnings: est.warning.iter().cloned().collect(),
+        warnings,
         geo_features: src.label.clone(),
         image_branch,
         n_source_keypoints: src.keypoints.len(),

@@ -8,8 +8,10 @@
 //! and `shard` (many pairs).
 
 pub mod cache;
+pub mod export;
 pub mod fuse;
 pub mod geo;
+pub mod hypotheses;
 pub mod image_branch;
 pub mod params;
 pub mod register;
@@ -19,5 +21,5 @@ pub mod stages;
 pub mod study;
 
 pub use params::{ImageBranchParams, RegisterParams, VfmSpec, WfmSpec};
-pub use register::{register_pair, register_pair_cached};
+pub use register::{register_pair, register_pair_cached, register_pair_cached_keep};
 pub use result::{ImageBranchOutput, RegistrationResult, StageTiming, ViewInfo};

@@ -22,15 +22,28 @@ pub fn register_pair_cached(
     params: &RegisterParams,
     cache: Option<&Cache>,
 ) -> Result<RegistrationResult> {
+    register_pair_cached_keep(pair, params, cache).map(|(r, _)| r)
+}
+
+/// [`register_pair_cached`] that also returns the [`FusionInputs`] the result was computed
+/// from (what the correspondence export and the posterior inspector recompute from).
+pub fn register_pair_cached_keep(
+    pair: &ScanPair,
+    params: &RegisterParams,
+    cache: Option<&Cache>,
+) -> Result<(RegistrationResult, FusionInputs)> {
     match &params.image {
-        Some(ib) => super::image_branch::register_with_image(pair, params, ib, cache),
+        Some(ib) => super::image_branch::register_with_image_keep(pair, params, ib, cache, true),
         None => register_geometry(pair, params),
     }
 }
 
 /// The geometric branch alone: keypoints and features, then the shared tail
 /// ([`fuse_and_finish`] with no image descriptors).
-fn register_geometry(pair: &ScanPair, params: &RegisterParams) -> Result<RegistrationResult> {
+fn register_geometry(
+    pair: &ScanPair,
+    params: &RegisterParams,
+) -> Result<(RegistrationResult, FusionInputs)> {
     let mut timer = Timer::new();
     let (src, tgt) = geo_branches(pair, params, &mut timer)?;
     if src.features.dim != tgt.features.dim {
@@ -50,5 +63,5 @@ fn register_geometry(pair: &ScanPair, params: &RegisterParams) -> Result<Registr
     timings.append(&mut res.timings);
     res.timings = timings;
     res.total_ms = timer.t0.elapsed().as_secs_f64() * 1e3;
-    Ok(res)
+    Ok((res, inputs))
 }

@@ -59,6 +59,9 @@ pub struct RegistrationResult {
     pub estimate: Isometry3<f64>,
     pub gt_target_from_source: Option<[[f64; 4]; 4]>,
     pub metrics: Option<PairMetrics>,
+    /// Whether the ground truth or its inverse explains the data better (None without GT);
+    /// its warning is also in `warnings`.
+    pub convention: Option<crate::metrics::convention::ConventionCheck>,
     pub estimator: String,
     pub warnings: Vec<String>,
     /// Label of the geometric features actually used (e.g. "fpfh(v=0.050)").

@@ -25,6 +25,7 @@ mod soa;
 #[cfg(test)]
 mod tests;
 
+use super::hypotheses::{Hypotheses, Hypothesis, TopN};
 use super::kabsch;
 use super::Estimate;
 use crate::{Error, Result};
@@ -73,6 +74,20 @@ impl Default for Sc2PcrParams {
 /// reference does on an exception): mismatched lengths, non-finite coordinates, fewer than 5
 /// correspondences (no seed or no 4-neighbourhood), invalid parameters.
 pub fn sc2pcr(src: &[Point3<f32>], tgt: &[Point3<f32>], params: &Sc2PcrParams) -> Result<Estimate> {
+    sc2pcr_with(src, tgt, params, 0).map(|(e, _)| e)
+}
+
+/// [`sc2pcr`] that also keeps the best `top_n` seed hypotheses (None when `top_n` is 0),
+/// ranked by SC2-PCR's own rule: consensus size (correspondences within `inlier_threshold`
+/// under the seed's pose), ties to the earlier seed (the reference's argmax takes the first
+/// maximum). Rank 1 is the hypothesis post-refined into the estimate, which is the same as
+/// [`sc2pcr`]'s.
+pub fn sc2pcr_with(
+    src: &[Point3<f32>],
+    tgt: &[Point3<f32>],
+    params: &Sc2PcrParams,
+    top_n: usize,
+) -> Result<(Estimate, Option<Hypotheses>)> {
     if src.len() != tgt.len() {
         return Err(Error::Invalid(format!(
             "sc2pcr: {} source points but {} target points",
@@ -158,12 +173,54 @@ pub fn sc2pcr(src: &[Point3<f32>], tgt: &[Point3<f32>], params: &Sc2PcrParams) -
     let d = pts.residuals(&trans);
     let inliers: Vec<usize> = (0..n).filter(|&i| d[i] < p.inlier_threshold).collect();
     let warning = inlier_warning("sc2pcr", &pts, &inliers);
-    Ok(Estimate {
-        target_from_source: trans,
-        inliers,
-        method: "sc2pcr".into(),
-        warning,
-    })
+    let ranked = (top_n > 0).then(|| {
+        // (seed position, consensus) by the rule above: the winner `best` comes first
+        let mut top = TopN::new(top_n);
+        let better = |a: &(usize, usize), b: &(usize, usize)| a.1 > b.1 || a.1 == b.1 && a.0 < b.0;
+        for (k, h) in hyps.iter().enumerate() {
+            if h.is_some() {
+                top.push((k, fitness[k]), better);
+            }
+        }
+        Hypotheses {
+            estimator: "sc2pcr".into(),
+            rule: format!(
+                "consensus size: correspondences within {:.3} m under the seed's pose, ties to \
+                 the earlier seed; the best is post-refined ({} iterations) into the estimate",
+                p.inlier_threshold, p.refine_iterations
+            ),
+            threshold_m: p.inlier_threshold as f64,
+            total: hyps.iter().filter(|h| h.is_some()).count(),
+            list: top
+                .into_vec()
+                .into_iter()
+                .enumerate()
+                .map(|(r, (k, f))| {
+                    let pose = hyps[k].unwrap_or_else(Isometry3::identity);
+                    let d = pts.residuals(&pose);
+                    Hypothesis {
+                        rank: r + 1,
+                        sample: vec![seeds[k]],
+                        consensus: f,
+                        sse: None,
+                        pose,
+                        inliers: (0..n).filter(|&i| d[i] < p.inlier_threshold).collect(),
+                        winner: k == best,
+                    }
+                })
+                .collect(),
+            refined: trans,
+        }
+    });
+    Ok((
+        Estimate {
+            target_from_source: trans,
+            inliers,
+            method: "sc2pcr".into(),
+            warning,
+        },
+        ranked,
+    ))
 }
 
 /// A warning when the inlier set cannot pin down a pose: fewer than 3, or identical or
