@@ -5,6 +5,7 @@
 //! `src[i] ↔ tgt[i]` in their own frames. RRE is in degrees, RTE in metres.
 
 pub mod compare;
+pub mod overlap;
 
 use crate::{Error, Result};
 use nalgebra::{Isometry3, Point3};
