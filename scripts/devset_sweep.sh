@@ -29,13 +29,20 @@ if [ "$VFM" = xfeat ]; then
     run fpfh-nn --selection nn
     run fpfh-mutual --selection mutual
 fi
-# Selection x image temperature, Noisy-AND, oracle frames.
-for sel in nn mutual; do
-    for tau in 0.05 0.1 0.2; do
-        run "$VFM-oracle-noisy-and-$sel-tau$tau" --wfm oracle --vfm "$VFM" --fusion noisy-and \
-            --selection "$sel" --tau-img "$tau"
-    done
+# Selection x image temperature, Noisy-AND, oracle frames. The rows run for docs/ablation.md
+# (2026-12-02, debug build, 2-core machine shared with five other jobs): NN at tau-img 0.05
+# and 0.1, mutual NN at 0.1. FULL=1 runs the whole grid (tau-img 0.05 0.1 0.2 for both
+# selections, and the reference's top-8000 row), which did not fit the session's time.
+if [ -n "${FULL:-}" ]; then
+    GRID="nn:0.05 nn:0.1 nn:0.2 mutual:0.05 mutual:0.1 mutual:0.2"
+else
+    GRID="nn:0.05 nn:0.1 mutual:0.1"
+fi
+for cell in $GRID; do
+    sel="${cell%%:*}" tau="${cell##*:}"
+    run "$VFM-oracle-noisy-and-$sel-tau$tau" --wfm oracle --vfm "$VFM" --fusion noisy-and \
+        --selection "$sel" --tau-img "$tau"
 done
 # The reference's selection (dual softmax, global top-8000) on the same frames.
-run "$VFM-oracle-noisy-and-reference" --wfm oracle --vfm "$VFM" --fusion noisy-and --reference
+[ -n "${FULL:-}" ] && run "$VFM-oracle-noisy-and-reference" --wfm oracle --vfm "$VFM" --fusion noisy-and --reference
 "$BIN" table "$OUT"/fpfh-*.json "$OUT/$VFM"-*.json | tee "$OUT/table-$VFM.md"
