@@ -30,11 +30,12 @@ run() { # name, then bench options
     nice -n 10 "$BIN" bench "$M" "$@" --cache-dir "$CACHE" --json "$OUT/$name.json" > "$OUT/$name.txt"
 }
 
-[ -f "$OUT/fpfh-nn.json" ] || run fpfh-nn --selection nn
-[ -f "$OUT/fpfh-mutual.json" ] || run fpfh-mutual --selection mutual
-for f in image concat noisy-or noisy-and; do
+# Most important rows first (a run cut short still has them); bench resumes a row's JSON.
+run fpfh-nn --selection nn
+for f in noisy-and image noisy-or concat; do
     run "$VFM-$WFM-$f" --wfm "$WFM" --vfm "$VFM" --fusion "$f" "${SEL[@]}"
 done
 run "$VFM-$WFM-reference" --wfm "$WFM" --vfm "$VFM" --fusion noisy-and --reference
+run fpfh-mutual --selection mutual
 "$BIN" table "$OUT"/fpfh-nn.json "$OUT"/fpfh-mutual.json \
     "$OUT/$VFM-$WFM"-{image,concat,noisy-or,noisy-and,reference}.json | tee "$OUT/table-$VFM-$WFM.md"
