@@ -263,17 +263,28 @@ fn dev_manifest_is_disjoint_from_the_evaluated_pairs() {
         FragmentSource::Rgbd { range, .. } => (range.dir.clone(), range.first, range.count),
         _ => panic!("{id}: not an RGB-D fragment"),
     };
-    let eval_ranges: Vec<_> = eval.fragments().iter().map(|f| range(&eval, &f.id)).collect();
+    let eval_ranges: Vec<_> = eval
+        .fragments()
+        .iter()
+        .map(|f| range(&eval, &f.id))
+        .collect();
     assert_eq!(dev.fragments().len(), 9);
     for f in dev.fragments() {
         let r = range(&dev, &f.id);
         assert_eq!(r.1 % 50, 25, "{}", f.id);
-        assert!(!eval_ranges.contains(&r), "{} is an evaluated fragment", f.id);
+        assert!(
+            !eval_ranges.contains(&r),
+            "{} is an evaluated fragment",
+            f.id
+        );
     }
     let seq = RgbdSequence::open(&eval_ranges[0].0).unwrap();
     let n_lo = dev.pairs_in_split("3DLoMatch-like").count();
     assert!(n_lo >= 8, "{n_lo} low-overlap dev pairs");
-    assert_eq!(dev.pairs().len(), n_lo + dev.pairs_in_split("3DMatch-like").count());
+    assert_eq!(
+        dev.pairs().len(),
+        n_lo + dev.pairs_in_split("3DMatch-like").count()
+    );
     for p in dev.pairs() {
         let (t, s) = (range(&dev, &p.target).1, range(&dev, &p.source).1);
         let from_poses =
@@ -290,7 +301,10 @@ fn dev_manifest_is_disjoint_from_the_evaluated_pairs() {
         }
     }
     // The overlap rule on two evaluated pairs with their official split.
-    for (id, lo, hi) in [("redkitchen-rgbd/2-3", 0.3, 1.0), ("redkitchen-rgbd/3-7", 0.1, 0.3)] {
+    for (id, lo, hi) in [
+        ("redkitchen-rgbd/2-3", 0.3, 1.0),
+        ("redkitchen-rgbd/3-7", 0.1, 0.3),
+    ] {
         let pair = eval.load_pair(id).unwrap();
         let o = pair_overlap(
             &pair.source.cloud,

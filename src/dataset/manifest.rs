@@ -340,7 +340,8 @@ fn gt_from_poses(
         ));
     }
     if !seqs.contains_key(&rt.dir) {
-        seqs.insert(rt.dir.clone(), RgbdSequence::open(&rt.dir)?);
+        let seq = RgbdSequence::open(&rt.dir)?;
+        seqs.insert(rt.dir.clone(), seq);
     }
     let seq = &seqs[&rt.dir];
     let t = seq.world_from_camera(rt.first)?.inverse() * seq.world_from_camera(rs.first)?;
