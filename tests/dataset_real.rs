@@ -244,3 +244,74 @@ fn lidar_pair_from_files() {
         .to_string();
     assert!(e.contains("nope.ply"), "{e}");
 }
+
+/// The development set (assets/manifests/redkitchen-dev.toml) is not the evaluated set: no
+/// dev fragment has the frame range of an evaluated fragment, no dev pair is an evaluated
+/// pair, every dev GT is inv(P_target_first) * P_source_first from the raw poses, and the
+/// overlap rule that picked the dev pairs puts an evaluated 3DMatch pair above 30 % and an
+/// evaluated 3DLoMatch pair in 10-30 % (the rule agrees with the official split).
+#[test]
+fn dev_manifest_is_disjoint_from_the_evaluated_pairs() {
+    use cgenreg::dataset::manifest::FragmentSource;
+    use cgenreg::metrics::overlap::pair_overlap;
+    let Some(_root) = cgenreg::test_data_root() else {
+        return;
+    };
+    let dev = Dataset::load(&manifest("redkitchen-dev.toml")).unwrap();
+    let eval = Dataset::load(&manifest("redkitchen-rgbd.toml")).unwrap();
+    let range = |ds: &Dataset, id: &str| match &ds.fragment(id).unwrap().source {
+        FragmentSource::Rgbd { range, .. } => (range.dir.clone(), range.first, range.count),
+        _ => panic!("{id}: not an RGB-D fragment"),
+    };
+    let eval_ranges: Vec<_> = eval
+        .fragments()
+        .iter()
+        .map(|f| range(&eval, &f.id))
+        .collect();
+    assert_eq!(dev.fragments().len(), 9);
+    for f in dev.fragments() {
+        let r = range(&dev, &f.id);
+        assert_eq!(r.1 % 50, 25, "{}", f.id);
+        assert!(
+            !eval_ranges.contains(&r),
+            "{} is an evaluated fragment",
+            f.id
+        );
+    }
+    let seq = RgbdSequence::open(&eval_ranges[0].0).unwrap();
+    let n_lo = dev.pairs_in_split("3DLoMatch-like").count();
+    assert!(n_lo >= 8, "{n_lo} low-overlap dev pairs");
+    assert_eq!(
+        dev.pairs().len(),
+        n_lo + dev.pairs_in_split("3DMatch-like").count()
+    );
+    for p in dev.pairs() {
+        let (t, s) = (range(&dev, &p.target).1, range(&dev, &p.source).1);
+        let from_poses =
+            seq.world_from_camera(t).unwrap().inverse() * seq.world_from_camera(s).unwrap();
+        let gt = p.gt_target_from_source.unwrap();
+        assert!(
+            (gt.to_homogeneous() - from_poses.to_homogeneous()).amax() < 1e-12,
+            "{}",
+            p.id
+        );
+        for e in eval.pairs() {
+            let (et, es) = (range(&eval, &e.target).1, range(&eval, &e.source).1);
+            assert!((et, es) != (t, s), "{} is evaluated pair {}", p.id, e.id);
+        }
+    }
+    // The overlap rule on two evaluated pairs with their official split.
+    for (id, lo, hi) in [
+        ("redkitchen-rgbd/2-3", 0.3, 1.0),
+        ("redkitchen-rgbd/3-7", 0.1, 0.3),
+    ] {
+        let pair = eval.load_pair(id).unwrap();
+        let o = pair_overlap(
+            &pair.source.cloud,
+            &pair.target.cloud,
+            &pair.gt_target_from_source.unwrap(),
+        );
+        println!("{id}: overlap {o:?}");
+        assert!(o.max() > lo && o.max() <= hi, "{id}: {o:?}");
+    }
+}

@@ -92,6 +92,44 @@ fn selection_name(params: &Value) -> String {
     }
 }
 
+/// The calibration of the branches a run uses, with its temperatures (image / geometric when
+/// both are fused) and the Noisy-AND prior when it is not the default 1/(NM).
+fn calibration_name(params: &Value) -> String {
+    let cal = |ptr: &str| match params.pointer(ptr) {
+        Some(Value::Object(o)) => {
+            let (kind, body) = match (o.get("RowSoftmax"), o.get("DualSoftmax")) {
+                (Some(b), _) => ("row", b),
+                (None, Some(b)) => ("dual", b),
+                _ => return ("?", "?".to_string()),
+            };
+            let tau = body
+                .get("tau")
+                .and_then(Value::as_f64)
+                .map(|t| format!("{}", (t * 1e4).round() / 1e4))
+                .unwrap_or_else(|| "?".into());
+            (kind, tau)
+        }
+        _ => ("?", "?".to_string()),
+    };
+    let (ki, ti) = cal("/fusion/calibration_img");
+    let (kg, tg) = cal("/fusion/calibration_geo");
+    let image = params.get("image").is_some_and(|v| !v.is_null());
+    let mode = params
+        .pointer("/fusion/mode")
+        .and_then(Value::as_str)
+        .unwrap_or("?");
+    let mut s = match (image, mode) {
+        (false, _) | (true, "GeometryOnly") | (true, "Concat") => format!("{kg} τ {tg}"),
+        (true, "ImageOnly") => format!("{ki} τ {ti}"),
+        _ if ki == kg => format!("{ki} τ {ti}/{tg}"),
+        _ => format!("{ki} τ {ti} / {kg} τ {tg}"),
+    };
+    if let Some(p) = params.pointer("/fusion/prior").and_then(Value::as_f64) {
+        s.push_str(&format!(", π {p:e}"));
+    }
+    s
+}
+
 fn pct(v: &Value, k: &str) -> String {
     v.get(k)
         .and_then(Value::as_f64)
@@ -108,8 +146,8 @@ fn num(v: &Value, k: &str, scale: f64) -> String {
 }
 
 pub fn run(a: TableArgs) -> Result<()> {
-    println!("| VFM (frames) | Geo. features | Fusion | selection | split | pairs | RR % | RA@5° | RA@10° | RA@45° | RRE mean° | RRE med.° | TA@5cm | TA@10cm | TA@25cm | RTE mean cm | RTE med. cm | s/pair |");
-    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
+    println!("| VFM (frames) | Geo. features | Fusion | selection | calibration τ (img/geo) | split | pairs | RR % | RA@5° | RA@10° | RA@45° | RRE mean° | RRE med.° | TA@5cm | TA@10cm | TA@25cm | RTE mean cm | RTE med. cm | s/pair |");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
     for path in &a.files {
         let text = std::fs::read_to_string(path).map_err(|e| Error::Io {
             path: path.clone(),
@@ -126,6 +164,7 @@ pub fn run(a: TableArgs) -> Result<()> {
         let params = field(path, &v, "/params")?;
         let (vfm, geo, fusion) = row_label(path, params)?;
         let selection = selection_name(params);
+        let calibration = calibration_name(params);
         let summaries = field(path, &v, "/summary")?.as_array().ok_or_else(|| {
             Error::format(
                 path,
@@ -143,7 +182,7 @@ pub fn run(a: TableArgs) -> Result<()> {
                 continue;
             }
             println!(
-                "| {vfm} | {geo} | {fusion} | {selection} | {split} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {:.2} |",
+                "| {vfm} | {geo} | {fusion} | {selection} | {calibration} | {split} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {:.2} |",
                 s.get("n").and_then(Value::as_u64).unwrap_or(0),
                 pct(s, "recall"),
                 pct(s, "rot_acc_5"),
@@ -197,11 +236,19 @@ mod tests {
             )
         );
         assert_eq!(selection_name(&v), "top-8000");
+        assert_eq!(calibration_name(&v), "row τ 0.1/0.1");
+        r.fusion.calibration_img = crate::fusion::Calibration::RowSoftmax { tau: 0.05 };
+        r.fusion.prior = Some(1e-6);
+        let v = serde_json::to_value(&r).unwrap();
+        assert_eq!(calibration_name(&v), "row τ 0.05/0.1, π 1e-6");
+        r.fusion.prior = None;
         r.fusion.mode = FusionMode::ImageOnly;
         r.fusion.selection = Selection::RowNn;
         let v = serde_json::to_value(&r).unwrap();
         assert_eq!(row_label(p, &v).unwrap().1, "—");
         assert_eq!(selection_name(&v), "NN");
+        assert_eq!(calibration_name(&v), "row τ 0.05");
+        assert_eq!(calibration_name(&geo), "row τ 0.1");
         r.image.as_mut().unwrap().backend = WfmSpec::Builtin;
         let v = serde_json::to_value(&r).unwrap();
         assert!(row_label(p, &v).unwrap().0.contains("not a WFM"));

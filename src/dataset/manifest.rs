@@ -34,6 +34,9 @@
 //! gt_entry = [0, 3]              # optional; default: the numeric target and source ids
 //! # or: gt_matrix = [[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]   (p_target = T p_source)
 //! # or: gt_file = "pair/gt.txt"  (4x4 text, target_from_source)
+//! # or: gt_poses = true          (both fragments made from frames of one RGB-D sequence:
+//! #                                T = inv(P_target_first) * P_source_first, poses
+//! #                                camera-to-world, each fragment in its first frame's camera)
 //! # or no gt at all
 //! ```
 //!
@@ -101,6 +104,7 @@ struct RawPair {
     gt_entry: Option<[usize; 2]>,
     gt_matrix: Option<Vec<Vec<f64>>>,
     gt_file: Option<String>,
+    gt_poses: Option<bool>,
 }
 
 /// The frames a fragment comes from: frames `first .. first+count` of a raw RGB-D sequence.
@@ -293,6 +297,65 @@ fn matrix_field(manifest: &Path, field: &str, rows: &[Vec<f64>]) -> Result<Isome
     })
 }
 
+/// The frames a fragment was made from, if the manifest says.
+fn frame_range(f: &FragmentSpec) -> Option<&SequenceRange> {
+    match &f.source {
+        FragmentSource::Rgbd { range, .. } => Some(range),
+        FragmentSource::Cloud { frames, .. } => frames.as_ref(),
+    }
+}
+
+/// `gt_poses = true`: `target_from_source = inv(P_t) * P_s` with P the camera-to-world poses
+/// of the two fragments' first frames (each fragment is in its first frame's camera, see
+/// [`super::fragment`]). Both fragments must come from frames of the same sequence folder.
+fn gt_from_poses(
+    manifest: &Path,
+    field: &str,
+    fragments: &[FragmentSpec],
+    target: &str,
+    source: &str,
+    seqs: &mut HashMap<PathBuf, RgbdSequence>,
+) -> Result<(Isometry3<f64>, String)> {
+    let range = |id: &str, which: &str| {
+        fragments
+            .iter()
+            .find(|f| f.id == id)
+            .and_then(frame_range)
+            .ok_or_else(|| {
+                bad(
+                    manifest,
+                    format!("{field}.gt_poses"),
+                    format!("a {which} fragment made from RGB-D frames (`sequence` + `first`)"),
+                    format!("fragment {id:?} without frames"),
+                )
+            })
+    };
+    let (rt, rs) = (range(target, "target")?, range(source, "source")?);
+    if rt.dir != rs.dir {
+        return Err(bad(
+            manifest,
+            format!("{field}.gt_poses"),
+            "target and source frames from the same sequence (poses share one world frame)",
+            format!("{} and {}", rt.dir.display(), rs.dir.display()),
+        ));
+    }
+    if !seqs.contains_key(&rt.dir) {
+        let seq = RgbdSequence::open(&rt.dir)?;
+        seqs.insert(rt.dir.clone(), seq);
+    }
+    let seq = &seqs[&rt.dir];
+    let t = seq.world_from_camera(rt.first)?.inverse() * seq.world_from_camera(rs.first)?;
+    Ok((
+        t,
+        format!(
+            "poses: inv(P of frame-{:06}) * P of frame-{:06} in {}",
+            rt.first,
+            rs.first,
+            rt.dir.display()
+        ),
+    ))
+}
+
 impl Dataset {
     /// Load a manifest; relative paths resolve against its `root` field.
     pub fn load(path: &Path) -> Result<Dataset> {
@@ -470,6 +533,7 @@ impl Dataset {
         }
 
         let mut logs: HashMap<PathBuf, Vec<GtEntry>> = HashMap::new();
+        let mut seqs: HashMap<PathBuf, RgbdSequence> = HashMap::new();
         let mut pairs = Vec::with_capacity(raw.pairs.len());
         let mut pair_ids = HashMap::new();
         for (i, p) in raw.pairs.iter().enumerate() {
@@ -484,10 +548,12 @@ impl Dataset {
                     ));
                 }
             }
+            let gt_poses = p.gt_poses.unwrap_or(false);
             let n_gt = [
                 p.gt_log.is_some(),
                 p.gt_matrix.is_some(),
                 p.gt_file.is_some(),
+                gt_poses,
             ]
             .iter()
             .filter(|&&b| b)
@@ -496,7 +562,7 @@ impl Dataset {
                 return Err(bad(
                     path,
                     &field,
-                    "at most one of gt_log, gt_matrix, gt_file",
+                    "at most one of gt_log, gt_matrix, gt_file, gt_poses",
                     "several",
                 ));
             }
@@ -548,6 +614,10 @@ impl Dataset {
                     Some(matrix_field(path, &format!("{field}.gt_matrix"), m)?),
                     Some("inline gt_matrix".to_string()),
                 )
+            } else if gt_poses {
+                let (t, o) =
+                    gt_from_poses(path, &field, &fragments, &p.target, &p.source, &mut seqs)?;
+                (Some(t), Some(o))
             } else if let Some(f) = &p.gt_file {
                 let fp = resolve(&format!("{field}.gt_file"), f, false)?;
                 (
@@ -1025,6 +1095,75 @@ gt_matrix = [[1,0,0,0],[0,1,0,2],[0,0,1,0],[0,0,0,1]]
             "name = \"t\"\n[[fragments]]\nid = \"0\"\ncloud = \"a.ply\"\nkitti_fields = 3\n",
         );
         assert!(e.contains("kitti_fields only with"), "{e}");
+    }
+
+    /// `gt_poses = true` gives `target_from_source = inv(P_target_first) * P_source_first`:
+    /// a source point in its first camera lands on the same world point as its image in the
+    /// target's first camera. Misuse is a clear error.
+    #[test]
+    fn gt_from_frame_poses() {
+        use nalgebra::{Point3, Translation3, UnitQuaternion};
+        let d = tempfile::tempdir().unwrap();
+        let seq = d.path().join("seq");
+        std::fs::create_dir_all(&seq).unwrap();
+        write(
+            &seq,
+            "camera-intrinsics.txt",
+            "585 0 320\n0 585 240\n0 0 1\n",
+        );
+        let pose = |i: usize| {
+            Isometry3::from_parts(
+                Translation3::new(0.1 * i as f64, -0.05 * i as f64, 0.02 * i as f64),
+                UnitQuaternion::from_euler_angles(
+                    0.01 * i as f64,
+                    0.02 * i as f64,
+                    0.03 * i as f64,
+                ),
+            )
+        };
+        for i in 0..6 {
+            write(&seq, &format!("frame-{i:06}.depth.png"), "x");
+            crate::io::camera_txt::write_pose(
+                &seq.join(format!("frame-{i:06}.pose.txt")),
+                &pose(i),
+            )
+            .unwrap();
+        }
+        write(d.path(), "a.ply", "x");
+        let frags =
+            "name = \"t\"\n[[fragments]]\nid = \"a\"\nsequence = \"seq\"\nfirst = 1\ncount = 2\n\
+                     [[fragments]]\nid = \"b\"\nsequence = \"seq\"\nfirst = 4\ncount = 2\n\
+                     [[fragments]]\nid = \"c\"\ncloud = \"a.ply\"\n";
+        let m = write(
+            d.path(),
+            "m.toml",
+            &format!("{frags}[[pairs]]\ntarget = \"a\"\nsource = \"b\"\ngt_poses = true\n"),
+        );
+        let ds = Dataset::load(&m).unwrap();
+        let p = &ds.pairs()[0];
+        let t = p.gt_target_from_source.unwrap();
+        let q = Point3::new(0.3, -0.2, 1.5); // a point in frame 4's camera
+        let world = pose(4) * q;
+        let in_target = t * q;
+        assert!((pose(1) * in_target - world).norm() < 1e-6);
+        assert!(
+            (t.to_homogeneous() - (pose(1).inverse() * pose(4)).to_homogeneous()).amax() < 1e-6
+        );
+        assert!(
+            p.gt_origin.as_deref().unwrap().contains("frame-000001")
+                && p.gt_origin.as_deref().unwrap().contains("frame-000004")
+        );
+        // A fragment without frames, and two GT sources at once.
+        let e = err_of(
+            d.path(),
+            &format!("{frags}[[pairs]]\ntarget = \"a\"\nsource = \"c\"\ngt_poses = true\n"),
+        );
+        assert!(e.contains("gt_poses") && e.contains("\"c\""), "{e}");
+        let e = err_of(
+            d.path(),
+            &format!("{frags}[[pairs]]\ntarget = \"a\"\nsource = \"b\"\ngt_poses = true\ngt_matrix = [[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]\n"),
+        );
+        assert!(e.contains("at most one"), "{e}");
     }
 
     #[test]

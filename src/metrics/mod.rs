@@ -6,6 +6,7 @@
 
 pub mod compare;
 pub mod convention;
+pub mod overlap;
 
 use crate::{Error, Result};
 use nalgebra::{Isometry3, Point3};
