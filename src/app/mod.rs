@@ -54,7 +54,7 @@ pub enum Panel {
 }
 
 impl Panel {
-    pub const ALL: [Panel; 6] = [
+    pub const ALL: [Panel; 7] = [
         Self::Views,
         Self::View3d,
         Self::Posterior,
