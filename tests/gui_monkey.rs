@@ -9,7 +9,7 @@
 
 use cgenreg::app::controls::spawn_worker;
 use cgenreg::app::model::PairStatus;
-use cgenreg::app::pipeline_worker::PipelineWorker;
+use cgenreg::app::worker::PipelineWorker;
 use cgenreg::app::{App, InspectorModel};
 use cgenreg::pipeline::RegisterParams;
 use eframe::egui;

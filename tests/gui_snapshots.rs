@@ -186,7 +186,7 @@ fn headless_3d_screenshot_shows_source_and_target_points() {
 /// opens through the worker and the dataset loads.
 #[test]
 fn the_built_in_browser_opens_a_typed_manifest_and_the_dataset_loads() {
-    use cgenreg::app::pipeline_worker::PipelineWorker;
+    use cgenreg::app::worker::PipelineWorker;
     use cgenreg::pipeline::RegisterParams;
     let manifest = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/demo/demo.toml");
     let mut params = RegisterParams::default();

@@ -3,7 +3,7 @@
 //! The controls edit the pipeline's own [`RegisterParams`] (no UI copy of any setting): a
 //! change sends the whole parameter set in a [`Command::ApplySettings`] over a
 //! `std::sync::mpsc` channel to a worker thread, which answers with [`WorkerEvent`]s.
-//! [`crate::app::pipeline_worker::PipelineWorker`] implements [`Worker`] on top of the
+//! [`crate::app::worker::PipelineWorker`] implements [`Worker`] on top of the
 //! pipeline; [`spawn_worker`] runs it.
 
 use std::path::PathBuf;

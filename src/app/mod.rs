@@ -10,13 +10,13 @@ pub mod file_browser;
 pub mod headless;
 pub mod model;
 pub mod pairs_panel;
-pub mod pipeline_worker;
 pub mod plots_panel;
 pub mod posterior_panel;
 pub mod render3d;
 pub mod stages_panel;
 pub mod view3d;
 pub mod views_panel;
+pub mod worker;
 
 use std::path::{Path, PathBuf};
 use std::sync::mpsc::{channel, Receiver};

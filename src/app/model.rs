@@ -1,5 +1,5 @@
 //! The plain-data model the inspector draws every frame. The pipeline worker
-//! ([`crate::app::pipeline_worker::PipelineWorker`]) fills it; the UI never computes
+//! ([`crate::app::worker::PipelineWorker`]) fills it; the UI never computes
 //! registration results itself.
 //!
 //! Conventions: every cloud is in its own scan frame; `target_from_source` maps source
@@ -230,7 +230,7 @@ pub struct InspectorModel {
     pub source_views: Vec<ViewImage>,
     pub target_views: Vec<ViewImage>,
     pub posteriors: Vec<Posterior>,
-    /// The source point the posterior tab opens on (see `pipeline_worker::default_posterior_point`).
+    /// The source point the posterior tab opens on (see `worker::default_posterior_point`).
     pub default_posterior: Option<usize>,
     pub stages: Vec<StageInfo>,
     pub plots: PlotData,

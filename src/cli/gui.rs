@@ -2,7 +2,7 @@
 //! rendered headless to a PNG.
 
 use super::args::{ImageArgs, PipelineArgs};
-use crate::app::pipeline_worker::PipelineWorker;
+use crate::app::worker::PipelineWorker;
 use crate::app::{Command, MatchColorMode, Panel};
 use crate::error::{Error, Result};
 use clap::Args;
