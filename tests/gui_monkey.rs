@@ -95,7 +95,7 @@ const KEYS: [egui::Key; 16] = [
     egui::Key::Home,
 ];
 
-const TABS: [&str; 5] = ["Views", "3D", "Posterior", "Plots", "Stages"];
+const TABS: [&str; 6] = ["Pairs", "Views", "3D", "Posterior", "Plots", "Stages"];
 
 #[test]
 fn random_events_never_panic_block_or_wedge_the_worker() {

@@ -43,6 +43,9 @@ pub enum Command {
     InspectSourcePoint(usize),
     /// Run a parameter study over the open dataset's pairs with the current settings.
     RunStudy(StudyRequest),
+    /// Register the pairs `RunSelection` picks with the current settings (through the stage
+    /// cache), filling the pair browser; Cancel stops it between pairs.
+    RunAll(RunSelection),
     /// Precision-recall of Noisy-AND and Noisy-OR for the current pair (figure 7), sent by
     /// the plots panel while it is shown, so other tabs never pay for the two extra fusions.
     Figure7,
@@ -54,6 +57,30 @@ pub enum Command {
         fallback_pair: String,
     },
     Cancel,
+}
+
+/// Which pairs "Run all" registers.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RunSelection {
+    /// Every pair of the dataset.
+    All,
+    /// Pairs not run yet, in error, or registered outside the success thresholds.
+    FailedOrPending,
+}
+
+/// One step of a "Run all": before a pair runs (`row` None), after it (its new row), and at
+/// the end (`finished`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct RunProgress {
+    /// Pairs finished so far.
+    pub done: usize,
+    pub total: usize,
+    /// The pair starting or just finished.
+    pub pair: String,
+    pub row: Option<super::model::PairEntry>,
+    pub finished: bool,
+    /// The run ended by Cancel before its last pair.
+    pub cancelled: bool,
 }
 
 /// Which study the plots panel asked for.
@@ -96,6 +123,8 @@ pub enum WorkerEvent {
     Model(Box<InspectorModel>),
     /// One stage changed state (the stage panel updates without a full model).
     Stage(StageInfo),
+    /// "Run all" progress: a row of the pair browser changed.
+    RunAll(RunProgress),
     /// A long task's progress: (what, done, total).
     Progress(String, usize, usize),
     /// The worker changed the settings (e.g. opening a Cosmos output folder switched the image

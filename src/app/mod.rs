@@ -42,6 +42,7 @@ use views_panel::ViewsState;
 /// The tabs of the central area.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub enum Panel {
+    Pairs,
     Views,
     View3d,
     Posterior,
@@ -50,7 +51,8 @@ pub enum Panel {
 }
 
 impl Panel {
-    pub const ALL: [Panel; 5] = [
+    pub const ALL: [Panel; 6] = [
+        Self::Pairs,
         Self::Views,
         Self::View3d,
         Self::Posterior,
@@ -59,6 +61,7 @@ impl Panel {
     ];
     pub fn label(self) -> &'static str {
         match self {
+            Self::Pairs => "Pairs",
             Self::Views => "Views",
             Self::View3d => "3D",
             Self::Posterior => "Posterior",
@@ -66,9 +69,10 @@ impl Panel {
             Self::Stages => "Stages",
         }
     }
-    /// Parses a CLI name ("views", "3d", "posterior", "plots", "stages").
+    /// Parses a CLI name ("pairs", "views", "3d", "posterior", "plots", "stages").
     pub fn from_name(s: &str) -> Option<Panel> {
         match s.to_ascii_lowercase().as_str() {
+            "pairs" => Some(Self::Pairs),
             "views" => Some(Self::Views),
             "3d" | "view3d" => Some(Self::View3d),
             "posterior" => Some(Self::Posterior),
@@ -130,7 +134,7 @@ impl Default for UiState {
             hovered_match: None,
             prev_hovered: None,
             selected_source_point: None,
-            pair_sort: PairSort::RreWorstFirst,
+            pair_sort: PairSort::WORST_RRE,
             show_3d_below_views: true,
             only_survivors: false,
         }
@@ -308,6 +312,8 @@ pub struct App {
     views: ViewsState,
     posterior: PosteriorState,
     pub plots: plots_panel::PlotsState,
+    /// The pair browser's filters and run progress.
+    pub pairs: pairs_panel::PairsState,
     worker: Option<WorkerHandle>,
     pub log: Vec<LogLine>,
     show_log: bool,
@@ -342,6 +348,7 @@ impl App {
             views: ViewsState::default(),
             posterior: PosteriorState::default(),
             plots: plots_panel::PlotsState::default(),
+            pairs: pairs_panel::PairsState::default(),
             worker,
             log: Vec::new(),
             show_log: false,
@@ -489,6 +496,9 @@ impl App {
                 }
                 WorkerEvent::Log(l, t) => self.push_log(l, t),
                 WorkerEvent::Settings(s) => self.params = *s,
+                WorkerEvent::RunAll(p) => {
+                    pairs_panel::apply_progress(&mut self.model, &mut self.pairs, p)
+                }
                 WorkerEvent::Progress(what, done, total) => {
                     self.model.plots.study_progress = (done < total).then_some((what, done, total));
                 }
@@ -611,6 +621,13 @@ impl App {
         let mut commands: Vec<Command> = Vec::new();
         let mut open_request: Option<OpenKind> = None;
         let scene = self.scene_specific_prompt();
+        pairs_panel::keyboard_nav(
+            &ctx,
+            &self.model,
+            &mut self.pairs,
+            self.ui_state.pair_sort,
+            &mut commands,
+        );
 
         egui::Panel::bottom("log_bar").show(ui, |ui| self.log_bar(ui));
 
@@ -658,6 +675,7 @@ impl App {
                         pairs_panel::pairs_panel(
                             ui,
                             &self.model,
+                            &mut self.pairs,
                             &mut self.ui_state.pair_sort,
                             &mut commands,
                         );
@@ -772,6 +790,13 @@ impl App {
                 commands: &mut commands,
             };
             match shared.ui.tab {
+                Panel::Pairs => pairs_panel::pairs_tab(
+                    ui,
+                    shared.model,
+                    &mut self.pairs,
+                    &mut shared.ui.pair_sort,
+                    shared.commands,
+                ),
                 Panel::Views => {
                     ui.checkbox(&mut shared.ui.show_3d_below_views, "3D view below");
                     let h = ui.available_height();

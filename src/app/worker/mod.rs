@@ -20,6 +20,7 @@
 
 mod model_build;
 mod open;
+mod run_all;
 mod session;
 mod study;
 
@@ -40,6 +41,7 @@ pub use model_build::{
     default_posterior_point, point_posterior, pr_curve, result_to_model, DISPLAY_POINTS,
     FIGURE7_CORRECT_M, GT_INLIER_M, IMAGE_BRANCH_OFF,
 };
+pub use run_all::RunAllSummary;
 use study::StudyPlots;
 
 /// What a run left in memory for fast re-runs of the stages after it.
@@ -118,12 +120,7 @@ impl PipelineWorker {
         let pairs = dataset
             .pairs()
             .iter()
-            .map(|p| PairEntry {
-                id: p.id.clone(),
-                status: PairStatus::Pending,
-                rre_deg: None,
-                rte_m: None,
-            })
+            .map(|p| PairEntry::pending(p.id.clone(), p.split.clone()))
             .collect();
         let mut params = base;
         if params.image.is_none() {
@@ -226,6 +223,7 @@ impl Worker for PipelineWorker {
                 }
             }
             Command::RunStudy(req) => self.study(req, events),
+            Command::RunAll(sel) => self.run_all_and_report(sel, events),
             Command::InspectSourcePoint(i) => match self.inspect_point(i) {
                 Ok(m) => events.send(WorkerEvent::Model(Box::new(m))),
                 Err(e) => events.log(LogLevel::Warn, format!("posterior of point {i}: {e}")),
@@ -278,7 +276,7 @@ impl Worker for PipelineWorker {
             }
             Command::Cancel => events.log(
                 LogLevel::Info,
-                "cancel: a running study stops before its next pair; registrations run to completion",
+                "cancel: a running study or run-all stops before its next pair; registrations run to completion",
             ),
         }
     }

@@ -216,25 +216,14 @@ pub fn result_to_model(
         })
         .collect();
 
-    let (rre, rte) = match &result.metrics {
-        Some(m) => (Some(m.rre_deg), Some(m.rte_m)),
-        None => (None, None),
-    };
     let current = match pairs.iter().position(|p| p.id == result.pair_id) {
         Some(i) => i,
         None => {
-            pairs.push(PairEntry {
-                id: result.pair_id.clone(),
-                status: PairStatus::Pending,
-                rre_deg: None,
-                rte_m: None,
-            });
+            pairs.push(PairEntry::pending(result.pair_id.clone(), ""));
             pairs.len() - 1
         }
     };
-    pairs[current].status = PairStatus::Done;
-    pairs[current].rre_deg = rre;
-    pairs[current].rte_m = rte;
+    fill_row(&mut pairs[current], result);
 
     let plots = PlotData {
         pr_curves: pr_curve(fusion_label, &matches).into_iter().collect(),
@@ -356,6 +345,18 @@ fn view_images(
         }
         None => (Vec::new(), Vec::new(), Some(IMAGE_BRANCH_OFF.to_string())),
     }
+}
+
+/// The pair browser's row of a registered pair: status, RRE, RTE, success, inlier ratio,
+/// correspondences and time from `result`.
+pub fn fill_row(row: &mut PairEntry, result: &RegistrationResult) {
+    row.status = PairStatus::Done;
+    row.rre_deg = result.metrics.as_ref().map(|m| m.rre_deg);
+    row.rte_m = result.metrics.as_ref().map(|m| m.rte_m);
+    row.success = result.metrics.as_ref().map(|m| m.success);
+    row.inlier_ratio = result.metrics.as_ref().map(|m| m.inlier_ratio);
+    row.correspondences = Some(result.n_correspondences);
+    row.time_ms = Some(result.total_ms);
 }
 
 fn top_indices(v: &[f32], n: usize) -> Vec<usize> {

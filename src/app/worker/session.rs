@@ -20,6 +20,16 @@ use crate::pipeline::geo::{fpfh_branch, GeoBranch};
 use crate::pipeline::image_branch::register_with_image_keep;
 use crate::pipeline::{register_pair, RegistrationResult};
 
+/// What [`PipelineWorker::register`] gives: the result, the in-memory stages' inputs (for
+/// re-fusion and posteriors), a note for the image-branch panel and the prompt whose
+/// generation is missing.
+pub(super) struct Registered {
+    pub(super) result: RegistrationResult,
+    pub(super) inputs: Option<Arc<FusionInputs>>,
+    pub(super) note: Option<String>,
+    pub(super) missing: Option<String>,
+}
+
 impl PipelineWorker {
     /// Loads (or reuses) and registers one pair, generating views when needed; returns the
     /// model. Synchronous.
@@ -79,6 +89,49 @@ impl PipelineWorker {
         };
         let params = self.params.clone();
         let sig = signature(&params);
+        let Registered {
+            result,
+            inputs,
+            note,
+            missing,
+        } = self.register(id, &pair, generate)?;
+        let label = self.fusion_label(&result);
+        let mut model = result_to_model(&pair, &result, &label, self.pairs.clone());
+        if params.image.is_some() {
+            model.image_branch_note = note.clone();
+        }
+        model.generation_missing = missing.clone();
+        self.studies.fill(&mut model.plots);
+        self.pairs = model.pairs.clone();
+        let kept = inputs.map(|inputs| Kept {
+            signature: sig,
+            sims: similarities(&inputs).ok().map(Arc::new),
+            inputs,
+            image: result.image.clone(),
+            stages: model.stages.clone(),
+            note: model.image_branch_note.clone(),
+            generation_missing: missing,
+        });
+        self.current = Some(Current {
+            pair,
+            result,
+            model,
+            kept,
+        });
+        Ok(self.with_default_posterior())
+    }
+
+    /// Registers `pair` with the current parameters: the image branch through the stage
+    /// cache when a WFM is chosen (falling back to the geometric branch alone, with a note,
+    /// when it cannot run), else the geometric branch from memory. The one registration of
+    /// the inspector: a single pair, "Run all" and the studies' rows all come from it.
+    pub(super) fn register(
+        &mut self,
+        id: &str,
+        pair: &ScanPair,
+        generate: bool,
+    ) -> crate::Result<Registered> {
+        let params = self.params.clone();
         let mut note: Option<String> = None;
         let mut missing: Option<String> = None;
         let mut with_image: Option<(RegistrationResult, FusionInputs)> = None;
@@ -88,7 +141,7 @@ impl PipelineWorker {
             }
             let cache = self.cache.clone();
             // A panic here reaches the worker thread's guard (`spawn_worker`), which reports it.
-            match register_with_image_keep(&pair, &params, ib, cache.as_deref(), generate) {
+            match register_with_image_keep(pair, &params, ib, cache.as_deref(), generate) {
                 Ok(x) => with_image = Some(x),
                 Err(e @ crate::Error::GenerationNotCached { .. }) => {
                     missing = Some(ib.prompt.text());
@@ -126,14 +179,14 @@ impl PipelineWorker {
                 gp.image = None;
                 if gp.geo_features == crate::pipeline::params::GeoFeatureSource::Fpfh {
                     let t0 = Instant::now();
-                    let (g, mut timings) = self.geometry(id, &pair, gp.voxel)?;
-                    let mut r = fuse_and_finish(&pair, &gp, &g, None)?;
+                    let (g, mut timings) = self.geometry(id, pair, gp.voxel)?;
+                    let mut r = fuse_and_finish(pair, &gp, &g, None)?;
                     timings.append(&mut r.timings);
                     r.timings = timings;
                     r.total_ms = t0.elapsed().as_secs_f64() * 1e3;
                     (r, Some(g))
                 } else {
-                    (register_pair(&pair, &gp)?, None)
+                    (register_pair(pair, &gp)?, None)
                 }
             }
         };
@@ -154,30 +207,12 @@ impl PipelineWorker {
                 ));
             }
         }
-        let label = self.fusion_label(&result);
-        let mut model = result_to_model(&pair, &result, &label, self.pairs.clone());
-        if params.image.is_some() {
-            model.image_branch_note = note.clone();
-        }
-        model.generation_missing = missing.clone();
-        self.studies.fill(&mut model.plots);
-        self.pairs = model.pairs.clone();
-        let kept = inputs.map(|inputs| Kept {
-            signature: sig,
-            sims: similarities(&inputs).ok().map(Arc::new),
-            inputs,
-            image: result.image.clone(),
-            stages: model.stages.clone(),
-            note: model.image_branch_note.clone(),
-            generation_missing: missing,
-        });
-        self.current = Some(Current {
-            pair,
+        Ok(Registered {
             result,
-            model,
-            kept,
-        });
-        Ok(self.with_default_posterior())
+            inputs,
+            note,
+            missing,
+        })
     }
 
     /// The current model with the posterior of [`default_posterior_point`] added (the
