@@ -8,6 +8,7 @@ mod common;
 use cgenreg::dataset::Dataset;
 use cgenreg::fusion::Calibration;
 use cgenreg::pipeline::cache::Cache;
+use cgenreg::pipeline::stages::{invalidated, StageKeys, StageName};
 use cgenreg::pipeline::{register_pair_cached, ImageBranchParams, RegisterParams, WfmSpec};
 use std::path::Path;
 
@@ -35,6 +36,20 @@ fn status(r: &cgenreg::pipeline::RegistrationResult, stage: &str) -> String {
         .unwrap_or_else(|| panic!("no stage {stage} in {:?}", r.timings))
         .status
         .clone()
+}
+
+/// Every cached stage's keys in `keys` name entries of the cache at `dir`.
+fn assert_stored(keys: &StageKeys, dir: &Path) {
+    for s in keys.stages() {
+        if matches!(s, StageName::ViewSelect | StageName::Fusion) {
+            continue; // in memory
+        }
+        let hashes = keys.get(s).unwrap_or_else(|| panic!("{s:?} not known"));
+        for h in hashes {
+            let d = dir.join(s.key_name()).join(h);
+            assert!(d.is_dir(), "{s:?}: no entry {}", d.display());
+        }
+    }
 }
 
 #[test]
@@ -88,6 +103,10 @@ fn full_method_on_demo_with_cache() {
         m.rre_deg, m.rte_m, r1.n_correspondences, r1.timings
     );
 
+    // The stage keys computed without running anything are the ones the run stored under.
+    let keys = StageKeys::compute(&pair, &p, Some(&cache)).unwrap();
+    assert_stored(&keys, dir.path());
+
     // 2. Same parameters: every stage up to the similarities is a cache hit, same pose.
     let r2 = register_pair_cached(&pair, &p, Some(&cache)).unwrap();
     for s in CACHED {
@@ -99,6 +118,10 @@ fn full_method_on_demo_with_cache() {
     // 3. A changed temperature: only similarity / fusion / estimate run again.
     let mut p3 = p.clone();
     p3.fusion.calibration_img = Calibration::RowSoftmax { tau: 0.05 };
+    assert_eq!(
+        invalidated(&pair, &p, &p3, Some(&cache)).unwrap(),
+        [StageName::Fusion]
+    );
     let r3 = register_pair_cached(&pair, &p3, Some(&cache)).unwrap();
     for s in CACHED {
         assert_eq!(status(&r3, s), "cached", "{s}");
@@ -186,6 +209,9 @@ fn pair_conditioned_vfm_end_to_end() {
     assert!(img.vfm.starts_with("mast3r@"), "{}", img.vfm);
     assert!(img.vfm.contains("2x2 view pairs"), "{}", img.vfm);
     assert!(r1.n_correspondences > 0);
+    let keys = StageKeys::compute(&pair, &p, Some(&cache)).unwrap();
+    assert!(keys.is_known(StageName::PairVfm) && !keys.is_known(StageName::Vfm));
+    assert_stored(&keys, dir.path());
     let r2 = register_pair_cached(&pair, &p, Some(&cache)).unwrap();
     assert_eq!(status(&r2, stage), "cached");
     assert_eq!(r1.correspondences, r2.correspondences);

@@ -415,3 +415,65 @@ fn generate_with_cosmos_runs_one_batch_per_shard_and_then_reads_the_cache() {
         1
     );
 }
+
+/// `status` projects the generation cost of a full benchmark from the generation times the
+/// shard files measured: the mean computed generation time per pair times the pairs to
+/// project, in hours, checked here against the records themselves.
+#[test]
+fn status_projects_gpu_hours_from_the_measured_generation_time() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let out = d.join("bench.json");
+    run_ok(
+        bin()
+            .arg("bench")
+            .arg(common::demo_manifest())
+            .args([
+                "--wfm", "builtin", "--frames", "8", "--margin", "1", "--k", "2", "--voxel",
+                "0.05", "--json",
+            ])
+            .arg(&out)
+            .arg("--cache-dir")
+            .arg(d.join("cache")),
+    );
+    let v = read(&out);
+    let gen_ms: Vec<f64> = v["records"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .flat_map(|p| p["stages"].as_array().cloned().unwrap_or_default())
+        .filter(|t| t["stage"] == "generation" && t["status"] == "computed")
+        .map(|t| t["ms"].as_f64().unwrap())
+        .collect();
+    assert!(!gen_ms.is_empty(), "no computed generation recorded: {v}");
+    let mean_s = gen_ms.iter().sum::<f64>() / gen_ms.len() as f64 / 1e3;
+    let o = run_ok(
+        bin()
+            .arg("status")
+            .arg(&out)
+            .args(["--project-pairs", "1623"]),
+    );
+    let s = String::from_utf8_lossy(&o.stdout);
+    let line = s
+        .lines()
+        .find(|l| l.starts_with("generation (computed, not cached, builtin):"))
+        .unwrap_or_else(|| panic!("no generation projection in:\n{s}"));
+    let nums: Vec<f64> = line
+        .split(|c: char| !(c.is_ascii_digit() || c == '.'))
+        .filter_map(|w| w.parse().ok())
+        .collect();
+    // "X s per pair, so 1623 pairs need Y hours": the built-in generator is not called GPU time
+    assert!(line.contains("not a GPU figure"), "{line}");
+    let (x, pairs, y) = (nums[0], nums[1], nums[2]);
+    assert_eq!(pairs, 1623.0, "{line}");
+    assert!(
+        (x - mean_s).abs() <= 0.006,
+        "{line}: measured mean {mean_s:.3} s"
+    );
+    assert!(
+        (y - mean_s * 1623.0 / 3600.0).abs() <= 0.006 + 0.005 * y,
+        "{line}: expected {:.2} hours",
+        mean_s * 1623.0 / 3600.0
+    );
+    eprintln!("{line}");
+}

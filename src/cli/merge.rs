@@ -247,12 +247,26 @@ pub fn run_status(a: StatusArgs) -> Result<()> {
     for r in all.iter().filter(|r| r.status == FAILED) {
         println!("failed: {}: {}", r.id, r.error.as_deref().unwrap_or(""));
     }
-    print_cost(&all, a.project_pairs);
+    print_cost(&all, a.project_pairs, backend_kind(&first.params));
     Ok(())
 }
 
-/// Stage times and the projected cost of `project` pairs from the measured ones.
-fn print_cost(records: &[&PairRecord], project: usize) {
+/// The image branch's generator (`WfmSpec`'s `kind`) recorded in a run's parameters, if any.
+fn backend_kind(params: &serde_json::Value) -> Option<String> {
+    match params {
+        serde_json::Value::Object(m) => m
+            .get("backend")
+            .and_then(|b| b.get("kind"))
+            .and_then(|k| k.as_str())
+            .map(str::to_string)
+            .or_else(|| m.values().find_map(backend_kind)),
+        _ => None,
+    }
+}
+
+/// Stage times and the projected cost of `project` pairs from the measured ones. Generation
+/// is called GPU time only for Cosmos; the built-in generator runs on the CPU.
+fn print_cost(records: &[&PairRecord], project: usize, backend: Option<String>) {
     let done: Vec<&PairRecord> = records
         .iter()
         .copied()
@@ -302,10 +316,20 @@ fn print_cost(records: &[&PairRecord], project: usize) {
         per_pair * project as f64 / 3600.0
     );
     if let Some((_, gen_ms)) = computed_ms.iter().find(|(s, _)| s == "generation") {
+        let backend = backend.unwrap_or_else(|| "unknown".into());
+        let unit = if backend == "cosmos" {
+            "GPU-hours for generation alone (one GPU per task; divide by the array size for the \
+             wall time)"
+                .to_string()
+        } else {
+            format!(
+                "hours of generation on one worker ({backend} generator: not a GPU figure; \
+                 Cosmos-Transfer1 is about 507 s per pair on an RTX A6000 in the paper)"
+            )
+        };
         println!(
-            "generation (computed, not cached): {:.2} s per pair, so {project} pairs need {:.2} \
-             GPU-hours for generation alone (one GPU per task; divide by the array size for \
-             the wall time)",
+            "generation (computed, not cached, {backend}): {:.2} s per pair, so {project} pairs \
+             need {:.2} {unit}",
             gen_ms / 1e3,
             gen_ms / 1e3 * project as f64 / 3600.0
         );

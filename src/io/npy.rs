@@ -487,6 +487,29 @@ pub fn encode_npy_f32(shape: &[usize], data: &[f32]) -> Vec<u8> {
     out
 }
 
+/// A float32 matrix from NPY bytes: a 2-D array as (rows, cols, data), a 1-D array as
+/// (n, 1, data); any other rank, or a float64 array, is an error naming `path`. Reads what
+/// [`encode_npy_f32`] writes (the stage cache's `.npy` payloads).
+pub fn parse_npy_f32_matrix(path: &Path, bytes: &[u8]) -> Result<(usize, usize, Vec<f32>)> {
+    let a = parse_npy(path, bytes)?;
+    let (rows, cols) = match a.shape[..] {
+        [n] => (n, 1),
+        [r, c] => (r, c),
+        _ => {
+            return Err(Error::format(
+                path,
+                "shape",
+                "1-D or 2-D",
+                shape_str(&a.shape),
+            ))
+        }
+    };
+    match a.data {
+        NpyData::F32(data) => Ok((rows, cols, data)),
+        NpyData::F64(_) => Err(Error::format(path, "dtype", "float32", "float64")),
+    }
+}
+
 /// Write a C-order little-endian float32 array (NPY v1), atomically.
 pub fn write_npy_f32(path: &Path, shape: &[usize], data: &[f32]) -> Result<()> {
     let n: usize = shape.iter().product();
@@ -660,6 +683,42 @@ mod tests {
         assert_eq!(m.keys().collect::<Vec<_>>(), ["feats", "points"]);
         assert_eq!(m["points"], a);
         assert_eq!(m["feats"].to_f64(), vec![0.0, 0.0]);
+    }
+
+    #[test]
+    fn f32_matrix_round_trip() {
+        let p = Path::new("m.npy");
+        let (seed, mut rng) = crate::estimate::rng::seeded_for_test("npy-f32-matrix");
+        for (rows, cols) in [(0usize, 3usize), (1, 1), (2, 3), (17, 33), (1000, 1)] {
+            let data: Vec<f32> = (0..rows * cols)
+                .map(|_| f32::from_bits(rng.next_u32()))
+                .filter(|v| !v.is_nan())
+                .chain(std::iter::repeat(0.0))
+                .take(rows * cols)
+                .collect();
+            let b = encode_npy_f32(&[rows, cols], &data);
+            let hlen = u16::from_le_bytes([b[8], b[9]]) as usize;
+            assert_eq!((10 + hlen) % 64, 0);
+            assert_eq!(b[10 + hlen - 1], b'\n');
+            let (r, c, d) = parse_npy_f32_matrix(p, &b).unwrap();
+            assert_eq!((r, c), (rows, cols), "seed {seed}");
+            let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&d), bits(&data), "seed {seed}");
+        }
+        // 1-D reads as one column.
+        let b = encode_npy_f32(&[4], &[1.0, 2.0, 3.0, 4.0]);
+        assert_eq!(
+            parse_npy_f32_matrix(p, &b).unwrap(),
+            (4, 1, vec![1.0, 2.0, 3.0, 4.0])
+        );
+        // Other ranks, float64 and truncation are errors.
+        let e = parse_npy_f32_matrix(p, &encode_npy_f32(&[1, 2, 2], &[0.0; 4])).unwrap_err();
+        assert!(e.to_string().contains("shape"), "{e}");
+        let f8 = npy_bytes("<f8", false, &[2, 1], 1, &[0u8; 16]);
+        let e = parse_npy_f32_matrix(p, &f8).unwrap_err();
+        assert!(e.to_string().contains("float32"), "{e}");
+        let b = encode_npy_f32(&[3, 2], &[0.0; 6]);
+        assert!(parse_npy_f32_matrix(p, &b[..b.len() - 1]).is_err());
     }
 
     #[test]

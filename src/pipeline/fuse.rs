@@ -17,6 +17,26 @@ use crate::vfm::pair_similarity::PairPointDescriptors;
 use nalgebra::Point3;
 use std::time::{Duration, Instant};
 
+/// The in-memory tail's name in key comparisons (not cached: no folder of that name).
+pub const STAGE: &str = "fusion";
+pub const VERSION: u32 = 1;
+
+/// The tail's key: the keys of its inputs (both scans' geometric branch, then the image
+/// descriptors' stage) and every parameter [`fuse_and_finish`] reads: the fusion (similarity,
+/// calibrations, mode, selection), the estimator and the inlier threshold.
+pub fn key(params: &RegisterParams, inputs: &[&str]) -> Result<super::cache::CacheKey> {
+    super::cache::CacheKey::new(
+        STAGE,
+        VERSION,
+        inputs,
+        &serde_json::json!({
+            "fusion": params.fusion,
+            "estimator": params.estimator,
+            "inlier_threshold": params.inlier_threshold,
+        }),
+    )
+}
+
 /// Inputs of the in-memory stages (similarity onward): with them, a change of temperature,
 /// fusion mode, selection or estimator re-runs only [`fuse_and_finish`] (the GUI keeps them).
 #[derive(Clone, Debug)]

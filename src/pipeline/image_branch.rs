@@ -19,7 +19,7 @@ use super::stages::generation::{short_prompt, GenOut};
 use super::stages::lift::LiftInput;
 use super::stages::pair_vfm::PairInput;
 use super::stages::vfm::SideViews;
-use super::stages::virtual_frames::{camera_coverage_warnings, with_virtual_frames, FrameStore};
+use super::stages::virtual_frames::{camera_coverage_warnings, framed_pair, FrameStore};
 use super::stages::{
     depth_video, generation, geo, image_points, lift, pair_vfm, vfm, view_select, Ctx,
 };
@@ -28,6 +28,7 @@ use crate::error::{Error, Result};
 use crate::vfm::lift::PixelLink;
 use crate::wfm::ViewSelection;
 use image::RgbImage;
+use std::borrow::Cow;
 
 /// The full method on one pair; `cache` None computes everything in memory.
 pub fn register_with_image(
@@ -49,18 +50,17 @@ pub fn register_with_image_keep(
     cache: Option<&Cache>,
     generate: bool,
 ) -> Result<(RegistrationResult, FusionInputs)> {
-    if pair.source.frames.is_some() && pair.target.frames.is_some() {
-        return register_with_frames(pair, params, ib, cache, generate);
-    }
     // Point-cloud-only scans: depth frames from a virtual camera (stage `virtual-frames`).
     // Without a cache they live in a scratch folder until `store` is dropped, after the run.
     let mut store = FrameStore::new(cache);
-    let (with_frames, notes) = with_virtual_frames(&mut store, pair, ib)?;
-    let (mut r, inputs) = register_with_frames(&with_frames, params, ib, cache, generate)?;
-    r.warnings.extend(notes);
-    r.warnings.append(&mut store.warnings);
-    if let Some(img) = &r.image {
-        r.warnings.extend(camera_coverage_warnings(img, ib));
+    let (framed, notes) = framed_pair(&mut store, pair, ib)?;
+    let (mut r, inputs) = register_with_frames(&framed, params, ib, cache, generate)?;
+    if let Cow::Owned(_) = framed {
+        r.warnings.extend(notes);
+        r.warnings.append(&mut store.warnings);
+        if let Some(img) = &r.image {
+            r.warnings.extend(camera_coverage_warnings(img, ib));
+        }
     }
     Ok((r, inputs))
 }
@@ -83,18 +83,13 @@ pub fn pending_generation(
     cache: &Cache,
 ) -> Result<Option<PendingGeneration>> {
     let mut store = FrameStore::new(Some(cache));
-    let owned;
-    let pair = if pair.source.frames.is_some() && pair.target.frames.is_some() {
-        pair
-    } else {
-        owned = with_virtual_frames(&mut store, pair, ib)?.0;
-        &owned
-    };
+    let (framed, _) = framed_pair(&mut store, pair, ib)?;
+    let pair = &*framed;
     let mut ctx = Ctx::new(Some(cache));
     let l = ib.frames_per_fragment;
     let (src_fs, tgt_fs) = (frames_of(&pair.source, l)?, frames_of(&pair.target, l)?);
     let mut video = depth_video::run(&mut ctx, pair, src_fs, tgt_fs, l)?;
-    let planned = generation::plan(pair, ib, &video, src_fs, tgt_fs, l)?;
+    let planned = generation::plan(pair, ib, (&video.meta.hash, video.lidar), src_fs, tgt_fs, l)?;
     if generation::is_cached(cache, &planned.key) {
         return Ok(None);
     }

@@ -3,9 +3,11 @@
 //!
 //! A kernel family states the features it needs as one [`Isa`] rule on [`Features`]
 //! ([`Features::float_isa`], [`Features::bitset_isa`]); callers pick the kernel with a `match`
-//! on that [`Isa`]. Loops that only need the compiler to auto-vectorise stay next to their
-//! algorithm, as `#[target_feature]` copies of one `#[inline(always)]` body, dispatched on the
-//! same [`Isa`].
+//! on that [`Isa`] (or through a dispatcher here: [`and_popcount`], [`compat_row`]). A kernel
+//! that only needs the compiler to auto-vectorise is one `#[inline(always)]` body in
+//! `scalar.rs` with `#[target_feature]` copies in the ISA files (SC2-PCR's [`compat_row`]);
+//! the fused softmax / Noisy-AND row loops of `fusion/fused.rs` are still such copies next to
+//! their algorithm.
 
 pub mod scalar;
 #[cfg(target_arch = "x86_64")]
@@ -107,6 +109,55 @@ pub fn and_popcount(isa: Isa, a: &[u64], b: &[u64]) -> u32 {
     scalar::and_popcount(a, b)
 }
 
+/// The endpoints of n correspondences as structure-of-arrays f32: source x, y, z and target
+/// x, y, z, every column of length n.
+#[derive(Clone, Copy, Debug)]
+pub struct PairColumns<'a> {
+    pub src: [&'a [f32]; 3],
+    pub tgt: [&'a [f32]; 3],
+}
+
+impl PairColumns<'_> {
+    /// The number of correspondences.
+    pub fn len(&self) -> usize {
+        self.src[0].len()
+    }
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+}
+
+/// SC2-PCR's compatibility row ([`scalar::compat_row`]) with the kernel `isa` selects; `isa`
+/// must come from [`Features::bitset_isa`] of this CPU (or be [`Isa::Scalar`]). Every kernel
+/// gives the same bits and values (same arithmetic, no contraction).
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+pub fn compat_row(
+    isa: Isa,
+    p: PairColumns,
+    i: usize,
+    d: f32,
+    nms: f32,
+    w0: usize,
+    words: usize,
+    rows: (&mut [u64], &mut [u64], &mut [u64]),
+    vals: &mut Vec<(u32, f32)>,
+) {
+    #[cfg(target_arch = "x86_64")]
+    match isa {
+        // SAFETY: the CPU supports these features (bitset_isa checked them at run time).
+        Isa::Avx512 => {
+            return unsafe { x86_64_avx512::compat_row(p, i, d, nms, w0, words, rows, vals) }
+        }
+        Isa::Avx2 => {
+            return unsafe { x86_64_avx2::compat_row(p, i, d, nms, w0, words, rows, vals) }
+        }
+        Isa::Scalar => {}
+    }
+    let _ = isa;
+    scalar::compat_row(p, i, d, nms, w0, words, rows, vals)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -161,6 +212,112 @@ mod tests {
                     want,
                     "len {len}, {isa:?}, seed {seed}"
                 );
+            }
+        }
+    }
+
+    #[test]
+    fn and_popcount_many_agrees_with_scalar() {
+        let a: Vec<u64> = (0..131u64)
+            .map(|k| k.wrapping_mul(0x9e37_79b9_7f4a_7c15))
+            .collect();
+        let b: Vec<u64> = (0..131u64)
+            .map(|k| (k + 7).wrapping_mul(0xc2b2_ae3d_27d4_eb4f))
+            .collect();
+        #[cfg(target_arch = "x86_64")]
+        if features().bitset_isa() == Isa::Avx512 {
+            let pad = |v: &[u64]| {
+                let mut p = v.to_vec();
+                p.resize(136, 0);
+                p
+            };
+            let rows: Vec<Vec<u64>> = (0..6u64)
+                .map(|r| {
+                    pad(&b
+                        .iter()
+                        .map(|x| x.rotate_left(r as u32 * 7))
+                        .collect::<Vec<_>>())
+                })
+                .collect();
+            let refs: Vec<&[u64]> = rows.iter().map(|r| r.as_slice()).collect();
+            let mut out = vec![0u32; 6];
+            // SAFETY: checked AVX-512 support; rows are 136 = 17 x 8 words.
+            unsafe { x86_64_avx512::and_popcount_many(&pad(&a), &refs, &mut out) };
+            for (o, r) in out.iter().zip(&rows) {
+                assert_eq!(*o, scalar::and_popcount(&pad(&a), r));
+            }
+        }
+    }
+
+    #[test]
+    fn compat_row_kernels_agree_with_scalar() {
+        let (seed, mut rng) = crate::estimate::rng::seeded_for_test("simd-compat-row");
+        for n in [1usize, 5, 64, 65, 200] {
+            // Points in a 0.3 m cube, so that all three relations have set and clear bits.
+            let mut col = || -> Vec<f32> {
+                (0..n)
+                    .map(|_| rng.next_u64() as f32 / u64::MAX as f32 * 0.3)
+                    .collect()
+            };
+            let (s, t) = ([col(), col(), col()], [col(), col(), col()]);
+            let p = PairColumns {
+                src: [&s[0], &s[1], &s[2]],
+                tgt: [&t[0], &t[1], &t[2]],
+            };
+            let words = n.div_ceil(64);
+            let run = |isa: Isa, i: usize| {
+                let (mut h, mut tt, mut r) =
+                    (vec![0u64; words], vec![0u64; words], vec![0u64; words]);
+                let mut vals = Vec::new();
+                compat_row(
+                    isa,
+                    p,
+                    i,
+                    0.1,
+                    0.1,
+                    i / 64,
+                    words,
+                    (&mut h, &mut tt, &mut r),
+                    &mut vals,
+                );
+                (
+                    h,
+                    tt,
+                    r,
+                    vals.iter()
+                        .map(|&(j, v)| (j, v.to_bits()))
+                        .collect::<Vec<_>>(),
+                )
+            };
+            for i in 0..n {
+                let want = run(Isa::Scalar, i);
+                assert_eq!(
+                    run(features().bitset_isa(), i),
+                    want,
+                    "n {n}, row {i}, seed {seed}"
+                );
+                // Spot check against the formula.
+                for j in (i / 64) * 64..n {
+                    let ds = ((s[0][i] - s[0][j]).powi(2)
+                        + (s[1][i] - s[1][j]).powi(2)
+                        + (s[2][i] - s[2][j]).powi(2))
+                    .sqrt();
+                    let dt = ((t[0][i] - t[0][j]).powi(2)
+                        + (t[1][i] - t[1][j]).powi(2)
+                        + (t[2][i] - t[2][j]).powi(2))
+                    .sqrt();
+                    let c = (ds - dt).abs();
+                    let b = |row: &[u64]| row[j / 64] >> (j % 64) & 1 == 1;
+                    if (c - 0.1).abs() > 1e-5 {
+                        assert_eq!(b(&want.0), c < 0.1, "hard ({i}, {j}), seed {seed}");
+                    }
+                    if (c - 0.05).abs() > 1e-5 {
+                        assert_eq!(b(&want.1), c < 0.05, "tight ({i}, {j}), seed {seed}");
+                    }
+                    if (ds - 0.1).abs() > 1e-5 {
+                        assert_eq!(b(&want.2), ds < 0.1, "near ({i}, {j}), seed {seed}");
+                    }
+                }
             }
         }
     }

@@ -1,7 +1,71 @@
 //! Portable kernels: the reference every vectorised kernel is tested against.
 
+use super::PairColumns;
+
 /// `|a & b|`: bits set in both.
 #[inline(always)]
 pub fn and_popcount(a: &[u64], b: &[u64]) -> u32 {
     a.iter().zip(b).map(|(x, y)| (x & y).count_ones()).sum()
+}
+
+/// SC2-PCR's compatibility row: words `w0..words` of row i (columns `64 w0..n`) of the bitsets
+/// `hard = C < d`, `tight = C < d/2` and `near = Ds < nms`, where `Ds = ‖s_i − s_j‖` and
+/// `C = |Ds − ‖t_i − t_j‖|`, and the values `clamp(1 − C²/d², 0)` of the set `hard` bits with
+/// column > i (the upper triangle; SC is symmetric), pushed as (column, value).
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+pub fn compat_row(
+    p: PairColumns,
+    i: usize,
+    d: f32,
+    nms: f32,
+    w0: usize,
+    words: usize,
+    (hard, tight, near): (&mut [u64], &mut [u64], &mut [u64]),
+    vals: &mut Vec<(u32, f32)>,
+) {
+    let half = d / 2.0;
+    let d2 = d * d;
+    let mut c = [0f32; 64];
+    let mut ds = [0f32; 64];
+    let n = p.len();
+    let ([sx, sy, sz], [tx, ty, tz]) = (p.src, p.tgt);
+    let (xi, yi, zi) = (sx[i], sy[i], sz[i]);
+    let (ui, vi, wi) = (tx[i], ty[i], tz[i]);
+    for w in w0..words {
+        let base = w * 64;
+        let len = (n - base).min(64);
+        // Same arithmetic as SC2-PCR's `Soa::cross`, over slices so that it vectorises.
+        let r = base..base + len;
+        let (sx, sy, sz) = (&sx[r.clone()], &sy[r.clone()], &sz[r.clone()]);
+        let (tx, ty, tz) = (&tx[r.clone()], &ty[r.clone()], &tz[r]);
+        for k in 0..len {
+            let (dx, dy, dz) = (xi - sx[k], yi - sy[k], zi - sz[k]);
+            let a = (dx * dx + dy * dy + dz * dz).sqrt();
+            let (ex, ey, ez) = (ui - tx[k], vi - ty[k], wi - tz[k]);
+            let b = (ex * ex + ey * ey + ez * ez).sqrt();
+            ds[k] = a;
+            c[k] = (a - b).abs();
+        }
+        let (mut h, mut t, mut r) = (0u64, 0u64, 0u64);
+        for k in 0..len {
+            h |= ((c[k] < d) as u64) << k;
+            t |= ((c[k] < half) as u64) << k;
+            r |= ((ds[k] < nms) as u64) << k;
+        }
+        hard[w] = h;
+        tight[w] = t;
+        near[w] = r;
+        // Upper triangle only: columns > i.
+        let mut m = if w == i / 64 {
+            h & (u64::MAX << (i % 64)) & !(1u64 << (i % 64))
+        } else {
+            h
+        };
+        while m != 0 {
+            let k = m.trailing_zeros() as usize;
+            vals.push(((base + k) as u32, (1.0 - c[k] * c[k] / d2).max(0.0)));
+            m &= m - 1;
+        }
+    }
 }

@@ -14,6 +14,25 @@ pub unsafe fn and_popcount(a: &[u64], b: &[u64]) -> u32 {
     s as u32
 }
 
+/// [`super::scalar::compat_row`] compiled for AVX-512 F+BW+VL (and AVX2 + FMA).
+///
+/// # Safety
+/// The CPU must support AVX-512 F, BW and VL, AVX2 and FMA.
+#[target_feature(enable = "avx512f,avx512bw,avx512vl,avx2,fma")]
+#[allow(clippy::too_many_arguments)]
+pub unsafe fn compat_row(
+    p: super::PairColumns,
+    i: usize,
+    d: f32,
+    nms: f32,
+    w0: usize,
+    words: usize,
+    rows: (&mut [u64], &mut [u64], &mut [u64]),
+    vals: &mut Vec<(u32, f32)>,
+) {
+    super::scalar::compat_row(p, i, d, nms, w0, words, rows, vals)
+}
+
 /// `out[k] = |a & rows[k]|` for rows of a length that is a multiple of 8 words: each 512-bit
 /// chunk of `a` is loaded once for up to four rows.
 ///

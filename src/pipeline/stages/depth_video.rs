@@ -128,14 +128,18 @@ fn store(m: &VideoMeta, pair: &ScanPair, l: usize, c: &Cache, k: &CacheKey) -> R
     Ok(())
 }
 
-/// The depth video of the first `l` frames of each scan, timed as "depth video".
-pub(crate) fn run(
-    ctx: &mut Ctx,
-    pair: &ScanPair,
-    src_fs: &FrameSet,
-    tgt_fs: &FrameSet,
-    l: usize,
-) -> Result<DepthVideo> {
+/// What the depth video of a pair reads and its key: the first `l` depth files of each scan
+/// (and their content hashes), whether either scan is a LiDAR scan, and the clip.
+pub(crate) struct VideoPlan {
+    pub(crate) key: CacheKey,
+    src_paths: Vec<PathBuf>,
+    tgt_paths: Vec<PathBuf>,
+    lidar: bool,
+    clip: f64,
+}
+
+/// The [`VideoPlan`] of the first `l` frames of each scan (hashes the 2L depth files).
+pub(crate) fn plan(src_fs: &FrameSet, tgt_fs: &FrameSet, l: usize) -> Result<VideoPlan> {
     let paths = |fs: &FrameSet| -> Vec<PathBuf> {
         fs.frames[..l]
             .iter()
@@ -143,7 +147,6 @@ pub(crate) fn run(
             .collect()
     };
     let (src_paths, tgt_paths) = (paths(src_fs), paths(tgt_fs));
-    let t = Instant::now();
     let depth_hashes: Vec<String> = src_paths
         .par_iter()
         .chain(tgt_paths.par_iter())
@@ -155,6 +158,44 @@ pub(crate) fn run(
         .any(|fs| matches!(fs.camera, CameraModel::FTheta(_)));
     let clip = depth_video_clip(&src_fs.camera).max(depth_video_clip(&tgt_fs.camera));
     let key = key(&depth_hashes, l, lidar, clip)?;
+    Ok(VideoPlan {
+        key,
+        src_paths,
+        tgt_paths,
+        lidar,
+        clip,
+    })
+}
+
+impl VideoPlan {
+    /// Whether either scan is a LiDAR (f-theta) scan.
+    pub(crate) fn lidar(&self) -> bool {
+        self.lidar
+    }
+}
+
+/// The video's content hash (the generation's input) when `cache` holds the stage's entry.
+pub(crate) fn cached_hash(cache: &Cache, key: &CacheKey) -> Option<String> {
+    let e = cache.get(key).ok().flatten()?;
+    e.read_json::<VideoMeta>("video.json").ok().map(|m| m.hash)
+}
+
+/// The depth video of the first `l` frames of each scan, timed as "depth video".
+pub(crate) fn run(
+    ctx: &mut Ctx,
+    pair: &ScanPair,
+    src_fs: &FrameSet,
+    tgt_fs: &FrameSet,
+    l: usize,
+) -> Result<DepthVideo> {
+    let t = Instant::now();
+    let VideoPlan {
+        key,
+        src_paths,
+        tgt_paths,
+        lidar,
+        clip,
+    } = plan(src_fs, tgt_fs, l)?;
     let mut frames: Option<Vec<RgbImage>> = None;
     let (meta, hit) = ctx.cached(
         &key,

@@ -219,15 +219,17 @@ impl Planned {
     }
 }
 
+/// The generation of a depth video with content hash `video_hash` (`lidar`: either scan is
+/// a LiDAR scan, which sets the built-in generator's frame size).
 pub(crate) fn plan(
     pair: &ScanPair,
     ib: &ImageBranchParams,
-    video: &DepthVideo,
+    (video_hash, lidar): (&str, bool),
     src_fs: &FrameSet,
     tgt_fs: &FrameSet,
     l: usize,
 ) -> Result<Planned> {
-    let backend = make_backend(&ib.backend, video.lidar)?;
+    let backend = make_backend(&ib.backend, lidar)?;
     let is_oracle = matches!(ib.backend, WfmSpec::Oracle);
     let colour = |fs: &FrameSet| -> Option<Vec<PathBuf>> {
         fs.frames[..l]
@@ -236,7 +238,7 @@ pub(crate) fn plan(
             .collect()
     };
     let (src_col, tgt_col) = (colour(src_fs), colour(tgt_fs));
-    let mut inputs = vec![video.meta.hash.clone()];
+    let mut inputs = vec![video_hash.to_string()];
     if is_oracle {
         // The oracle's output is the colour frames, so they (not the depth) key it.
         let (Some(s), Some(t)) = (&src_col, &tgt_col) else {
@@ -260,6 +262,14 @@ pub(crate) fn plan(
         src_col,
         tgt_col,
     })
+}
+
+/// The number and size of the generated frames when `c` holds a usable generation under `k`.
+pub(crate) fn cached_meta(c: &Cache, k: &CacheKey) -> Option<GenMeta> {
+    match c.get(k) {
+        Ok(Some(e)) => load(&e).ok().map(|g| g.meta),
+        _ => None,
+    }
 }
 
 /// Whether `c` holds a usable generation under `k`.
@@ -287,7 +297,7 @@ pub(crate) fn run(
     l: usize,
     generate: bool,
 ) -> Result<(GenOut, CacheKey)> {
-    let planned = plan(pair, ib, video, src_fs, tgt_fs, l)?;
+    let planned = plan(pair, ib, (&video.meta.hash, video.lidar), src_fs, tgt_fs, l)?;
     let backend_id = planned.backend.id();
     let key = planned.key.clone();
     let t = Instant::now();

@@ -138,14 +138,10 @@ fn compute(
         .collect())
 }
 
-/// The keypoints' pixel links, timed as `name`; with the stage key (image points chain it).
-pub(crate) fn run(
-    ctx: &mut Ctx,
-    name: &str,
-    inp: &LiftInput,
-    radius: f32,
-    image_size: (u32, u32),
-) -> Result<(Vec<Option<PixelLink>>, CacheKey)> {
+/// The selected depth files, their content hashes, the views' poses and the stage key.
+type Prepared<'a> = (Vec<&'a Path>, Vec<String>, Vec<Vec<f64>>, CacheKey);
+
+fn prepare<'a>(inp: &LiftInput<'a>, radius: f32, image_size: (u32, u32)) -> Result<Prepared<'a>> {
     let paths: Vec<&Path> = inp
         .depth_idx
         .iter()
@@ -171,6 +167,23 @@ pub(crate) fn run(
         &poses,
         inp.frames,
     )?;
+    Ok((paths, hashes, poses, key))
+}
+
+/// The stage key of `inp`'s lift (hashes the selected depth files; the keypoints are not read).
+pub(crate) fn key_for(inp: &LiftInput, radius: f32, image_size: (u32, u32)) -> Result<CacheKey> {
+    prepare(inp, radius, image_size).map(|p| p.3)
+}
+
+/// The keypoints' pixel links, timed as `name`; with the stage key (image points chain it).
+pub(crate) fn run(
+    ctx: &mut Ctx,
+    name: &str,
+    inp: &LiftInput,
+    radius: f32,
+    image_size: (u32, u32),
+) -> Result<(Vec<Option<PixelLink>>, CacheKey)> {
+    let (paths, hashes, poses, key) = prepare(inp, radius, image_size)?;
     let links = ctx.stage(
         name,
         &key,

@@ -17,17 +17,22 @@
 //! | `image-points`         | `image_points.rs`      | lifts, vfm views                        |
 //! | `image-points-pair`    | `pair_vfm.rs`          | lifts, generation (pair models)         |
 //!
-//! `docs/architecture.md` has the parameters and keys of each.
+//! `docs/architecture.md` has the parameters and keys of each. [`keys`] evaluates every
+//! stage's key for a parameter set and says which stages a change invalidates
+//! ([`invalidated`]).
 
 pub mod depth_video;
 pub mod generation;
 pub mod geo;
 pub mod image_points;
+pub mod keys;
 pub mod lift;
 pub mod pair_vfm;
 pub mod vfm;
 pub mod view_select;
 pub mod virtual_frames;
+
+pub use keys::{invalidated, StageKeys, StageName};
 
 use super::cache::{Cache, CacheKey, Entry};
 use super::result::Timer;
@@ -65,20 +70,8 @@ impl<'a> Ctx<'a> {
         store: impl FnOnce(&T, &Cache, &CacheKey) -> Result<()>,
     ) -> Result<(T, bool)> {
         if let Some(c) = self.cache {
-            let problem = match c.get(key) {
-                Ok(Some(e)) => match load(&e) {
-                    Ok(v) => return Ok((v, true)),
-                    Err(err) => Some(err.to_string()),
-                },
-                Ok(None) => None,
-                Err(err) => Some(err.to_string()),
-            };
-            if let Some(p) = problem {
-                self.warnings.push(format!(
-                    "cache entry {} is corrupt ({p}); not used, recomputed",
-                    key.short()
-                ));
-                let _ = c.remove(key);
+            if let Some(v) = load_or_discard(c, key, load, &mut self.warnings, "recomputed") {
+                return Ok((v, true));
             }
         }
         let v = compute()?;
@@ -105,6 +98,32 @@ impl<'a> Ctx<'a> {
         self.timer.record(name, t.elapsed(), hit);
         Ok(v)
     }
+}
+
+/// The entry for `key` in `c`, verified and read by `load`. A corrupt entry (verification or
+/// `load` fails) is never used: it is reported in `warnings` ("not used, `redo`"), removed,
+/// and None returned, as for an absent one.
+pub(crate) fn load_or_discard<T>(
+    c: &Cache,
+    key: &CacheKey,
+    load: impl FnOnce(&Entry) -> Result<T>,
+    warnings: &mut Vec<String>,
+    redo: &str,
+) -> Option<T> {
+    let problem = match c.get(key) {
+        Ok(Some(e)) => match load(&e) {
+            Ok(v) => return Some(v),
+            Err(err) => err.to_string(),
+        },
+        Ok(None) => return None,
+        Err(err) => err.to_string(),
+    };
+    warnings.push(format!(
+        "cache entry {} is corrupt ({problem}); not used, {redo}",
+        key.short()
+    ));
+    let _ = c.remove(key);
+    None
 }
 
 /// Content hash of a cloud's points (x, y, z little-endian f32).

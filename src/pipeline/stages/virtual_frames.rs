@@ -15,7 +15,7 @@
 //! its translation and quaternion, read back bit for bit: the `lift` stage keys on the poses,
 //! and a pose that went through decimal text would give a second run other keys.
 
-use super::cloud_hash;
+use super::{cloud_hash, load_or_discard};
 use crate::camera::ftheta::{lidar_front_camera_from_scan, FThetaCamera};
 use crate::camera::CameraModel;
 use crate::dataset::{FrameSet, RgbdFrame, Scan};
@@ -96,20 +96,9 @@ impl<'a> FrameStore<'a> {
         check: impl Fn(&Entry) -> Result<()>,
     ) -> Result<Entry> {
         if let Some(c) = self.cache {
-            let problem = match c.get(key) {
-                Ok(Some(e)) => match check(&e) {
-                    Ok(()) => return Ok(e),
-                    Err(err) => Some(err.to_string()),
-                },
-                Ok(None) => None,
-                Err(err) => Some(err.to_string()),
-            };
-            if let Some(p) = problem {
-                self.warnings.push(format!(
-                    "cache entry {} is corrupt ({p}); not used, rebuilt",
-                    key.short()
-                ));
-                let _ = c.remove(key);
+            let verified = |e: &Entry| check(e).map(|()| e.clone());
+            if let Some(e) = load_or_discard(c, key, verified, &mut self.warnings, "rebuilt") {
+                return Ok(e);
             }
             match put(c, key, provenance.clone(), files) {
                 Ok(e) => return Ok(e),
@@ -259,6 +248,63 @@ pub fn virtual_frames(
 
 const RANGE_IMAGE: &str = "range.depth.png";
 
+/// The key of one f-theta range image: the cloud, the camera model, the ring-gap fill and the
+/// pose.
+fn ftheta_key(
+    scan: &Scan,
+    cam: &FThetaCamera,
+    camera_from_scan: &Isometry3<f64>,
+) -> Result<CacheKey> {
+    CacheKey::new(
+        STAGE,
+        VERSION,
+        &[&cloud_hash(&scan.cloud)],
+        &json!({
+            "camera": "ftheta", "model": format!("{cam:?}"), "gap_px": FTHETA_RING_GAP_PX,
+            "camera_from_scan": camera_from_scan.to_homogeneous().as_slice(),
+        }),
+    )
+}
+
+/// The pinhole frames' key: the cloud, L and the trajectory options.
+fn pinhole_key(
+    scan: &Scan,
+    l: usize,
+    opts: &crate::camera::trajectory::TrajectoryOptions,
+) -> Result<CacheKey> {
+    CacheKey::new(
+        STAGE,
+        VERSION,
+        &[&cloud_hash(&scan.cloud)],
+        &json!({ "camera": "pinhole", "L": l, "trajectory": format!("{opts:?}") }),
+    )
+}
+
+/// The trajectory of the virtual pinhole camera. Half the automatic distance: the scan
+/// over-fills the view, but its depths stay mostly inside the depth video's 4 m clip
+/// (reference §1.2) instead of all beyond it.
+fn pinhole_options() -> crate::camera::trajectory::TrajectoryOptions {
+    crate::camera::trajectory::TrajectoryOptions {
+        distance_scale: 0.5,
+        ..Default::default()
+    }
+}
+
+/// The keys of the entries [`virtual_frames`] reads or writes for `scan` (one for pinhole
+/// frames, one per camera for f-theta frames), without rendering anything.
+pub fn keys(scan: &Scan, l: usize, camera: VirtualCamera, cameras: usize) -> Result<Vec<CacheKey>> {
+    if camera.resolve(&scan.cloud) != VirtualCamera::Ftheta {
+        return Ok(vec![pinhole_key(scan, l, &pinhole_options())?]);
+    }
+    let cam = FThetaCamera::default();
+    (0..cameras)
+        .map(|c| {
+            let yaw = std::f64::consts::TAU * c as f64 / cameras as f64;
+            ftheta_key(scan, &cam, &lidar_front_camera_from_scan(yaw))
+        })
+        .collect()
+}
+
 /// One f-theta range image of `scan` seen with pose `camera_from_scan`.
 fn ftheta_range_image(
     store: &mut FrameStore,
@@ -267,15 +313,7 @@ fn ftheta_range_image(
     camera_from_scan: &Isometry3<f64>,
     empty_is_error: bool,
 ) -> Result<Entry> {
-    let key = CacheKey::new(
-        STAGE,
-        VERSION,
-        &[&cloud_hash(&scan.cloud)],
-        &json!({
-            "camera": "ftheta", "model": format!("{cam:?}"), "gap_px": FTHETA_RING_GAP_PX,
-            "camera_from_scan": camera_from_scan.to_homogeneous().as_slice(),
-        }),
-    )?;
+    let key = ftheta_key(scan, cam, camera_from_scan)?;
     let render = || -> Result<Vec<u8>> {
         let mut d = cam.render_depth(
             &scan.cloud.points,
@@ -324,19 +362,9 @@ fn ftheta_range_image(
 /// Depth frames of a point-cloud-only scan: `l` views along a virtual pinhole arc around the
 /// cloud, z-buffered splats as 16-bit millimetre PNGs.
 pub fn pinhole_frames(store: &mut FrameStore, scan: &Scan, l: usize) -> Result<FrameSet> {
-    use crate::camera::trajectory::{virtual_trajectory, TrajectoryOptions};
-    // Half the automatic distance: the scan over-fills the view, but its depths stay mostly
-    // inside the depth video's 4 m clip (reference §1.2) instead of all beyond it.
-    let opts = TrajectoryOptions {
-        distance_scale: 0.5,
-        ..Default::default()
-    };
-    let key = CacheKey::new(
-        STAGE,
-        VERSION,
-        &[&cloud_hash(&scan.cloud)],
-        &json!({ "camera": "pinhole", "L": l, "trajectory": format!("{opts:?}") }),
-    )?;
+    use crate::camera::trajectory::virtual_trajectory;
+    let opts = pinhole_options();
+    let key = pinhole_key(scan, l, &opts)?;
     if let Some(e) = store.hit(&key, |e| read_poses(e, l).map(|_| ())) {
         return frame_set(&e, l, &opts);
     }
@@ -442,6 +470,21 @@ pub fn with_virtual_frames(
         }
     }
     Ok((p2, notes))
+}
+
+/// `pair` with depth frames on both scans: borrowed when it has them, else with virtual
+/// frames for the scans that lack them (read from or written to `store`), and the notes
+/// that say so.
+pub fn framed_pair<'a>(
+    store: &mut FrameStore,
+    pair: &'a crate::dataset::ScanPair,
+    ib: &ImageBranchParams,
+) -> Result<(std::borrow::Cow<'a, crate::dataset::ScanPair>, Vec<String>)> {
+    if pair.source.frames.is_some() && pair.target.frames.is_some() {
+        return Ok((std::borrow::Cow::Borrowed(pair), Vec::new()));
+    }
+    let (p, notes) = with_virtual_frames(store, pair, ib)?;
+    Ok((std::borrow::Cow::Owned(p), notes))
 }
 
 /// The views follow the reference's stride rule, not the cameras: a warning per side when

@@ -173,10 +173,93 @@ fn concurrent_put_of_the_same_key_is_safe() {
 
 #[test]
 fn npy_is_numpy_compatible_header() {
-    let b = encode_npy_f32(3, 2, &[0.0; 6]).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let c = Cache::open(dir.path()).unwrap();
+    let e = put_sample(&c, &key("vfm", 9));
+    let b = std::fs::read(e.path("m.npy")).unwrap();
     let hlen = u16::from_le_bytes([b[8], b[9]]) as usize;
     assert_eq!((10 + hlen) % 64, 0);
     assert_eq!(b[10 + hlen - 1], b'\n');
-    assert!(decode_npy_f32(&b[..b.len() - 1], Path::new("x")).is_err());
-    assert!(encode_npy_f32(3, 2, &[0.0; 5]).is_err());
+    assert_eq!(
+        b,
+        crate::io::npy::encode_npy_f32(&[2, 3], &[1.0, 2.0, 3.0, 4.0, 5.0, 6.5])
+    );
+    let mut w = c.put(&key("vfm", 10), json!({})).unwrap();
+    assert!(w.add_f32_matrix("m.npy", 3, 2, &[0.0; 5]).is_err());
+}
+
+/// The `.npy` payload of an entry as the cache's own encoder wrote it before the cache used
+/// `io::npy` (NPY v1, `<f4`, C order, header padded with spaces to 64 bytes), spelled out
+/// byte by byte: shape (2, 3), values 1, -2.5, 0, 3.25, 0.5, -0.125.
+fn old_npy_2x3() -> Vec<u8> {
+    let mut b = b"\x93NUMPY\x01\x00".to_vec();
+    b.extend_from_slice(&[0x76, 0x00]); // header length 118: data starts at byte 128
+    b.extend_from_slice(b"{'descr': '<f4', 'fortran_order': False, 'shape': (2, 3), }");
+    b.extend_from_slice(&[b' '; 58]);
+    b.push(b'\n');
+    b.extend_from_slice(&[
+        0x00, 0x00, 0x80, 0x3f, 0x00, 0x00, 0x20, 0xc0, 0x00, 0x00, 0x00, 0x00, //
+        0x00, 0x00, 0x50, 0x40, 0x00, 0x00, 0x00, 0x3f, 0x00, 0x00, 0x00, 0xbe,
+    ]);
+    assert_eq!(b.len(), 128 + 24);
+    b
+}
+
+#[test]
+fn an_entry_written_before_the_shared_codec_still_loads() {
+    let dir = tempfile::tempdir().unwrap();
+    let c = Cache::open(dir.path()).unwrap();
+    let k = CacheKey::new(
+        "geo-fpfh",
+        1,
+        &["cloud"],
+        &json!({"voxel": 0.05, "points": 2}),
+    )
+    .unwrap();
+    let npy = old_npy_2x3();
+    // The entry folder and manifest exactly as an earlier build laid them out.
+    let d = dir.path().join("geo-fpfh").join(&k.hash);
+    std::fs::create_dir_all(&d).unwrap();
+    std::fs::write(d.join("keypoints.npy"), &npy).unwrap();
+    let manifest = format!(
+        r#"{{
+  "format": 1,
+  "stage": "geo-fpfh",
+  "version": 1,
+  "key": "{hash}",
+  "inputs": [
+    "cloud"
+  ],
+  "params": {{
+    "points": 2,
+    "voxel": 0.05
+  }},
+  "provenance": {{
+    "backend": "test"
+  }},
+  "created_unix": 1764000000,
+  "files": [
+    {{
+      "name": "keypoints.npy",
+      "size": {size},
+      "blake3": "{b3}"
+    }}
+  ]
+}}"#,
+        hash = k.hash,
+        size = npy.len(),
+        b3 = hash_bytes(&npy)
+    );
+    std::fs::write(d.join(MANIFEST), manifest).unwrap();
+    let e = c.get(&k).unwrap().expect("the old entry is found");
+    let want = vec![1.0, -2.5, 0.0, 3.25, 0.5, -0.125];
+    assert_eq!(
+        e.read_f32_matrix("keypoints.npy").unwrap(),
+        (2, 3, want.clone())
+    );
+    let f = e.read_features("keypoints.npy").unwrap();
+    assert_eq!((f.len(), f.dim, f.data), (2, 3, want.clone()));
+    assert!(c.verify_all().unwrap().iter().all(|r| r.result.is_ok()));
+    // The shared encoder writes these very bytes, so new entries match old ones.
+    assert_eq!(crate::io::npy::encode_npy_f32(&[2, 3], &want), npy);
 }

@@ -1,0 +1,225 @@
+//! SC2-PCR against a naive transcription of the reference's dense formulation, and pose
+//! recovery on synthetic correspondences.
+
+use super::graph::{bit, transpose64, Graph};
+use super::*;
+use crate::estimate::synthetic::synthetic_correspondences;
+use crate::metrics::{rre_deg, rte_m};
+
+/// The reference's dense NumPy/torch formulation, written out naively.
+struct Dense {
+    n: usize,
+    c: Vec<f32>,
+    ds: Vec<f32>,
+}
+
+impl Dense {
+    fn new(p: &Soa) -> Dense {
+        let n = p.n;
+        let mut c = vec![0f32; n * n];
+        let mut ds = vec![0f32; n * n];
+        for i in 0..n {
+            for j in 0..n {
+                let (a, b) = p.cross(i, j);
+                ds[i * n + j] = a;
+                c[i * n + j] = b;
+            }
+        }
+        Dense { n, c, ds }
+    }
+    fn eig(&self, d: f32, iters: usize) -> Vec<f32> {
+        let n = self.n;
+        let sc: Vec<f32> = self
+            .c
+            .iter()
+            .map(|&c| (1.0 - c * c / (d * d)).max(0.0))
+            .collect();
+        let mut v = vec![1f32; n];
+        for _ in 0..iters {
+            let mut y: Vec<f32> = (0..n)
+                .map(|i| {
+                    (0..n)
+                        .map(|j| (sc[i * n + j] as f64) * (v[j] as f64))
+                        .sum::<f64>() as f32
+                })
+                .collect();
+            normalise(&mut y);
+            let done = allclose(&y, &v);
+            v = y;
+            if done {
+                break;
+            }
+        }
+        v
+    }
+    fn seeds(&self, conf: &[f32], r: f32, num: usize) -> Vec<usize> {
+        let n = self.n;
+        let score: Vec<f32> = (0..n)
+            .map(|i| {
+                let lm = (0..n).all(|j| conf[i] >= conf[j] || self.ds[i * n + j] >= r);
+                conf[i] * (lm as u8 as f32)
+            })
+            .collect();
+        let mut o: Vec<usize> = (0..n).collect();
+        o.sort_by(|&a, &b| score[b].total_cmp(&score[a]));
+        o.truncate(num);
+        o
+    }
+    fn knn(&self, seed: usize, d: f32, k1: usize, k2: usize) -> Vec<usize> {
+        let n = self.n;
+        let hard = |i: usize, j: usize| (self.c[i * n + j] < d) as u32;
+        let tight = |i: usize, j: usize| (self.c[i * n + j] < d / 2.0) as u32;
+        let sc2: Vec<u32> = (0..n)
+            .map(|j| (0..n).map(|l| tight(seed, l) * tight(l, j)).sum::<u32>() * hard(seed, j))
+            .collect();
+        let mut o: Vec<usize> = (0..n).collect();
+        o.sort_by(|&a, &b| sc2[b].cmp(&sc2[a]));
+        let knn: Vec<usize> = o[..k1].to_vec();
+        let row0: Vec<u32> = (0..k1)
+            .map(|m| {
+                (0..k1)
+                    .map(|l| hard(knn[0], knn[l]) * hard(knn[l], knn[m]))
+                    .sum()
+            })
+            .collect();
+        let mut o2: Vec<usize> = (0..k1).collect();
+        o2.sort_by(|&a, &b| row0[b].cmp(&row0[a]));
+        o2[..k2].iter().map(|&k| knn[k]).collect()
+    }
+}
+
+#[test]
+fn transpose64_matches_naive() {
+    let mut s = 0x1234_5678_9abc_def0u64;
+    let mut a = [0u64; 64];
+    for w in &mut a {
+        s = s
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        *w = s;
+    }
+    let mut t = a;
+    transpose64(&mut t);
+    for (r, ar) in a.iter().enumerate() {
+        for (c, tc) in t.iter().enumerate() {
+            assert_eq!(tc >> r & 1, ar >> c & 1, "({r}, {c})");
+        }
+    }
+}
+
+#[test]
+fn bitset_graph_matches_dense_transcription() {
+    let data = synthetic_correspondences(400, 300, 0.3, 0.01, 11);
+    let p = Soa::new(&data.src, &data.tgt);
+    let prm = Sc2PcrParams::default();
+    let g = Graph::build(&p, prm.d_thre, prm.nms_radius);
+    let dense = Dense::new(&p);
+    let n = p.n;
+    for i in 0..n {
+        for j in 0..n {
+            let c = dense.c[i * n + j];
+            assert_eq!(bit(g.hard(i), j), c < 0.1);
+            assert_eq!(bit(g.tight(i), j), c < 0.05);
+            assert_eq!(bit(g.near(i), j), dense.ds[i * n + j] < 0.1);
+        }
+    }
+    let conf = g.leading_eigenvector(prm.num_iterations);
+    let conf_d = dense.eig(prm.d_thre, prm.num_iterations);
+    for i in 0..n {
+        assert!(
+            (conf[i] - conf_d[i]).abs() <= 1e-5 * conf_d[i].abs().max(1e-3),
+            "eigenvector {i}: {} vs {}",
+            conf[i],
+            conf_d[i]
+        );
+    }
+    let seeds = g.pick_seeds(&conf, 60);
+    assert_eq!(seeds, dense.seeds(&conf_d, prm.nms_radius, 60));
+    for &s in &seeds {
+        let knn = g.sc2_top_k(s, prm.k1);
+        assert_eq!(knn.len(), prm.k1);
+        assert_eq!(
+            g.second_stage(&knn, prm.k2),
+            dense.knn(s, prm.d_thre, prm.k1, prm.k2),
+            "seed {s}"
+        );
+    }
+    // The leading eigenvector favours true matches.
+    let mean = |f: bool| {
+        let v: Vec<f32> = (0..n)
+            .filter(|&i| data.is_inlier[i] == f)
+            .map(|i| conf[i])
+            .collect();
+        v.iter().sum::<f32>() / v.len() as f32
+    };
+    assert!(mean(true) > 3.0 * mean(false));
+}
+
+fn check_recovers(ratio: f64, seed: u64) {
+    let data = synthetic_correspondences(2000, 2000, ratio, 0.01, seed);
+    let est = sc2pcr(&data.src, &data.tgt, &Sc2PcrParams::default()).unwrap();
+    let gt = data.target_from_source;
+    let (rre, rte) = (
+        rre_deg(&est.target_from_source, &gt),
+        rte_m(&est.target_from_source, &gt),
+    );
+    assert!(
+        rre < 2.0 && rte < 0.05,
+        "ratio {ratio}: rre {rre} rte {rte}"
+    );
+    let true_in = est.inliers.iter().filter(|&&i| data.is_inlier[i]).count();
+    let n_true = data.is_inlier.iter().filter(|&&b| b).count();
+    assert!(
+        true_in as f64 >= 0.9 * est.inliers.len() as f64,
+        "{true_in} of {}",
+        est.inliers.len()
+    );
+    assert!(
+        true_in as f64 >= 0.95 * n_true as f64,
+        "{true_in} of {n_true}"
+    );
+    assert_eq!(est.method, "sc2pcr");
+    assert!(est.warning.is_none());
+}
+
+#[test]
+fn recovers_pose_at_30_percent_inliers() {
+    check_recovers(0.3, 21);
+}
+
+#[test]
+fn recovers_pose_at_10_percent_inliers() {
+    check_recovers(0.1, 22);
+}
+
+#[test]
+fn too_few_or_bad_input_is_an_error() {
+    let data = synthetic_correspondences(100, 4, 1.0, 0.0, 3);
+    assert!(sc2pcr(&data.src, &data.tgt, &Sc2PcrParams::default()).is_err());
+    let data = synthetic_correspondences(100, 50, 1.0, 0.0, 3);
+    assert!(sc2pcr(&data.src, &data.tgt[..49], &Sc2PcrParams::default()).is_err());
+    let mut src = data.src.clone();
+    src[7].x = f32::NAN;
+    assert!(sc2pcr(&src, &data.tgt, &Sc2PcrParams::default()).is_err());
+    // Small but valid: k1 falls back to 4.
+    let data = synthetic_correspondences(100, 20, 1.0, 0.0, 4);
+    let est = sc2pcr(&data.src, &data.tgt, &Sc2PcrParams::default()).unwrap();
+    assert!(rre_deg(&est.target_from_source, &data.target_from_source) < 1e-2);
+    // Identical points do not panic.
+    let same = vec![Point3::new(1.0f32, 2.0, 3.0); 50];
+    let _ = sc2pcr(&same, &same, &Sc2PcrParams::default());
+}
+
+#[test]
+fn max_points_keeps_the_first_correspondences() {
+    let data = synthetic_correspondences(500, 600, 0.5, 0.005, 5);
+    let prm = Sc2PcrParams {
+        max_points: 300,
+        ..Default::default()
+    };
+    let est = sc2pcr(&data.src, &data.tgt, &prm).unwrap();
+    assert!(est.inliers.iter().all(|&i| i < 300));
+    let est2 = sc2pcr(&data.src[..300], &data.tgt[..300], &prm).unwrap();
+    assert_eq!(est.inliers, est2.inliers);
+    assert_eq!(est.target_from_source, est2.target_from_source);
+}

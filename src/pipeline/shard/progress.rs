@@ -1,0 +1,256 @@
+//! A run in progress: resume from an existing output, the records so far, the atomic rewrite
+//! after every pair, and the loop over the pending pairs.
+
+use super::{
+    host_name, now_unix, read_run_file, PairRecord, RunFile, RunHeader, RunIdentity, Shard, DONE,
+    FAILED,
+};
+use crate::error::{Error, Result};
+use serde_json::Value;
+use std::path::{Path, PathBuf};
+
+/// How a run starts when its output exists.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ResumeMode {
+    /// Keep the pairs done with the same identity (the default).
+    Resume,
+    /// Ignore the existing output and run every pair.
+    Restart,
+}
+
+/// A run in progress: its records so far, rewritten to `path` after each pair.
+pub struct Progress {
+    pub path: Option<PathBuf>,
+    pub header: RunHeader,
+    /// Records by position in the selection (None: not run yet).
+    records: Vec<Option<PairRecord>>,
+    /// Positions (in the selection) this shard runs.
+    pub positions: Vec<usize>,
+}
+
+impl Progress {
+    /// Starts (or resumes, reading `path`) the run of `shard` of `identity`'s selection.
+    /// Returns the progress and a message for the log when an existing output was read.
+    pub fn start(
+        identity: RunIdentity,
+        shard: Shard,
+        path: Option<&Path>,
+        mode: ResumeMode,
+    ) -> Result<(Progress, Option<String>)> {
+        if identity.shard_count != shard.count {
+            return Err(Error::Invalid(format!(
+                "shard {shard} but the identity says {} shards",
+                identity.shard_count
+            )));
+        }
+        let n = identity.selected.len();
+        let positions = shard.positions(n);
+        let mut records: Vec<Option<PairRecord>> = vec![None; n];
+        let mut message = None;
+        if let (Some(p), ResumeMode::Resume) = (path, mode) {
+            if p.exists() {
+                let old = read_run_file(p)?;
+                let diffs = old.run.identity.differences(&identity);
+                if !diffs.is_empty() || old.run.shard != shard {
+                    let mut d = diffs;
+                    if old.run.shard != shard {
+                        d.push(format!(
+                            "shard: {} here, {shard} there",
+                            old.run.shard.label()
+                        ));
+                    }
+                    return Err(Error::Invalid(format!(
+                        "{} holds a run with other parameters, so it cannot be resumed:\n  {}\n\
+                         pass --no-resume to start over (it is then overwritten), or choose \
+                         another output",
+                        p.display(),
+                        d.join("\n  ")
+                    )));
+                }
+                let (mut done, mut failed) = (0, 0);
+                for r in old.records {
+                    if let Some(pos) = identity.selected.iter().position(|id| *id == r.id) {
+                        if shard.contains(pos) && r.status == DONE {
+                            done += 1;
+                            records[pos] = Some(r);
+                        } else if r.status == FAILED {
+                            failed += 1;
+                        }
+                    }
+                }
+                let left = positions.len() - done;
+                message = Some(format!(
+                    "resuming {}: {done} of {} pairs of shard {shard} done{}, {left} to run \
+                     (--no-resume starts over)",
+                    p.display(),
+                    positions.len(),
+                    if failed > 0 {
+                        format!(", {failed} failed before (run again)")
+                    } else {
+                        String::new()
+                    }
+                ));
+            }
+        }
+        let header = RunHeader {
+            identity,
+            shard,
+            merged_from: Vec::new(),
+            complete: false,
+            in_flight: None,
+            host: host_name(),
+            updated_unix: now_unix(),
+        };
+        Ok((
+            Progress {
+                path: path.map(Path::to_path_buf),
+                header,
+                records,
+                positions,
+            },
+            message,
+        ))
+    }
+
+    /// The positions still to run, in order.
+    pub fn pending(&self) -> Vec<usize> {
+        self.positions
+            .iter()
+            .copied()
+            .filter(|&p| self.records[p].is_none())
+            .collect()
+    }
+
+    /// The pair id at `position`.
+    pub fn id(&self, position: usize) -> &str {
+        &self.header.identity.selected[position]
+    }
+
+    /// Records so far, in selection order.
+    pub fn records(&self) -> Vec<&PairRecord> {
+        self.records.iter().flatten().collect()
+    }
+
+    /// Marks `position` as in flight (written out, so a status reader sees it).
+    pub fn begin(
+        &mut self,
+        position: usize,
+        write: &dyn Fn(&RunFile) -> Result<Vec<u8>>,
+    ) -> Result<()> {
+        self.header.in_flight = Some(self.id(position).to_string());
+        self.save(write)
+    }
+
+    /// Records a pair's outcome and rewrites the output.
+    pub fn finish(
+        &mut self,
+        position: usize,
+        record: PairRecord,
+        write: &dyn Fn(&RunFile) -> Result<Vec<u8>>,
+    ) -> Result<()> {
+        self.records[position] = Some(record);
+        self.header.in_flight = None;
+        self.header.complete = self.positions.iter().all(|&p| self.records[p].is_some());
+        self.save(write)
+    }
+
+    pub fn run_file(&self) -> RunFile {
+        RunFile {
+            run: self.header.clone(),
+            records: self.records().into_iter().cloned().collect(),
+        }
+    }
+
+    /// Writes the output (atomically) through the command's serialiser `write`.
+    pub fn save(&mut self, write: &dyn Fn(&RunFile) -> Result<Vec<u8>>) -> Result<()> {
+        self.header.updated_unix = now_unix();
+        self.header.complete = self.positions.iter().all(|&p| self.records[p].is_some());
+        if let Some(p) = &self.path {
+            let bytes = write(&self.run_file())?;
+            crate::error::write_atomic(p, &bytes)?;
+        }
+        Ok(())
+    }
+}
+
+/// Runs `f` and turns a panic into an error carrying the panic message (a last-resort guard
+/// around one pair: the run records the pair as failed and goes on).
+pub fn catch_pair<T>(f: impl FnOnce() -> Result<T>) -> Result<T> {
+    match std::panic::catch_unwind(std::panic::AssertUnwindSafe(f)) {
+        Ok(r) => r,
+        Err(payload) => {
+            let msg = payload
+                .downcast_ref::<&str>()
+                .map(|s| s.to_string())
+                .or_else(|| payload.downcast_ref::<String>().cloned())
+                .unwrap_or_else(|| "(no message)".into());
+            Err(Error::Invalid(format!("panicked: {msg}")))
+        }
+    }
+}
+
+/// Runs the pending pairs of `progress` one after the other: marks each in flight, runs
+/// `run(position, id)` under [`catch_pair`], records the outcome (a failure as
+/// `failed_result(position, reason)`), and rewrites the output. A pair that errors or panics is
+/// recorded as failed and the run goes on; `log` gets one line per pair for a log reader.
+/// Errors only when the output cannot be written at the end.
+pub fn run_pending(
+    progress: &mut Progress,
+    write: &dyn Fn(&RunFile) -> Result<Vec<u8>>,
+    run: &mut dyn FnMut(usize, &str) -> Result<PairRecord>,
+    failed_result: &dyn Fn(usize, &str) -> Value,
+    log: &mut dyn FnMut(&str),
+) -> Result<()> {
+    let pending = progress.pending();
+    let total = progress.positions.len();
+    let mut done = total - pending.len();
+    let shard = progress.header.shard;
+    let mut write_problem: Option<String> = None;
+    let mut save = |r: Result<()>, log: &mut dyn FnMut(&str)| {
+        if let Err(e) = r {
+            if write_problem.is_none() {
+                log(&format!(
+                    "warning: could not write the output: {e} (the run goes on)"
+                ));
+            }
+            write_problem = Some(e.to_string());
+        } else {
+            write_problem = None;
+        }
+    };
+    for pos in pending {
+        let id = progress.id(pos).to_string();
+        let r = progress.begin(pos, write);
+        save(r, log);
+        let t = std::time::Instant::now();
+        let rec = match catch_pair(|| run(pos, &id)) {
+            Ok(rec) => rec,
+            Err(e) => PairRecord {
+                id: id.clone(),
+                status: FAILED.into(),
+                error: Some(e.to_string()),
+                time_s: t.elapsed().as_secs_f64(),
+                stages: Vec::new(),
+                result: failed_result(pos, &e.to_string()),
+            },
+        };
+        done += 1;
+        log(&match &rec.error {
+            None => format!(
+                "[shard {shard}] {done}/{total} {id}: done in {:.2} s",
+                rec.time_s
+            ),
+            Some(e) => format!("[shard {shard}] {done}/{total} {id}: FAILED: {e}"),
+        });
+        let r = progress.finish(pos, rec, write);
+        save(r, log);
+    }
+    let r = progress.save(write);
+    save(r, log);
+    match write_problem {
+        Some(e) => Err(Error::Invalid(format!(
+            "the output could not be written: {e}"
+        ))),
+        None => Ok(()),
+    }
+}
