@@ -424,7 +424,7 @@ pub fn filter_controls(ui: &mut egui::Ui, model: &InspectorModel, filter: &mut P
     splits.dedup();
     ui.horizontal(|ui| {
         if !splits.is_empty() {
-            egui::ComboBox::from_id_salt("pairs_split")
+            egui::ComboBox::new("pairs_split", "split")
                 .selected_text(filter.split.as_deref().unwrap_or("every split"))
                 .show_ui(ui, |ui| {
                     ui.selectable_value(&mut filter.split, None, "every split");
@@ -433,7 +433,7 @@ pub fn filter_controls(ui: &mut egui::Ui, model: &InspectorModel, filter: &mut P
                     }
                 });
         }
-        egui::ComboBox::from_id_salt("pairs_outcome")
+        egui::ComboBox::new("pairs_outcome", "show")
             .selected_text(filter.outcome.label())
             .show_ui(ui, |ui| {
                 for o in OutcomeFilter::ALL {
