@@ -9,7 +9,7 @@
 use std::time::Instant;
 
 use cgenreg::app::headless::HeadlessRenderer;
-use cgenreg::app::pipeline_worker::PipelineWorker;
+use cgenreg::app::worker::PipelineWorker;
 use cgenreg::app::{spawn_worker, Command, InspectorModel, Panel, WorkerEvent};
 use cgenreg::fusion::select::Selection;
 use cgenreg::pipeline::{ImageBranchParams, RegisterParams, WfmSpec};

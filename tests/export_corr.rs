@@ -222,7 +222,7 @@ fn inverted_ground_truth_fires_the_convention_warning() {
 #[cfg(feature = "gui")]
 #[test]
 fn worker_export_matches_the_cli() {
-    use cgenreg::app::pipeline_worker::PipelineWorker;
+    use cgenreg::app::worker::PipelineWorker;
     use cgenreg::dataset::manifest::Dataset;
     let Some(d) = demo_dir() else { return };
     let ds = Dataset::from_two_files(

@@ -9,7 +9,7 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use cgenreg::app::controls::{spawn_worker, Command, EventSink, Worker};
-use cgenreg::app::pipeline_worker::PipelineWorker;
+use cgenreg::app::worker::PipelineWorker;
 use cgenreg::app::{App, InspectorModel, Panel};
 use cgenreg::metrics::compare::{compare, load_bench_run};
 use cgenreg::pipeline::RegisterParams;

@@ -9,7 +9,7 @@
 
 use cgenreg::app::controls::spawn_worker;
 use cgenreg::app::model::PairStatus;
-use cgenreg::app::pipeline_worker::PipelineWorker;
+use cgenreg::app::worker::PipelineWorker;
 use cgenreg::app::{App, InspectorModel};
 use cgenreg::pipeline::RegisterParams;
 use eframe::egui;
@@ -95,7 +95,7 @@ const KEYS: [egui::Key; 16] = [
     egui::Key::Home,
 ];
 
-const TABS: [&str; 5] = ["Views", "3D", "Posterior", "Plots", "Stages"];
+const TABS: [&str; 6] = ["Pairs", "Views", "3D", "Posterior", "Plots", "Stages"];
 
 #[test]
 fn random_events_never_panic_block_or_wedge_the_worker() {

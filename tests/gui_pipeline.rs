@@ -11,9 +11,7 @@ use std::time::{Duration, Instant};
 use cgenreg::app::colormap::{SOURCE_RGB, TARGET_RGB};
 use cgenreg::app::headless::render_screenshot;
 use cgenreg::app::model::{PairStatus, StageState};
-use cgenreg::app::pipeline_worker::{
-    result_to_model, PipelineWorker, GT_INLIER_M, IMAGE_BRANCH_OFF,
-};
+use cgenreg::app::worker::{result_to_model, PipelineWorker, GT_INLIER_M, IMAGE_BRANCH_OFF};
 use cgenreg::app::{spawn_worker, Command, Panel, WorkerEvent};
 use cgenreg::dataset::manifest::Dataset;
 use cgenreg::pipeline::{register_pair, RegisterParams};
@@ -36,7 +34,7 @@ fn registration_result_becomes_a_consistent_model() {
     // keypoints first, then a bounded display subsample
     let (ns, nt) = (res.source_keypoints.len(), res.target_keypoints.len());
     assert!(model.source.len() > ns && model.target.len() > nt);
-    assert!(model.source.len() <= ns + cgenreg::app::pipeline_worker::DISPLAY_POINTS + 1);
+    assert!(model.source.len() <= ns + cgenreg::app::worker::DISPLAY_POINTS + 1);
     for (i, p) in res.source_keypoints.iter().enumerate() {
         assert_eq!(model.source[i], [p.x, p.y, p.z]);
     }

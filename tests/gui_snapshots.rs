@@ -210,6 +210,87 @@ fn plots_save_as_png_and_csv() {
     assert!(r.app.plots.last_save.as_deref().unwrap().contains("PNG"));
 }
 
+#[test]
+fn snapshot_pairs() {
+    snapshot_panel(Panel::Pairs, "pairs");
+}
+
+/// The pair browser after a run (the demo's filled rows): "Run all" and "Run failed/pending"
+/// send their commands, a header click sorts by its column (again: reversed), j opens the
+/// next pair of the order, and during a run the progress bar and Cancel are shown (snapshot)
+/// and Cancel reaches the worker.
+#[test]
+fn pairs_tab_runs_all_sorts_navigates_and_cancels() {
+    use cgenreg::app::controls::{RunProgress, RunSelection};
+    use cgenreg::app::pairs_panel::{visible_pairs, PairColumn, PairSort};
+    let seen = Arc::new(Mutex::new(Vec::new()));
+    let handle = spawn_worker(Box::new(Recorder(seen.clone())), None);
+    let mut app = App::new(InspectorModel::demo(), Some(handle), None);
+    app.allow_dialogs = false;
+    app.ui_state.tab = Panel::Pairs;
+    let Some(mut h) = harness(app) else { return };
+    h.run_steps(2);
+    let wait_for = |seen: &Arc<Mutex<Vec<Command>>>, c: &Command| {
+        let t0 = std::time::Instant::now();
+        while !seen.lock().unwrap().contains(c) {
+            assert!(
+                t0.elapsed().as_secs() < 10,
+                "{c:?} never reached the worker"
+            );
+            std::thread::sleep(std::time::Duration::from_millis(5));
+        }
+    };
+    h.get_by_label("Run all").click();
+    h.run_steps(2);
+    wait_for(&seen, &Command::RunAll(RunSelection::All));
+    h.get_by_label("Run failed/pending").click();
+    h.run_steps(2);
+    wait_for(&seen, &Command::RunAll(RunSelection::FailedOrPending));
+    // header clicks: a metric starts worst (largest) first, a second click reverses
+    h.get_by_label("time s").click();
+    h.run_steps(2);
+    let time_desc = PairSort {
+        column: PairColumn::Time,
+        descending: true,
+    };
+    assert_eq!(h.state().ui_state.pair_sort, time_desc);
+    h.get_by_label("time s v").click();
+    h.run_steps(2);
+    assert!(!h.state().ui_state.pair_sort.descending);
+    // j: the pair after the current one in this order
+    let m = h.state().model().clone();
+    let order = visible_pairs(
+        &m.pairs,
+        &h.state().pairs.filter,
+        h.state().ui_state.pair_sort,
+    );
+    let at = order
+        .iter()
+        .position(|&i| Some(i) == m.current_pair)
+        .unwrap();
+    let next = m.pairs[order[at + 1]].id.clone();
+    h.key_press(egui::Key::J);
+    h.run_steps(2);
+    wait_for(&seen, &Command::SelectPair(next));
+    // a run in progress: bar, Cancel, the running row
+    h.state_mut().ui_state.pair_sort = PairSort::WORST_RRE;
+    let pair = m.pairs[8].id.clone();
+    h.state_mut().pairs.progress = Some(RunProgress {
+        done: 5,
+        total: 9,
+        pair: pair.clone(),
+        row: None,
+        finished: false,
+        cancelled: false,
+    });
+    h.state_mut().set_model(m);
+    h.run_steps(4);
+    h.snapshot("pairs-running");
+    h.get_by_label("Cancel").click();
+    h.run_steps(2);
+    wait_for(&seen, &Command::Cancel);
+}
+
 struct Recorder(Arc<Mutex<Vec<Command>>>);
 impl Worker for Recorder {
     fn handle(&mut self, command: Command, _events: &EventSink) {
@@ -296,7 +377,7 @@ fn headless_3d_screenshot_shows_source_and_target_points() {
 /// opens through the worker and the dataset loads.
 #[test]
 fn the_built_in_browser_opens_a_typed_manifest_and_the_dataset_loads() {
-    use cgenreg::app::pipeline_worker::PipelineWorker;
+    use cgenreg::app::worker::PipelineWorker;
     use cgenreg::pipeline::RegisterParams;
     let manifest = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/demo/demo.toml");
     let mut params = RegisterParams::default();

@@ -9,7 +9,7 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use cgenreg::app::model::InspectorModel;
-use cgenreg::app::pipeline_worker::PipelineWorker;
+use cgenreg::app::worker::PipelineWorker;
 use cgenreg::app::{spawn_worker, Command, LogLevel, StudyRequest, WorkerEvent};
 use cgenreg::dataset::Dataset;
 use cgenreg::pipeline::cache::Cache;
@@ -192,7 +192,8 @@ fn wait_for_done(
 
 // ---- the Open dialog's "Cosmos output folder…" ----
 
-use cgenreg::app::pipeline_worker::{cosmos_output_settings, find_cosmos_spec};
+use cgenreg::pipeline::params::cosmos_output_settings;
+use cgenreg::wfm::cached::find_cosmos_spec;
 
 const LINE: &str = r#"{"prompt": "a kitchen", "visual_input": "", "control_overrides": {"depth": {"input_control": "/d/000000_x.mp4", "control_weight": 1.0}}}"#;
 

@@ -3,7 +3,7 @@
 //! The controls edit the pipeline's own [`RegisterParams`] (no UI copy of any setting): a
 //! change sends the whole parameter set in a [`Command::ApplySettings`] over a
 //! `std::sync::mpsc` channel to a worker thread, which answers with [`WorkerEvent`]s.
-//! [`crate::app::pipeline_worker::PipelineWorker`] implements [`Worker`] on top of the
+//! [`crate::app::worker::PipelineWorker`] implements [`Worker`] on top of the
 //! pipeline; [`spawn_worker`] runs it.
 
 use std::path::PathBuf;
@@ -50,6 +50,9 @@ pub enum Command {
     InspectSourcePoint(usize),
     /// Run a parameter study over the open dataset's pairs with the current settings.
     RunStudy(StudyRequest),
+    /// Register the pairs `RunSelection` picks with the current settings (through the stage
+    /// cache), filling the pair browser; Cancel stops it between pairs.
+    RunAll(RunSelection),
     /// Precision-recall of Noisy-AND and Noisy-OR for the current pair (figure 7), sent by
     /// the plots panel while it is shown, so other tabs never pay for the two extra fusions.
     Figure7,
@@ -67,6 +70,30 @@ pub enum Command {
     /// while it is shown and the model has none).
     Hypotheses,
     Cancel,
+}
+
+/// Which pairs "Run all" registers.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RunSelection {
+    /// Every pair of the dataset.
+    All,
+    /// Pairs not run yet, in error, or registered outside the success thresholds.
+    FailedOrPending,
+}
+
+/// One step of a "Run all": before a pair runs (`row` None), after it (its new row), and at
+/// the end (`finished`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct RunProgress {
+    /// Pairs finished so far.
+    pub done: usize,
+    pub total: usize,
+    /// The pair starting or just finished.
+    pub pair: String,
+    pub row: Option<super::model::PairEntry>,
+    pub finished: bool,
+    /// The run ended by Cancel before its last pair.
+    pub cancelled: bool,
 }
 
 /// Which study the plots panel asked for.
@@ -111,6 +138,8 @@ pub enum WorkerEvent {
     Model(Box<InspectorModel>),
     /// One stage changed state (the stage panel updates without a full model).
     Stage(StageInfo),
+    /// "Run all" progress: a row of the pair browser changed.
+    RunAll(RunProgress),
     /// A long task's progress: (what, done, total).
     Progress(String, usize, usize),
     /// The worker changed the settings (e.g. opening a Cosmos output folder switched the image

@@ -12,13 +12,13 @@ pub mod headless;
 pub mod hypotheses_panel;
 pub mod model;
 pub mod pairs_panel;
-pub mod pipeline_worker;
 pub mod plots_panel;
 pub mod posterior_panel;
 pub mod render3d;
 pub mod stages_panel;
 pub mod view3d;
 pub mod views_panel;
+pub mod worker;
 
 use std::path::{Path, PathBuf};
 use std::sync::mpsc::{channel, Receiver};
@@ -44,6 +44,7 @@ use views_panel::ViewsState;
 /// The tabs of the central area.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub enum Panel {
+    Pairs,
     Views,
     View3d,
     Posterior,
@@ -54,7 +55,8 @@ pub enum Panel {
 }
 
 impl Panel {
-    pub const ALL: [Panel; 7] = [
+    pub const ALL: [Panel; 8] = [
+        Self::Pairs,
         Self::Views,
         Self::View3d,
         Self::Posterior,
@@ -65,6 +67,7 @@ impl Panel {
     ];
     pub fn label(self) -> &'static str {
         match self {
+            Self::Pairs => "Pairs",
             Self::Views => "Views",
             Self::View3d => "3D",
             Self::Posterior => "Posterior",
@@ -74,9 +77,11 @@ impl Panel {
             Self::Hypotheses => "Hypotheses",
         }
     }
-    /// Parses a CLI name ("views", "3d", "posterior", "plots", "stages", "compare").
+    /// Parses a CLI name ("pairs", "views", "3d", "posterior", "plots", "stages", "compare",
+    /// "hypotheses").
     pub fn from_name(s: &str) -> Option<Panel> {
         match s.to_ascii_lowercase().as_str() {
+            "pairs" => Some(Self::Pairs),
             "views" => Some(Self::Views),
             "3d" | "view3d" => Some(Self::View3d),
             "posterior" => Some(Self::Posterior),
@@ -143,7 +148,7 @@ impl Default for UiState {
             hovered_match: None,
             prev_hovered: None,
             selected_source_point: None,
-            pair_sort: PairSort::RreWorstFirst,
+            pair_sort: PairSort::WORST_RRE,
             show_3d_below_views: true,
             only_survivors: false,
             hypothesis: None,
@@ -332,6 +337,8 @@ pub struct App {
     pub compare: compare_panel::CompareState,
     pub stages: stages_panel::StagesState,
     hypotheses: hypotheses_panel::HypothesesState,
+    /// The pair browser's filters and run progress.
+    pub pairs: pairs_panel::PairsState,
     worker: Option<WorkerHandle>,
     pub log: Vec<LogLine>,
     show_log: bool,
@@ -369,6 +376,7 @@ impl App {
             compare: compare_panel::CompareState::default(),
             stages: stages_panel::StagesState::default(),
             hypotheses: hypotheses_panel::HypothesesState::default(),
+            pairs: pairs_panel::PairsState::default(),
             worker,
             log: Vec::new(),
             show_log: false,
@@ -518,6 +526,9 @@ impl App {
                 }
                 WorkerEvent::Log(l, t) => self.push_log(l, t),
                 WorkerEvent::Settings(s) => self.params = *s,
+                WorkerEvent::RunAll(p) => {
+                    pairs_panel::apply_progress(&mut self.model, &mut self.pairs, p)
+                }
                 WorkerEvent::Progress(what, done, total) => {
                     self.model.plots.study_progress = (done < total).then_some((what, done, total));
                 }
@@ -713,6 +724,13 @@ impl App {
         let mut open_request: Option<OpenKind> = None;
         let mut compare_action = None;
         let scene = self.scene_specific_prompt();
+        pairs_panel::keyboard_nav(
+            &ctx,
+            &self.model,
+            &mut self.pairs,
+            self.ui_state.pair_sort,
+            &mut commands,
+        );
 
         egui::Panel::bottom("log_bar").show(ui, |ui| self.log_bar(ui));
 
@@ -761,6 +779,7 @@ impl App {
                         pairs_panel::pairs_panel(
                             ui,
                             &self.model,
+                            &mut self.pairs,
                             &mut self.ui_state.pair_sort,
                             &mut commands,
                         );
@@ -879,6 +898,13 @@ impl App {
                 commands: &mut commands,
             };
             match shared.ui.tab {
+                Panel::Pairs => pairs_panel::pairs_tab(
+                    ui,
+                    shared.model,
+                    &mut self.pairs,
+                    &mut shared.ui.pair_sort,
+                    shared.commands,
+                ),
                 Panel::Views => {
                     ui.checkbox(&mut shared.ui.show_3d_below_views, "3D view below");
                     let h = ui.available_height();

@@ -1,5 +1,5 @@
 //! The plain-data model the inspector draws every frame. The pipeline worker
-//! ([`crate::app::pipeline_worker::PipelineWorker`]) fills it; the UI never computes
+//! ([`crate::app::worker::PipelineWorker`]) fills it; the UI never computes
 //! registration results itself.
 //!
 //! Conventions: every cloud is in its own scan frame; `target_from_source` maps source
@@ -11,16 +11,18 @@ use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion};
 use crate::camera::{CameraModel, Intrinsics};
 
 /// State of one scan pair in the pair browser.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, Default, PartialEq)]
 pub enum PairStatus {
+    #[default]
     Pending,
     Running,
     Done,
+    /// The pair could not be registered (an error, not a failed registration).
     Failed(String),
 }
 
 /// One row of the pair browser.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, Default, PartialEq)]
 pub struct PairEntry {
     pub id: String,
     pub status: PairStatus,
@@ -28,6 +30,76 @@ pub struct PairEntry {
     pub rre_deg: Option<f64>,
     /// Relative translation error, metres.
     pub rte_m: Option<f64>,
+    /// The manifest's split ("3DMatch", "3DLoMatch", ...; empty when it gives none).
+    pub split: String,
+    /// Registration recall's success (RRE <= 15 deg and RTE <= 30 cm); None without GT.
+    pub success: Option<bool>,
+    /// Fraction of the correspondences within 10 cm under GT.
+    pub inlier_ratio: Option<f64>,
+    /// Number of selected correspondences.
+    pub correspondences: Option<usize>,
+    /// Registration time of the last run (ms; stages served by the cache count as loaded).
+    pub time_ms: Option<f64>,
+}
+
+/// What the pair browser's status column and its filter say of a row.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum PairOutcome {
+    Pending,
+    Running,
+    /// Registered and within the recall thresholds.
+    Success,
+    /// Registered, outside the thresholds.
+    Failure,
+    /// Registered without ground truth.
+    Done,
+    /// Not registered (an error).
+    Error,
+}
+
+impl PairOutcome {
+    pub fn label(self) -> &'static str {
+        match self {
+            Self::Pending => "pending",
+            Self::Running => "running",
+            Self::Success => "success",
+            Self::Failure => "failure",
+            Self::Done => "done (no GT)",
+            Self::Error => "error",
+        }
+    }
+}
+
+impl PairEntry {
+    /// A row not run yet.
+    pub fn pending(id: impl Into<String>, split: impl Into<String>) -> Self {
+        Self {
+            id: id.into(),
+            split: split.into(),
+            ..Default::default()
+        }
+    }
+
+    pub fn outcome(&self) -> PairOutcome {
+        match (&self.status, self.success) {
+            (PairStatus::Pending, _) => PairOutcome::Pending,
+            (PairStatus::Running, _) => PairOutcome::Running,
+            (PairStatus::Failed(_), _) => PairOutcome::Error,
+            (PairStatus::Done, Some(true)) => PairOutcome::Success,
+            (PairStatus::Done, Some(false)) => PairOutcome::Failure,
+            (PairStatus::Done, None) => PairOutcome::Done,
+        }
+    }
+
+    /// Clears the metrics of a previous run (the row becomes `status`).
+    pub fn reset(&mut self, status: PairStatus) {
+        *self = Self {
+            id: std::mem::take(&mut self.id),
+            split: std::mem::take(&mut self.split),
+            status,
+            ..Default::default()
+        };
+    }
 }
 
 /// Which branch proposed a correspondence.
@@ -230,7 +302,7 @@ pub struct InspectorModel {
     pub source_views: Vec<ViewImage>,
     pub target_views: Vec<ViewImage>,
     pub posteriors: Vec<Posterior>,
-    /// The source point the posterior tab opens on (see `pipeline_worker::default_posterior_point`).
+    /// The source point the posterior tab opens on (see `worker::default_posterior_point`).
     pub default_posterior: Option<usize>,
     pub stages: Vec<StageInfo>,
     pub plots: PlotData,
@@ -702,6 +774,11 @@ mod demo {
             status: PairStatus::Done,
             rre_deg: Some(rre),
             rte_m: Some(rte),
+            split: "demo".into(),
+            success: Some(rre <= 15.0 && rte <= 0.30),
+            inlier_ratio: Some(0.62),
+            correspondences: Some(matches.len()),
+            time_ms: Some(64.0),
         }];
         for i in 1..8 {
             let e = ((i * 37) % 11) as f64;
@@ -714,14 +791,17 @@ mod demo {
                 },
                 rre_deg: (i != 5).then_some(0.4 + e * e * 0.3),
                 rte_m: (i != 5).then_some(0.01 + e * 0.012),
+                split: if i % 3 == 0 { "3DLoMatch" } else { "3DMatch" }.into(),
+                success: (i != 5).then_some(0.4 + e * e * 0.3 <= 15.0 && 0.01 + e * 0.012 <= 0.30),
+                inlier_ratio: (i != 5).then_some(0.7 - e * 0.05),
+                correspondences: (i != 5).then_some(900 + 37 * i),
+                time_ms: Some(40.0 + 11.0 * i as f64),
             });
         }
-        pairs.push(PairEntry {
-            id: "fixture/pair-8 (made-up metrics)".into(),
-            status: PairStatus::Pending,
-            rre_deg: None,
-            rte_m: None,
-        });
+        pairs.push(PairEntry::pending(
+            "fixture/pair-8 (made-up metrics)",
+            "3DMatch",
+        ));
 
         let stages = [
             ("read scans", StageState::Cached, Some(12.0)),

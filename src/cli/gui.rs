@@ -2,7 +2,9 @@
 //! rendered headless to a PNG.
 
 use super::args::{ImageArgs, PipelineArgs};
-use crate::app::pipeline_worker::PipelineWorker;
+use crate::app::controls::RunSelection;
+use crate::app::pairs_panel::PairSort;
+use crate::app::worker::PipelineWorker;
 use crate::app::{Command, MatchColorMode, Panel};
 use crate::error::{Error, Result};
 use clap::Args;
@@ -38,7 +40,7 @@ pub struct ScreenshotArgs {
     /// Pair id within the manifest (default: its first pair).
     #[arg(long)]
     pub pair: Option<String>,
-    /// Panel to render: views, 3d, posterior, plots, stages, compare or hypotheses.
+    /// Panel to render: pairs, views, 3d, posterior, plots, stages, compare or hypotheses.
     #[arg(long, default_value = "3d")]
     pub panel: String,
     /// Two `cgenreg bench --json` outputs (run A, then run B) shown in the Compare tab; with
@@ -83,10 +85,15 @@ pub struct ScreenshotArgs {
     /// Depth cue of the 3D view's points: eye-dome lighting, normal shading or none.
     #[arg(long, value_enum, default_value = "edl")]
     pub depth_cue: crate::app::render3d::DepthCue,
-    /// Register every pair of the manifest first (fills the pair browser and the RRE/RTE
-    /// plot; failing pairs are listed as failed), then show --pair.
-    #[arg(long)]
-    pub all_pairs: bool,
+    /// Run every pair of the manifest through the worker first, as the pair browser's "Run
+    /// all" does (fills the browser and the RRE/RTE plot; a pair that cannot be registered is
+    /// an error row), then show --pair.
+    #[arg(long, alias = "all-pairs")]
+    pub run_all: bool,
+    /// The pair browser's order: COLUMN[:asc|:desc], COLUMN one of pair, split, status, rre,
+    /// rte, inliers, corr, time (e.g. rre:desc, worst RRE first; the default).
+    #[arg(long, value_parser = PairSort::parse)]
+    pub sort: Option<PairSort>,
     /// Run the K sweep over the manifest's pairs first (e.g. 1,2,4,8), as the plots panel's
     /// "Run K sweep" button does.
     #[arg(long)]
@@ -139,7 +146,10 @@ fn open(
         .unwrap_or_else(demo_manifest);
     let mut params = pipeline.to_params(image.wfm.is_some());
     params.image = image.to_image_params()?;
-    let mut worker = PipelineWorker::open_manifest(&manifest, params)?;
+    // fragments rebuilt from raw RGB-D frames are kept in the stage cache, as in `register`
+    let dataset = crate::dataset::manifest::Dataset::load(&manifest)?
+        .with_fragment_cache(image.fragment_cache()?);
+    let mut worker = PipelineWorker::new(dataset, params);
     worker.set_cache(image.open_cache()?);
     let ids = worker.pair_ids();
     let id = match pair {
@@ -260,7 +270,7 @@ fn run_compare_screenshot(a: &ScreenshotArgs, runs: &[PathBuf], panel: Panel) ->
 pub fn run_screenshot(a: ScreenshotArgs) -> Result<()> {
     let panel = Panel::from_name(&a.panel).ok_or_else(|| {
         Error::Invalid(format!(
-            "--panel {:?}: expected views, 3d, posterior, plots, stages, compare or hypotheses",
+            "--panel {:?}: expected pairs, views, 3d, posterior, plots, stages, compare or hypotheses",
             a.panel
         ))
     })?;
@@ -284,27 +294,36 @@ pub fn run_screenshot(a: ScreenshotArgs) -> Result<()> {
         &a.pipeline,
         &a.image,
     )?;
-    if a.all_pairs {
-        for other in worker.pair_ids() {
-            if other != id {
-                let t = std::time::Instant::now();
-                match worker.run_pair(&other) {
-                    Ok(m) => {
-                        let p = m.current_pair.and_then(|i| m.pairs.get(i).cloned());
-                        eprintln!(
-                            "{other}: RRE {:.2}° RTE {:.1} cm ({:.0} ms)",
-                            p.as_ref().and_then(|p| p.rre_deg).unwrap_or(f64::NAN),
-                            p.as_ref().and_then(|p| p.rte_m).unwrap_or(f64::NAN) * 100.0,
-                            t.elapsed().as_secs_f64() * 1e3
-                        );
+    if a.run_all {
+        let t = std::time::Instant::now();
+        let s = worker.run_all(RunSelection::All, &mut |p| {
+            if let Some(r) = &p.row {
+                match &r.status {
+                    crate::app::model::PairStatus::Failed(why) => {
+                        eprintln!("[{}/{}] {}: error: {why}", p.done, p.total, r.id)
                     }
-                    Err(e) => {
-                        eprintln!("{other}: failed: {e}");
-                        worker.mark_failed(&other, &e.to_string());
-                    }
+                    _ => eprintln!(
+                        "[{}/{}] {}: {} RRE {:.2}° RTE {:.1} cm, {} corr. ({:.0} ms)",
+                        p.done,
+                        p.total,
+                        r.id,
+                        r.outcome().label(),
+                        r.rre_deg.unwrap_or(f64::NAN),
+                        r.rte_m.unwrap_or(f64::NAN) * 100.0,
+                        r.correspondences.unwrap_or(0),
+                        r.time_ms.unwrap_or(f64::NAN)
+                    ),
                 }
             }
-        }
+        });
+        eprintln!(
+            "run all: {} pairs in {:.1} s: {} success, {} failure, {} error",
+            s.done,
+            t.elapsed().as_secs_f64(),
+            s.success,
+            s.failure,
+            s.errors
+        );
     }
     let mut studies = Vec::new();
     if let Some(ks) = &a.k_sweep {
@@ -358,7 +377,7 @@ pub fn run_screenshot(a: ScreenshotArgs) -> Result<()> {
     let params = worker.params().clone();
     let (mode, count, only, align) = (a.match_colors, a.matches, a.only_survivors, a.alignment);
     let (cloud_mode, depth_frames) = (a.cloud_colors, a.depth_frames);
-    let (view_pair, depth_cue) = (a.view_pair, a.depth_cue);
+    let (view_pair, depth_cue, sort) = (a.view_pair, a.depth_cue, a.sort);
     if let Some((i, j)) = view_pair {
         let (ks, kt) = (model.source_views.len(), model.target_views.len());
         if i >= ks || j >= kt {
@@ -387,6 +406,9 @@ pub fn run_screenshot(a: ScreenshotArgs) -> Result<()> {
             p.depth_cue = depth_cue;
             app.show_depth_frames(depth_frames);
             app.show_view_pair(view_pair);
+            if let Some(s) = sort {
+                app.ui_state.pair_sort = s;
+            }
         },
     )
     .map_err(|e| Error::Invalid(format!("cannot render the screenshot headless: {e}")))?;

@@ -289,3 +289,20 @@ impl Default for ImageBranchParams {
         }
     }
 }
+
+/// `s` with the image branch switched to the cached Cosmos output in `dir` and its spec
+/// ([`crate::wfm::cached::find_cosmos_spec`]); everything else unchanged.
+pub fn cosmos_output_settings(
+    p: &RegisterParams,
+    dir: &std::path::Path,
+) -> crate::Result<RegisterParams> {
+    let spec = crate::wfm::cached::find_cosmos_spec(dir)?;
+    let mut p = p.clone();
+    p.image
+        .get_or_insert_with(ImageBranchParams::default)
+        .backend = WfmSpec::Cached {
+        dir: dir.to_path_buf(),
+        spec,
+    };
+    Ok(p)
+}

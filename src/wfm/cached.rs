@@ -292,3 +292,131 @@ impl WfmBackend for CachedBackend {
         Ok(Generation { frames, provenance })
     }
 }
+
+/// Whether `p` is a Cosmos batch spec: a `.jsonl` file, or a `.json` file whose first line is a
+/// batch line (an object with `prompt` and `control_overrides`, like the authors'
+/// `generation_specs/3dmatch_test.json`) rather than a single JSON document.
+pub fn is_batch_spec(p: &Path) -> bool {
+    use std::io::BufRead;
+    let ext = p
+        .extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase())
+        .unwrap_or_default();
+    if !p.is_file() {
+        return false;
+    }
+    match ext.as_str() {
+        "jsonl" => true,
+        "json" => {
+            let Ok(f) = std::fs::File::open(p) else {
+                return false;
+            };
+            let mut line = String::new();
+            let mut r = std::io::BufReader::new(f);
+            while line.trim().is_empty() {
+                line.clear();
+                if r.read_line(&mut line).map_or(true, |n| n == 0) {
+                    return false;
+                }
+            }
+            serde_json::from_str::<serde_json::Value>(line.trim())
+                .is_ok_and(|v| v.get("prompt").is_some() && v.get("control_overrides").is_some())
+        }
+        _ => false,
+    }
+}
+
+/// The JSONL batch spec of a Cosmos output folder, searched in the folder, its parent, and the
+/// authors' published layout (`generation_specs/` next to `generated_videos/`). Where one place
+/// holds several specs, the one named like the folder wins (`3dmatch_rgb_gen_vids` ->
+/// `3dmatch_test.json`); none or several left is an error naming the places and files.
+pub fn find_cosmos_spec(dir: &Path) -> Result<PathBuf> {
+    if !dir.is_dir() {
+        return Err(Error::format(
+            dir,
+            "folder",
+            "a Cosmos output folder (video_<i>/output.mp4)",
+            "not a folder",
+        ));
+    }
+    let has_videos = std::fs::read_dir(dir)
+        .map_err(|e| Error::io(dir, e))?
+        .flatten()
+        .any(|e| e.file_name().to_string_lossy().starts_with("video_") && e.path().is_dir());
+    if !has_videos {
+        return Err(Error::format(
+            dir,
+            "video_<i>/ folders",
+            "a Cosmos output folder (video_<i>/output.mp4)",
+            "no video_<i> folder",
+        ));
+    }
+    let specs_in = |d: &Path| -> Vec<PathBuf> {
+        let mut v: Vec<PathBuf> = std::fs::read_dir(d)
+            .map(|rd| {
+                rd.flatten()
+                    .map(|e| e.path())
+                    .filter(|p| is_batch_spec(p))
+                    .collect()
+            })
+            .unwrap_or_default();
+        v.sort();
+        v
+    };
+    let names = |v: &[PathBuf]| {
+        v.iter()
+            .map(|p| p.display().to_string())
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    // "3dmatch_rgb_gen_vids" -> "3dmatch"
+    let word = dir
+        .file_name()
+        .map(|n| n.to_string_lossy().to_ascii_lowercase())
+        .and_then(|n| n.split(['_', '-', '.']).next().map(str::to_owned))
+        .unwrap_or_default();
+    let mut places = vec![dir.to_path_buf()];
+    if let Some(parent) = dir.parent() {
+        places.push(parent.to_path_buf());
+        places.push(parent.join("generation_specs"));
+        if let Some(gp) = parent.parent() {
+            places.push(gp.join("generation_specs"));
+        }
+    }
+    places.dedup();
+    for d in &places {
+        let found = specs_in(d);
+        match found.as_slice() {
+            [] => continue,
+            [one] => return Ok(one.clone()),
+            many => {
+                let named: Vec<PathBuf> = many
+                    .iter()
+                    .filter(|p| {
+                        !word.is_empty()
+                            && p.file_name().is_some_and(|n| {
+                                n.to_string_lossy().to_ascii_lowercase().starts_with(&word)
+                            })
+                    })
+                    .cloned()
+                    .collect();
+                if let [one] = named.as_slice() {
+                    return Ok(one.clone());
+                }
+                return Err(Error::Invalid(format!(
+                    "{}: several JSONL batch specs ({}), none named like {}; choose one under \
+                     Image branch > JSONL spec",
+                    d.display(),
+                    names(many),
+                    dir.display()
+                )));
+            }
+        }
+    }
+    Err(Error::Invalid(format!(
+        "no JSONL batch spec (*.jsonl, or a .json of JSON lines) for the Cosmos output folder \
+         {}: looked in {}; put the spec there or choose it under Image branch > JSONL spec",
+        dir.display(),
+        names(&places)
+    )))
+}

@@ -1,0 +1,299 @@
+//! The inspector's pipeline worker: owns a dataset, registers the selected pair with the UI's
+//! settings on the worker thread (the image branch through the stage cache when a WFM is
+//! chosen), and turns the result into an [`InspectorModel`].
+//!
+//! What is kept in memory per pair: the geometric branch (keypoints + FPFH) and, after a run
+//! with the image branch, every input of the in-memory stages ([`FusionInputs`]) and the
+//! selected views. A change of temperature, calibration, fusion mode, selection or estimator
+//! then re-runs only similarity, fusion and estimation ([`crate::pipeline::fuse::fuse_and_finish`]); a change of
+//! prompt, seed, K, margin, VFM or backend re-runs the cached pipeline.
+//!
+//! Model conventions: `model.source` / `model.target` start with the registration keypoints
+//! (so `MatchInfo::src` / `tgt` are keypoint indices), followed by a strided subsample of the
+//! full scan for display. Clouds stay in their own scan frames; `estimated` and
+//! `ground_truth` are target_from_source.
+//!
+//! Files: this one holds the worker's state and its command dispatch ([`Worker::handle`]);
+//! `session.rs` registers one pair and answers re-fusions and posterior requests,
+//! `model_build.rs` turns a result into the model, `study.rs` runs K / prompt studies,
+//! `open.rs` opens datasets and Cosmos output folders.
+
+mod inspect;
+mod model_build;
+mod open;
+mod run_all;
+mod session;
+mod study;
+
+use std::collections::HashMap;
+use std::sync::Arc;
+use std::time::Instant;
+
+use super::controls::{Command, EventSink, LogLevel, Worker, WorkerEvent};
+use super::model::{InspectorModel, PairEntry, PairStatus, StageInfo, StageState};
+use crate::dataset::manifest::Dataset;
+use crate::dataset::ScanPair;
+use crate::fusion::fuse::FusionMode;
+use crate::pipeline::cache::Cache;
+use crate::pipeline::fuse::{FusionInputs, Similarities};
+use crate::pipeline::{ImageBranchOutput, RegisterParams, RegistrationResult};
+
+pub use model_build::{
+    default_posterior_point, point_posterior, pr_curve, result_to_model, DISPLAY_POINTS,
+    FIGURE7_CORRECT_M, GT_INLIER_M, IMAGE_BRANCH_OFF,
+};
+pub use run_all::RunAllSummary;
+use study::StudyPlots;
+
+/// What a run left in memory for fast re-runs of the stages after it.
+struct Kept {
+    /// The settings that produced `inputs` (image branch, voxel, features), as JSON.
+    signature: String,
+    inputs: Arc<FusionInputs>,
+    /// Both similarity matrices (about 2 x 200 MB at 7k keypoints, for the current pair only):
+    /// a temperature change then costs fusion + estimate only.
+    sims: Option<Arc<Similarities>>,
+    image: Option<ImageBranchOutput>,
+    /// Stages of that run (shown as cached when only fusion onward re-runs).
+    stages: Vec<StageInfo>,
+    note: Option<String>,
+    generation_missing: Option<String>,
+}
+
+/// A pair loaded and registered, kept for re-runs and posterior requests.
+struct Current {
+    pair: ScanPair,
+    result: RegistrationResult,
+    model: InspectorModel,
+    kept: Option<Kept>,
+}
+
+fn signature(p: &RegisterParams) -> String {
+    serde_json::to_string(&(p.voxel, &p.geo_features, &p.image)).unwrap_or_default()
+}
+
+/// The [`Worker`] behind `cgenreg inspect`.
+pub struct PipelineWorker {
+    dataset: Dataset,
+    /// The parameters in force: the command line's at start, then the controls'.
+    params: RegisterParams,
+    pairs: Vec<PairEntry>,
+    current: Option<Current>,
+    /// Loaded pairs by id (loading a fragment is the slowest step for real scans).
+    loaded: HashMap<String, ScanPair>,
+    /// Geometric branch per (pair, voxel), so geometry-only re-runs skip FPFH.
+    geo: HashMap<(String, u64), Arc<FusionInputs>>,
+    /// The stage cache of the image branch (None: everything computed in memory).
+    cache: Option<Arc<Cache>>,
+    /// Why there is no cache, reported once.
+    cache_note: Option<String>,
+    /// Results of the last K sweep / prompt study on this dataset (kept in every model).
+    studies: StudyPlots,
+    /// Set by the UI thread (WorkerHandle::send(Command::Cancel)) to stop a running study
+    /// between pairs; the worker is busy then and reads no commands.
+    cancel: Arc<std::sync::atomic::AtomicBool>,
+}
+
+impl PipelineWorker {
+    /// A worker on `dataset` with the default stage cache (`$CGENREG_CACHE` or
+    /// `~/.cache/cgenreg`).
+    pub fn new(dataset: Dataset, base: RegisterParams) -> Self {
+        let dir = crate::pipeline::image_branch::default_cache_dir();
+        let (cache, cache_note) = match Cache::open(&dir) {
+            Ok(c) => (Some(Arc::new(c)), None),
+            Err(e) => (
+                None,
+                Some(format!(
+                    "stage cache {} unavailable ({e}); the image branch computes every stage in memory",
+                    dir.display()
+                )),
+            ),
+        };
+        Self::with_cache(dataset, base, cache, cache_note)
+    }
+
+    pub(super) fn with_cache(
+        dataset: Dataset,
+        base: RegisterParams,
+        cache: Option<Arc<Cache>>,
+        cache_note: Option<String>,
+    ) -> Self {
+        let pairs = dataset
+            .pairs()
+            .iter()
+            .map(|p| PairEntry::pending(p.id.clone(), p.split.clone()))
+            .collect();
+        let mut params = base;
+        if params.image.is_none() {
+            // without the image branch only geometry-only fusion runs: show what ran
+            params.fusion.mode = FusionMode::GeometryOnly;
+        }
+        Self {
+            dataset,
+            params,
+            pairs,
+            current: None,
+            loaded: HashMap::new(),
+            geo: HashMap::new(),
+            cache,
+            cache_note,
+            studies: StudyPlots::default(),
+            cancel: Arc::default(),
+        }
+    }
+
+    /// Replaces the stage cache (None: compute every stage in memory, `--no-cache`).
+    pub fn set_cache(&mut self, cache: Option<Cache>) {
+        self.cache_note = None;
+        self.cache = cache.map(Arc::new);
+    }
+
+    /// Opens a manifest file.
+    pub fn open_manifest(path: &std::path::Path, base: RegisterParams) -> crate::Result<Self> {
+        Ok(Self::new(Dataset::load(path)?, base))
+    }
+
+    pub fn pair_ids(&self) -> Vec<String> {
+        self.pairs.iter().map(|p| p.id.clone()).collect()
+    }
+
+    /// The model shown before the first result: the pair list and pending stages.
+    pub fn initial_model(&self, pair: Option<&str>) -> InspectorModel {
+        let mut pairs = self.pairs.clone();
+        let current = pair.and_then(|id| pairs.iter().position(|p| p.id == id));
+        if let Some(i) = current {
+            pairs[i].status = PairStatus::Running;
+        }
+        InspectorModel {
+            pairs,
+            current_pair: current,
+            stages: vec![StageInfo {
+                name: "load + register".into(),
+                state: StageState::Running,
+                time_ms: None,
+            }],
+            image_branch_note: Some(if self.params.image.is_some() {
+                "registering…".to_string()
+            } else {
+                IMAGE_BRANCH_OFF.to_string()
+            }),
+            ..Default::default()
+        }
+    }
+
+    /// Records a pair that could not be registered (shown as failed in the browser).
+    pub fn mark_failed(&mut self, id: &str, why: &str) {
+        if let Some(p) = self.pairs.iter_mut().find(|p| p.id == id) {
+            p.status = PairStatus::Failed(why.to_string());
+        }
+    }
+
+    /// The parameters in force (what the controls show).
+    pub fn params(&self) -> &RegisterParams {
+        &self.params
+    }
+
+    /// Replaces the parameters without running anything (the next run uses them).
+    pub fn set_params(&mut self, p: RegisterParams) {
+        self.params = p;
+    }
+}
+
+impl Worker for PipelineWorker {
+    fn cancel_flag(&self) -> Option<Arc<std::sync::atomic::AtomicBool>> {
+        Some(self.cancel.clone())
+    }
+
+    fn handle(&mut self, command: Command, events: &EventSink) {
+        match command {
+            Command::SelectPair(id) => self.run_and_report(&id, true, events),
+            Command::OpenPairWith { pair, params } => {
+                self.params = params;
+                self.run_and_report(&pair, true, events);
+            }
+            Command::Figure7 => self.send_figure7(events),
+            Command::ApplySettings(s) => {
+                // a new prompt or seed is not generated without asking (the button)
+                let gen_of = |p: &RegisterParams| p.image.as_ref().map(|i| (i.prompt.text(), i.seed));
+                let generate = gen_of(&s) == gen_of(&self.params);
+                self.params = s;
+                let Some(id) = self.current.as_ref().map(|c| c.result.pair_id.clone()) else {
+                    events.log(LogLevel::Info, "settings stored; no pair selected yet");
+                    return;
+                };
+                let t = Instant::now();
+                match self.refuse() {
+                    Some(r) => self.report(&id, t, r, "re-fuse from memory", events),
+                    None => self.run_and_report(&id, generate, events),
+                }
+            }
+            Command::RunStudy(req) => self.study(req, events),
+            Command::RunAll(sel) => self.run_all_and_report(sel, events),
+            Command::InspectSourcePoint(i) => match self.inspect_point(i) {
+                Ok(m) => events.send(WorkerEvent::Model(Box::new(m))),
+                Err(e) => events.log(LogLevel::Warn, format!("posterior of point {i}: {e}")),
+            },
+            Command::Open { kind, paths } => {
+                self.open(kind, paths, events);
+            }
+            Command::OpenOrFallback {
+                kind,
+                paths,
+                fallback_pair,
+            } => {
+                events.log(
+                    LogLevel::Info,
+                    format!("reopening the last opened data: {paths:?}"),
+                );
+                if !self.open(kind, paths, events) {
+                    events.log(
+                        LogLevel::Error,
+                        format!("could not reopen the last opened data; showing {fallback_pair}"),
+                    );
+                    self.run_and_report(&fallback_pair, true, events);
+                }
+            }
+            Command::RunGenerator { prompt } => {
+                let Some(ib) = &self.params.image else {
+                    events.log(
+                        LogLevel::Warn,
+                        "no generator configured: choose a WFM under “Image branch”",
+                    );
+                    return;
+                };
+                let backend = ib.backend.label();
+                if prompt.trim() != ib.prompt.text().trim() {
+                    events.log(
+                        LogLevel::Warn,
+                        "the prompt changed since the request; generating for the prompt in the editor",
+                    );
+                }
+                match self.current.as_ref().map(|c| c.result.pair_id.clone()) {
+                    Some(id) => {
+                        events.log(
+                            LogLevel::Info,
+                            format!("{id}: running the generator ({backend})"),
+                        );
+                        self.run_and_report(&id, true, events)
+                    }
+                    None => events.log(LogLevel::Warn, "select a pair first"),
+                }
+            }
+            Command::ExportCorrespondences(path) => match self.export_correspondences(&path) {
+                Ok(n) => events.log(
+                    LogLevel::Info,
+                    format!("wrote {n} correspondences to {}", path.display()),
+                ),
+                Err(e) => events.log(LogLevel::Error, format!("export correspondences: {e}")),
+            },
+            Command::Hypotheses => match self.hypotheses() {
+                Ok(m) => events.send(WorkerEvent::Model(Box::new(m))),
+                Err(e) => events.log(LogLevel::Warn, format!("hypotheses: {e}")),
+            },
+            Command::Cancel => events.log(
+                LogLevel::Info,
+                "cancel: a running study or run-all stops before its next pair; registrations run to completion",
+            ),
+        }
+    }
+}

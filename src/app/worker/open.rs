@@ -1,0 +1,151 @@
+//! Opening data in the worker: a dataset (manifest, 3DMatch folder, RGB-D sequence, two
+//! clouds) replaces the open one only once its first pair loads; a Cosmos output folder
+//! switches the image branch to it.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use super::PipelineWorker;
+use crate::app::controls::{EventSink, LogLevel, WorkerEvent};
+use crate::app::OpenKind;
+use crate::dataset::manifest::Dataset;
+use crate::dataset::ScanPair;
+use crate::pipeline::cache::Cache;
+use crate::pipeline::params::cosmos_output_settings;
+use crate::pipeline::WfmSpec;
+
+impl PipelineWorker {
+    /// Turns what was opened into a dataset, loads its first pair (so a bad file fails here,
+    /// with the previous dataset still loaded), then replaces the dataset and registers it.
+    /// False when nothing was opened (the error is logged).
+    pub(super) fn open(&mut self, kind: OpenKind, paths: Vec<PathBuf>, events: &EventSink) -> bool {
+        let what = paths
+            .iter()
+            .map(|p| p.display().to_string())
+            .collect::<Vec<_>>()
+            .join(", ");
+        let kind = match kind {
+            OpenKind::Auto => crate::dataset::open::classify_drop(&paths),
+            k => k,
+        };
+        if kind == OpenKind::CosmosOutput {
+            return self.open_cosmos_output(&paths, events);
+        }
+        let t = Instant::now();
+        match crate::dataset::open::open_dataset(kind, &paths) {
+            Ok(d) => {
+                let d = d.with_fragment_cache(
+                    Cache::open(crate::pipeline::cache::default_cache_dir()).ok(),
+                );
+                let first = d.pairs().first().map(|p| p.id.clone());
+                let pre = match &first {
+                    Some(id) => match d.load_pair(id) {
+                        Ok(p) => Some(p),
+                        Err(e) => {
+                            events.log(
+                                LogLevel::Error,
+                                format!(
+                                    "{what}: {e} (loading pair {id}; the previous dataset stays open)"
+                                ),
+                            );
+                            return false;
+                        }
+                    },
+                    None => None,
+                };
+                events.log(
+                    LogLevel::Info,
+                    format!(
+                        "loaded {} in {:.0} ms",
+                        first.as_deref().unwrap_or("(no pairs)"),
+                        t.elapsed().as_secs_f64() * 1e3
+                    ),
+                );
+                self.replace_dataset(d, pre, &what, events);
+                true
+            }
+            Err(e) => {
+                events.log(
+                    LogLevel::Error,
+                    format!("{e} (the previous dataset stays open)"),
+                );
+                false
+            }
+        }
+    }
+
+    /// A Cosmos output folder: the image branch switches to it (cached Cosmos backend, the
+    /// folder + its JSONL spec, as the Image-branch controls set them), the dataset stays, and
+    /// the current pair re-runs. False (logged) when the folder or its spec is unusable.
+    fn open_cosmos_output(&mut self, paths: &[PathBuf], events: &EventSink) -> bool {
+        let r = match paths {
+            [dir] => cosmos_output_settings(&self.params, dir).and_then(|s| {
+                // the spec must parse (positional mapping) before the settings change
+                if let Some(WfmSpec::Cached { dir, spec }) = s.image.as_ref().map(|i| &i.backend) {
+                    crate::wfm::cached::CachedBackend::open(dir, spec)?;
+                }
+                Ok(s)
+            }),
+            _ => Err(crate::Error::Invalid(format!(
+                "expected one Cosmos output folder, got {} paths",
+                paths.len()
+            ))),
+        };
+        let s = match r {
+            Ok(s) => s,
+            Err(e) => {
+                events.log(
+                    LogLevel::Error,
+                    format!("{e} (the image branch settings stay as they were)"),
+                );
+                return false;
+            }
+        };
+        if let Some(WfmSpec::Cached { dir, spec }) = s.image.as_ref().map(|i| &i.backend) {
+            events.log(
+                LogLevel::Info,
+                format!(
+                    "image branch: cached Cosmos output {} with spec {} (dataset unchanged)",
+                    dir.display(),
+                    spec.display()
+                ),
+            );
+        }
+        self.params = s.clone();
+        events.send(WorkerEvent::Settings(Box::new(s)));
+        let id = self
+            .current
+            .as_ref()
+            .map(|c| c.result.pair_id.clone())
+            .or_else(|| self.pairs.first().map(|p| p.id.clone()));
+        match id {
+            Some(id) => self.run_and_report(&id, true, events),
+            None => events.log(LogLevel::Warn, "the dataset lists no pairs"),
+        }
+        true
+    }
+
+    fn replace_dataset(
+        &mut self,
+        d: Dataset,
+        first: Option<ScanPair>,
+        what: &str,
+        events: &EventSink,
+    ) {
+        let params = self.params.clone();
+        let cache = self.cache.take();
+        *self = Self::with_cache(d, params.clone(), cache, None);
+        self.params = params;
+        if let Some(p) = first {
+            self.loaded.insert(p.id.clone(), p);
+        }
+        events.log(
+            LogLevel::Info,
+            format!("opened {what} ({} pairs)", self.pairs.len()),
+        );
+        match self.pairs.first().map(|p| p.id.clone()) {
+            Some(id) => self.run_and_report(&id, true, events),
+            None => events.log(LogLevel::Warn, "the dataset lists no pairs"),
+        }
+    }
+}

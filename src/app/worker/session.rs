@@ -1,0 +1,532 @@
+//! One pair at a time: load, register (the image branch through the stage cache), re-fuse
+//! from memory after a change of the in-memory stages' settings, branch posteriors of a
+//! clicked point, figure 7, and the report of a run to the UI.
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use super::model_build::{
+    default_posterior_point, point_posterior, pr_curve, result_to_model, FIGURE7_CORRECT_M,
+};
+use super::{signature, Current, Kept, PipelineWorker};
+use crate::app::controls::{EventSink, LogLevel, WorkerEvent};
+use crate::app::model::{
+    Branch, InspectorModel, MatchInfo, PairEntry, PairStatus, PrCurve, StageInfo, StageState,
+};
+use crate::dataset::ScanPair;
+use crate::fusion::fuse::FusionMode;
+use crate::pipeline::fuse::{fuse_and_finish, similarities, FusionInputs};
+use crate::pipeline::geo::{fpfh_branch, GeoBranch};
+use crate::pipeline::image_branch::register_with_image_keep;
+use crate::pipeline::RegistrationResult;
+
+/// What [`PipelineWorker::register`] gives: the result, the in-memory stages' inputs (for
+/// re-fusion and posteriors), a note for the image-branch panel and the prompt whose
+/// generation is missing.
+pub(super) struct Registered {
+    pub(super) result: RegistrationResult,
+    pub(super) inputs: Option<Arc<FusionInputs>>,
+    pub(super) note: Option<String>,
+    pub(super) missing: Option<String>,
+}
+
+impl PipelineWorker {
+    /// Loads (or reuses) and registers one pair, generating views when needed; returns the
+    /// model. Synchronous.
+    pub fn run_pair(&mut self, id: &str) -> crate::Result<InspectorModel> {
+        self.run_pair_with(id, true)
+    }
+
+    /// The geometric branch of `pair` from memory, or computed (FPFH) and kept.
+    fn geometry(
+        &mut self,
+        id: &str,
+        pair: &ScanPair,
+        voxel: f64,
+    ) -> crate::Result<(Arc<FusionInputs>, Vec<crate::pipeline::StageTiming>)> {
+        let key = (id.to_string(), voxel.to_bits());
+        if let Some(g) = self.geo.get(&key) {
+            let t = crate::pipeline::StageTiming {
+                stage: "fpfh source + target (in memory)".into(),
+                ms: 0.0,
+                status: "cached".into(),
+            };
+            return Ok((g.clone(), vec![t]));
+        }
+        let mut timings = Vec::new();
+        let mut branch = |name: &str, cloud| -> crate::Result<GeoBranch> {
+            let t = Instant::now();
+            let b = fpfh_branch(cloud, voxel)?;
+            timings.push(crate::pipeline::StageTiming {
+                stage: name.into(),
+                ms: t.elapsed().as_secs_f64() * 1e3,
+                status: "computed".into(),
+            });
+            Ok(b)
+        };
+        let s = branch("fpfh source", &pair.source.cloud)?;
+        let t = branch("fpfh target", &pair.target.cloud)?;
+        let g = Arc::new(FusionInputs {
+            source_geo: s,
+            target_geo: t,
+            image: None,
+            image_label: None,
+        });
+        self.geo.insert(key, g.clone());
+        Ok((g, timings))
+    }
+
+    /// [`run_pair`](Self::run_pair); with `generate` false a generation missing from the cache
+    /// is not produced: the model says so (`generation_missing`) and shows no views.
+    pub fn run_pair_with(&mut self, id: &str, generate: bool) -> crate::Result<InspectorModel> {
+        let pair = match self.loaded.get(id) {
+            Some(p) => p.clone(),
+            None => {
+                let p = self.dataset.load_pair(id)?;
+                self.loaded.insert(id.to_string(), p.clone());
+                p
+            }
+        };
+        let params = self.params.clone();
+        let sig = signature(&params);
+        let Registered {
+            result,
+            inputs,
+            note,
+            missing,
+        } = self.register(id, &pair, generate)?;
+        let label = self.fusion_label(&result);
+        let mut model = result_to_model(&pair, &result, &label, self.pairs.clone());
+        if params.image.is_some() {
+            model.image_branch_note = note.clone();
+        }
+        model.generation_missing = missing.clone();
+        self.studies.fill(&mut model.plots);
+        self.pairs = model.pairs.clone();
+        let kept = inputs.map(|inputs| Kept {
+            signature: sig,
+            sims: similarities(&inputs).ok().map(Arc::new),
+            inputs,
+            image: result.image.clone(),
+            stages: model.stages.clone(),
+            note: model.image_branch_note.clone(),
+            generation_missing: missing,
+        });
+        self.current = Some(Current {
+            pair,
+            result,
+            model,
+            kept,
+        });
+        Ok(self.with_default_posterior())
+    }
+
+    /// Registers `pair` with the current parameters: the image branch through the stage
+    /// cache when a WFM is chosen (falling back to the geometric branch alone, with a note,
+    /// when it cannot run), else the geometric branch from memory. The one registration of
+    /// the inspector: a single pair, "Run all" and the studies' rows all come from it.
+    pub(super) fn register(
+        &mut self,
+        id: &str,
+        pair: &ScanPair,
+        generate: bool,
+    ) -> crate::Result<Registered> {
+        let params = self.params.clone();
+        let mut note: Option<String> = None;
+        let mut missing: Option<String> = None;
+        let mut with_image: Option<(RegistrationResult, FusionInputs)> = None;
+        if let Some(ib) = &params.image {
+            if let Some(n) = self.cache_note.take() {
+                note = Some(n);
+            }
+            let cache = self.cache.clone();
+            // A panic here reaches the worker thread's guard (`spawn_worker`), which reports it.
+            match register_with_image_keep(pair, &params, ib, cache.as_deref(), generate) {
+                Ok(x) => with_image = Some(x),
+                Err(e @ crate::Error::GenerationNotCached { .. }) => {
+                    missing = Some(ib.prompt.text());
+                    note = Some(format!(
+                        "No cached generation for this prompt ({e}). Press “Run the generator” \
+                         to make it; until then the geometric branch runs alone and no views are \
+                         shown (never views generated from another prompt)."
+                    ));
+                }
+                Err(e) => {
+                    note = Some(format!(
+                        "image branch unavailable for {id}: {e} — fell back to the geometric \
+                         branch alone"
+                    ))
+                }
+            }
+        }
+        let (result, inputs) = match with_image {
+            Some((r, i)) => {
+                // keep its geometric branch for geometry-only runs of this pair
+                self.geo
+                    .entry((id.to_string(), params.voxel.to_bits()))
+                    .or_insert_with(|| {
+                        Arc::new(FusionInputs {
+                            source_geo: i.source_geo.clone(),
+                            target_geo: i.target_geo.clone(),
+                            image: None,
+                            image_label: None,
+                        })
+                    });
+                (r, Some(Arc::new(i)))
+            }
+            None => {
+                let mut gp = params.clone();
+                gp.image = None;
+                if gp.geo_features == crate::pipeline::params::GeoFeatureSource::Fpfh {
+                    let t0 = Instant::now();
+                    let (g, mut timings) = self.geometry(id, pair, gp.voxel)?;
+                    let mut r = fuse_and_finish(pair, &gp, &g, None)?;
+                    timings.append(&mut r.timings);
+                    r.timings = timings;
+                    r.total_ms = t0.elapsed().as_secs_f64() * 1e3;
+                    (r, Some(g))
+                } else {
+                    // learned features: keep the inputs too (posteriors, export)
+                    let (r, i) = crate::pipeline::register_pair_cached_keep(pair, &gp, None)?;
+                    (r, Some(Arc::new(i)))
+                }
+            }
+        };
+        if let Some(img) = &result.image {
+            let asked = params
+                .image
+                .as_ref()
+                .map(|ib| ib.prompt.text())
+                .unwrap_or_default();
+            // an empty provenance prompt: the backend used none (oracle)
+            if !img.provenance.prompt.trim().is_empty()
+                && img.provenance.prompt.trim() != asked.trim()
+            {
+                note = Some(format!(
+                    "these views were generated with the prompt “{}”, not the one in the editor \
+                     (the {} backend cannot regenerate them)",
+                    img.provenance.prompt, img.provenance.backend
+                ));
+            }
+        }
+        Ok(Registered {
+            result,
+            inputs,
+            note,
+            missing,
+        })
+    }
+
+    /// The current model with the posterior of [`default_posterior_point`] added (the
+    /// posterior tab opens on it); the model unchanged when no posterior can be formed.
+    fn with_default_posterior(&mut self) -> InspectorModel {
+        let chosen = self
+            .current
+            .as_ref()
+            .and_then(|c| default_posterior_point(&c.model.matches));
+        if let Some((src, why)) = chosen {
+            if let Ok(m) = self.inspect_point(src) {
+                if let Some(c) = self.current.as_mut() {
+                    if let Some(p) = c
+                        .model
+                        .posteriors
+                        .iter_mut()
+                        .find(|p| p.source_point == src)
+                    {
+                        p.reason = why;
+                    }
+                    c.model.default_posterior = Some(src);
+                    return c.model.clone();
+                }
+                return m;
+            }
+        }
+        self.current
+            .as_ref()
+            .map(|c| c.model.clone())
+            .unwrap_or_default()
+    }
+
+    fn fusion_label(&self, result: &RegistrationResult) -> String {
+        match &result.image_branch {
+            Some(_) => self.params.fusion.mode.label().to_string(),
+            None => format!("geometry only ({}; image branch off)", result.geo_features),
+        }
+    }
+
+    /// Re-runs similarity, fusion and estimation from memory when the current pair was run with
+    /// the same image-branch settings (only calibration, fusion, selection or estimator
+    /// changed). None: a full (cached) run is needed.
+    pub fn refuse(&mut self) -> Option<crate::Result<InspectorModel>> {
+        let params = self.params.clone();
+        let sig = signature(&params);
+        let label_settings = self.params.fusion.mode;
+        let cur = self.current.as_mut()?;
+        let kept = cur.kept.as_ref()?;
+        if kept.signature != sig {
+            return None;
+        }
+        let t0 = Instant::now();
+        let run = fuse_and_finish(&cur.pair, &params, &kept.inputs, kept.sims.as_deref());
+        let mut result = match run {
+            Ok(r) => r,
+            Err(e) => return Some(Err(e)),
+        };
+        result.image = kept.image.clone();
+        let label = match &result.image_branch {
+            Some(_) => label_settings.label().to_string(),
+            None => format!("geometry only ({}; image branch off)", result.geo_features),
+        };
+        let mut model = result_to_model(&cur.pair, &result, &label, self.pairs.clone());
+        let mut stages: Vec<StageInfo> = kept
+            .stages
+            .iter()
+            .filter(|s| {
+                !matches!(
+                    s.name.as_str(),
+                    "similarity" | "fusion" | "estimate" | "similarity+fusion"
+                )
+            })
+            .map(|s| StageInfo {
+                name: s.name.clone(),
+                state: StageState::Cached,
+                time_ms: Some(0.0),
+            })
+            .collect();
+        stages.append(&mut model.stages);
+        stages.insert(
+            0,
+            StageInfo {
+                name: "re-fuse from memory".into(),
+                state: StageState::Done,
+                time_ms: Some(t0.elapsed().as_secs_f64() * 1e3),
+            },
+        );
+        model.stages = stages;
+        if result.image.is_some() || kept.note.is_some() {
+            model.image_branch_note = kept.note.clone();
+        }
+        model.generation_missing = kept.generation_missing.clone();
+        self.studies.fill(&mut model.plots);
+        self.pairs = model.pairs.clone();
+        cur.model = model;
+        cur.result = result;
+        Some(Ok(self.with_default_posterior()))
+    }
+
+    /// Adds the branch posteriors of source keypoint `src` to the current model.
+    pub fn inspect_point(&mut self, src: usize) -> crate::Result<InspectorModel> {
+        let fusion = self.params.fusion;
+        let cur = self
+            .current
+            .as_mut()
+            .ok_or_else(|| crate::Error::Invalid("no registered pair to inspect".into()))?;
+        if src >= cur.result.source_keypoints.len() {
+            return Err(crate::Error::Invalid(format!(
+                "point {src} is a display point, not a keypoint (keypoints: 0..{}); click a matched point",
+                cur.result.source_keypoints.len()
+            )));
+        }
+        let kept = cur.kept.as_ref().ok_or_else(|| {
+            crate::Error::Invalid(
+                "posteriors are computed for FPFH features only in this build".into(),
+            )
+        })?;
+        let survived = cur
+            .model
+            .matches
+            .iter()
+            .find(|m| m.src == src)
+            .and_then(|m| m.survived);
+        let sims = match &kept.sims {
+            Some(s) => s.clone(),
+            None => Arc::new(similarities(&kept.inputs)?),
+        };
+        let post = point_posterior(
+            &kept.inputs,
+            &sims,
+            kept.image.as_ref(),
+            &fusion,
+            src,
+            cur.pair.gt_target_from_source.as_ref(),
+            survived,
+        )?;
+        let mut post = post;
+        post.reason = "chosen by click".into();
+        cur.model.posteriors.retain(|p| p.source_point != src);
+        cur.model.posteriors.push(post);
+        Ok(cur.model.clone())
+    }
+
+    pub(super) fn report(
+        &mut self,
+        id: &str,
+        t: Instant,
+        r: crate::Result<InspectorModel>,
+        stage: &str,
+        events: &EventSink,
+    ) {
+        match r {
+            Ok(mut model) => {
+                self.studies.fill(&mut model.plots);
+                model.plots.figure7_pending = self.figure7_possible();
+                let ms = t.elapsed().as_secs_f64() * 1e3;
+                if model.stages.first().is_none_or(|s| s.name != stage) {
+                    model.stages.insert(
+                        0,
+                        StageInfo {
+                            name: stage.into(),
+                            state: StageState::Done,
+                            time_ms: Some(ms),
+                        },
+                    );
+                }
+                let msg = match model.current_pair.and_then(|i| model.pairs.get(i)) {
+                    Some(PairEntry {
+                        rre_deg: Some(r),
+                        rte_m: Some(e),
+                        ..
+                    }) => format!(
+                        "{id}: RRE {r:.2}° RTE {:.1} cm, {} matches, {ms:.0} ms ({stage})",
+                        e * 100.0,
+                        model.matches.len()
+                    ),
+                    _ => format!(
+                        "{id}: registered, {} matches, {ms:.0} ms ({stage})",
+                        model.matches.len()
+                    ),
+                };
+                if let Some(c) = self.current.as_mut() {
+                    c.model = model.clone();
+                    for w in &c.result.warnings {
+                        events.log(LogLevel::Warn, format!("{id}: {w}"));
+                    }
+                }
+                events.log(LogLevel::Info, msg);
+                if let Some(n) = &model.image_branch_note {
+                    let level = if model.generation_missing.is_some()
+                        || model.source_views.is_empty() && self.params.image.is_some()
+                    {
+                        LogLevel::Warn
+                    } else {
+                        LogLevel::Info
+                    };
+                    events.log(level, n.clone());
+                }
+                events.send(WorkerEvent::Model(Box::new(model)));
+            }
+            Err(e) => {
+                let msg = format!("{id}: {e}");
+                if let Some(p) = self.pairs.iter_mut().find(|p| p.id == id) {
+                    p.status = PairStatus::Failed(e.to_string());
+                }
+                let mut model = self.initial_model(Some(id));
+                model.pairs = self.pairs.clone();
+                if let Some(i) = model.current_pair {
+                    model.pairs[i].status = PairStatus::Failed(e.to_string());
+                }
+                model.stages = vec![StageInfo {
+                    name: stage.into(),
+                    state: StageState::Failed(e.to_string()),
+                    time_ms: Some(t.elapsed().as_secs_f64() * 1e3),
+                }];
+                model.image_branch_note = Some(format!("registration failed: {e}"));
+                self.current = None;
+                events.send(WorkerEvent::Model(Box::new(model)));
+                events.log(LogLevel::Error, msg);
+            }
+        }
+    }
+
+    /// The paper's figure 7: precision-recall of the fused matches under Noisy-AND and under
+    /// Noisy-OR (a match is correct within 5 cm under the ground truth, as in appendix D), from
+    /// the kept similarities with the current calibration and selection. None without the
+    /// image branch or ground truth.
+    pub fn fusion_pr_curves(&self) -> Option<Vec<PrCurve>> {
+        let cur = self.current.as_ref()?;
+        let kept = cur.kept.as_ref()?;
+        let sims = kept.sims.as_ref()?;
+        let (s_img, vs, vt) = sims.image.as_ref()?;
+        let gt = cur.pair.gt_target_from_source?;
+        let params = self.params.clone();
+        let sk = &kept.inputs.source_geo.keypoints.points;
+        let tk = &kept.inputs.target_geo.keypoints.points;
+        let curves: Vec<PrCurve> = [
+            (FusionMode::NoisyAnd, "Noisy-AND"),
+            (FusionMode::NoisyOr, "Noisy-OR"),
+        ]
+        .into_iter()
+        .filter_map(|(mode, name)| {
+            let mut f = params.fusion;
+            f.mode = mode;
+            let corr = crate::fusion::match_then_fuse_select(
+                Some((s_img, Some(vs.as_slice()), Some(vt.as_slice()))),
+                Some(&sims.geo),
+                &f,
+            )
+            .ok()?;
+            let matches: Vec<MatchInfo> = corr
+                .iter()
+                .filter_map(|c| {
+                    let (sp, tp) = (sk.get(c.src as usize)?, tk.get(c.tgt as usize)?);
+                    let d = (gt * sp.cast::<f64>() - tp.cast::<f64>()).norm();
+                    Some(MatchInfo {
+                        src: c.src as usize,
+                        tgt: c.tgt as usize,
+                        score: c.score,
+                        inlier_gt: Some(d < FIGURE7_CORRECT_M),
+                        branch: Branch::Both,
+                        survived: None,
+                    })
+                })
+                .collect();
+            pr_curve(&format!("{name} ({} matches)", matches.len()), &matches)
+        })
+        .collect();
+        (curves.len() == 2).then_some(curves)
+    }
+
+    /// Whether [`Self::fusion_pr_curves`] has what it needs (kept image similarity, GT).
+    fn figure7_possible(&self) -> bool {
+        self.current.as_ref().is_some_and(|c| {
+            c.pair.gt_target_from_source.is_some()
+                && c.kept
+                    .as_ref()
+                    .and_then(|k| k.sims.as_ref())
+                    .is_some_and(|s| s.image.is_some())
+        })
+    }
+
+    /// Puts both figure-7 curves into the current model and sends it, once per model.
+    pub(super) fn send_figure7(&mut self, events: &EventSink) {
+        if !self
+            .current
+            .as_ref()
+            .is_some_and(|c| c.model.plots.figure7_pending)
+        {
+            return;
+        }
+        let curves = self.fusion_pr_curves();
+        if let Some(c) = self.current.as_mut() {
+            c.model.plots.figure7_pending = false;
+            if let Some(curves) = curves {
+                c.model.plots.pr_curves = curves;
+            }
+            events.send(WorkerEvent::Model(Box::new(c.model.clone())));
+        }
+    }
+
+    pub(super) fn run_and_report(&mut self, id: &str, generate: bool, events: &EventSink) {
+        events.send(WorkerEvent::Stage(StageInfo {
+            name: "load + register".into(),
+            state: StageState::Running,
+            time_ms: None,
+        }));
+        if let Some(p) = self.pairs.iter_mut().find(|p| p.id == id) {
+            p.status = PairStatus::Running;
+        }
+        let t = Instant::now();
+        let r = self.run_pair_with(id, generate);
+        self.report(id, t, r, "load + register", events);
+    }
+}
