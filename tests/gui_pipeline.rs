@@ -273,6 +273,11 @@ fn worker_runs_the_image_branch_from_the_cache_and_refuses_from_memory() {
         .expect("same image settings: re-fuse from memory")
         .unwrap();
     assert_eq!(m.source_views.len(), 2);
+    // the stage keys were compared and the panel names what the change invalidated
+    assert_eq!(
+        m.stages[0].name,
+        "settings change invalidated: similarity, fusion and estimation"
+    );
     assert!(m
         .stages
         .iter()
@@ -300,6 +305,13 @@ fn worker_runs_the_image_branch_from_the_cache_and_refuses_from_memory() {
     w.set_params(s);
     assert!(w.refuse().is_none(), "a new prompt needs the image stages");
     let m = w.run_pair_with(&id, false).unwrap();
+    assert!(
+        m.stages[0]
+            .name
+            .starts_with("settings change invalidated: generation and "),
+        "{:?}",
+        m.stages[0]
+    );
     assert!(m.generation_missing.is_some());
     assert!(m.source_views.is_empty() && m.target_views.is_empty());
     assert!(m

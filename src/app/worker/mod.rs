@@ -36,6 +36,7 @@ use crate::dataset::ScanPair;
 use crate::fusion::fuse::FusionMode;
 use crate::pipeline::cache::Cache;
 use crate::pipeline::fuse::{FusionInputs, Similarities};
+use crate::pipeline::stages::{StageKeys, StageName};
 use crate::pipeline::{ImageBranchOutput, RegisterParams, RegistrationResult};
 
 pub use model_build::{
@@ -47,8 +48,10 @@ use study::StudyPlots;
 
 /// What a run left in memory for fast re-runs of the stages after it.
 struct Kept {
-    /// The settings that produced `inputs` (image branch, voxel, features), as JSON.
-    signature: String,
+    /// Every stage's cache key for the run that produced `inputs`: a settings change re-uses
+    /// `inputs` only when it changes no key but the fusion stage's (None: keys not computed,
+    /// so any change re-runs through the cache).
+    keys: Option<StageKeys>,
     inputs: Arc<FusionInputs>,
     /// Both similarity matrices (about 2 x 200 MB at 7k keypoints, for the current pair only):
     /// a temperature change then costs fusion + estimate only.
@@ -68,8 +71,24 @@ struct Current {
     kept: Option<Kept>,
 }
 
-fn signature(p: &RegisterParams) -> String {
-    serde_json::to_string(&(p.voxel, &p.geo_features, &p.image)).unwrap_or_default()
+/// The stage-panel row naming what a settings change invalidated, earliest stage first, and
+/// how long comparing the keys took.
+fn invalidated_row(stages: &[StageName], ms: f64) -> StageInfo {
+    let name = match stages {
+        [] => "settings change: no stage key changed".to_string(),
+        [only] => format!("settings change invalidated: {}", only.label()),
+        [first, rest @ ..] => format!(
+            "settings change invalidated: {} and {} later stage{}",
+            first.label(),
+            rest.len(),
+            if rest.len() == 1 { "" } else { "s" }
+        ),
+    };
+    StageInfo {
+        name,
+        state: StageState::Done,
+        time_ms: Some(ms),
+    }
 }
 
 /// The [`Worker`] behind `cgenreg inspect`.
@@ -92,6 +111,8 @@ pub struct PipelineWorker {
     /// Set by the UI thread (WorkerHandle::send(Command::Cancel)) to stop a running study
     /// between pairs; the worker is busy then and reads no commands.
     cancel: Arc<std::sync::atomic::AtomicBool>,
+    /// The stage-panel row of the last settings change that needs a run (shown by that run).
+    invalidated: Option<StageInfo>,
 }
 
 impl PipelineWorker {
@@ -139,6 +160,7 @@ impl PipelineWorker {
             cache_note,
             studies: StudyPlots::default(),
             cancel: Arc::default(),
+            invalidated: None,
         }
     }
 

@@ -8,7 +8,7 @@ use std::time::Instant;
 use super::model_build::{
     default_posterior_point, point_posterior, pr_curve, result_to_model, FIGURE7_CORRECT_M,
 };
-use super::{signature, Current, Kept, PipelineWorker};
+use super::{invalidated_row, Current, Kept, PipelineWorker};
 use crate::app::controls::{EventSink, LogLevel, WorkerEvent};
 use crate::app::model::{
     Branch, InspectorModel, MatchInfo, PairEntry, PairStatus, PrCurve, StageInfo, StageState,
@@ -18,6 +18,7 @@ use crate::fusion::fuse::FusionMode;
 use crate::pipeline::fuse::{fuse_and_finish, similarities, FusionInputs};
 use crate::pipeline::geo::{fpfh_branch, GeoBranch};
 use crate::pipeline::image_branch::register_with_image_keep;
+use crate::pipeline::stages::{StageKeys, StageName};
 use crate::pipeline::RegistrationResult;
 
 /// What [`PipelineWorker::register`] gives: the result, the in-memory stages' inputs (for
@@ -88,7 +89,7 @@ impl PipelineWorker {
             }
         };
         let params = self.params.clone();
-        let sig = signature(&params);
+        let invalidated = self.invalidated.take();
         let Registered {
             result,
             inputs,
@@ -103,8 +104,14 @@ impl PipelineWorker {
         model.generation_missing = missing.clone();
         self.studies.fill(&mut model.plots);
         self.pairs = model.pairs.clone();
+        if let Some(row) = invalidated {
+            model.stages.insert(0, row);
+        }
+        let keys = inputs
+            .as_ref()
+            .and_then(|_| StageKeys::compute(&pair, &params, self.cache.as_deref()).ok());
         let kept = inputs.map(|inputs| Kept {
-            signature: sig,
+            keys,
             sims: similarities(&inputs).ok().map(Arc::new),
             inputs,
             image: result.image.clone(),
@@ -259,13 +266,24 @@ impl PipelineWorker {
     /// changed). None: a full (cached) run is needed.
     pub fn refuse(&mut self) -> Option<crate::Result<InspectorModel>> {
         let params = self.params.clone();
-        let sig = signature(&params);
         let label_settings = self.params.fusion.mode;
+        let cache = self.cache.clone();
         let cur = self.current.as_mut()?;
         let kept = cur.kept.as_ref()?;
-        if kept.signature != sig {
+        // Compare every stage's key under the new settings with the kept run's: the inputs in
+        // memory serve only when nothing before fusion changed.
+        let t0 = Instant::now();
+        let new = StageKeys::compute(&cur.pair, &params, cache.as_deref()).ok();
+        let changed = match (&kept.keys, &new) {
+            (Some(old), Some(new)) => old.invalidated_by(new),
+            _ => StageName::ALL.to_vec(),
+        };
+        let row = invalidated_row(&changed, t0.elapsed().as_secs_f64() * 1e3);
+        if changed.iter().any(|s| *s != StageName::Fusion) {
+            self.invalidated = Some(row);
             return None;
         }
+        // the re-fuse row times the re-fuse alone (the key comparison has its own row)
         let t0 = Instant::now();
         let run = fuse_and_finish(&cur.pair, &params, &kept.inputs, kept.sims.as_deref());
         let mut result = match run {
@@ -294,8 +312,9 @@ impl PipelineWorker {
             })
             .collect();
         stages.append(&mut model.stages);
+        stages.insert(0, row);
         stages.insert(
-            0,
+            1,
             StageInfo {
                 name: "re-fuse from memory".into(),
                 state: StageState::Done,
