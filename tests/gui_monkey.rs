@@ -95,7 +95,16 @@ const KEYS: [egui::Key; 16] = [
     egui::Key::Home,
 ];
 
-const TABS: [&str; 6] = ["Pairs", "Views", "3D", "Posterior", "Plots", "Stages"];
+const TABS: [&str; 8] = [
+    "Pairs",
+    "Views",
+    "3D",
+    "Posterior",
+    "Plots",
+    "Stages",
+    "Compare",
+    "Hypotheses",
+];
 
 #[test]
 fn random_events_never_panic_block_or_wedge_the_worker() {
@@ -115,6 +124,10 @@ fn random_events_never_panic_block_or_wedge_the_worker() {
 
     let manifest =
         Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/manifests/redkitchen-staged.toml");
+    // The export and plot-saving buttons write relative paths (typed at random, too) into the
+    // working directory: make it a scratch folder, never the checkout.
+    let scratch = tempfile::tempdir().unwrap();
+    std::env::set_current_dir(scratch.path()).unwrap();
     let worker = PipelineWorker::open_manifest(&manifest, RegisterParams::default()).unwrap();
     let handle = spawn_worker(Box::new(worker), None);
     let mut app = App::new(InspectorModel::default(), Some(handle), None);

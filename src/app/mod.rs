@@ -11,10 +11,13 @@ pub mod file_browser;
 pub mod headless;
 pub mod hypotheses_panel;
 pub mod model;
+mod open_ui;
 pub mod pairs_panel;
+mod persist;
 pub mod plots_panel;
 pub mod posterior_panel;
 pub mod render3d;
+mod run;
 pub mod stages_panel;
 pub mod view3d;
 pub mod views_panel;
@@ -35,6 +38,10 @@ pub use controls::{
     WorkerEvent, WorkerHandle,
 };
 pub use model::InspectorModel;
+pub use persist::{
+    default_settings_path, load_persisted, save_persisted, startup_commands, Persisted,
+};
+pub use run::{run_gui, run_gui_configured, run_gui_with};
 
 use pairs_panel::PairSort;
 use posterior_panel::PosteriorState;
@@ -208,108 +215,6 @@ impl Shared<'_> {
         }
     }
 }
-
-/// What persists between runs (JSON in the user config dir).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
-pub struct Persisted {
-    /// The pipeline's own parameters (files of the old `settings` form load with defaults).
-    pub params: RegisterParams,
-    /// The image branch's parameters while it is off (restored when a WFM is chosen).
-    pub image_off: ImageBranchParams,
-    pub view3d: View3dPrefs,
-    pub match_mode: MatchColorMode,
-    pub match_count: usize,
-    pub tab: Panel,
-    pub pair_sort: PairSort,
-    pub last_opened: Option<(OpenKind, Vec<PathBuf>)>,
-}
-
-impl Default for Persisted {
-    fn default() -> Self {
-        let ui = UiState::default();
-        Self {
-            params: RegisterParams::default(),
-            image_off: ImageBranchParams::default(),
-            view3d: View3dPrefs::default(),
-            match_mode: ui.match_mode,
-            match_count: ui.match_count,
-            tab: ui.tab,
-            pair_sort: ui.pair_sort,
-            last_opened: None,
-        }
-    }
-}
-
-/// `$XDG_CONFIG_HOME/cgenreg/inspector.json`, else `~/.config/cgenreg/inspector.json`.
-pub fn default_settings_path() -> Option<PathBuf> {
-    let base = std::env::var_os("XDG_CONFIG_HOME")
-        .map(PathBuf::from)
-        .filter(|p| p.is_absolute())
-        .or_else(|| std::env::var_os("HOME").map(|h| PathBuf::from(h).join(".config")))?;
-    Some(base.join("cgenreg").join("inspector.json"))
-}
-
-/// The first commands of an inspector started without an explicit dataset: reopen the data
-/// persisted as last opened in `settings_path` (falling back to `fallback_pair` of the
-/// dataset already loaded when that fails), else register `fallback_pair`.
-pub fn startup_commands(settings_path: Option<&Path>, fallback_pair: &str) -> Vec<Command> {
-    let last = settings_path.and_then(|p| load_persisted(p).0.last_opened);
-    match last {
-        Some((kind, paths)) if !paths.is_empty() && kind != OpenKind::CosmosOutput => {
-            vec![Command::OpenOrFallback {
-                kind,
-                paths,
-                fallback_pair: fallback_pair.to_string(),
-            }]
-        }
-        _ => vec![Command::SelectPair(fallback_pair.to_string())],
-    }
-}
-
-/// Reads persisted settings; a missing or unreadable file gives defaults and a message.
-pub fn load_persisted(path: &Path) -> (Persisted, Option<String>) {
-    match std::fs::read(path) {
-        Ok(b) => match serde_json::from_slice::<Persisted>(&b) {
-            // before the controls edited the pipeline's own parameters, they were stored
-            // under "settings" in a form of their own; the rest of the file still applies
-            Ok(p) if is_old_settings_file(&b) => (
-                p,
-                Some(format!(
-                    "{}: pipeline settings from an older cgenreg were reset to defaults \
-                     (view, colours and last opened data kept)",
-                    path.display()
-                )),
-            ),
-            Ok(p) => (p, None),
-            Err(e) => (
-                Persisted::default(),
-                Some(format!(
-                    "{}: ignored unreadable settings ({e})",
-                    path.display()
-                )),
-            ),
-        },
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => (Persisted::default(), None),
-        Err(e) => (
-            Persisted::default(),
-            Some(format!("{}: {e}", path.display())),
-        ),
-    }
-}
-
-fn is_old_settings_file(bytes: &[u8]) -> bool {
-    serde_json::from_slice::<serde_json::Value>(bytes)
-        .is_ok_and(|v| v.get("settings").is_some() && v.get("params").is_none())
-}
-
-pub fn save_persisted(path: &Path, p: &Persisted) -> Result<(), String> {
-    let bytes = serde_json::to_vec_pretty(p).map_err(|e| e.to_string())?;
-    crate::error::write_atomic(path, &bytes).map_err(|e| e.to_string())
-}
-
-/// A native dialog that answers "cancelled" sooner than this never opened.
-const NO_DIALOG_WITHIN: std::time::Duration = std::time::Duration::from_millis(400);
 
 #[derive(Clone, Debug)]
 pub struct LogLine {
@@ -536,7 +441,7 @@ impl App {
         }
         if let Some((rx, started)) = &self.dialog {
             if let Ok((kind, paths)) = rx.try_recv() {
-                let fast = started.elapsed() < NO_DIALOG_WITHIN;
+                let fast = started.elapsed() < open_ui::NO_DIALOG_WITHIN;
                 self.dialog = None;
                 match paths {
                     Some(paths) if !paths.is_empty() => self.open_paths(kind, paths),
@@ -552,148 +457,6 @@ impl App {
                     _ => self.push_log(LogLevel::Info, "open cancelled"),
                 }
             }
-        }
-    }
-
-    /// Compares two bench runs in the Compare tab (read off the UI thread).
-    pub fn compare_runs(&mut self, a: PathBuf, b: PathBuf) {
-        self.compare.request(a, b);
-        self.ui_state.tab = Panel::Compare;
-    }
-
-    /// What a file dialog or the in-app browser chose: data for the worker, or two runs to
-    /// compare.
-    fn open_paths(&mut self, kind: OpenKind, paths: Vec<PathBuf>) {
-        if kind != OpenKind::Comparison {
-            return self.send(Command::Open { kind, paths });
-        }
-        match <[PathBuf; 2]>::try_from(paths) {
-            Ok([a, b]) => self.compare_runs(a, b),
-            Err(p) => self.push_log(
-                LogLevel::Error,
-                format!(
-                    "compare runs: choose two bench JSONs (run A, then run B), got {}",
-                    p.len()
-                ),
-            ),
-        }
-    }
-
-    /// Carries out what the Compare tab asked for.
-    fn compare_action(
-        &mut self,
-        action: compare_panel::CompareAction,
-        commands: &mut Vec<Command>,
-        open_request: &mut Option<OpenKind>,
-    ) {
-        use compare_panel::CompareAction;
-        match action {
-            CompareAction::Browse => *open_request = Some(OpenKind::Comparison),
-            CompareAction::OpenManifest(m) => commands.push(Command::Open {
-                kind: OpenKind::Manifest,
-                paths: vec![m],
-            }),
-            CompareAction::Open(side, pair) => {
-                let Some(l) = &self.compare.loaded else {
-                    return;
-                };
-                let run = l.run(side);
-                match &run.params {
-                    Ok(p) => {
-                        let text = format!(
-                            "{pair}: opening with run {}'s settings ({})",
-                            side.label(),
-                            run.path.display()
-                        );
-                        self.params = p.clone();
-                        commands.push(Command::OpenPairWith {
-                            pair,
-                            params: p.clone(),
-                        });
-                        self.push_log(LogLevel::Info, text);
-                        self.ui_state.tab = Panel::Views;
-                    }
-                    Err(e) => self.push_log(LogLevel::Error, e.clone()),
-                }
-            }
-        }
-    }
-
-    /// The in-app browser, starting where the last opened data lies.
-    pub fn open_browser(&mut self, kind: OpenKind) {
-        let start = self
-            .last_opened
-            .as_ref()
-            .and_then(|(_, p)| p.first().cloned());
-        self.browser = Some(file_browser::FileBrowser::new(kind, start.as_deref()));
-    }
-
-    /// Native dialog on a thread (the UI keeps running while it is open); the in-app
-    /// browser where native dialogs are refused or unavailable.
-    fn open_dialog(&mut self, kind: OpenKind, ctx: &egui::Context) {
-        if self.dialog.is_some() {
-            return;
-        }
-        if !self.allow_dialogs || self.builtin_browser {
-            self.open_browser(kind);
-            return;
-        }
-        let (tx, rx) = channel();
-        self.dialog = Some((rx, std::time::Instant::now()));
-        let ctx = ctx.clone();
-        let spawned = std::thread::Builder::new()
-            .name("cgenreg-dialog".into())
-            .spawn(move || {
-                let fut = async move {
-                    let d = rfd::AsyncFileDialog::new();
-                    if kind.wants_folder() {
-                        d.pick_folder().await.map(|h| vec![h.path().to_path_buf()])
-                    } else if kind == OpenKind::Comparison {
-                        d.add_filter("bench JSON (run A, then run B)", &["json"])
-                            .pick_files()
-                            .await
-                            .map(|v| v.iter().map(|h| h.path().to_path_buf()).collect())
-                    } else if kind == OpenKind::TwoClouds {
-                        // a third file may be the 4x4 ground truth (.txt / gt.npy)
-                        d.add_filter(
-                            "point clouds (+ GT .txt)",
-                            &["ply", "pcd", "xyz", "npy", "bin", "pth", "txt"],
-                        )
-                        .pick_files()
-                        .await
-                        .map(|v| v.iter().map(|h| h.path().to_path_buf()).collect())
-                    } else {
-                        d.add_filter("manifest", &["json", "toml", "txt"])
-                            .pick_file()
-                            .await
-                            .map(|h| vec![h.path().to_path_buf()])
-                    }
-                };
-                let r = block_on(fut);
-                let _ = tx.send((kind, r));
-                ctx.request_repaint();
-            });
-        if spawned.is_err() {
-            self.dialog = None;
-            self.push_log(LogLevel::Error, "could not start the file dialog thread");
-        }
-    }
-
-    fn handle_drops(&mut self, ctx: &egui::Context) {
-        let dropped: Vec<PathBuf> = ctx.input(|i| {
-            i.raw
-                .dropped_files
-                .iter()
-                .map(|f| f.path().to_path_buf())
-                .filter(|p| !p.as_os_str().is_empty())
-                .collect()
-        });
-        if !dropped.is_empty() {
-            let kind = classify_drop(&dropped);
-            self.send(Command::Open {
-                kind,
-                paths: dropped,
-            });
         }
     }
 
@@ -1039,138 +802,5 @@ fn short(c: &Command) -> String {
         )
     } else {
         s
-    }
-}
-
-/// Minimal executor for rfd's async dialog (it resolves on its own thread).
-fn block_on<F: std::future::Future>(fut: F) -> F::Output {
-    use std::task::{Context, Poll, Wake, Waker};
-    struct ThreadWaker(std::thread::Thread);
-    impl Wake for ThreadWaker {
-        fn wake(self: Arc<Self>) {
-            self.0.unpark();
-        }
-    }
-    let waker = Waker::from(Arc::new(ThreadWaker(std::thread::current())));
-    let mut cx = Context::from_waker(&waker);
-    let mut fut = std::pin::pin!(fut);
-    loop {
-        match fut.as_mut().poll(&mut cx) {
-            Poll::Ready(v) => return v,
-            Poll::Pending => std::thread::park(),
-        }
-    }
-}
-
-struct EframeApp(App);
-
-impl eframe::App for EframeApp {
-    fn ui(&mut self, ui: &mut egui::Ui, _frame: &mut eframe::Frame) {
-        self.0.show(ui);
-    }
-    fn on_exit(&mut self, _gl: Option<&eframe::glow::Context>) {
-        // the GL context is still current here; free the 3D buffers before it goes
-        render3d::release_gl(None);
-    }
-}
-
-/// Opens the inspector window (blocks until it is closed).
-pub fn run_gui(model: InspectorModel, worker: Box<dyn Worker>) -> Result<(), String> {
-    run_gui_with(model, worker, Vec::new(), None)
-}
-
-/// [`run_gui`], sending `initial` commands to the worker once it runs (e.g. the pair to load).
-///
-/// One set of pipeline settings is in force, and the controls show it: `worker_settings`
-/// (what the worker was started with, e.g. from command-line options) when given, else the
-/// persisted settings, which are then sent to the worker before `initial`.
-pub fn run_gui_with(
-    model: InspectorModel,
-    worker: Box<dyn Worker>,
-    initial: Vec<Command>,
-    worker_settings: Option<RegisterParams>,
-) -> Result<(), String> {
-    run_gui_configured(model, worker, initial, worker_settings, |_| {})
-}
-
-/// [`run_gui_with`], with the app configured before the first frame (e.g. two runs to
-/// compare, [`App::compare_runs`]).
-pub fn run_gui_configured(
-    model: InspectorModel,
-    worker: Box<dyn Worker>,
-    initial: Vec<Command>,
-    worker_settings: Option<RegisterParams>,
-    configure: impl FnOnce(&mut App) + 'static,
-) -> Result<(), String> {
-    let options = eframe::NativeOptions {
-        renderer: eframe::Renderer::Glow,
-        depth_buffer: 24,
-        viewport: egui::ViewportBuilder::default()
-            .with_inner_size([1400.0, 900.0])
-            .with_title("C-GenReg inspector")
-            .with_drag_and_drop(true),
-        ..Default::default()
-    };
-    eframe::run_native(
-        "cgenreg inspector",
-        options,
-        Box::new(move |cc| {
-            // a missing glyph (e.g. in a user's prompt) must draw a box, never abort
-            cc.egui_ctx
-                .set_missing_glyph_policy(egui::MissingGlyphPolicy::Tofu);
-            let handle = spawn_worker(worker, Some(cc.egui_ctx.clone()));
-            let mut app = App::new(model, None, default_settings_path());
-            match worker_settings {
-                Some(s) => app.params = s,
-                None => {
-                    handle.send(Command::ApplySettings(app.params.clone()));
-                }
-            }
-            for c in initial {
-                handle.send(c);
-            }
-            app.worker = Some(handle);
-            configure(&mut app);
-            Ok(Box::new(EframeApp(app)))
-        }),
-    )
-    .map_err(|e| format!("could not open the inspector window: {e}"))
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn settings_persist_round_trip_and_bad_file_gives_defaults() {
-        let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("cfg").join("inspector.json");
-        let mut p = Persisted::default();
-        p.image_off.k = 5;
-        p.match_mode = MatchColorMode::Confidence;
-        p.last_opened = Some((OpenKind::TwoClouds, vec!["a.ply".into(), "b.ply".into()]));
-        save_persisted(&path, &p).unwrap();
-        let (q, err) = load_persisted(&path);
-        assert!(err.is_none());
-        assert_eq!(p, q);
-        // a file of the old form: the pipeline settings reset, the rest kept, said so
-        std::fs::write(
-            &path,
-            br#"{"settings": {"k": 5, "wfm": "Oracle"}, "match_count": 7}"#,
-        )
-        .unwrap();
-        let (q, err) = load_persisted(&path);
-        assert_eq!(q.params, RegisterParams::default());
-        assert_eq!(q.match_count, 7);
-        assert!(err.unwrap().contains("older cgenreg"));
-        std::fs::write(&path, b"{not json").unwrap();
-        let (q, err) = load_persisted(&path);
-        assert_eq!(q, Persisted::default());
-        assert!(err.unwrap().contains("inspector.json"));
-        // the app reads the file at start
-        save_persisted(&path, &p).unwrap();
-        let app = App::new(InspectorModel::demo(), None, Some(path));
-        assert_eq!(app.image_off.k, 5);
-        assert_eq!(app.ui_state.match_mode, MatchColorMode::Confidence);
     }
 }
