@@ -330,6 +330,10 @@ impl PipelineWorker {
         self.pairs = model.pairs.clone();
         cur.model = model;
         cur.result = result;
+        // the next change is compared with these settings, not the first run's
+        if let Some(k) = cur.kept.as_mut() {
+            k.keys = new;
+        }
         Some(Ok(self.with_default_posterior()))
     }
 
