@@ -274,9 +274,17 @@ fn worker_runs_the_image_branch_from_the_cache_and_refuses_from_memory() {
         .unwrap();
     assert_eq!(m.source_views.len(), 2);
     // the stage keys were compared and the panel names what the change invalidated
+    assert_eq!(m.stages[0].name, "re-fuse from memory");
     assert_eq!(
-        m.stages[0].name,
+        m.stages[1].name,
         "settings change invalidated: similarity, fusion and estimation"
+    );
+    assert_eq!(
+        m.stages
+            .iter()
+            .filter(|s| s.name.starts_with("settings change"))
+            .count(),
+        1
     );
     assert!(m
         .stages

@@ -303,7 +303,7 @@ impl PipelineWorker {
                 !matches!(
                     s.name.as_str(),
                     "similarity" | "fusion" | "estimate" | "similarity+fusion"
-                )
+                ) && !s.name.starts_with("settings change")
             })
             .map(|s| StageInfo {
                 name: s.name.clone(),
@@ -312,15 +312,16 @@ impl PipelineWorker {
             })
             .collect();
         stages.append(&mut model.stages);
-        stages.insert(0, row);
+        // "re-fuse from memory" first: `report` adds no second row of that name
         stages.insert(
-            1,
+            0,
             StageInfo {
                 name: "re-fuse from memory".into(),
                 state: StageState::Done,
                 time_ms: Some(t0.elapsed().as_secs_f64() * 1e3),
             },
         );
+        stages.insert(1, row);
         model.stages = stages;
         if result.image.is_some() || kept.note.is_some() {
             model.image_branch_note = kept.note.clone();
