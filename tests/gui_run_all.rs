@@ -1,5 +1,5 @@
 //! "Run all" through the worker on the staged 7-Scenes redkitchen pairs, geometry only (FPFH
-//! + the default estimator): `Command::RunAll` fills every row of the pair browser with the
+//! and the default estimator): `Command::RunAll` fills every row of the pair browser with the
 //! metrics that running that pair alone gives, leaves the current pair as it was, and Cancel
 //! stops it between pairs.
 #![cfg(feature = "gui")]
