@@ -9,6 +9,8 @@
 //! `docs/reliability.md`; `CGENREG_CAMPAIGN_TABLE=FILE` also writes it to FILE.
 #![cfg(feature = "onnx")]
 
+mod common;
+
 use cgenreg::dataset::fragment_cache::FragmentCacheStatus;
 use cgenreg::dataset::Dataset;
 use cgenreg::pipeline::cache::Cache;
@@ -195,14 +197,8 @@ fn run(ds: &Dataset, id: &str, cloud_only: bool, p: &RegisterParams, cache: &Cac
 
 /// Same pose and correspondences: nothing from the damaged entry was used.
 fn same_result(a: &RegistrationResult, b: &RegistrationResult) -> bool {
-    let d = a
-        .target_from_source
-        .iter()
-        .flatten()
-        .zip(b.target_from_source.iter().flatten())
-        .map(|(x, y)| (x - y).abs())
-        .fold(0.0, f64::max);
-    d < 1e-9 && a.correspondences == b.correspondences
+    common::pose_max_diff(&a.target_from_source, &b.target_from_source) < 1e-9
+        && a.correspondences == b.correspondences
 }
 
 fn manifest_text(root: &Path, count: usize) -> String {

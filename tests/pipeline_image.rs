@@ -275,13 +275,7 @@ fn fuse_from_kept_similarities_equals_full_tail() {
                 a.metrics.as_ref().map(|m| m.rre_deg),
                 b.metrics.as_ref().map(|m| m.rre_deg)
             );
-            let d = a
-                .target_from_source
-                .iter()
-                .flatten()
-                .zip(b.target_from_source.iter().flatten())
-                .map(|(x, y)| (x - y).abs())
-                .fold(0.0, f64::max);
+            let d = common::pose_max_diff(&a.target_from_source, &b.target_from_source);
             assert!(d < 1e-6, "poses differ by {d}");
         }
     }

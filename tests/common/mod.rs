@@ -27,6 +27,15 @@ pub fn demo_params(backend: WfmSpec) -> RegisterParams {
     }
 }
 
+/// The largest absolute difference between two 4x4 poses' entries (row-major `[[f64; 4]; 4]`).
+pub fn pose_max_diff(a: &[[f64; 4]; 4], b: &[[f64; 4]; 4]) -> f64 {
+    a.iter()
+        .flatten()
+        .zip(b.iter().flatten())
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f64::max)
+}
+
 /// JSON equality where numbers may differ by a relative 1e-12: the pipeline's parallel
 /// reductions were once seen to move an RRE by 1 ulp between two runs of the same pair
 /// under heavy load (the same binary, the same inputs), so bit-for-bit equality of two
