@@ -10,8 +10,12 @@
 # The seed corpus is rebuilt at run time into fuzz/corpus/TARGET from generated seeds and
 # small excerpts of $CGENREG_DATA (default ../shared/data); the data set is never copied.
 # Crashes go to fuzz/artifacts/TARGET/. Prints one line per target:
-#   TARGET engine=E executions=N crashes=K seconds=S
-# Exits 1 if any target crashed. Extra libFuzzer flags: FUZZ_FLAGS="-max_len=65536 ...".
+#   TARGET engine=E executions=N exec_per_s=R cov=C ft=F corpus=U peak_rss_mb=M crashes=K seconds=S rc=RC
+# (cov/ft: libFuzzer's edge coverage and feature counts at the end of the run).
+# Exits 1 if any target crashed. Extra libFuzzer flags: FUZZ_FLAGS="-max_len=65536 ...";
+# FUZZ_RUNS=N stops a target after N executions (or SECONDS, whichever comes first);
+# FUZZ_BUILD=0 skips the build.
+# Needs a C++ compiler for libFuzzer (scripts/setup.sh installs g++ when it is missing).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 TARGET=${1:?usage: scripts/fuzz.sh TARGET|all SECONDS}
@@ -28,7 +32,12 @@ if [ "$ENGINE" = libfuzzer ]; then
 -Cllvm-args=-sanitizer-coverage-inline-8bit-counters -Cllvm-args=-sanitizer-coverage-pc-table \
 -Cllvm-args=-sanitizer-coverage-trace-compares --cfg fuzzing -Cdebug-assertions -Coverflow-checks"
   # --target keeps the instrumentation off build scripts and proc macros.
-  cargo build --release --manifest-path fuzz/Cargo.toml --target "$HOST" --bins
+  command -v "${CXX:-c++}" >/dev/null 2>&1 || {
+    echo "fuzz.sh: no C++ compiler (${CXX:-c++}) for libFuzzer; run scripts/setup.sh or use FUZZ_ENGINE=mutation" >&2
+    exit 2
+  }
+  # FUZZ_BUILD=0 reuses the binaries already in fuzz/target (a long run while sources change).
+  [ "${FUZZ_BUILD:-1}" = 0 ] || cargo build --release --manifest-path fuzz/Cargo.toml --target "$HOST" --bins
   BIN=fuzz/target/$HOST/release
   for t in $TARGETS; do
     mkdir -p "fuzz/corpus/$t" "fuzz/artifacts/$t"
@@ -36,13 +45,22 @@ if [ "$ENGINE" = libfuzzer ]; then
     log="fuzz/artifacts/$t/last.log"
     set +e
     "$BIN/$t" -max_total_time="$SECS" -timeout=10 -rss_limit_mb=2048 -max_len=1048576 \
-      -print_final_stats=1 -artifact_prefix="fuzz/artifacts/$t/" ${FUZZ_FLAGS:-} \
-      "fuzz/corpus/$t" >"$log" 2>&1
+      -print_final_stats=1 -artifact_prefix="fuzz/artifacts/$t/" ${FUZZ_RUNS:+-runs=$FUZZ_RUNS} \
+      ${FUZZ_FLAGS:-} "fuzz/corpus/$t" >"$log" 2>&1
     rc=$?
     set -e
-    runs=$(sed -n 's/^stat::number_of_executed_units: *//p' "$log" | tail -1)
+    stat() { sed -n "s/^stat::$1: *//p" "$log" | tail -1; }
+    runs=$(stat number_of_executed_units)
+    rate=$(stat average_exec_per_sec)
+    rss=$(stat peak_rss_mb)
+    # The last status line: "#N DONE cov: C ft: F corp: U/..." (or the last pulse/NEW line).
+    last=$(grep -E '^#[0-9]+' "$log" | tail -1)
+    cov=$(sed -n 's/.* cov: \([0-9]*\).*/\1/p' <<<"$last")
+    ft=$(sed -n 's/.* ft: \([0-9]*\).*/\1/p' <<<"$last")
+    corp=$(sed -n 's/.* corp: \([0-9]*\).*/\1/p' <<<"$last")
     crashes=$(ls "fuzz/artifacts/$t" | grep -c -E '^(crash|timeout|oom|leak)-' || true)
-    echo "$t engine=libfuzzer executions=${runs:-?} crashes=$crashes seconds=$SECS rc=$rc"
+    echo "$t engine=libfuzzer executions=${runs:-?} exec_per_s=${rate:-?} cov=${cov:-?} ft=${ft:-?}" \
+      "corpus=${corp:-?} peak_rss_mb=${rss:-?} crashes=$crashes seconds=$SECS rc=$rc"
     if [ "$rc" -ne 0 ] || [ "$crashes" -ne 0 ]; then status=1; tail -30 "$log"; fi
   done
 else

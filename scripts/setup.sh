@@ -1,13 +1,16 @@
 #!/usr/bin/env bash
 # Installs what cgenreg's tests and GUI need at run time on a fresh Debian machine:
 # ffmpeg (test fixtures: libx264 / mpeg4 mp4s), Mesa's software EGL/GL (headless screenshots
-# and GUI snapshot tests), Slurm and munge (tests/slurm.rs starts a single-node Slurm with
-# scripts/slurm-local.sh), and the native ONNX Runtime from PyPI (faster VFM; the pure-Rust
-# backend is used when it is absent). Safe to run twice.
+# and GUI snapshot tests), g++ (libFuzzer, for scripts/fuzz.sh), Slurm and munge
+# (tests/slurm.rs starts a single-node Slurm with scripts/slurm-local.sh), and the native
+# ONNX Runtime from PyPI (faster VFM; the pure-Rust backend is used when it is absent).
+# Safe to run twice.
 set -euo pipefail
 
 need_apt=()
 command -v ffmpeg >/dev/null 2>&1 || need_apt+=(ffmpeg)
+# g++: libfuzzer-sys compiles libFuzzer (C++) for scripts/fuzz.sh's coverage-guided targets.
+command -v c++ >/dev/null 2>&1 || need_apt+=(g++)
 for pkg in libegl1 libegl-mesa0 libgl1-mesa-dri libgles2 libgl1 slurm-wlm munge; do
   dpkg -s "$pkg" >/dev/null 2>&1 || need_apt+=("$pkg")
 done

@@ -1,7 +1,12 @@
 //! Write the seed corpus of one fuzz target (generated seeds plus small excerpts of the
 //! staged data at `$CGENREG_DATA`): `seeds TARGET DIR`.
+//!
+//! Built with the targets' sanitizer-coverage flags, so it must link libFuzzer (which
+//! defines the `__sanitizer_cov_*` callbacks); libFuzzer's `main` runs the `init` block
+//! first, which writes the seeds and exits before any fuzzing starts.
+#![no_main]
 
-fn main() {
+fn write_seeds() {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let [target, dir] = &args[..] else {
         eprintln!("usage: seeds TARGET DIR");
@@ -10,10 +15,20 @@ fn main() {
     let data = std::env::var_os("CGENREG_DATA")
         .map(std::path::PathBuf::from)
         .filter(|p| p.is_dir());
-    std::fs::create_dir_all(dir).expect("create the corpus folder");
+    if let Err(e) = std::fs::create_dir_all(dir) {
+        eprintln!("seeds: cannot create {dir}: {e}");
+        std::process::exit(1);
+    }
     let seeds = cgenreg::io::fuzz_targets::seeds(target, data.as_deref());
     for (name, bytes) in &seeds {
-        std::fs::write(std::path::Path::new(dir).join(name), bytes).expect("write a seed");
+        let p = std::path::Path::new(dir).join(name);
+        if let Err(e) = std::fs::write(&p, bytes) {
+            eprintln!("seeds: cannot write {}: {e}", p.display());
+            std::process::exit(1);
+        }
     }
     println!("{target}: {} seeds in {dir}", seeds.len());
+    std::process::exit(0)
 }
+
+libfuzzer_sys::fuzz_target!(init: write_seeds(), |_data: &[u8]| {});
