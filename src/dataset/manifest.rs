@@ -365,7 +365,14 @@ impl Dataset {
     /// Load a manifest, with `root` (when given) replacing the manifest's `root` field.
     pub fn load_with_root(path: &Path, root: Option<&Path>) -> Result<Dataset> {
         let text = crate::io::limits::read_text(path)?;
-        let raw: RawManifest = toml::from_str(&text).map_err(|e| {
+        Self::parse_with_root(path, &text, root)
+    }
+
+    /// Parse manifest `text` as if read from `path` (errors name it; relative paths resolve
+    /// against its folder or `root`). [`Dataset::load_with_root`] without the file read; the
+    /// fuzz target calls it on bytes in memory.
+    pub fn parse_with_root(path: &Path, text: &str, root: Option<&Path>) -> Result<Dataset> {
+        let raw: RawManifest = toml::from_str(text).map_err(|e| {
             bad(
                 path,
                 "toml",
