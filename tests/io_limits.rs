@@ -390,3 +390,118 @@ fn deeply_nested_toml_and_json_are_errors_not_stack_overflows() {
     .to_string();
     assert!(e.contains("deep.jsonl") && e.contains("recursion"), "{e}");
 }
+
+// ---------------------------------------------------------------------------------------
+// Inputs found by libFuzzer (scripts/fuzz.sh, docs/reliability.md section 3)
+// ---------------------------------------------------------------------------------------
+
+thread_local! {
+    static PANICS: std::cell::Cell<usize> = const { std::cell::Cell::new(0) };
+}
+
+/// Run `f` and fail if it panicked anywhere on this thread, even if the panic was caught
+/// inside (the readers wrap third-party demuxers in `catch_unwind`; libFuzzer aborts on any
+/// panic, caught or not, and so does this check).
+fn without_panics<T>(f: impl FnOnce() -> T) -> T {
+    static HOOK: std::sync::Once = std::sync::Once::new();
+    HOOK.call_once(|| {
+        let prev = std::panic::take_hook();
+        std::panic::set_hook(Box::new(move |info| {
+            PANICS.with(|p| p.set(p.get() + 1));
+            prev(info);
+        }));
+    });
+    let before = PANICS.with(|p| p.get());
+    let out = f();
+    let after = PANICS.with(|p| p.get());
+    assert_eq!(
+        after, before,
+        "the reader panicked (caught inside) on this input"
+    );
+    out
+}
+
+fn decode_no_panic(b: Vec<u8>) -> cgenreg::Result<Vec<image::RgbImage>> {
+    within(20, move || {
+        without_panics(|| video::decode_mp4_frames(Path::new("v.mp4"), b))
+    })
+}
+
+/// libFuzzer's first mp4 crash (`crash-fa67e642...`, 939 bytes, found in 10 s): an `stsc`
+/// entry with 0 samples per chunk made the `mp4` crate divide by zero in `sample_offset`
+/// (caught by the reader's `catch_unwind`, but a panic all the same).
+#[test]
+fn mp4_fuzz_crash_stsc_zero_samples_per_chunk() {
+    let b = std::fs::read(
+        Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("tests/fixtures/fuzz/mp4-stsc-crash-fa67e642.mp4"),
+    )
+    .unwrap();
+    assert_eq!(b.len(), 939);
+    let e = decode_no_panic(b).unwrap_err().to_string();
+    assert!(
+        e.contains("v.mp4") && e.contains("mp4 sample table") && e.contains("samples per chunk"),
+        "{e}"
+    );
+}
+
+/// Every sample-table field the `mp4` crate uses unchecked, damaged one at a time in a
+/// valid file: each is an error naming the table, with no panic inside the demuxer.
+#[test]
+fn mp4_damaged_sample_tables_are_errors_without_panics() {
+    let (_, good) = test_mp4(3);
+    let be = |v: u32| v.to_be_bytes();
+    // stsc: size, type, version/flags, entry count, then (first_chunk, per_chunk, desc).
+    let stsc = find_box(&good, b"stsc") + 16;
+    // stts: size, type, version/flags, entry count, then (count, delta).
+    let stts = find_box(&good, b"stts") + 16;
+    // stsz: size, type, version/flags, sample_size, sample_count, then per-sample sizes.
+    let stsz = find_box(&good, b"stsz") + 8;
+    let cases: Vec<(&str, usize, [u8; 4], &str)> = vec![
+        (
+            "stsc samples per chunk 0",
+            stsc + 4,
+            be(0),
+            "samples per chunk",
+        ),
+        ("stsc first chunk 0", stsc, be(0), "first chunk"),
+        ("stts covers no sample", stts, be(0), "stts gives times"),
+    ];
+    for (what, at, bytes, needle) in cases {
+        let mut b = good.clone();
+        b[at..at + 4].copy_from_slice(&bytes);
+        let e = decode_no_panic(b).unwrap_err().to_string();
+        assert!(
+            e.contains("v.mp4") && e.contains("mp4 sample table") && e.contains(needle),
+            "{what}: {e}"
+        );
+    }
+    // A per-sample size of 4 GB (the crate allocates it before reading).
+    let size = u32::from_be_bytes(good[stsz + 4..stsz + 8].try_into().unwrap());
+    if size == 0 {
+        let mut b = good.clone();
+        b[stsz + 12..stsz + 16].copy_from_slice(&be(0xFFFF_FFF0));
+        let e = decode_no_panic(b).unwrap_err().to_string();
+        assert!(e.contains("stsz sample size"), "{e}");
+    }
+}
+
+/// `probe_mp4` with a zero mdhd timescale: the crate's `frame_rate` divides by it.
+#[test]
+fn mp4_probe_with_zero_timescale_reports_no_rate_without_panics() {
+    let (frames, good) = test_mp4(3);
+    let mut b = good.clone();
+    // mdhd version 0: size, type, version/flags, creation, modification, timescale.
+    let at = find_box(&b, b"mdhd") + 20;
+    b[at..at + 4].copy_from_slice(&0u32.to_be_bytes());
+    let d = tempfile::tempdir().unwrap();
+    let p = d.path().join("ts0.mp4");
+    std::fs::write(&p, &b).unwrap();
+    let info = without_panics(|| video::probe_mp4(&p)).unwrap();
+    assert_eq!(info.frame_count as usize, frames.len());
+    assert_eq!(info.fps, 0.0);
+    // The good file's rate is unchanged by the checked computation.
+    let q = d.path().join("good.mp4");
+    std::fs::write(&q, &good).unwrap();
+    assert_eq!(video::probe_mp4(&q).unwrap().fps, 30.0);
+}

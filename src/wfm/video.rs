@@ -471,12 +471,26 @@ pub fn probe_mp4(path: &Path) -> Result<VideoInfo> {
     let bytes = as_avc1(bytes);
     let reader = open_reader(path, &bytes)?;
     let track = h264_track(path, &reader)?;
+    let frame_count = check_sample_table(track, bytes.len() as u64)
+        .map_err(|e| Error::format(path, "mp4 sample table", "a consistent sample table", e))?;
+    // The crate's `frame_rate` divides by the timescale unchecked (0 in a damaged mdhd)
+    // and multiplies the duration into overflow: the same value (frames per whole
+    // millisecond of duration, truncated), computed checked.
+    let mdhd = &track.trak.mdia.mdhd;
+    let dur_msec = (mdhd.duration as u128 * 1000)
+        .checked_div(mdhd.timescale as u128)
+        .unwrap_or(0);
+    let fps = if dur_msec > 0 {
+        (frame_count as u128 * 1000 / dur_msec) as f64
+    } else {
+        0.0
+    };
     Ok(VideoInfo {
         codec,
         width: track.width() as u32,
         height: track.height() as u32,
-        frame_count: track.sample_count(),
-        fps: track.frame_rate(),
+        frame_count,
+        fps,
     })
 }
 
@@ -501,6 +515,88 @@ fn open_reader<'a>(path: &Path, bytes: &'a [u8]) -> Result<mp4::Mp4Reader<Cursor
     std::panic::catch_unwind(|| mp4::Mp4Reader::read_header(Cursor::new(bytes), len))
         .map_err(|_| bad("a file the demuxer could not parse".into()))?
         .map_err(|e| bad(e.to_string()))
+}
+
+/// Check the sample tables of `track` before the demuxer follows them: the `mp4` crate
+/// divides by `samples_per_chunk`, subtracts 1 from chunk numbers, unwraps the `stts` entry
+/// of each sample, adds chunk offsets to sample offsets and allocates each sample's declared
+/// size, all unchecked. A table that would make it panic or allocate more than the file
+/// holds is refused here (the `catch_unwind` around the demuxer stays as a second line).
+/// Returns the sample count.
+fn check_sample_table(track: &mp4::Mp4Track, file_len: u64) -> std::result::Result<u32, String> {
+    let stbl = &track.trak.mdia.minf.stbl;
+    let too_big =
+        |what: &str, v: u64| format!("{what} {v} is more than the {file_len}-byte file holds");
+    if !track.trafs.is_empty() {
+        // Fragmented file: the crate sums the trun counts with `expect`, divides the count
+        // by the number of fragments and multiplies sample numbers by the default duration.
+        let mut count = 0u32;
+        for trun in track.trafs.iter().filter_map(|t| t.trun.as_ref()) {
+            count = count
+                .checked_add(trun.sample_count)
+                .ok_or("trun sample counts overflow 32 bits")?;
+            if let Some(&z) = trun.sample_sizes.iter().find(|&&z| z as u64 > file_len) {
+                return Err(too_big("trun sample size", z as u64));
+            }
+        }
+        if (count as usize) < track.trafs.len() {
+            return Err(format!(
+                "{} fragments hold {count} samples (fewer than one each)",
+                track.trafs.len()
+            ));
+        }
+        if count
+            .checked_sub(1)
+            .and_then(|n| n.checked_mul(track.default_sample_duration))
+            .is_none()
+        {
+            return Err(format!(
+                "{count} samples of default duration {} overflow 32 bits",
+                track.default_sample_duration
+            ));
+        }
+        return Ok(count);
+    }
+    let count = stbl.stsz.sample_count;
+    if let Some(&z) = stbl
+        .stsz
+        .sample_sizes
+        .iter()
+        .find(|&&z| z as u64 > file_len)
+    {
+        return Err(too_big("stsz sample size", z as u64));
+    }
+    if stbl.stsz.sample_size as u64 > file_len {
+        return Err(too_big("stsz sample size", stbl.stsz.sample_size as u64));
+    }
+    if let Some(e) = stbl
+        .stsc
+        .entries
+        .iter()
+        .find(|e| e.samples_per_chunk == 0 || e.first_chunk == 0)
+    {
+        return Err(format!(
+            "stsc entry (first chunk {}, {} samples per chunk) needs both at least 1",
+            e.first_chunk, e.samples_per_chunk
+        ));
+    }
+    if let Some(co64) = &stbl.co64 {
+        if let Some(&o) = co64.entries.iter().find(|&&o| o > file_len) {
+            return Err(too_big("co64 chunk offset", o));
+        }
+    }
+    // Every sample needs its stts entry (the crate unwraps it).
+    let timed = stbl
+        .stts
+        .entries
+        .iter()
+        .fold(0u64, |a, e| a + e.sample_count as u64);
+    if timed < count as u64 {
+        return Err(format!(
+            "stts gives times for {timed} samples, the track has {count}"
+        ));
+    }
+    Ok(count)
 }
 
 fn h264_track<'r>(
@@ -556,7 +652,8 @@ pub fn decode_mp4_frames(path: &Path, bytes: Vec<u8>) -> Result<Vec<RgbImage>> {
         .as_ref()
         .map(|a| a.avcc.clone())
         .ok_or_else(|| Error::format(path, "avc1/avcC", "an avcC box", "none"))?;
-    let count = track.sample_count();
+    let count = check_sample_table(track, bytes.len() as u64)
+        .map_err(|e| Error::format(path, "mp4 sample table", "a consistent sample table", e))?;
     // Decoded frames must fit the decoded-size limit (checked before decoding anything).
     let (w, h) = (track.width() as u64, track.height() as u64);
     crate::io::limits::check_decoded(
@@ -618,7 +715,10 @@ pub fn h264_access_units(bytes: &[u8]) -> Option<Vec<Vec<u8>>> {
     let bytes = as_avc1(bytes.to_vec());
     let mut reader = open_reader(Path::new("mp4"), &bytes).ok()?;
     let track = h264_track(Path::new("mp4"), &reader).ok()?;
-    let (id, count) = (track.track_id(), track.sample_count());
+    let (id, count) = (
+        track.track_id(),
+        check_sample_table(track, bytes.len() as u64).ok()?,
+    );
     let avcc = track.trak.mdia.minf.stbl.stsd.avc1.as_ref()?.avcc.clone();
     let len_size = (avcc.length_size_minus_one & 3) as usize + 1;
     let mut out: Vec<Vec<u8>> = avcc
