@@ -13,6 +13,7 @@ pub mod hypotheses_panel;
 pub mod model;
 mod open_ui;
 pub mod pairs_panel;
+pub mod path_display;
 mod persist;
 pub mod plots_panel;
 pub mod posterior_panel;

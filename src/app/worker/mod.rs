@@ -31,6 +31,7 @@ use std::time::Instant;
 
 use super::controls::{Command, EventSink, LogLevel, Worker, WorkerEvent};
 use super::model::{InspectorModel, PairEntry, PairStatus, StageInfo, StageState};
+use super::stages_panel::StageRole;
 use crate::dataset::manifest::Dataset;
 use crate::dataset::ScanPair;
 use crate::fusion::fuse::FusionMode;
@@ -88,6 +89,7 @@ fn invalidated_row(stages: &[StageName], ms: f64) -> StageInfo {
         name,
         state: StageState::Done,
         time_ms: Some(ms),
+        role: StageRole::Stage,
     }
 }
 
@@ -193,6 +195,7 @@ impl PipelineWorker {
                 name: "load + register".into(),
                 state: StageState::Running,
                 time_ms: None,
+                role: StageRole::Container,
             }],
             image_branch_note: Some(if self.params.image.is_some() {
                 "registering…".to_string()
