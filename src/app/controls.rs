@@ -69,6 +69,9 @@ pub enum Command {
     /// The estimator's ranked hypotheses for the current pair (the hypothesis browser, sent
     /// while it is shown and the model has none).
     Hypotheses,
+    /// Register the open dataset's pairs with two settings and send both runs back (the
+    /// Compare tab's "Run A vs B"); Cancel stops it between registrations.
+    CompareSettings(Box<super::compare_panel::SettingsCompareRequest>),
     Cancel,
 }
 
@@ -145,6 +148,8 @@ pub enum WorkerEvent {
     /// The worker changed the settings (e.g. opening a Cosmos output folder switched the image
     /// branch): the controls show these from now on.
     Settings(Box<RegisterParams>),
+    /// A settings comparison's progress, or its two runs.
+    Compare(super::compare_panel::CompareEvent),
     Log(LogLevel, String),
 }
 

@@ -435,6 +435,11 @@ impl App {
                 WorkerEvent::RunAll(p) => {
                     pairs_panel::apply_progress(&mut self.model, &mut self.pairs, p)
                 }
+                WorkerEvent::Compare(e) => {
+                    for (level, text) in self.compare.on_event(e) {
+                        self.push_log(level, text);
+                    }
+                }
                 WorkerEvent::Progress(what, done, total) => {
                     self.model.plots.study_progress = (done < total).then_some((what, done, total));
                 }

@@ -18,6 +18,7 @@
 //! `model_build.rs` turns a result into the model, `study.rs` runs K / prompt studies,
 //! `open.rs` opens datasets and Cosmos output folders.
 
+mod compare_run;
 mod inspect;
 mod model_build;
 mod open;
@@ -254,6 +255,7 @@ impl Worker for PipelineWorker {
             }
             Command::RunStudy(req) => self.study(req, events),
             Command::RunAll(sel) => self.run_all_and_report(sel, events),
+            Command::CompareSettings(req) => self.compare_settings_and_report(*req, events),
             Command::InspectSourcePoint(i) => match self.inspect_point(i) {
                 Ok(m) => events.send(WorkerEvent::Model(Box::new(m))),
                 Err(e) => events.log(LogLevel::Warn, format!("posterior of point {i}: {e}")),
