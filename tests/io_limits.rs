@@ -505,3 +505,30 @@ fn mp4_probe_with_zero_timescale_reports_no_rate_without_panics() {
     std::fs::write(&q, &good).unwrap();
     assert_eq!(video::probe_mp4(&q).unwrap().fps, 30.0);
 }
+
+/// libFuzzer's mp4 timeout (`timeout-c6a8c152...`, 939 bytes, after 294,660 executions of the
+/// long run): a `dref` with entry count 0xff000008 whose first entry box has size 0; the
+/// `mp4` crate re-read that box once per declared entry (4 billion times). The box check now
+/// walks `dref` entries like every other child box.
+#[test]
+fn mp4_fuzz_timeout_dref_entry_of_size_zero() {
+    let b = std::fs::read(
+        Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("tests/fixtures/fuzz/mp4-dref-timeout-c6a8c152.mp4"),
+    )
+    .unwrap();
+    assert_eq!(b.len(), 939);
+    let e = decode_no_panic(b).unwrap_err().to_string();
+    assert!(e.contains("v.mp4") && e.contains("size 0"), "{e}");
+    // The same damage in a valid file: a huge entry count and an entry of size 0.
+    let (_, good) = test_mp4(3);
+    let mut b = good.clone();
+    // dref: size, type, version/flags, entry count, then the entry boxes.
+    let at = find_box(&b, b"dref");
+    b[at + 12..at + 16].copy_from_slice(&0xff00_0008u32.to_be_bytes());
+    b[at + 16..at + 20].copy_from_slice(&0u32.to_be_bytes());
+    let e = decode_no_panic(b).unwrap_err().to_string();
+    assert!(e.contains("v.mp4") && e.contains("size 0"), "{e}");
+    // The valid file still decodes (its dref entries pass the walk).
+    assert_eq!(decode_no_panic(good).unwrap().len(), 3);
+}

@@ -353,8 +353,10 @@ fn check_boxes(bytes: &[u8]) -> std::result::Result<(), String> {
             } else {
                 4
             }),
-            // Full box + entry count, then sample entries.
-            b"stsd" => Some(8),
+            // Full box + entry count, then sample entries / data references (the demuxer
+            // loops `entry_count` times over the latter without checking that a box of
+            // size 0 moves it forward: libFuzzer's mp4 timeout).
+            b"stsd" | b"dref" => Some(8),
             // Visual sample entries: 78 bytes of fields, then boxes (avcC, ...).
             b"avc1" | b"avc3" | b"hvc1" | b"hev1" | b"mp4v" | b"vp09" | b"av01" => Some(78),
             // Audio sample entries: 28 bytes of fields, then boxes (esds, ...).
