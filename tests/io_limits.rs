@@ -532,3 +532,18 @@ fn mp4_fuzz_timeout_dref_entry_of_size_zero() {
     // The valid file still decodes (its dref entries pass the walk).
     assert_eq!(decode_no_panic(good).unwrap().len(), 3);
 }
+
+/// libFuzzer's third mp4 input (`crash-8d7a54c5...`, re-run after the dref fix): `stts`
+/// entries whose sample counts sum past 32 bits; the `mp4` crate unwrapped the overflow
+/// error in `read_sample` (a panic, caught by the reader).
+#[test]
+fn mp4_fuzz_crash_stts_sample_count_overflow() {
+    let b = std::fs::read(
+        Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("tests/fixtures/fuzz/mp4-stts-overflow-crash-8d7a54c5.mp4"),
+    )
+    .unwrap();
+    assert_eq!(b.len(), 939);
+    let e = decode_no_panic(b).unwrap_err().to_string();
+    assert!(e.contains("v.mp4"), "{e}");
+}

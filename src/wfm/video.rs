@@ -598,6 +598,12 @@ fn check_sample_table(track: &mp4::Mp4Track, file_len: u64) -> std::result::Resu
             "stts gives times for {timed} samples, the track has {count}"
         ));
     }
+    // The crate sums the entries (from 1) in 32 bits and unwraps an overflow.
+    if timed >= u32::MAX as u64 {
+        return Err(format!(
+            "stts gives times for {timed} samples, more than 32 bits count"
+        ));
+    }
     Ok(count)
 }
 
