@@ -219,6 +219,7 @@ pub fn pairs_panel(
         rows: &rows,
         columns: &cols,
         max_height: Some(170.0),
+        sideways: false,
     };
     table(ui, view, sort, &mut state.scrolled[0], out);
 }
@@ -266,6 +267,7 @@ pub fn pairs_tab(
         rows: &rows,
         columns: &PairColumn::ALL,
         max_height: None,
+        sideways: true,
     };
     table(ui, view, sort, &mut state.scrolled[1], out);
 }
