@@ -15,7 +15,7 @@ use crate::app::model::{
 };
 use crate::dataset::ScanPair;
 use crate::fusion::fuse::FusionMode;
-use crate::pipeline::fuse::{fuse_and_finish, similarities, FusionInputs};
+use crate::pipeline::fuse::{fuse_and_finish, fuse_and_finish_memo, similarities, FusionInputs};
 use crate::pipeline::geo::{fpfh_branch, GeoBranch};
 use crate::pipeline::image_branch::register_with_image_keep;
 use crate::pipeline::stages::{StageKeys, StageName};
@@ -113,6 +113,7 @@ impl PipelineWorker {
         let kept = inputs.map(|inputs| Kept {
             keys,
             sims: similarities(&inputs).ok().map(Arc::new),
+            estimates: Default::default(),
             inputs,
             image: result.image.clone(),
             stages: model.stages.clone(),
@@ -285,7 +286,13 @@ impl PipelineWorker {
         }
         // the re-fuse row times the re-fuse alone (the key comparison has its own row)
         let t0 = Instant::now();
-        let run = fuse_and_finish(&cur.pair, &params, &kept.inputs, kept.sims.as_deref());
+        let run = fuse_and_finish_memo(
+            &cur.pair,
+            &params,
+            &kept.inputs,
+            kept.sims.as_deref(),
+            Some(&kept.estimates),
+        );
         let mut result = match run {
             Ok(r) => r,
             Err(e) => return Some(Err(e)),
