@@ -4,20 +4,24 @@
 //! results: control changes become [`Command`]s for a [`Worker`] thread, whose
 //! [`WorkerEvent`]s replace the model, update stages and fill the log.
 
+mod central_panel;
 pub mod colormap;
 pub mod compare_panel;
 pub mod controls;
 pub mod file_browser;
 pub mod headless;
 pub mod hypotheses_panel;
+mod log_bar;
 pub mod model;
 mod open_ui;
 pub mod pairs_panel;
+pub mod path_display;
 mod persist;
 pub mod plots_panel;
 pub mod posterior_panel;
 pub mod render3d;
 mod run;
+mod side_panel;
 pub mod stages_panel;
 pub mod view3d;
 pub mod views_panel;
@@ -32,6 +36,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::dataset::open::classify_drop;
 use crate::pipeline::params::{ImageBranchParams, RegisterParams};
+use log_bar::short;
 
 pub use controls::{
     spawn_worker, Command, EventSink, LogLevel, LogOnlyWorker, OpenKind, StudyRequest, Worker,
@@ -434,6 +439,11 @@ impl App {
                 WorkerEvent::RunAll(p) => {
                     pairs_panel::apply_progress(&mut self.model, &mut self.pairs, p)
                 }
+                WorkerEvent::Compare(e) => {
+                    for (level, text) in self.compare.on_event(e) {
+                        self.push_log(level, text);
+                    }
+                }
                 WorkerEvent::Progress(what, done, total) => {
                     self.model.plots.study_progress = (done < total).then_some((what, done, total));
                 }
@@ -486,7 +496,6 @@ impl App {
         let mut commands: Vec<Command> = Vec::new();
         let mut open_request: Option<OpenKind> = None;
         let mut compare_action = None;
-        let scene = self.scene_specific_prompt();
         pairs_panel::keyboard_nav(
             &ctx,
             &self.model,
@@ -496,7 +505,6 @@ impl App {
         );
 
         egui::Panel::bottom("log_bar").show(ui, |ui| self.log_bar(ui));
-
         egui::Panel::left("controls")
             .default_size(300.0)
             .resizable(true)
@@ -504,204 +512,11 @@ impl App {
                 egui::ScrollArea::vertical()
                     .id_salt("controls_scroll")
                     .show(ui, |ui| {
-                        ui.horizontal(|ui| {
-                            ui.heading("C-GenReg inspector");
-                        });
-                        ui.menu_button("Open…", |ui| {
-                            for k in [
-                                OpenKind::Manifest,
-                                OpenKind::ThreeDMatchFolder,
-                                OpenKind::RgbdSequence,
-                                OpenKind::TwoClouds,
-                                OpenKind::CosmosOutput,
-                                OpenKind::Comparison,
-                            ] {
-                                if ui.button(k.label()).clicked() {
-                                    open_request = Some(k);
-                                    ui.close();
-                                }
-                            }
-                            ui.separator();
-                            ui.checkbox(&mut self.builtin_browser, "built-in file browser")
-                                .on_hover_text(
-                                    "instead of the desktop's dialog (chosen by itself where \
-                                     there is none: no xdg portal or zenity)",
-                                );
-                        });
-                        if let Some((k, paths)) = self.last_opened.clone() {
-                            if ui
-                                .small_button("Reopen last")
-                                .on_hover_text(format!("{paths:?}"))
-                                .clicked()
-                            {
-                                commands.push(Command::Open { kind: k, paths });
-                            }
-                        }
-                        ui.separator();
-                        ui.strong("Pairs");
-                        pairs_panel::pairs_panel(
-                            ui,
-                            &self.model,
-                            &mut self.pairs,
-                            &mut self.ui_state.pair_sort,
-                            &mut commands,
-                        );
-                        ui.separator();
-                        ui.strong("Correspondences");
-                        egui::ComboBox::from_label("Match colours")
-                            .selected_text(self.ui_state.match_mode.label())
-                            .show_ui(ui, |ui| {
-                                for m in MatchColorMode::ALL {
-                                    ui.selectable_value(
-                                        &mut self.ui_state.match_mode,
-                                        m,
-                                        m.label(),
-                                    );
-                                }
-                            });
-                        // The range always holds the current value: a slider clamps to its
-                        // range, and the empty model at start-up would pin the count to 1.
-                        let n = self
-                            .model
-                            .matches
-                            .len()
-                            .max(self.ui_state.match_count)
-                            .max(1);
-                        ui.add(
-                            egui::Slider::new(&mut self.ui_state.match_count, 0..=n)
-                                .text("matches shown"),
-                        );
-                        let kept = self
-                            .model
-                            .matches
-                            .iter()
-                            .filter(|m| m.survived == Some(true))
-                            .count();
-                        ui.checkbox(
-                            &mut self.ui_state.only_survivors,
-                            format!("only estimator inliers ({kept} of {})", self.model.matches.len()),
-                        );
-                        let gt_known: Vec<bool> =
-                            self.model.matches.iter().filter_map(|m| m.inlier_gt).collect();
-                        if !gt_known.is_empty() {
-                            let inl = gt_known.iter().filter(|x| **x).count();
-                            let kept_inl = self
-                                .model
-                                .matches
-                                .iter()
-                                .filter(|m| m.survived == Some(true) && m.inlier_gt == Some(true))
-                                .count();
-                            ui.label(format!(
-                                "GT inliers (10 cm): {inl} of {} matches ({:.1} %); {kept_inl} of {kept} kept",
-                                gt_known.len(),
-                                100.0 * inl as f64 / gt_known.len() as f64
-                            ));
-                        }
-                        if let Some(mi) = self.ui_state.selected_match {
-                            if let Some(m) = self.model.matches.get(mi) {
-                                ui.label(format!(
-                                    "selected #{mi}: src {} -> tgt {} · score {:.2} · {} · {}",
-                                    m.src,
-                                    m.tgt,
-                                    m.score,
-                                    m.branch.label(),
-                                    match m.inlier_gt {
-                                        Some(true) => "GT inlier",
-                                        Some(false) => "GT outlier",
-                                        None => "GT unknown",
-                                    }
-                                ));
-                            }
-                        }
-                        ui.separator();
-                        if let Some(p) = self.model.generation_missing.clone() {
-                            ui.colored_label(
-                                egui::Color32::from_rgb(230, 190, 60),
-                                format!("No cached generation for this prompt:\n“{p}”"),
-                            );
-                            if ui.button("Run the generator").clicked() {
-                                commands.push(Command::RunGenerator { prompt: p });
-                            }
-                            ui.separator();
-                        }
-                        controls::controls_ui(
-                            ui,
-                            &mut self.params,
-                            &mut self.image_off,
-                            &scene,
-                            &mut commands,
-                        );
+                        self.side_panel(ui, &mut commands, &mut open_request)
                     });
             });
-
         egui::CentralPanel::default().show(ui, |ui| {
-            ui.horizontal(|ui| {
-                for p in Panel::ALL {
-                    ui.selectable_value(&mut self.ui_state.tab, p, p.label());
-                }
-                ui.separator();
-                if let Some(pi) = self.model.current_pair {
-                    if let Some(p) = self.model.pairs.get(pi) {
-                        ui.label(egui::RichText::new(&p.id).strong());
-                        if let (Some(r), Some(t)) = (p.rre_deg, p.rte_m) {
-                            ui.label(format!("RRE {r:.2}° · RTE {:.1} cm", t * 100.0));
-                        }
-                    }
-                }
-            });
-            if let Some(w) = &self.model.convention_warning {
-                // next to the metrics: the GT they are computed against may be inverted
-                ui.colored_label(egui::Color32::from_rgb(240, 150, 60), w);
-            }
-            ui.separator();
-            let mut shared = Shared {
-                model: &self.model,
-                model_gen: self.model_gen,
-                ui: &mut self.ui_state,
-                commands: &mut commands,
-            };
-            match shared.ui.tab {
-                Panel::Pairs => pairs_panel::pairs_tab(
-                    ui,
-                    shared.model,
-                    &mut self.pairs,
-                    &mut shared.ui.pair_sort,
-                    shared.commands,
-                ),
-                Panel::Views => {
-                    ui.checkbox(&mut shared.ui.show_3d_below_views, "3D view below");
-                    let h = ui.available_height();
-                    if shared.ui.show_3d_below_views {
-                        views_panel::views_panel(ui, &mut shared, &mut self.views, h * 0.62);
-                        view3d::scene_ui(ui, &mut shared, &mut self.view3d, None);
-                    } else {
-                        views_panel::views_panel(ui, &mut shared, &mut self.views, h);
-                    }
-                }
-                Panel::View3d => view3d::view3d_panel(ui, &mut shared, &mut self.view3d),
-                Panel::Posterior => posterior_panel::posterior_panel(
-                    ui,
-                    &mut shared,
-                    &mut self.views,
-                    &mut self.posterior,
-                ),
-                Panel::Plots => {
-                    plots_panel::plots_panel(ui, shared.model, &mut self.plots, shared.commands)
-                }
-                Panel::Hypotheses => hypotheses_panel::hypotheses_panel(
-                    ui,
-                    &mut shared,
-                    &mut self.hypotheses,
-                    &mut self.view3d,
-                ),
-                Panel::Stages => {
-                    stages_panel::stages_panel(ui, shared.model, &mut self.stages, shared.commands)
-                }
-                Panel::Compare => {
-                    compare_action =
-                        compare_panel::compare_panel(ui, shared.model, &mut self.compare)
-                }
-            }
+            compare_action = self.central_panel(ui, &mut commands);
         });
         if let Some(a) = compare_action {
             self.compare_action(a, &mut commands, &mut open_request);
@@ -710,97 +525,11 @@ impl App {
         if let Some(k) = open_request {
             self.open_dialog(k, &ctx);
         }
-        if let Some(b) = &mut self.browser {
-            match b.show(&ctx) {
-                Some(file_browser::BrowserOutcome::Open(OpenKind::Comparison, paths)) => {
-                    self.browser = None;
-                    if let [a, b] = &paths[..] {
-                        self.compare_runs(a.clone(), b.clone());
-                    }
-                }
-                Some(file_browser::BrowserOutcome::Open(kind, paths)) => {
-                    self.browser = None;
-                    commands.push(Command::Open { kind, paths });
-                }
-                Some(file_browser::BrowserOutcome::Cancel) => self.browser = None,
-                None => {}
-            }
-        }
+        self.browser_outcome(&ctx, &mut commands);
         for c in commands {
             self.send(c);
         }
-        if ctx.input(|i| !i.raw.hovered_files.is_empty()) {
-            let painter = ctx.layer_painter(egui::LayerId::new(
-                egui::Order::Foreground,
-                egui::Id::unique("drop"),
-            ));
-            let r = ctx.content_rect();
-            painter.rect_filled(r, 0.0, egui::Color32::from_black_alpha(160));
-            painter.text(
-                r.center(),
-                egui::Align2::CENTER_CENTER,
-                "Drop scan files or folders to open",
-                egui::FontId::proportional(24.0),
-                egui::Color32::WHITE,
-            );
-        }
+        open_ui::drop_overlay(&ctx);
         self.save_if_changed();
-    }
-
-    fn log_bar(&mut self, ui: &mut egui::Ui) {
-        ui.horizontal(|ui| {
-            let label = if self.show_log {
-                "Hide log"
-            } else {
-                "Show log"
-            };
-            if ui.small_button(label).clicked() {
-                self.show_log = !self.show_log;
-            }
-            if self
-                .model
-                .stages
-                .iter()
-                .any(|s| s.state == model::StageState::Running)
-            {
-                ui.spinner();
-            }
-            if let Some(l) = self.log.last() {
-                ui.colored_label(level_color(l.level), &l.text);
-            } else {
-                ui.weak("ready");
-            }
-        });
-        if self.show_log {
-            egui::ScrollArea::vertical()
-                .id_salt("log")
-                .max_height(120.0)
-                .stick_to_bottom(true)
-                .show(ui, |ui| {
-                    for l in &self.log {
-                        ui.colored_label(level_color(l.level), &l.text);
-                    }
-                });
-        }
-    }
-}
-
-fn level_color(l: LogLevel) -> egui::Color32 {
-    match l {
-        LogLevel::Info => egui::Color32::from_gray(190),
-        LogLevel::Warn => egui::Color32::from_rgb(230, 190, 60),
-        LogLevel::Error => egui::Color32::from_rgb(240, 80, 70),
-    }
-}
-
-fn short(c: &Command) -> String {
-    let s = format!("{c:?}");
-    if s.len() > 120 {
-        format!(
-            "{}…",
-            &s[..s.char_indices().nth(117).map(|x| x.0).unwrap_or(s.len())]
-        )
-    } else {
-        s
     }
 }

@@ -41,6 +41,10 @@ impl App {
         use compare_panel::CompareAction;
         match action {
             CompareAction::Browse => *open_request = Some(OpenKind::Comparison),
+            CompareAction::TakeSettings(side) => {
+                self.compare.settings.take(side, self.params.clone());
+            }
+            CompareAction::Send(c) => commands.push(c),
             CompareAction::OpenManifest(m) => commands.push(Command::Open {
                 kind: OpenKind::Manifest,
                 paths: vec![m],
@@ -55,7 +59,7 @@ impl App {
                         let text = format!(
                             "{pair}: opening with run {}'s settings ({})",
                             side.label(),
-                            run.path.display()
+                            run.name
                         );
                         self.params = p.clone();
                         commands.push(Command::OpenPairWith {
@@ -147,6 +151,46 @@ impl App {
                 paths: dropped,
             });
         }
+    }
+
+    /// What the in-app file browser answered, if it did this frame.
+    pub(super) fn browser_outcome(&mut self, ctx: &egui::Context, commands: &mut Vec<Command>) {
+        let Some(b) = &mut self.browser else {
+            return;
+        };
+        match b.show(ctx) {
+            Some(file_browser::BrowserOutcome::Open(OpenKind::Comparison, paths)) => {
+                self.browser = None;
+                if let [a, b] = &paths[..] {
+                    self.compare_runs(a.clone(), b.clone());
+                }
+            }
+            Some(file_browser::BrowserOutcome::Open(kind, paths)) => {
+                self.browser = None;
+                commands.push(Command::Open { kind, paths });
+            }
+            Some(file_browser::BrowserOutcome::Cancel) => self.browser = None,
+            None => {}
+        }
+    }
+}
+
+/// While files are dragged over the window: a dark overlay saying they can be dropped.
+pub(super) fn drop_overlay(ctx: &egui::Context) {
+    if ctx.input(|i| !i.raw.hovered_files.is_empty()) {
+        let painter = ctx.layer_painter(egui::LayerId::new(
+            egui::Order::Foreground,
+            egui::Id::unique("drop"),
+        ));
+        let r = ctx.content_rect();
+        painter.rect_filled(r, 0.0, egui::Color32::from_black_alpha(160));
+        painter.text(
+            r.center(),
+            egui::Align2::CENTER_CENTER,
+            "Drop scan files or folders to open",
+            egui::FontId::proportional(24.0),
+            egui::Color32::WHITE,
+        );
     }
 }
 

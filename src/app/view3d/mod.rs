@@ -1,0 +1,248 @@
+//! The 3D panel: source (yellow) and target (blue) clouds drawn by three-d, alignments,
+//! correspondence lines, camera frusta, orbit/pan/zoom and picking.
+//!
+//! `camera.rs`: the orbit camera and projection; `colors.rs`: per-point and per-match
+//! colours; `scene.rs`: the viewport (state sync, input, the frame for the GL thread,
+//! picking, highlights); `legend.rs`: the legend. This file: the panel's persisted options,
+//! its state and the options row.
+
+mod camera;
+mod colors;
+mod legend;
+mod scene;
+
+use std::sync::Arc;
+
+use eframe::egui;
+use nalgebra::{Isometry3, Matrix4, Point3};
+use serde::{Deserialize, Serialize};
+
+use super::model::InspectorModel;
+use super::render3d::{CloudData, DepthCue, LineData};
+use super::Shared;
+
+pub use camera::{project, SceneCamera};
+pub use colors::{branch_rgb, cloud_colors, display_normals, match_rgb};
+pub use scene::scene_ui;
+
+use colors::DisplayNormals;
+
+/// How a cloud's points are coloured.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+pub enum CloudColorMode {
+    Fixed,
+    #[value(name = "score")]
+    FusedScore,
+    ResidualEstimate,
+    #[value(name = "residual-gt")]
+    ResidualGroundTruth,
+    Branch,
+    /// Seen by the image branch's K views: visible, occluded inside a view, or outside all.
+    Visibility,
+}
+
+impl CloudColorMode {
+    pub const ALL: [CloudColorMode; 6] = [
+        Self::Fixed,
+        Self::FusedScore,
+        Self::ResidualEstimate,
+        Self::ResidualGroundTruth,
+        Self::Branch,
+        Self::Visibility,
+    ];
+    pub fn label(self) -> &'static str {
+        match self {
+            Self::Fixed => "Fixed",
+            Self::FusedScore => "Fused score",
+            Self::ResidualEstimate => "Residual (estimate)",
+            Self::ResidualGroundTruth => "Residual (ground truth)",
+            Self::Branch => "Proposing branch",
+            Self::Visibility => "Seen by the K views",
+        }
+    }
+}
+
+/// "Seen by the K views": visible in at least one view, inside a view but hidden.
+pub const VISIBLE_RGB: [u8; 3] = [90, 235, 110];
+pub const OCCLUDED_RGB: [u8; 3] = [235, 90, 70];
+
+/// Residuals saturate the colormap at this distance (metres).
+pub const RESIDUAL_CAP_M: f32 = 0.1;
+
+/// Persisted options of the 3D panel.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct View3dPrefs {
+    pub show_initial: bool,
+    pub show_estimated: bool,
+    pub show_ground_truth: bool,
+    pub show_target: bool,
+    pub show_lines: bool,
+    pub show_frusta: bool,
+    pub point_size: f32,
+    pub source_mode: CloudColorMode,
+    pub target_mode: CloudColorMode,
+    pub depth_cue: DepthCue,
+    /// Eye-dome lighting strength (1: moderate).
+    pub edl_strength: f32,
+}
+
+impl Default for View3dPrefs {
+    fn default() -> Self {
+        Self {
+            show_initial: false,
+            show_estimated: true,
+            show_ground_truth: false,
+            show_target: true,
+            show_lines: true,
+            show_frusta: true,
+            point_size: 2.0,
+            source_mode: CloudColorMode::Fixed,
+            target_mode: CloudColorMode::Fixed,
+            depth_cue: DepthCue::None,
+            edl_strength: 1.0,
+        }
+    }
+}
+
+/// Colours a cloud: `Arc`ed so unchanged clouds are not re-uploaded.
+#[derive(Default)]
+struct ColorCache {
+    key: Option<(u64, CloudColorMode, bool, u64)>,
+    data: Option<CloudData>,
+}
+
+#[derive(Default)]
+pub struct View3dState {
+    pub prefs: View3dPrefs,
+    pub camera: SceneCamera,
+    framed_for: Option<u64>,
+    positions_for: Option<u64>,
+    /// Depth of the drawn view frusta, from the target's extent (set with the positions).
+    frustum_range: f64,
+    source_pos: Arc<Vec<[f32; 3]>>,
+    target_pos: Arc<Vec<[f32; 3]>>,
+    /// Display normals of both clouds, estimated when normal shading is first asked for.
+    normals: Option<(u64, DisplayNormals, DisplayNormals)>,
+    source_colors: ColorCache,
+    target_colors: ColorCache,
+    /// Last uploaded line sets: the same contents keep their id (no re-upload).
+    overlay: Option<LineData>,
+    frusta: Option<LineData>,
+    /// View-projection of the last frame: a different one means the camera is moving.
+    last_view_proj: Option<[f32; 16]>,
+}
+
+/// Points drawn per cloud while the camera moves (a uniform subsample; see
+/// `render3d::GpuCloud::sync`). Under llvmpipe each point costs about 0.4 µs of CPU, so this
+/// keeps orbiting near 30 fps; the full cloud is drawn as soon as the camera stops.
+pub const MOVING_POINT_BUDGET: u32 = 50_000;
+
+/// A colour override for the target cloud (posterior heat map in 3D).
+pub struct TargetOverride {
+    pub id: u64,
+    pub colors: Arc<Vec<[u8; 4]>>,
+}
+
+fn iso_to_mat(iso: &Isometry3<f64>) -> Matrix4<f32> {
+    iso.to_homogeneous().cast::<f32>()
+}
+
+fn mat_to_arr(m: &Matrix4<f32>) -> [f32; 16] {
+    let mut a = [0.0; 16];
+    a.copy_from_slice(m.as_slice());
+    a
+}
+
+fn rgba(c: [u8; 3]) -> [u8; 4] {
+    [c[0], c[1], c[2], 255]
+}
+
+/// The transform the source is shown under for lines and picking: estimated, else ground
+/// truth, else initial, following the toggles.
+pub fn primary_alignment(model: &InspectorModel, prefs: &View3dPrefs) -> Isometry3<f64> {
+    if prefs.show_estimated {
+        if let Some(e) = model.estimated {
+            return e;
+        }
+    }
+    if prefs.show_ground_truth {
+        if let Some(g) = model.ground_truth {
+            return g;
+        }
+    }
+    if !(prefs.show_estimated || prefs.show_ground_truth || prefs.show_initial) {
+        // no source drawn: lines and markers still sit where the source would be
+        return model
+            .estimated
+            .or(model.ground_truth)
+            .unwrap_or(model.initial);
+    }
+    model.initial
+}
+
+pub fn point3(p: [f32; 3]) -> Point3<f32> {
+    Point3::new(p[0], p[1], p[2])
+}
+
+fn apply(t: &Isometry3<f64>, p: [f32; 3]) -> [f32; 3] {
+    let q = t * Point3::new(p[0] as f64, p[1] as f64, p[2] as f64);
+    [q.x as f32, q.y as f32, q.z as f32]
+}
+
+/// Options row above the 3D view.
+pub fn view3d_options(ui: &mut egui::Ui, state: &mut View3dState) {
+    let p = &mut state.prefs;
+    ui.horizontal_wrapped(|ui| {
+        ui.label("Source under:");
+        ui.checkbox(&mut p.show_initial, "initial");
+        ui.checkbox(&mut p.show_estimated, "estimated");
+        ui.checkbox(&mut p.show_ground_truth, "ground truth");
+        ui.separator();
+        ui.checkbox(&mut p.show_target, "target");
+        ui.checkbox(&mut p.show_lines, "lines");
+        ui.checkbox(&mut p.show_frusta, "frusta");
+        ui.add(egui::Slider::new(&mut p.point_size, 1.0..=8.0).text("point size"));
+    });
+    ui.horizontal_wrapped(|ui| {
+        egui::ComboBox::from_label("Depth cue")
+            .selected_text(p.depth_cue.label())
+            .show_ui(ui, |ui| {
+                for c in DepthCue::ALL {
+                    ui.selectable_value(&mut p.depth_cue, c, c.label());
+                }
+            });
+        if p.depth_cue == DepthCue::Edl {
+            ui.add(egui::Slider::new(&mut p.edl_strength, 0.1..=4.0).text("EDL strength"));
+        }
+    });
+    ui.horizontal_wrapped(|ui| {
+        for (name, mode) in [
+            ("Source colour", &mut p.source_mode),
+            ("Target colour", &mut p.target_mode),
+        ] {
+            egui::ComboBox::from_label(name)
+                .selected_text(mode.label())
+                .show_ui(ui, |ui| {
+                    for m in CloudColorMode::ALL {
+                        ui.selectable_value(mode, m, m.label());
+                    }
+                });
+        }
+        if ui.button("Reset camera").clicked() {
+            state.framed_for = None;
+        }
+    });
+}
+
+pub fn next_id() -> u64 {
+    use std::sync::atomic::{AtomicU64, Ordering};
+    static ID: AtomicU64 = AtomicU64::new(1);
+    ID.fetch_add(1, Ordering::Relaxed)
+}
+
+/// Full 3D panel: options row then the viewport.
+pub fn view3d_panel(ui: &mut egui::Ui, shared: &mut Shared<'_>, state: &mut View3dState) {
+    view3d_options(ui, state);
+    scene_ui(ui, shared, state, None);
+}
