@@ -245,11 +245,11 @@ mod tests {
                 assert_eq!(row_p(&row, mx, 1.0 / tau).to_bits(), want.to_bits());
                 #[cfg(target_arch = "x86_64")]
                 if crate::simd::features().avx2 {
-                    let got = unsafe { super::avx2::inv_exp_sum(&row, mx, 1.0 / tau) };
+                    let got = unsafe { crate::fusion::avx2::inv_exp_sum(&row, mx, 1.0 / tau) };
                     assert_eq!(got.to_bits(), want.to_bits(), "len {len} tau {tau}");
                     row[0] = f32::NAN;
                     let want = row_p_scalar(&row, mx, 1.0 / tau);
-                    let got = unsafe { super::avx2::inv_exp_sum(&row, mx, 1.0 / tau) };
+                    let got = unsafe { crate::fusion::avx2::inv_exp_sum(&row, mx, 1.0 / tau) };
                     assert!(got.is_nan() && want.is_nan(), "NaN, len {len}");
                 }
             }
