@@ -227,3 +227,174 @@ fn a_bad_run_file_is_reported_with_its_name_and_field() {
     assert!(e.contains("not-a-run.json") && e.contains("pairs"), "{e}");
     assert!(h.state().compare.loaded.is_none());
 }
+
+/// A geometry-only worker on the staged redkitchen manifest with its own empty stage cache.
+fn staged_worker(cache: &Path) -> PipelineWorker {
+    let manifest =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/manifests/redkitchen-staged.toml");
+    let mut w = PipelineWorker::open_manifest(&manifest, RegisterParams::default()).unwrap();
+    assert!(w.params().image.is_none(), "the default runs geometry only");
+    w.set_cache(Some(cgenreg::pipeline::cache::Cache::open(cache).unwrap()));
+    w
+}
+
+/// Settings B of the settings comparisons: A with row NN instead of mutual NN (a fusion
+/// setting that changes geometry-only results, as fpfh-nn against fpfh-mutual shows).
+fn settings_b(a: &RegisterParams) -> RegisterParams {
+    let mut b = a.clone();
+    b.fusion.selection = match a.fusion.selection {
+        cgenreg::fusion::Selection::RowNn => cgenreg::fusion::Selection::MutualNn,
+        _ => cgenreg::fusion::Selection::RowNn,
+    };
+    b
+}
+
+/// "Compare two settings over the open dataset": settings A and B taken from the controls,
+/// "Run A vs B" over the first three staged pairs on the worker, and the compare view of the
+/// two runs, saying what differs; each row is what registering that pair alone with those
+/// settings gives, and the worker's settings and pair rows are left as they were.
+#[test]
+fn compare_two_settings_over_the_open_dataset() {
+    if cgenreg::test_data_root().is_none() {
+        return;
+    }
+    let cache = tempfile::tempdir().unwrap();
+    let worker = staged_worker(cache.path());
+    let model = worker.initial_model(None);
+    let a = worker.params().clone();
+    let b = settings_b(&a);
+    let ids: Vec<String> = model.pairs[..3].iter().map(|p| p.id.clone()).collect();
+    let seen = Arc::new(Mutex::new(Vec::new()));
+    let handle = spawn_worker(
+        Box::new(Spy {
+            inner: worker,
+            seen: seen.clone(),
+        }),
+        None,
+    );
+    let mut app = App::new(model, Some(handle), None);
+    app.allow_dialogs = false;
+    app.ui_state.tab = Panel::Compare;
+    let mut h = Harness::builder()
+        .with_size(egui::vec2(1280.0, 800.0))
+        .with_pixels_per_point(1.0)
+        .build_ui_state(|ui, app: &mut App| app.show(ui), app);
+    h.run_steps(2);
+    // nothing to run before both settings are taken
+    assert!(h
+        .state()
+        .compare
+        .settings
+        .request(h.state().model())
+        .is_none());
+    h.state_mut().params = a.clone();
+    h.run_steps(1);
+    h.get_by_label("take A from the controls").click();
+    h.run_steps(2);
+    h.state_mut().params = b.clone();
+    h.get_by_label("take B from the controls").click();
+    h.run_steps(2);
+    assert_eq!(h.state().compare.settings.a.as_ref(), Some(&a));
+    assert_eq!(h.state().compare.settings.b.as_ref(), Some(&b));
+    // what differs is said before the run
+    h.get_by_label_contains("A and B differ in fusion.selection");
+    h.state_mut().compare.settings.limit = 3;
+    h.run_steps(2);
+    h.get_by_label("Run A vs B").click();
+    h.run_steps(2);
+    let t0 = Instant::now();
+    let mut saw_progress = false;
+    while h.state().compare.loaded.is_none() {
+        saw_progress |= h.state().compare.settings.progress.is_some();
+        assert!(
+            t0.elapsed() < Duration::from_secs(600),
+            "the comparison never came back; log: {:?}",
+            h.state().log.iter().map(|l| &l.text).collect::<Vec<_>>()
+        );
+        h.run_steps(1);
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    assert!(saw_progress, "a progress bar while the worker runs");
+    assert!(h.state().compare.settings.progress.is_none());
+    let l = h.state().compare.loaded.clone().unwrap();
+    let c = &l.comparison;
+    let got: Vec<&str> = c.pairs.iter().map(|p| p.id.as_str()).collect();
+    assert_eq!(got, ids.iter().map(String::as_str).collect::<Vec<_>>());
+    assert!(c.only_in_a.is_empty() && c.only_in_b.is_empty());
+    assert_eq!(c.differing_settings, vec!["fusion.selection".to_string()]);
+    assert!(c.run_differences.is_empty(), "{:?}", c.run_differences);
+    assert_eq!(l.a.params.as_ref().ok(), Some(&a));
+    assert_eq!(l.b.params.as_ref().ok(), Some(&b));
+    assert!(l.a.path.is_none() && l.a.name == "settings A");
+    let q = c.quadrants;
+    assert_eq!(
+        q.both_success + q.only_a + q.only_b + q.both_failure + q.unknown,
+        3
+    );
+    // the view shows it as it shows two files: counts, and what differs
+    h.run_steps(2);
+    h.get_by_label(&format!("both succeed: {}", q.both_success));
+    h.get_by_label("the runs differ only in: fusion.selection");
+    // the worker's own settings and pair rows are unchanged
+    let rows: Vec<_> = h.state().model().pairs[..3]
+        .iter()
+        .map(|p| p.status.clone())
+        .collect();
+    assert!(
+        rows.iter()
+            .all(|s| *s == cgenreg::app::model::PairStatus::Pending),
+        "{rows:?}"
+    );
+    {
+        let seen = seen.lock().unwrap();
+        let (cmd, after) = seen.last().expect("the worker handled the comparison");
+        assert!(matches!(cmd, Command::CompareSettings(_)), "{cmd:?}");
+        assert_eq!(after, &a, "the worker's settings are restored");
+    }
+    // each row is the pair registered alone with that run's settings (the first pair, under B)
+    let mut alone = staged_worker(cache.path());
+    alone.set_params(b.clone());
+    let m = alone.run_pair(&ids[0]).unwrap();
+    let row = &m.pairs[m.current_pair.unwrap()];
+    let p = &c.pairs[0];
+    assert_eq!(p.b.rre_deg, row.rre_deg, "{}", p.id);
+    assert_eq!(p.b.rte_m, row.rte_m);
+    assert_eq!(p.b.success, row.success);
+}
+
+/// Cancel during a settings comparison stops it between registrations; the runs hold the
+/// pairs done under both settings, and the worker's settings are restored.
+#[test]
+fn a_cancelled_settings_comparison_keeps_the_pairs_run_under_both() {
+    if cgenreg::test_data_root().is_none() {
+        return;
+    }
+    let cache = tempfile::tempdir().unwrap();
+    let mut w = staged_worker(cache.path());
+    let a = w.params().clone();
+    let b = settings_b(&a);
+    let ids = w.pair_ids()[..3].to_vec();
+    let req = cgenreg::app::compare_panel::SettingsCompareRequest {
+        a: a.clone(),
+        b: b.clone(),
+        pairs: Some(ids.clone()),
+    };
+    let cancel = w.cancel_flag().unwrap();
+    let mut events = Vec::new();
+    let runs = w.compare_settings(&req, &mut |e| {
+        // Cancel while the second pair runs under A: it stops before its B
+        if let cgenreg::app::compare_panel::CompareEvent::Progress { done: 2, .. } = &e {
+            cancel.store(true, std::sync::atomic::Ordering::Relaxed);
+        }
+        events.push(e);
+    });
+    assert!(runs.cancelled);
+    assert_eq!(events.len(), 3, "{events:?}");
+    let got: Vec<&str> = runs.a.pairs.iter().map(|r| r.id.as_str()).collect();
+    assert_eq!(got, vec![ids[0].as_str()]);
+    assert_eq!(runs.b.pairs.len(), 1);
+    assert_eq!(w.params(), &a);
+    let c = compare(&runs.a, &runs.b);
+    assert_eq!(c.pairs.len(), 1);
+    assert_eq!(c.differing_settings, vec!["fusion.selection".to_string()]);
+}

@@ -69,6 +69,9 @@ pub enum Command {
     /// The estimator's ranked hypotheses for the current pair (the hypothesis browser, sent
     /// while it is shown and the model has none).
     Hypotheses,
+    /// Register the open dataset's pairs with two settings and send both runs back (the
+    /// Compare tab's "Run A vs B"); Cancel stops it between registrations.
+    CompareSettings(Box<super::compare_panel::SettingsCompareRequest>),
     Cancel,
 }
 
@@ -145,6 +148,8 @@ pub enum WorkerEvent {
     /// The worker changed the settings (e.g. opening a Cosmos output folder switched the image
     /// branch): the controls show these from now on.
     Settings(Box<RegisterParams>),
+    /// A settings comparison's progress, or its two runs.
+    Compare(super::compare_panel::CompareEvent),
     Log(LogLevel, String),
 }
 
@@ -519,13 +524,17 @@ fn path_field(ui: &mut egui::Ui, label: &str, value: &mut PathBuf) {
     let id = ui.make_persistent_id(("path_field", label));
     let mut buf: String = ui
         .data_mut(|d| d.get_temp::<String>(id))
-        .unwrap_or_else(|| value.display().to_string());
+        .unwrap_or_else(|| super::path_display::shown(value));
     let l = ui.label(label);
     let r = ui
         .add(egui::TextEdit::singleline(&mut buf).desired_width(f32::INFINITY))
-        .labelled_by(l.id);
+        .labelled_by(l.id)
+        .on_hover_text(value.display().to_string());
     if r.lost_focus() || (r.has_focus() && ui.input(|i| i.key_pressed(egui::Key::Enter))) {
-        *value = PathBuf::from(buf.trim());
+        // the shown (relative) text unchanged keeps the setting's own path
+        if buf != super::path_display::shown(value) {
+            *value = super::path_display::typed(&buf);
+        }
         ui.data_mut(|d| d.remove::<String>(id));
     } else if r.has_focus() {
         ui.data_mut(|d| d.insert_temp(id, buf));

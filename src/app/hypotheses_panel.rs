@@ -127,6 +127,11 @@ pub struct HypothesisView {
 }
 
 impl HypothesisView {
+    /// The 3D legend's row for the source drawn under this hypothesis.
+    pub fn legend_label(&self) -> String {
+        format!("source (hypothesis #{})", self.rank)
+    }
+
     pub fn of(row: &HypothesisRow, n_matches: usize) -> Self {
         let mut inlier = vec![false; n_matches];
         for &i in &row.inliers {

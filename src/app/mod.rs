@@ -15,6 +15,7 @@ mod log_bar;
 pub mod model;
 mod open_ui;
 pub mod pairs_panel;
+pub mod path_display;
 mod persist;
 pub mod plots_panel;
 pub mod posterior_panel;
@@ -437,6 +438,11 @@ impl App {
                 WorkerEvent::Settings(s) => self.params = *s,
                 WorkerEvent::RunAll(p) => {
                     pairs_panel::apply_progress(&mut self.model, &mut self.pairs, p)
+                }
+                WorkerEvent::Compare(e) => {
+                    for (level, text) in self.compare.on_event(e) {
+                        self.push_log(level, text);
+                    }
                 }
                 WorkerEvent::Progress(what, done, total) => {
                     self.model.plots.study_progress = (done < total).then_some((what, done, total));

@@ -41,6 +41,10 @@ impl App {
         use compare_panel::CompareAction;
         match action {
             CompareAction::Browse => *open_request = Some(OpenKind::Comparison),
+            CompareAction::TakeSettings(side) => {
+                self.compare.settings.take(side, self.params.clone());
+            }
+            CompareAction::Send(c) => commands.push(c),
             CompareAction::OpenManifest(m) => commands.push(Command::Open {
                 kind: OpenKind::Manifest,
                 paths: vec![m],
@@ -55,7 +59,7 @@ impl App {
                         let text = format!(
                             "{pair}: opening with run {}'s settings ({})",
                             side.label(),
-                            run.path.display()
+                            run.name
                         );
                         self.params = p.clone();
                         commands.push(Command::OpenPairWith {

@@ -3,7 +3,34 @@
 use eframe::egui;
 
 use super::controls::Command;
-use super::model::{InspectorModel, StageState};
+use super::model::{InspectorModel, StageInfo, StageState};
+
+/// Where a stage-panel row's time sits: the total adds top-level rows only.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum StageRole {
+    /// A step timed on its own (e.g. comparing the stage keys after a settings change).
+    #[default]
+    Stage,
+    /// A row whose time includes the [`StageRole::Part`] rows ("load + register",
+    /// "re-fuse from memory").
+    Container,
+    /// A pipeline stage timed inside a container row.
+    Part,
+}
+
+/// The stage panel's total: the timed top-level rows (stages and containers), not the parts a
+/// container already includes. With no timed container (e.g. a run still in progress, or rows
+/// from a bench file) every timed row counts.
+pub fn stage_total_ms(stages: &[StageInfo]) -> f64 {
+    let has_container = stages
+        .iter()
+        .any(|s| s.role == StageRole::Container && s.time_ms.is_some());
+    stages
+        .iter()
+        .filter(|s| !has_container || s.role != StageRole::Part)
+        .filter_map(|s| s.time_ms)
+        .sum()
+}
 
 /// The stage panel's own input: where "Export correspondences..." writes.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -90,7 +117,8 @@ pub fn stages_panel(
         ui.label("No pipeline run yet.");
         return;
     }
-    let total: f64 = model.stages.iter().filter_map(|s| s.time_ms).sum();
+    // the parts a container row includes are not added a second time
+    let total = stage_total_ms(&model.stages);
     egui::Grid::new("stages")
         .striped(true)
         .num_columns(4)
@@ -102,7 +130,13 @@ pub fn stages_panel(
             ui.strong("");
             ui.end_row();
             for s in &model.stages {
-                ui.label(&s.name);
+                match s.role {
+                    StageRole::Part => ui.label(format!("    {}", s.name)),
+                    StageRole::Container => ui
+                        .strong(&s.name)
+                        .on_hover_text("its time includes the indented stages below"),
+                    StageRole::Stage => ui.label(&s.name),
+                };
                 let (t, c) = state_text(&s.state);
                 if matches!(s.state, StageState::Running) {
                     ui.horizontal(|ui| {
@@ -135,4 +169,49 @@ pub fn stages_panel(
             ui.strong(format!("{total:.1} ms"));
             ui.end_row();
         });
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn row(name: &str, ms: Option<f64>, role: StageRole) -> StageInfo {
+        StageInfo {
+            name: name.into(),
+            state: StageState::Done,
+            time_ms: ms,
+            role,
+        }
+    }
+
+    #[test]
+    fn total_adds_containers_not_their_parts() {
+        // a run: "load + register" 12.6 s includes its stages (7.5 s of them timed)
+        let run = [
+            row("load + register", Some(12_600.0), StageRole::Container),
+            row("FPFH", Some(4_000.0), StageRole::Part),
+            row("fusion", Some(3_500.0), StageRole::Part),
+        ];
+        assert_eq!(stage_total_ms(&run), 12_600.0);
+        // a re-fuse: the key comparison is timed on its own, next to the re-fuse row
+        let refuse = [
+            row("re-fuse from memory", Some(30.0), StageRole::Container),
+            row(
+                "settings change: no stage key changed",
+                Some(2.0),
+                StageRole::Stage,
+            ),
+            row("FPFH", Some(0.0), StageRole::Part),
+            row("fusion", Some(20.0), StageRole::Part),
+        ];
+        assert_eq!(stage_total_ms(&refuse), 32.0);
+        // still running (the container has no time yet), or no container at all: every row
+        let running = [
+            row("load + register", None, StageRole::Container),
+            row("FPFH", Some(4.0), StageRole::Part),
+            row("fusion", Some(3.0), StageRole::Part),
+        ];
+        assert_eq!(stage_total_ms(&running), 7.0);
+        assert_eq!(stage_total_ms(&[]), 0.0);
+    }
 }

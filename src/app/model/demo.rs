@@ -430,6 +430,7 @@ pub(super) fn build(n: usize) -> InspectorModel {
         name: n.into(),
         state: s,
         time_ms: t,
+        role: crate::app::stages_panel::StageRole::Stage,
     })
     .collect();
 

@@ -236,6 +236,8 @@ pub struct StageInfo {
     pub name: String,
     pub state: StageState,
     pub time_ms: Option<f64>,
+    /// Whether the total adds it (see [`StageRole`]).
+    pub role: super::stages_panel::StageRole,
 }
 
 /// Precision-recall curve of the matches, points are (recall, precision).

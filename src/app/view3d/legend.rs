@@ -11,6 +11,7 @@ pub(super) fn legend(
     rect: egui::Rect,
     model: &InspectorModel,
     p: &View3dPrefs,
+    hypothesis: Option<String>,
 ) {
     let mut rows: Vec<(String, [u8; 3])> = Vec::new();
     let tinted = |t: [f32; 3]| {
@@ -20,7 +21,9 @@ pub(super) fn legend(
             (SOURCE_RGB[2] as f32 * t[2]) as u8,
         ]
     };
-    if p.show_estimated && model.estimated.is_some() {
+    if let Some(h) = hypothesis {
+        rows.push((h, tinted([0.6, 0.8, 1.0])));
+    } else if p.show_estimated && model.estimated.is_some() {
         rows.push(("source (estimated)".into(), SOURCE_RGB));
     }
     if p.show_ground_truth && model.ground_truth.is_some() {

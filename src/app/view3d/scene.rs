@@ -86,7 +86,8 @@ pub fn scene_ui(
     pointer_picking(&response, shared, state, &segments, &src_xf, &vp, rect);
     let painter = ui.painter_at(rect);
     highlights(&painter, shared, &segments, &src_xf, &vp, rect);
-    legend(&painter, rect, model, &prefs);
+    let hyp = shared.ui.hypothesis.as_ref();
+    legend(&painter, rect, model, &prefs, hyp.map(|h| h.legend_label()));
 }
 
 /// Frames the camera on a new model, and keeps the positions (and, for normal shading, the

@@ -18,6 +18,7 @@
 //! `model_build.rs` turns a result into the model, `study.rs` runs K / prompt studies,
 //! `open.rs` opens datasets and Cosmos output folders.
 
+mod compare_run;
 mod inspect;
 mod model_build;
 mod open;
@@ -31,6 +32,7 @@ use std::time::Instant;
 
 use super::controls::{Command, EventSink, LogLevel, Worker, WorkerEvent};
 use super::model::{InspectorModel, PairEntry, PairStatus, StageInfo, StageState};
+use super::stages_panel::StageRole;
 use crate::dataset::manifest::Dataset;
 use crate::dataset::ScanPair;
 use crate::fusion::fuse::FusionMode;
@@ -88,6 +90,7 @@ fn invalidated_row(stages: &[StageName], ms: f64) -> StageInfo {
         name,
         state: StageState::Done,
         time_ms: Some(ms),
+        role: StageRole::Stage,
     }
 }
 
@@ -193,6 +196,7 @@ impl PipelineWorker {
                 name: "load + register".into(),
                 state: StageState::Running,
                 time_ms: None,
+                role: StageRole::Container,
             }],
             image_branch_note: Some(if self.params.image.is_some() {
                 "registering…".to_string()
@@ -251,6 +255,7 @@ impl Worker for PipelineWorker {
             }
             Command::RunStudy(req) => self.study(req, events),
             Command::RunAll(sel) => self.run_all_and_report(sel, events),
+            Command::CompareSettings(req) => self.compare_settings_and_report(*req, events),
             Command::InspectSourcePoint(i) => match self.inspect_point(i) {
                 Ok(m) => events.send(WorkerEvent::Model(Box::new(m))),
                 Err(e) => events.log(LogLevel::Warn, format!("posterior of point {i}: {e}")),

@@ -10,6 +10,7 @@ use crate::app::model::{
     Branch, InspectorModel, MatchInfo, PairEntry, PairStatus, PlotData, Posterior, PrCurve,
     RgbImage, StageInfo, StageState, ViewCamera, ViewImage, ViewLabel,
 };
+use crate::app::stages_panel::StageRole;
 use crate::dataset::ScanPair;
 use crate::fusion::fuse::FusionMode;
 use crate::pipeline::fuse::{FusionInputs, Similarities};
@@ -213,6 +214,8 @@ pub fn result_to_model(
                 StageState::Done
             },
             time_ms: Some(t.ms),
+            // timed inside the worker's "load + register" / "re-fuse from memory" row
+            role: StageRole::Part,
         })
         .collect();
 

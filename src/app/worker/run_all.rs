@@ -80,7 +80,7 @@ impl PipelineWorker {
     /// One pair's row: registered with the current parameters (loaded pairs are reused, others
     /// loaded and not kept), or an error row saying why not. `generate`: produce a missing
     /// generation (not for a Cosmos command, as in studies).
-    fn run_row(&mut self, id: &str, generate: bool) -> PairEntry {
+    pub(super) fn run_row(&mut self, id: &str, generate: bool) -> PairEntry {
         let mut row = self
             .pairs
             .iter()

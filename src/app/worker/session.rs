@@ -13,6 +13,7 @@ use crate::app::controls::{EventSink, LogLevel, WorkerEvent};
 use crate::app::model::{
     Branch, InspectorModel, MatchInfo, PairEntry, PairStatus, PrCurve, StageInfo, StageState,
 };
+use crate::app::stages_panel::StageRole;
 use crate::dataset::ScanPair;
 use crate::fusion::fuse::FusionMode;
 use crate::pipeline::fuse::{fuse_and_finish, similarities, FusionInputs};
@@ -309,6 +310,7 @@ impl PipelineWorker {
                 name: s.name.clone(),
                 state: StageState::Cached,
                 time_ms: Some(0.0),
+                role: StageRole::Part,
             })
             .collect();
         stages.append(&mut model.stages);
@@ -319,6 +321,7 @@ impl PipelineWorker {
                 name: "re-fuse from memory".into(),
                 state: StageState::Done,
                 time_ms: Some(t0.elapsed().as_secs_f64() * 1e3),
+                role: StageRole::Container,
             },
         );
         stages.insert(1, row);
@@ -402,6 +405,7 @@ impl PipelineWorker {
                             name: stage.into(),
                             state: StageState::Done,
                             time_ms: Some(ms),
+                            role: StageRole::Container,
                         },
                     );
                 }
@@ -453,6 +457,7 @@ impl PipelineWorker {
                     name: stage.into(),
                     state: StageState::Failed(e.to_string()),
                     time_ms: Some(t.elapsed().as_secs_f64() * 1e3),
+                    role: StageRole::Container,
                 }];
                 model.image_branch_note = Some(format!("registration failed: {e}"));
                 self.current = None;
@@ -545,6 +550,7 @@ impl PipelineWorker {
             name: "load + register".into(),
             state: StageState::Running,
             time_ms: None,
+            role: StageRole::Container,
         }));
         if let Some(p) = self.pairs.iter_mut().find(|p| p.id == id) {
             p.status = PairStatus::Running;

@@ -1,0 +1,266 @@
+//! The pair browser's table: a header that stays in view while the rows scroll under it
+//! (and scrolls sideways with them), fixed column widths shared by the header and the rows,
+//! one row per shown pair.
+
+use eframe::egui;
+
+use super::{PairColumn, PairSort};
+use crate::app::model::{InspectorModel, PairEntry, PairOutcome, PairStatus};
+use crate::app::Command;
+
+/// A clickable header cell; the sorted column shows its direction.
+fn header(ui: &mut egui::Ui, column: PairColumn, sort: &mut PairSort) {
+    let on = sort.column == column;
+    let text = match (on, sort.descending) {
+        (true, true) => format!("{} v", column.label()),
+        (true, false) => format!("{} ^", column.label()),
+        (false, _) => column.label().to_string(),
+    };
+    let r = ui
+        .selectable_label(on, egui::RichText::new(text).strong())
+        .on_hover_text("sort by this column (again: the other direction)");
+    if r.clicked() {
+        *sort = sort.clicked(column);
+    }
+}
+
+fn outcome_color(o: PairOutcome) -> egui::Color32 {
+    match o {
+        PairOutcome::Success => egui::Color32::from_rgb(110, 200, 110),
+        PairOutcome::Failure => egui::Color32::from_rgb(235, 160, 60),
+        PairOutcome::Error => egui::Color32::from_rgb(240, 80, 70),
+        PairOutcome::Running => egui::Color32::from_rgb(120, 170, 240),
+        PairOutcome::Pending | PairOutcome::Done => egui::Color32::from_gray(170),
+    }
+}
+
+fn status_cell(ui: &mut egui::Ui, p: &PairEntry) {
+    let o = p.outcome();
+    let r = ui.colored_label(outcome_color(o), o.label());
+    if let PairStatus::Failed(m) = &p.status {
+        r.on_hover_text(m);
+    }
+}
+
+fn opt(v: Option<f64>, scale: f64, digits: usize) -> String {
+    v.map(|x| format!("{:.*}", digits, x * scale))
+        .unwrap_or_else(|| "-".into())
+}
+
+/// A cell's text (the pair column's is its id).
+fn cell_text(p: &PairEntry, c: PairColumn) -> String {
+    match c {
+        PairColumn::Pair => p.id.clone(),
+        PairColumn::Split => p.split.clone(),
+        PairColumn::Status => p.outcome().label().to_string(),
+        PairColumn::Rre => opt(p.rre_deg, 1.0, 2),
+        PairColumn::Rte => opt(p.rte_m, 100.0, 1),
+        PairColumn::InlierRatio => opt(p.inlier_ratio, 100.0, 1),
+        PairColumn::Correspondences => p
+            .correspondences
+            .map(|n| n.to_string())
+            .unwrap_or_else(|| "-".into()),
+        PairColumn::Time => opt(p.time_ms, 1e-3, 2),
+    }
+}
+
+/// The widest texts a column shows besides the ids and splits (numbers have bounded widths).
+fn widest_samples(c: PairColumn) -> &'static [&'static str] {
+    match c {
+        PairColumn::Status => &[
+            "success",
+            "failure",
+            "running",
+            "pending",
+            "error",
+            "done (no GT)",
+        ],
+        PairColumn::Rre => &["179.99"],
+        PairColumn::Rte => &["9999.9"],
+        PairColumn::InlierRatio => &["100.0"],
+        PairColumn::Correspondences => &["99999"],
+        PairColumn::Time => &["999.99"],
+        PairColumn::Pair | PairColumn::Split => &[],
+    }
+}
+
+/// Column widths shared by the header and every row: the header (with its sort mark) or the
+/// widest content, whichever is wider. Ids and splits are measured on the longest few.
+fn column_widths(
+    ui: &egui::Ui,
+    model: &InspectorModel,
+    rows: &[usize],
+    columns: &[PairColumn],
+) -> Vec<f32> {
+    let font = egui::TextStyle::Body.resolve(ui.style());
+    let strong = egui::TextStyle::Button.resolve(ui.style());
+    let width = |t: &str, f: &egui::FontId| {
+        ui.ctx().fonts_mut(|fonts| {
+            fonts
+                .layout_no_wrap(t.to_string(), f.clone(), egui::Color32::WHITE)
+                .size()
+                .x
+        })
+    };
+    let pad = 2.0 * ui.spacing().button_padding.x + 4.0;
+    columns
+        .iter()
+        .map(|&c| {
+            let head = width(&format!("{} v", c.label()), &strong);
+            let body = match c {
+                PairColumn::Pair | PairColumn::Split => {
+                    let mut texts: Vec<String> = rows
+                        .iter()
+                        .map(|&i| cell_text(&model.pairs[i], c))
+                        .collect();
+                    texts.sort_by_key(|t| std::cmp::Reverse(t.chars().count()));
+                    texts.dedup();
+                    texts
+                        .iter()
+                        .take(6)
+                        .map(|t| width(t, &font))
+                        .fold(0.0, f32::max)
+                }
+                _ => widest_samples(c)
+                    .iter()
+                    .map(|t| width(t, &font))
+                    .fold(0.0, f32::max),
+            };
+            head.max(body) + pad
+        })
+        .collect()
+}
+
+/// `add` in a cell of width `w` and height `h`: text columns from the left, numbers from the
+/// right.
+fn fixed_cell<R>(
+    ui: &mut egui::Ui,
+    w: f32,
+    h: f32,
+    right: bool,
+    add: impl FnOnce(&mut egui::Ui) -> R,
+) -> R {
+    let layout = if right {
+        egui::Layout::right_to_left(egui::Align::Center)
+    } else {
+        egui::Layout::left_to_right(egui::Align::Center)
+    };
+    ui.allocate_ui_with_layout(egui::vec2(w, h), layout, |ui| {
+        ui.set_width(w);
+        ui.set_height(h);
+        add(ui)
+    })
+    .inner
+}
+
+fn is_number(c: PairColumn) -> bool {
+    !matches!(c, PairColumn::Pair | PairColumn::Split | PairColumn::Status)
+}
+
+/// What a table shows: the rows (indices into the model's pairs, in order) and the columns
+/// (the first is the pair id).
+pub struct TableView<'a> {
+    /// Distinguishes the side panel's table from the tab's (scroll state).
+    pub id: &'a str,
+    pub model: &'a InspectorModel,
+    pub rows: &'a [usize],
+    pub columns: &'a [PairColumn],
+    /// Height of the rows' area; None: what the panel has left.
+    pub max_height: Option<f32>,
+}
+
+/// The table: the header stays in view above the rows, which scroll under it; the two
+/// scroll sideways together when the columns are wider than the panel. Clicking an id opens
+/// that pair; the current pair's row is scrolled into view when it becomes current (only when
+/// hidden: a visible row stays where it is).
+pub fn table(
+    ui: &mut egui::Ui,
+    v: TableView,
+    sort: &mut PairSort,
+    scrolled: &mut Option<String>,
+    out: &mut Vec<Command>,
+) {
+    let widths = column_widths(ui, v.model, v.rows, v.columns);
+    let gap = ui.spacing().item_spacing.x;
+    let total: f32 = widths.iter().sum::<f32>() + gap * widths.len().saturating_sub(1) as f32;
+    let row_h = ui.spacing().interact_size.y;
+    egui::ScrollArea::horizontal()
+        .id_salt((v.id, "sideways"))
+        .auto_shrink([false, true])
+        .show(ui, |ui| {
+            ui.horizontal(|ui| {
+                for (&c, &w) in v.columns.iter().zip(&widths) {
+                    fixed_cell(ui, w, row_h, false, |ui| header(ui, c, sort));
+                }
+            });
+            ui.separator();
+            // what is left below the header, less the sideways scroll bar
+            let h = v
+                .max_height
+                .unwrap_or_else(|| ui.available_height() - ui.spacing().scroll.allocated_width())
+                .max(row_h);
+            ui.allocate_ui_with_layout(
+                egui::vec2(total, h),
+                egui::Layout::top_down(egui::Align::Min),
+                |ui| {
+                    ui.set_width(total);
+                    egui::ScrollArea::vertical()
+                        .id_salt((v.id, "rows"))
+                        .max_height(h)
+                        .auto_shrink([false, v.max_height.is_some()])
+                        .show(ui, |ui| rows(ui, &v, &widths, row_h, scrolled, out));
+                },
+            );
+        });
+}
+
+/// The rows of [`table`], striped.
+fn rows(
+    ui: &mut egui::Ui,
+    v: &TableView,
+    widths: &[f32],
+    row_h: f32,
+    scrolled: &mut Option<String>,
+    out: &mut Vec<Command>,
+) {
+    for (k, &i) in v.rows.iter().enumerate() {
+        let p = &v.model.pairs[i];
+        let current = v.model.current_pair == Some(i);
+        let stripe = ui.painter().add(egui::Shape::Noop);
+        let row = ui.horizontal(|ui| {
+            let id_w = widths.first().copied().unwrap_or(120.0);
+            let r = fixed_cell(ui, id_w, row_h, false, |ui| {
+                ui.selectable_label(current, &p.id)
+            });
+            for (&c, &w) in v.columns.iter().zip(widths).skip(1) {
+                fixed_cell(ui, w, row_h, is_number(c), |ui| match c {
+                    PairColumn::Status => status_cell(ui, p),
+                    _ => {
+                        ui.label(cell_text(p, c));
+                    }
+                });
+            }
+            r
+        });
+        if k % 2 == 1 {
+            let fill = ui.visuals().faint_bg_color;
+            ui.painter().set(
+                stripe,
+                egui::epaint::RectShape::filled(row.response.rect, 0.0, fill),
+            );
+        }
+        let r = row.inner;
+        if r.clicked() && !current {
+            out.push(Command::SelectPair(p.id.clone()));
+        }
+        if current && scrolled.as_deref() != Some(p.id.as_str()) {
+            if !ui.clip_rect().contains_rect(r.rect) {
+                r.scroll_to_me_animation(
+                    Some(egui::Align::Center),
+                    egui::style::ScrollAnimation::none(),
+                );
+            }
+            *scrolled = Some(p.id.clone());
+        }
+    }
+}
