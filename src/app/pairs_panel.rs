@@ -273,6 +273,7 @@ pub fn pairs_tab(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::app::model::PairEntry;
 
     #[test]
     fn progress_updates_rows_and_clears_when_finished() {
