@@ -156,9 +156,21 @@ pub fn table(
     scrolled: &mut Option<String>,
     out: &mut Vec<Command>,
 ) {
-    let widths = column_widths(ui, v.model, v.rows, v.columns);
+    let mut widths = column_widths(ui, v.model, v.rows, v.columns);
     let gap = ui.spacing().item_spacing.x;
-    let total: f32 = widths.iter().sum::<f32>() + gap * widths.len().saturating_sub(1) as f32;
+    let mut total: f32 = widths.iter().sum::<f32>() + gap * widths.len().saturating_sub(1) as f32;
+    if !v.sideways {
+        // the side panel does not scroll sideways: the pair column gives up what does not
+        // fit (its ids are elided, the full id is the tooltip), so the metrics stay in view
+        let over = total - ui.available_width();
+        if over > 0.0 {
+            if let Some(w0) = widths.first_mut() {
+                let shrunk = (*w0 - over).max(MIN_ID_WIDTH.min(*w0));
+                total -= *w0 - shrunk;
+                *w0 = shrunk;
+            }
+        }
+    }
     let row_h = ui.spacing().interact_size.y;
     let mut body = |ui: &mut egui::Ui| {
         ui.horizontal(|ui| {
@@ -200,6 +212,9 @@ pub fn table(
     }
 }
 
+/// The narrowest the pair column gets in a table that does not scroll sideways.
+const MIN_ID_WIDTH: f32 = 80.0;
+
 /// The rows of [`table`], striped.
 fn rows(
     ui: &mut egui::Ui,
@@ -216,7 +231,8 @@ fn rows(
         let row = ui.horizontal(|ui| {
             let id_w = widths.first().copied().unwrap_or(120.0);
             let r = fixed_cell(ui, id_w, row_h, false, |ui| {
-                ui.selectable_label(current, &p.id)
+                ui.style_mut().wrap_mode = Some(egui::TextWrapMode::Truncate);
+                ui.selectable_label(current, &p.id).on_hover_text(&p.id)
             });
             for (&c, &w) in v.columns.iter().zip(widths).skip(1) {
                 fixed_cell(ui, w, row_h, is_number(c), |ui| match c {
