@@ -636,3 +636,66 @@ fn open_an_rgbd_sequence() {
     assert!(row.rre_deg.unwrap() < 15.0 && row.rte_m.unwrap() < 0.3);
     eprintln!("7-Scenes 0-1: RRE {:?} RTE {:?}", row.rre_deg, row.rte_m);
 }
+
+/// A re-fusion from memory (kept row maxima, the estimate memo) gives, bit for bit, what the
+/// library's `fuse_and_finish` gives from the kept similarities, and the registration a fresh
+/// run gives (same correspondences, same pose); repeating the settings reuses the estimate.
+#[test]
+fn refusion_from_memory_equals_the_library_and_a_fresh_run() {
+    let mut w = PipelineWorker::open_manifest(&demo_manifest(), params()).unwrap();
+    let id = w.pair_ids()[0].clone();
+    w.run_pair(&id).unwrap();
+    let mut s = w.params().clone();
+    *s.fusion.calibration_geo.tau_mut() = 0.07;
+    w.set_params(s.clone());
+    let kept = w.refuse().expect("a temperature change re-fuses").unwrap();
+
+    let ds = Dataset::load(&demo_manifest()).unwrap();
+    let pair = ds.load_pair(&id).unwrap();
+    let (fresh, inputs) = cgenreg::pipeline::register_pair_cached_keep(&pair, &s, None).unwrap();
+    let sims = cgenreg::pipeline::fuse::similarities(&inputs).unwrap();
+    let lib = cgenreg::pipeline::fuse::fuse_and_finish(&pair, &s, &inputs, Some(&sims)).unwrap();
+    let lib = result_to_model(&pair, &lib, "lib", Vec::new());
+    let key = |m: &cgenreg::app::InspectorModel| {
+        m.matches
+            .iter()
+            .map(|c| (c.src, c.tgt, c.score.to_bits(), c.survived))
+            .collect::<Vec<_>>()
+    };
+    assert!(!kept.matches.is_empty());
+    assert_eq!(key(&kept), key(&lib));
+    let pose = |m: &cgenreg::app::InspectorModel| m.estimated.map(|e| e.to_homogeneous());
+    assert_eq!(pose(&kept), pose(&lib));
+    // a fresh run (streaming similarity): the same correspondences and pose
+    let mut a: Vec<(u32, u32)> = fresh
+        .correspondences
+        .iter()
+        .map(|c| (c.src, c.tgt))
+        .collect();
+    let mut b: Vec<(u32, u32)> = kept
+        .matches
+        .iter()
+        .map(|c| (c.src as u32, c.tgt as u32))
+        .collect();
+    a.sort_unstable();
+    b.sort_unstable();
+    assert_eq!(a, b);
+    let d = (fresh.estimate.to_homogeneous() - kept.estimated.unwrap().to_homogeneous())
+        .abs()
+        .max();
+    assert!(d < 1e-6, "poses differ by {d}");
+
+    let estimate_row = |m: &cgenreg::app::InspectorModel| {
+        m.stages
+            .iter()
+            .find(|r| r.name == "estimate")
+            .map(|r| r.state.clone())
+    };
+    assert_eq!(estimate_row(&kept), Some(StageState::Done));
+    // the same settings again: the same correspondences, so the estimate is remembered
+    w.set_params(s);
+    let again = w.refuse().expect("re-fuse").unwrap();
+    assert_eq!(key(&again), key(&kept));
+    assert_eq!(pose(&again), pose(&kept));
+    assert_eq!(estimate_row(&again), Some(StageState::Cached));
+}

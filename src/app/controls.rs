@@ -323,148 +323,188 @@ pub fn controls_ui(
     };
     egui::CollapsingHeader::new("Prompt")
         .default_open(true)
-        .show(ui, |ui| {
-            let current = PromptPreset::of_scene(&ib.prompt.scene).or_else(|| {
-                (!scene_specific.is_empty() && ib.prompt.scene.trim() == scene_specific.trim())
-                    .then_some(PromptPreset::SceneSpecific)
-            });
-            ui.horizontal_wrapped(|ui| {
-                for p in PromptPreset::ALL {
-                    if ui.selectable_label(current == Some(p), p.label()).clicked() {
-                        ib.prompt.scene = p.scene_text(scene_specific);
-                    }
-                }
-            });
-            let l = ui.label("Shared prefix");
-            ui.add(
-                egui::TextEdit::multiline(&mut ib.prompt.prefix)
-                    .desired_rows(2)
-                    .desired_width(f32::INFINITY),
-            )
-            .labelled_by(l.id);
-            let l = ui.label("Scene description");
-            ui.add(
-                egui::TextEdit::multiline(&mut ib.prompt.scene)
-                    .desired_rows(3)
-                    .desired_width(f32::INFINITY),
-            )
-            .labelled_by(l.id);
-        });
+        .show(ui, |ui| prompt_controls(ui, ib, scene_specific));
     egui::CollapsingHeader::new("Image branch")
         .default_open(true)
-        .show(ui, |ui| {
-            let options = std::iter::once(None).chain(WfmSpec::all().map(|w| match w {
-                // keep the folder, spec or command already given
-                w if w.same_kind(&ib.backend) => Some(ib.backend.clone()),
-                w => Some(w),
-            }));
-            choice(
-                ui,
-                "WFM",
-                &mut backend,
-                options,
-                |a, b| match (a, b) {
-                    (Some(a), Some(b)) => a.same_kind(b),
-                    (None, None) => true,
-                    _ => false,
-                },
-                |w| w.as_ref().map_or("none (geometry only)", |w| w.label()),
-            );
-            if let Some(WfmSpec::Cached { dir, spec }) = &mut backend {
-                path_field(ui, "Cosmos output folder", dir);
-                path_field(ui, "JSONL spec", spec);
-            }
-            if let Some(WfmSpec::Cosmos { command, .. }) = &backend {
-                ui.label(format!("command: {}", command.join(" ")));
-            }
-            ui.horizontal(|ui| {
-                let l = ui.label("Seed");
-                ui.add(egui::DragValue::new(&mut ib.seed)).labelled_by(l.id);
-            });
-        });
+        .show(ui, |ui| image_branch_controls(ui, ib, &mut backend));
     egui::CollapsingHeader::new("Views")
         .default_open(true)
-        .show(ui, |ui| {
-            ui.add(egui::Slider::new(&mut ib.k, 1..=8).text("K views"));
-            ui.add(egui::Slider::new(&mut ib.margin, 0..=10).text("Safeguard margin (frames)"));
-            let options = VfmSpec::all().map(|v| match v {
-                v if v.same_kind(&ib.vfm) => ib.vfm.clone(),
-                v => v,
-            });
-            choice(
-                ui,
-                "VFM",
-                &mut ib.vfm,
-                options,
-                VfmSpec::same_kind,
-                VfmSpec::label,
-            );
-            path_field(ui, "VFM model (ONNX)", ib.vfm.model_mut());
-        });
+        .show(ui, |ui| view_controls(ui, ib));
     egui::CollapsingHeader::new("Calibration & fusion")
         .default_open(true)
-        .show(ui, |ui| {
-            for (name, cal) in [
-                ("Image", &mut params.fusion.calibration_img),
-                ("Geometry", &mut params.fusion.calibration_geo),
-            ] {
-                let tau = cal.tau();
-                choice(
-                    ui,
-                    &format!("{name} calibration"),
-                    cal,
-                    Calibration::all_with_tau(tau),
-                    same_variant,
-                    |c| c.label(),
-                );
-                ui.add(
-                    egui::Slider::new(cal.tau_mut(), 0.005..=1.0)
-                        .logarithmic(true)
-                        .text(format!("{name} temperature")),
-                );
+        .show(ui, |ui| fusion_controls(ui, params));
+    switch_image_branch(params, image_off, image_on, backend);
+    if *params != before {
+        let mut p = params.clone();
+        if let Some(ib) = &mut p.image {
+            // whitespace at either end of the prompt changes nothing the user means
+            ib.prompt = crate::wfm::Prompt::new(ib.prompt.prefix.trim(), ib.prompt.scene.trim());
+        }
+        out.push(Command::ApplySettings(p));
+    }
+}
+
+/// Prompt presets, the shared prefix and the scene description.
+fn prompt_controls(ui: &mut egui::Ui, ib: &mut ImageBranchParams, scene_specific: &str) {
+    let current = PromptPreset::of_scene(&ib.prompt.scene).or_else(|| {
+        (!scene_specific.is_empty() && ib.prompt.scene.trim() == scene_specific.trim())
+            .then_some(PromptPreset::SceneSpecific)
+    });
+    ui.horizontal_wrapped(|ui| {
+        for p in PromptPreset::ALL {
+            if ui.selectable_label(current == Some(p), p.label()).clicked() {
+                ib.prompt.scene = p.scene_text(scene_specific);
             }
-            let mode = &mut params.fusion.mode;
-            choice(
-                ui,
-                "Fusion",
-                mode,
-                FusionMode::ALL,
-                |a, b| a == b,
-                |m| m.label(),
-            );
-            let k = match params.fusion.selection {
-                Selection::TopK(k) => k,
-                _ => DEFAULT_TOPK,
-            };
-            choice(
-                ui,
-                "Selection",
-                &mut params.fusion.selection,
-                Selection::all_with_k(k),
-                same_variant,
-                |s| s.label(),
-            );
-            if let Selection::TopK(k) = &mut params.fusion.selection {
-                ui.add(
-                    egui::Slider::new(k, 100..=20_000)
-                        .logarithmic(true)
-                        .text("top-k"),
-                );
-            }
-            let options = EstimatorKind::all().map(|e| match e {
-                e if e.same_kind(&params.estimator) => params.estimator.clone(),
-                e => e,
-            });
-            choice(
-                ui,
-                "Estimator",
-                &mut params.estimator,
-                options,
-                EstimatorKind::same_kind,
-                EstimatorKind::label,
-            );
-        });
-    // switch the image branch on or off, keeping its parameters while it is off
+        }
+    });
+    let l = ui.label("Shared prefix");
+    ui.add(
+        egui::TextEdit::multiline(&mut ib.prompt.prefix)
+            .desired_rows(2)
+            .desired_width(f32::INFINITY),
+    )
+    .labelled_by(l.id);
+    let l = ui.label("Scene description");
+    ui.add(
+        egui::TextEdit::multiline(&mut ib.prompt.scene)
+            .desired_rows(3)
+            .desired_width(f32::INFINITY),
+    )
+    .labelled_by(l.id);
+}
+
+/// The WFM (None: geometry only) with its folder, spec or command, and the seed.
+fn image_branch_controls(
+    ui: &mut egui::Ui,
+    ib: &mut ImageBranchParams,
+    backend: &mut Option<WfmSpec>,
+) {
+    let options = std::iter::once(None).chain(WfmSpec::all().map(|w| match w {
+        // keep the folder, spec or command already given
+        w if w.same_kind(&ib.backend) => Some(ib.backend.clone()),
+        w => Some(w),
+    }));
+    choice(
+        ui,
+        "WFM",
+        backend,
+        options,
+        |a, b| match (a, b) {
+            (Some(a), Some(b)) => a.same_kind(b),
+            (None, None) => true,
+            _ => false,
+        },
+        |w| w.as_ref().map_or("none (geometry only)", |w| w.label()),
+    );
+    if let Some(WfmSpec::Cached { dir, spec }) = backend {
+        path_field(ui, "Cosmos output folder", dir);
+        path_field(ui, "JSONL spec", spec);
+    }
+    if let Some(WfmSpec::Cosmos { command, .. }) = backend {
+        ui.label(format!("command: {}", command.join(" ")));
+    }
+    ui.horizontal(|ui| {
+        let l = ui.label("Seed");
+        ui.add(egui::DragValue::new(&mut ib.seed)).labelled_by(l.id);
+    });
+}
+
+/// K, the safeguard margin, the VFM and its model file.
+fn view_controls(ui: &mut egui::Ui, ib: &mut ImageBranchParams) {
+    ui.add(egui::Slider::new(&mut ib.k, 1..=8).text("K views"));
+    ui.add(egui::Slider::new(&mut ib.margin, 0..=10).text("Safeguard margin (frames)"));
+    let options = VfmSpec::all().map(|v| match v {
+        v if v.same_kind(&ib.vfm) => ib.vfm.clone(),
+        v => v,
+    });
+    choice(
+        ui,
+        "VFM",
+        &mut ib.vfm,
+        options,
+        VfmSpec::same_kind,
+        VfmSpec::label,
+    );
+    path_field(ui, "VFM model (ONNX)", ib.vfm.model_mut());
+}
+
+/// Each branch's calibration and temperature, the fusion mode, the selection (with top-k)
+/// and the estimator: the slider edits `params.fusion.calibration_img` itself.
+fn fusion_controls(ui: &mut egui::Ui, params: &mut RegisterParams) {
+    for (name, cal) in [
+        ("Image", &mut params.fusion.calibration_img),
+        ("Geometry", &mut params.fusion.calibration_geo),
+    ] {
+        let tau = cal.tau();
+        choice(
+            ui,
+            &format!("{name} calibration"),
+            cal,
+            Calibration::all_with_tau(tau),
+            same_variant,
+            |c| c.label(),
+        );
+        ui.add(
+            egui::Slider::new(cal.tau_mut(), 0.005..=1.0)
+                .logarithmic(true)
+                .text(format!("{name} temperature")),
+        );
+    }
+    let mode = &mut params.fusion.mode;
+    choice(
+        ui,
+        "Fusion",
+        mode,
+        FusionMode::ALL,
+        |a, b| a == b,
+        |m| m.label(),
+    );
+    selection_controls(ui, &mut params.fusion.selection);
+    let options = EstimatorKind::all().map(|e| match e {
+        e if e.same_kind(&params.estimator) => params.estimator.clone(),
+        e => e,
+    });
+    choice(
+        ui,
+        "Estimator",
+        &mut params.estimator,
+        options,
+        EstimatorKind::same_kind,
+        EstimatorKind::label,
+    );
+}
+
+/// The selection rule, and k for top-k.
+fn selection_controls(ui: &mut egui::Ui, selection: &mut Selection) {
+    let k = match *selection {
+        Selection::TopK(k) => k,
+        _ => DEFAULT_TOPK,
+    };
+    choice(
+        ui,
+        "Selection",
+        selection,
+        Selection::all_with_k(k),
+        same_variant,
+        |s| s.label(),
+    );
+    if let Selection::TopK(k) = selection {
+        ui.add(
+            egui::Slider::new(k, 100..=20_000)
+                .logarithmic(true)
+                .text("top-k"),
+        );
+    }
+}
+
+/// Switches the image branch on or off after the WFM choice, keeping its parameters in
+/// `image_off` while it is off.
+fn switch_image_branch(
+    params: &mut RegisterParams,
+    image_off: &mut ImageBranchParams,
+    image_on: bool,
+    backend: Option<WfmSpec>,
+) {
     match (image_on, backend) {
         (true, Some(b)) => params.image.as_mut().expect("image on").backend = b,
         (true, None) => *image_off = params.image.take().expect("image on"),
@@ -475,14 +515,6 @@ pub fn controls_ui(
             })
         }
         (false, None) => {}
-    }
-    if *params != before {
-        let mut p = params.clone();
-        if let Some(ib) = &mut p.image {
-            // whitespace at either end of the prompt changes nothing the user means
-            ib.prompt = crate::wfm::Prompt::new(ib.prompt.prefix.trim(), ib.prompt.scene.trim());
-        }
-        out.push(Command::ApplySettings(p));
     }
 }
 

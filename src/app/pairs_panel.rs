@@ -219,6 +219,7 @@ pub fn pairs_panel(
         rows: &rows,
         columns: &cols,
         max_height: Some(170.0),
+        sideways: false,
     };
     table(ui, view, sort, &mut state.scrolled[0], out);
 }
@@ -266,6 +267,7 @@ pub fn pairs_tab(
         rows: &rows,
         columns: &PairColumn::ALL,
         max_height: None,
+        sideways: true,
     };
     table(ui, view, sort, &mut state.scrolled[1], out);
 }
@@ -273,6 +275,7 @@ pub fn pairs_tab(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::app::model::PairEntry;
 
     #[test]
     fn progress_updates_rows_and_clears_when_finished() {

@@ -286,15 +286,7 @@ pub fn views_panel(
     let model = shared.model;
     let (ks, kt) = (model.source_views.len(), model.target_views.len());
     if ks == 0 || kt == 0 {
-        match &model.image_branch_note {
-            Some(note) => {
-                ui.colored_label(egui::Color32::from_rgb(230, 190, 60), "Image branch off");
-                ui.label(note);
-            }
-            None => {
-                ui.label("No views yet: the pair is still being registered.");
-            }
-        }
+        no_views_note(ui, model);
         return;
     }
     let top = ui.cursor().top();
@@ -305,83 +297,183 @@ pub fn views_panel(
         state.pair = None;
     }
     let (si, ti) = state.pair.unwrap_or(auto);
+    let pick = Pick { ks, kt, si, ti };
     let (sv, tv) = (&model.source_views[si], &model.target_views[ti]);
     let in_pair = matches_in_pair(sv, tv, &shown);
-    let elsewhere = shown.len() - in_pair.len();
+    header(ui, state, &counts, pick, (in_pair.len(), shown.len()));
 
+    let layout = Layout::new(ui, top, max_height, sv, tv);
+    zoom_and_pan(ui, &layout, state);
+    let win = state.window();
+    let painter = ui.painter_at(layout.area);
+    for (v, r, side, k) in [(sv, layout.rs, "src", si), (tv, layout.rt, "tgt", ti)] {
+        let img = if state.show_depth {
+            v.depth.as_ref().unwrap_or(&v.rgb)
+        } else {
+            &v.rgb
+        };
+        let key = format!("{side}{k}{}", if state.show_depth { "d" } else { "c" });
+        let tex = state.textures.get(ui.ctx(), shared.model_gen, &key, img);
+        painter.image(tex.id(), r, win, egui::Color32::WHITE);
+    }
+    let segs = match_lines(&painter, shared, &layout, win, (sv, tv), &in_pair);
+    hover_match(&layout.response, &segs, shared);
+    highlights(&painter, shared, &segs, &layout, win, sv);
+    hover_tooltip(&painter, shared, &layout.response);
+    click_opens_posterior(&layout.response, &segs, shared);
+    view_labels(ui, &layout, (si, sv), (ti, tv));
+}
+
+/// Why there are no views: the image branch is off (with its note) or the run is not done.
+fn no_views_note(ui: &mut egui::Ui, model: &InspectorModel) {
+    match &model.image_branch_note {
+        Some(note) => {
+            ui.colored_label(egui::Color32::from_rgb(230, 190, 60), "Image branch off");
+            ui.label(note);
+        }
+        None => {
+            ui.label("No views yet: the pair is still being registered.");
+        }
+    }
+}
+
+/// The view counts and the view pair shown.
+#[derive(Clone, Copy)]
+struct Pick {
+    ks: usize,
+    kt: usize,
+    si: usize,
+    ti: usize,
+}
+
+/// A drawn match on screen: (match index, source end, target end).
+type Segment = (usize, egui::Pos2, egui::Pos2);
+
+/// The overview grid, the view pickers, depth and zoom, and how many of the `shown` matches
+/// fall in the pair (`counts`: (in the pair, shown)).
+fn header(
+    ui: &mut egui::Ui,
+    state: &mut ViewsState,
+    counts: &[usize],
+    pick: Pick,
+    (in_pair, shown): (usize, usize),
+) {
+    let Pick { ks, kt, si, ti } = pick;
+    let elsewhere = shown - in_pair;
     ui.horizontal(|ui| {
         if ks * kt > 1 {
-            if let Some(c) = overview_grid(ui, &counts, ks, kt, (si, ti)) {
+            if let Some(c) = overview_grid(ui, counts, ks, kt, (si, ti)) {
                 state.pair = Some(c);
             }
             ui.separator();
         }
         ui.vertical(|ui| {
-            ui.horizontal(|ui| {
-                let mut s = si;
-                let mut t = ti;
-                egui::ComboBox::from_label("source view")
-                    .selected_text(format!("{si}"))
-                    .show_ui(ui, |ui| {
-                        for i in 0..ks {
-                            ui.selectable_value(&mut s, i, format!("{i} ({} in pair with target {ti})", counts[i * kt + ti]));
-                        }
-                    });
-                egui::ComboBox::from_label("target view")
-                    .selected_text(format!("{ti}"))
-                    .show_ui(ui, |ui| {
-                        for j in 0..kt {
-                            ui.selectable_value(&mut t, j, format!("{j} ({} in pair with source {si})", counts[si * kt + j]));
-                        }
-                    });
-                if (s, t) != (si, ti) {
-                    state.pair = Some((s, t));
-                }
-                if state.pair.is_some() && ui.small_button("most matches").clicked() {
-                    state.pair = None;
-                }
-            });
-            ui.horizontal(|ui| {
-                ui.checkbox(&mut state.show_depth, "depth frames");
-                ui.add(
-                    egui::Slider::new(&mut state.zoom, 1.0..=MAX_ZOOM)
-                        .logarithmic(true)
-                        .text("zoom"),
-                );
-                if ui.small_button("Reset zoom").clicked() {
-                    state.reset_zoom();
-                }
-            });
+            view_pickers(ui, state, counts, pick);
+            depth_and_zoom(ui, state);
             ui.label(format!(
-                "{} of the {} shown matches fall in source view {si} / target view {ti}, each drawn as a line; the other {elsewhere} are not seen by both of these views.",
-                in_pair.len(),
-                shown.len()
+                "{in_pair} of the {shown} shown matches fall in source view {si} / target view {ti}, each drawn as a line; the other {elsewhere} are not seen by both of these views.",
             ));
             ui.weak("scroll: zoom · drag: pan · double-click: reset · hover a match: highlight (here and in 3D) · click: open in Posterior");
         });
     });
+}
 
-    // Both images at one height, side by side with a small gap, as large as the panel allows.
-    let gap = 6.0;
-    let label_h = 40.0;
-    let used = ui.cursor().top() - top;
-    let avail_w = ui.available_width();
-    let avail_h = (max_height - used - label_h).max(60.0);
-    let (ws, hs) = (sv.rgb.width.max(1) as f32, sv.rgb.height.max(1) as f32);
-    let (wt, ht) = (tv.rgb.width.max(1) as f32, tv.rgb.height.max(1) as f32);
-    let (as_, at) = (ws / hs, wt / ht);
-    let h = avail_h.min((avail_w - gap) / (as_ + at)).max(20.0);
-    let total = egui::vec2(h * (as_ + at) + gap, h);
-    let (area, response) =
-        ui.allocate_exact_size(egui::vec2(avail_w, h), egui::Sense::click_and_drag());
-    let x0 = area.left() + ((avail_w - total.x) / 2.0).max(0.0);
-    let rs = egui::Rect::from_min_size(egui::pos2(x0, area.top()), egui::vec2(h * as_, h));
-    let rt = egui::Rect::from_min_size(
-        egui::pos2(rs.right() + gap, area.top()),
-        egui::vec2(h * at, h),
-    );
+/// Source and target view pickers (each entry with its match count), and "most matches".
+fn view_pickers(ui: &mut egui::Ui, state: &mut ViewsState, counts: &[usize], pick: Pick) {
+    let Pick { ks, kt, si, ti } = pick;
+    ui.horizontal(|ui| {
+        let mut s = si;
+        let mut t = ti;
+        egui::ComboBox::from_label("source view")
+            .selected_text(format!("{si}"))
+            .show_ui(ui, |ui| {
+                for i in 0..ks {
+                    ui.selectable_value(
+                        &mut s,
+                        i,
+                        format!("{i} ({} in pair with target {ti})", counts[i * kt + ti]),
+                    );
+                }
+            });
+        egui::ComboBox::from_label("target view")
+            .selected_text(format!("{ti}"))
+            .show_ui(ui, |ui| {
+                for j in 0..kt {
+                    ui.selectable_value(
+                        &mut t,
+                        j,
+                        format!("{j} ({} in pair with source {si})", counts[si * kt + j]),
+                    );
+                }
+            });
+        if (s, t) != (si, ti) {
+            state.pair = Some((s, t));
+        }
+        if state.pair.is_some() && ui.small_button("most matches").clicked() {
+            state.pair = None;
+        }
+    });
+}
 
-    // zoom about the pointer, pan by dragging, double click resets
+fn depth_and_zoom(ui: &mut egui::Ui, state: &mut ViewsState) {
+    ui.horizontal(|ui| {
+        ui.checkbox(&mut state.show_depth, "depth frames");
+        ui.add(
+            egui::Slider::new(&mut state.zoom, 1.0..=MAX_ZOOM)
+                .logarithmic(true)
+                .text("zoom"),
+        );
+        if ui.small_button("Reset zoom").clicked() {
+            state.reset_zoom();
+        }
+    });
+}
+
+/// Where the two images go: both at one height, side by side with a small gap, as large as
+/// the panel allows.
+struct Layout {
+    area: egui::Rect,
+    response: egui::Response,
+    /// The source and target image rectangles.
+    rs: egui::Rect,
+    rt: egui::Rect,
+    x0: f32,
+}
+
+const GAP: f32 = 6.0;
+const LABEL_H: f32 = 40.0;
+
+impl Layout {
+    fn new(ui: &mut egui::Ui, top: f32, max_height: f32, sv: &ViewImage, tv: &ViewImage) -> Layout {
+        let used = ui.cursor().top() - top;
+        let avail_w = ui.available_width();
+        let avail_h = (max_height - used - LABEL_H).max(60.0);
+        let (ws, hs) = (sv.rgb.width.max(1) as f32, sv.rgb.height.max(1) as f32);
+        let (wt, ht) = (tv.rgb.width.max(1) as f32, tv.rgb.height.max(1) as f32);
+        let (as_, at) = (ws / hs, wt / ht);
+        let h = avail_h.min((avail_w - GAP) / (as_ + at)).max(20.0);
+        let total = egui::vec2(h * (as_ + at) + GAP, h);
+        let (area, response) =
+            ui.allocate_exact_size(egui::vec2(avail_w, h), egui::Sense::click_and_drag());
+        let x0 = area.left() + ((avail_w - total.x) / 2.0).max(0.0);
+        let rs = egui::Rect::from_min_size(egui::pos2(x0, area.top()), egui::vec2(h * as_, h));
+        let rt = egui::Rect::from_min_size(
+            egui::pos2(rs.right() + GAP, area.top()),
+            egui::vec2(h * at, h),
+        );
+        Layout {
+            area,
+            response,
+            rs,
+            rt,
+            x0,
+        }
+    }
+}
+
+/// Zoom about the pointer, pan by dragging, double click resets.
+fn zoom_and_pan(ui: &egui::Ui, layout: &Layout, state: &mut ViewsState) {
+    let (response, rs, rt) = (&layout.response, layout.rs, layout.rt);
     if let Some(pos) = response.hover_pos() {
         let scroll = ui.input(|i| i.smooth_scroll_delta.y);
         if scroll != 0.0 {
@@ -397,24 +489,21 @@ pub fn views_panel(
     if response.double_clicked() {
         state.reset_zoom();
     }
-    let win = state.window();
+}
 
-    let painter = ui.painter_at(area);
-    for (v, r, side, k) in [(sv, rs, "src", si), (tv, rt, "tgt", ti)] {
-        let img = if state.show_depth {
-            v.depth.as_ref().unwrap_or(&v.rgb)
-        } else {
-            &v.rgb
-        };
-        let key = format!("{side}{k}{}", if state.show_depth { "d" } else { "c" });
-        let tex = state.textures.get(ui.ctx(), shared.model_gen, &key, img);
-        painter.image(tex.id(), r, win, egui::Color32::WHITE);
-    }
-
-    // one line per match of the pair; with a zoom, those with an end outside the window are
-    // left out (a line to an unseen point would cross the other image)
+/// One line per match of the pair; with a zoom, those with an end outside the window are
+/// left out (a line to an unseen point would cross the other image). Returns the drawn ones.
+fn match_lines(
+    painter: &egui::Painter,
+    shared: &Shared<'_>,
+    layout: &Layout,
+    win: egui::Rect,
+    (sv, tv): (&ViewImage, &ViewImage),
+    in_pair: &[(usize, usize, [f32; 2], [f32; 2])],
+) -> Vec<Segment> {
+    let (rs, rt) = (layout.rs, layout.rt);
     let mut segs = Vec::with_capacity(in_pair.len());
-    for &(rank, mi, a, b) in &in_pair {
+    for &(rank, mi, a, b) in in_pair {
         let (pa, pb) = (
             to_screen_win(rs, win, &sv.rgb, a),
             to_screen_win(rt, win, &tv.rgb, b),
@@ -422,12 +511,17 @@ pub fn views_panel(
         if !(rs.contains(pa) && rt.contains(pb)) {
             continue;
         }
-        let c = to_color32(match_rgb(model, mi, rank, shared.ui.match_mode));
+        let c = to_color32(match_rgb(shared.model, mi, rank, shared.ui.match_mode));
         painter.line_segment([pa, pb], egui::Stroke::new(1.2, c));
         painter.circle_filled(pa, 2.2, c);
         painter.circle_filled(pb, 2.2, c);
         segs.push((mi, pa, pb));
     }
+    segs
+}
+
+/// The pointer near a line or an endpoint marks that match as hovered.
+fn hover_match(response: &egui::Response, segs: &[Segment], shared: &mut Shared<'_>) {
     if let Some(pos) = response.hover_pos() {
         let best = segs
             .iter()
@@ -444,6 +538,17 @@ pub fn views_panel(
             }
         }
     }
+}
+
+/// The highlighted match, and the selected source point's pixel in the source view.
+fn highlights(
+    painter: &egui::Painter,
+    shared: &Shared<'_>,
+    segs: &[Segment],
+    layout: &Layout,
+    win: egui::Rect,
+    sv: &ViewImage,
+) {
     let hc = to_color32(HIGHLIGHT_RGB);
     if let Some(mi) = shared.highlight() {
         if let Some((_, pa, pb)) = segs.iter().find(|s| s.0 == mi) {
@@ -453,61 +558,78 @@ pub fn views_panel(
         }
     }
     if let Some(sp) = shared.ui.selected_source_point {
-        if let Some(mi) = model.matches.iter().position(|m| m.src == sp) {
+        if let Some(mi) = shared.model.matches.iter().position(|m| m.src == sp) {
             if let Some(a) = sv.match_pixels.get(mi).copied().flatten() {
-                let p = to_screen_win(rs, win, &sv.rgb, a);
-                if rs.contains(p) {
+                let p = to_screen_win(layout.rs, win, &sv.rgb, a);
+                if layout.rs.contains(p) {
                     painter.circle_stroke(p, 8.0, egui::Stroke::new(2.0, egui::Color32::WHITE));
                 }
             }
         }
     }
-    if let (Some(mi), Some(pos)) = (shared.ui.hovered_match, response.hover_pos()) {
-        if let Some(m) = model.matches.get(mi) {
-            let gt = match m.inlier_gt {
-                Some(true) => "GT inlier",
-                Some(false) => "GT outlier",
-                None => "GT unknown",
-            };
-            let text = format!(
-                "#{mi}: src {} -> tgt {} · score {:.2} · {} · {gt} · click: posterior",
-                m.src,
-                m.tgt,
-                m.score,
-                m.branch.label()
-            );
-            let at = pos + egui::vec2(12.0, -18.0);
-            let galley = painter.layout_no_wrap(
-                text,
-                egui::FontId::proportional(12.0),
-                egui::Color32::WHITE,
-            );
-            let bg = egui::Rect::from_min_size(at, galley.size()).expand(3.0);
-            painter.rect_filled(bg, 3.0, egui::Color32::from_black_alpha(200));
-            painter.galley(at, galley, egui::Color32::WHITE);
-        }
+}
+
+/// The hovered match's indices, score, branch and GT status next to the pointer.
+fn hover_tooltip(painter: &egui::Painter, shared: &Shared<'_>, response: &egui::Response) {
+    let (Some(mi), Some(pos)) = (shared.ui.hovered_match, response.hover_pos()) else {
+        return;
+    };
+    let Some(m) = shared.model.matches.get(mi) else {
+        return;
+    };
+    let gt = match m.inlier_gt {
+        Some(true) => "GT inlier",
+        Some(false) => "GT outlier",
+        None => "GT unknown",
+    };
+    let text = format!(
+        "#{mi}: src {} -> tgt {} · score {:.2} · {} · {gt} · click: posterior",
+        m.src,
+        m.tgt,
+        m.score,
+        m.branch.label()
+    );
+    let at = pos + egui::vec2(12.0, -18.0);
+    let galley =
+        painter.layout_no_wrap(text, egui::FontId::proportional(12.0), egui::Color32::WHITE);
+    let bg = egui::Rect::from_min_size(at, galley.size()).expand(3.0);
+    painter.rect_filled(bg, 3.0, egui::Color32::from_black_alpha(200));
+    painter.galley(at, galley, egui::Color32::WHITE);
+}
+
+/// A click on a match (or near a source endpoint) selects it and opens the Posterior tab.
+fn click_opens_posterior(response: &egui::Response, segs: &[Segment], shared: &mut Shared<'_>) {
+    if !response.clicked() {
+        return;
     }
-    if response.clicked() {
-        if let Some(mi) = shared.ui.hovered_match.or_else(|| {
-            // a click near a source endpoint picks that match
-            let pos = response.interact_pointer_pos()?;
-            segs.iter()
-                .map(|(mi, a, _)| (*mi, (*a - pos).length()))
-                .filter(|x| x.1 < 15.0)
-                .min_by(|a, b| a.1.total_cmp(&b.1))
-                .map(|x| x.0)
-        }) {
-            shared.select_match(mi);
-            shared.ui.tab = Panel::Posterior;
-        }
+    if let Some(mi) = shared.ui.hovered_match.or_else(|| {
+        // a click near a source endpoint picks that match
+        let pos = response.interact_pointer_pos()?;
+        segs.iter()
+            .map(|(mi, a, _)| (*mi, (*a - pos).length()))
+            .filter(|x| x.1 < 15.0)
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+            .map(|x| x.0)
+    }) {
+        shared.select_match(mi);
+        shared.ui.tab = Panel::Posterior;
     }
+}
+
+/// Each image's label (backend, prompt, cache entry) under it.
+fn view_labels(
+    ui: &mut egui::Ui,
+    layout: &Layout,
+    (si, sv): (usize, &ViewImage),
+    (ti, tv): (usize, &ViewImage),
+) {
     ui.horizontal(|ui| {
-        ui.add_space((x0 - area.left()).max(0.0));
-        ui.allocate_ui(egui::vec2(rs.width(), label_h), |ui| {
+        ui.add_space((layout.x0 - layout.area.left()).max(0.0));
+        ui.allocate_ui(egui::vec2(layout.rs.width(), LABEL_H), |ui| {
             ui.vertical(|ui| view_label(ui, "source", si, sv));
         });
-        ui.add_space(gap);
-        ui.allocate_ui(egui::vec2(rt.width(), label_h), |ui| {
+        ui.add_space(GAP);
+        ui.allocate_ui(egui::vec2(layout.rt.width(), LABEL_H), |ui| {
             ui.vertical(|ui| view_label(ui, "target", ti, tv));
         });
     });

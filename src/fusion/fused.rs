@@ -63,6 +63,8 @@ struct Ctx<'a> {
     /// `(1 - pi) / pi`: posterior odds = key * c.
     c: f64,
     want_cols: bool,
+    /// The row loops run as `super::avx2`'s intrinsics (same bits; vectorised in every build).
+    avx2: bool,
 }
 
 /// `out = exp((src + bias - max) * it)`; returns `1 / sum` (the sum as `sum_lanes` forms it),
@@ -75,10 +77,22 @@ fn softmax_unnormalised(
     bias: &[f32],
     it: f32,
     valid: bool,
+    avx2: bool,
 ) -> Option<f32> {
     if !valid {
         return None;
     }
+    #[cfg(target_arch = "x86_64")]
+    if avx2 {
+        // SAFETY: `avx2` is set only when the CPU has AVX2 (`row_softmax_noisy_and`).
+        let mx = unsafe { super::avx2::add_max(out, src, bias) };
+        if mx == f32::NEG_INFINITY {
+            return None;
+        }
+        // SAFETY: as above.
+        return Some(1.0 / unsafe { super::avx2::exp_sum(out, mx, it) });
+    }
+    let _ = avx2;
     for ((o, s), b) in out.iter_mut().zip(src).zip(bias) {
         *o = s + b;
     }
@@ -125,6 +139,7 @@ fn row_step(
         x.bias_a,
         1.0 / x.a.tau,
         ok(x.a.row_valid),
+        x.avx2,
     );
     let ib = softmax_unnormalised(
         rb,
@@ -132,6 +147,7 @@ fn row_step(
         x.bias_b,
         1.0 / x.b.tau,
         ok(x.b.row_valid),
+        x.avx2,
     );
     let store = rf.is_some();
     let (ia, ib) = match (ia, ib) {
@@ -156,10 +172,31 @@ fn row_step(
         for ((k, &p), &q) in keys.iter_mut().zip(&*ra).zip(&*rb) {
             *k = noisy_and_rank_key(p, q);
         }
+    } else if cfg!(target_arch = "x86_64") && x.avx2 {
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: `avx2` is set only when the CPU has AVX2.
+        unsafe {
+            super::avx2::rank_keys(keys, ra, rb, ia, ib)
+        };
     } else {
         for ((k, &a), &b) in keys.iter_mut().zip(&*ra).zip(&*rb) {
             *k = noisy_and_rank_key(a * ia, b * ib);
         }
+    }
+    #[cfg(target_arch = "x86_64")]
+    if x.avx2 {
+        if x.want_cols {
+            // SAFETY: as above.
+            unsafe { super::avx2::col_max(keys, cb, ci, i as u32) };
+        }
+        // SAFETY: as above.
+        let best = unsafe { super::avx2::max_first_positive(keys) };
+        if let Some(rf) = rf {
+            for (f, &key) in rf.iter_mut().zip(&*keys) {
+                *f = posterior(key, x.c);
+            }
+        }
+        return best;
     }
     if x.want_cols {
         let iu = i as u32;
@@ -320,6 +357,7 @@ pub(crate) fn row_softmax_noisy_and(
         bias_b: &bias_b,
         c,
         want_cols,
+        avx2: crate::simd::features().avx2,
     };
     let isa = crate::simd::features().float_isa();
     let mut best: Vec<Option<(usize, f32)>> = vec![None; rows];

@@ -6,6 +6,8 @@
 //! (never N x M x K^2: view pairs are reduced by an element-wise max as they are computed).
 //! [`FusionOutput::peak_bytes`] accounts for those matrices.
 
+#[cfg(target_arch = "x86_64")]
+mod avx2;
 pub mod calibrate;
 pub mod fuse;
 mod fused;

@@ -110,6 +110,88 @@ pub struct Similarities {
     /// Image similarity with its row / column validity (None: geometry only).
     pub image: Option<(DenseMatrix, Vec<bool>, Vec<bool>)>,
     pub geo: DenseMatrix,
+    /// Each row's maximum of `geo` and its first position, found on the first geometry-only
+    /// row-NN re-fusion: they do not depend on the temperature (the row softmax is monotone),
+    /// so later ones only sum the row's exponentials.
+    geo_row_max: std::sync::OnceLock<Vec<Option<(u32, f32)>>>,
+}
+
+impl Similarities {
+    /// Kept matrices (`image`: the image similarity with its row / column validity).
+    pub fn new(image: Option<(DenseMatrix, Vec<bool>, Vec<bool>)>, geo: DenseMatrix) -> Self {
+        Similarities {
+            image,
+            geo,
+            geo_row_max: Default::default(),
+        }
+    }
+
+    fn geo_row_max(&self) -> &[Option<(u32, f32)>] {
+        self.geo_row_max
+            .get_or_init(|| crate::fusion::streaming::row_maxima(&self.geo))
+    }
+}
+
+/// The last estimate [`fuse_and_finish_memo`] computed and what it was computed from: the
+/// estimate is a pure function of the correspondences' endpoints (in their order), the
+/// estimator's parameters and, for weighted SVD (chosen, or SC2-PCR's fallback), the scores.
+/// A re-fusion that selects the same correspondences in the same order (a temperature change
+/// under mutual NN often does) then skips the estimator. The GUI keeps one per pair.
+#[derive(Debug, Default)]
+pub struct EstimateMemo {
+    last: std::sync::Mutex<Option<MemoEntry>>,
+}
+
+#[derive(Debug)]
+struct MemoEntry {
+    /// x, y, z of source then target endpoints, as bits (exact comparison).
+    ends: Vec<[u32; 6]>,
+    method: crate::estimate::EstimatorKind,
+    /// The scores, when the estimate read them.
+    weights: Option<Vec<u32>>,
+    est: Estimate,
+}
+
+impl EstimateMemo {
+    /// [`estimate_pose`], or the remembered estimate when its inputs are the same.
+    /// Whether the estimate was remembered is returned with it.
+    pub fn estimate(
+        &self,
+        sp: &[Point3<f32>],
+        tp: &[Point3<f32>],
+        w: &[f32],
+        method: &crate::estimate::EstimatorKind,
+    ) -> Result<(Estimate, bool)> {
+        let ends: Vec<[u32; 6]> = sp
+            .iter()
+            .zip(tp)
+            .map(|(a, b)| [a.x, a.y, a.z, b.x, b.y, b.z].map(f32::to_bits))
+            .collect();
+        let bits = |w: &[f32]| w.iter().map(|x| x.to_bits()).collect::<Vec<u32>>();
+        if sp.len() == tp.len() && sp.len() == w.len() {
+            if let Ok(last) = self.last.lock() {
+                if let Some(m) = last.as_ref().filter(|m| {
+                    m.ends == ends
+                        && m.method == *method
+                        && m.weights.as_ref().is_none_or(|mw| *mw == bits(w))
+                }) {
+                    return Ok((m.est.clone(), true));
+                }
+            }
+        }
+        let est = estimate_pose(sp, tp, w, method)?;
+        let read_scores = matches!(method, crate::estimate::EstimatorKind::WeightedSvd)
+            || est.method.starts_with("weighted-svd");
+        if let Ok(mut last) = self.last.lock() {
+            *last = Some(MemoEntry {
+                ends,
+                method: method.clone(),
+                weights: read_scores.then(|| bits(w)),
+                est: est.clone(),
+            });
+        }
+        Ok((est, false))
+    }
 }
 
 /// Both similarity matrices of `inputs`.
@@ -119,7 +201,7 @@ pub fn similarities(inputs: &FusionInputs) -> Result<Similarities> {
         Some(im) => Some(im.similarity()?),
         None => None,
     };
-    Ok(Similarities { image, geo })
+    Ok(Similarities::new(image, geo))
 }
 
 /// Similarity, calibration, fusion, selection and estimation from [`FusionInputs`]: the tail
@@ -134,6 +216,19 @@ pub fn fuse_and_finish(
     inputs: &FusionInputs,
     sims: Option<&Similarities>,
 ) -> Result<RegistrationResult> {
+    fuse_and_finish_memo(pair, params, inputs, sims, None)
+}
+
+/// [`fuse_and_finish`], the estimate from `memo` when the correspondences and the estimator
+/// are those of its last call (the result is the same; the estimate's timing row then says
+/// "cached").
+pub fn fuse_and_finish_memo(
+    pair: &ScanPair,
+    params: &RegisterParams,
+    inputs: &FusionInputs,
+    sims: Option<&Similarities>,
+    memo: Option<&EstimateMemo>,
+) -> Result<RegistrationResult> {
     let mut timer = Timer::new();
     let (src, tgt) = (&inputs.source_geo, &inputs.target_geo);
     let corr = match &inputs.image {
@@ -144,6 +239,7 @@ pub fn fuse_and_finish(
                 Some(Similarities {
                     image: Some((s, vs, vt)),
                     geo,
+                    ..
                 }) => {
                     // kept in memory: shown as a hit, like the stage cache's entries
                     timer.record("similarity", Duration::ZERO, true);
@@ -181,7 +277,7 @@ pub fn fuse_and_finish(
             let c = match (sims, row_nn) {
                 (Some(Similarities { image: Some(_), .. }), _) => return Err(mismatch()),
                 (Some(s), Some(tau)) => {
-                    crate::fusion::streaming::row_nn_from_similarity(&s.geo, tau)?
+                    crate::fusion::streaming::row_nn_from_maxima(&s.geo, s.geo_row_max(), tau)?
                 }
                 (Some(s), None) => match_then_fuse_select(None, Some(&s.geo), &fusion)?,
                 (None, Some(tau)) => {
@@ -200,7 +296,7 @@ pub fn fuse_and_finish(
         .image_label
         .as_ref()
         .map(|l| format!("{l}; fusion {:?})", params.fusion.mode));
-    finish(pair, params, timer, src, tgt, corr, label)
+    finish(pair, params, timer, (src, tgt), corr, label, memo)
 }
 
 fn mismatch() -> Error {
@@ -215,10 +311,10 @@ fn finish(
     pair: &ScanPair,
     params: &RegisterParams,
     mut timer: Timer,
-    src: &GeoBranch,
-    tgt: &GeoBranch,
+    (src, tgt): (&GeoBranch, &GeoBranch),
     corr: Vec<Correspondence>,
     image_branch: Option<String>,
+    memo: Option<&EstimateMemo>,
 ) -> Result<RegistrationResult> {
     let sp: Vec<Point3<f32>> = corr
         .iter()
@@ -229,9 +325,17 @@ fn finish(
         .map(|c| tgt.keypoints.points[c.tgt as usize])
         .collect();
     let w: Vec<f32> = corr.iter().map(|c| c.score).collect();
-    let est: Estimate = timer.stage("estimate", || {
-        estimate_pose(&sp, &tp, &w, &params.estimator)
-    })?;
+    let est: Estimate = match memo {
+        Some(m) => {
+            let t = Instant::now();
+            let (est, hit) = m.estimate(&sp, &tp, &w, &params.estimator)?;
+            timer.record("estimate", t.elapsed(), hit);
+            est
+        }
+        None => timer.stage("estimate", || {
+            estimate_pose(&sp, &tp, &w, &params.estimator)
+        })?,
+    };
     let metrics = match pair.gt_target_from_source.as_ref() {
         Some(gt) => Some(PairMetrics::new(
             &est.target_from_source,
@@ -278,4 +382,51 @@ fn finish(
         inliers: est.inliers,
         image: None,
     })
+}
+
+#[cfg(test)]
+mod memo_tests {
+    use super::*;
+    use crate::estimate::{EstimatorKind, Sc2PcrParams};
+
+    fn same(a: &Estimate, b: &Estimate) -> bool {
+        a.target_from_source.to_homogeneous() == b.target_from_source.to_homogeneous()
+            && a.inliers == b.inliers
+            && a.method == b.method
+            && a.warning == b.warning
+    }
+
+    /// The memo gives what `estimate_pose` gives, and only for the same inputs: the same
+    /// endpoints in the same order and estimator; the scores too where they are read.
+    #[test]
+    fn the_memo_repeats_only_what_it_was_computed_from() {
+        let s = crate::estimate::synthetic::synthetic_correspondences(3000, 400, 0.3, 0.01, 7);
+        let (sp, tp) = (s.src.clone(), s.tgt.clone());
+        let w: Vec<f32> = (0..sp.len()).map(|i| 1.0 / (1.0 + i as f32)).collect();
+        let sc2 = EstimatorKind::Sc2Pcr(Sc2PcrParams::default());
+        let memo = EstimateMemo::default();
+        let (a, hit) = memo.estimate(&sp, &tp, &w, &sc2).unwrap();
+        assert!(!hit);
+        assert!(same(&a, &estimate_pose(&sp, &tp, &w, &sc2).unwrap()));
+        // other scores: SC2-PCR does not read them
+        let w2: Vec<f32> = w.iter().map(|x| x * 0.5).collect();
+        let (b, hit) = memo.estimate(&sp, &tp, &w2, &sc2).unwrap();
+        assert!(hit && same(&a, &b));
+        // another order is another input
+        let (mut sr, mut tr) = (sp.clone(), tp.clone());
+        sr.swap(0, 1);
+        tr.swap(0, 1);
+        let (c, hit) = memo.estimate(&sr, &tr, &w, &sc2).unwrap();
+        assert!(!hit);
+        assert!(same(&c, &estimate_pose(&sr, &tr, &w, &sc2).unwrap()));
+        // weighted SVD reads the scores
+        let svd = EstimatorKind::WeightedSvd;
+        let (_, hit) = memo.estimate(&sp, &tp, &w, &svd).unwrap();
+        assert!(!hit);
+        let (_, hit) = memo.estimate(&sp, &tp, &w, &svd).unwrap();
+        assert!(hit);
+        let (d, hit) = memo.estimate(&sp, &tp, &w2, &svd).unwrap();
+        assert!(!hit);
+        assert!(same(&d, &estimate_pose(&sp, &tp, &w2, &svd).unwrap()));
+    }
 }

@@ -1,79 +1,49 @@
-//! The synthetic UI fixture behind [`InspectorModel::demo`].
+//! The synthetic UI fixture behind [`InspectorModel::demo`], built from the project's own
+//! synthetic scene ([`crate::synth`]): the demo room ([`Scene::demo_room`]) ray-cast along the
+//! demo camera path ([`camera_path`], [`render_frame`]) into a target and a source sequence,
+//! each back-projected into a cloud in the camera frame of its first frame, with the exact
+//! ground truth `inv(P_target0) * P_source0`. The views are frames of those sequences (ray-cast
+//! images, labelled as fixture renders). The correspondences are drawn at random around the
+//! ground truth, and the posteriors are the library's ([`posterior_row`]) of made-up
+//! similarities; the extra pairs, stage times and plots carry made-up values by design.
 
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion};
 
 use super::*;
 use crate::camera::{CameraModel, Intrinsics};
+use crate::fusion::{posterior_row, DenseMatrix, FusionParams};
+use crate::io::depth_png::DepthImage;
+use crate::synth::scene::{hash64, unit, Scene};
+use crate::synth::{camera_path, frame_param, render_frame, DemoParams};
 
-/// Deterministic xorshift so the demo (and its snapshots) never change.
-pub(super) struct Rng(u64);
-impl Rng {
-    pub fn new(seed: u64) -> Self {
-        Self(seed.max(1))
-    }
-    pub fn next_u64(&mut self) -> u64 {
-        let mut x = self.0;
-        x ^= x << 13;
-        x ^= x >> 7;
-        x ^= x << 17;
-        self.0 = x;
-        x
-    }
-    pub fn f32(&mut self) -> f32 {
-        (self.next_u64() >> 40) as f32 / (1u64 << 24) as f32
-    }
-    pub fn range(&mut self, a: f32, b: f32) -> f32 {
-        a + (b - a) * self.f32()
-    }
-    pub fn usize(&mut self, n: usize) -> usize {
-        (self.next_u64() % n.max(1) as u64) as usize
-    }
+/// Frames per sequence; the K = 2 views of a scan are two of them.
+const FRAMES: usize = 3;
+const K: usize = 2;
+/// The sequence index [`frame_param`] takes.
+const TARGET_SEQ: usize = 0;
+const SOURCE_SEQ: usize = 1;
+
+/// Deterministic draws in [0, 1) from the synthetic scene's hash (a counter stream), so the
+/// demo (and its snapshots) never change.
+struct Draws {
+    seed: u64,
+    n: u64,
 }
 
-/// A room corner: floor, two walls, a box and a sphere, with a colour per point.
-fn scene(n: usize, rng: &mut Rng) -> Vec<([f32; 3], [u8; 3])> {
-    let mut pts = Vec::with_capacity(n);
-    while pts.len() < n {
-        let r = rng.f32();
-        let p;
-        let c: [u8; 3];
-        if r < 0.3 {
-            p = [rng.range(-1.5, 1.5), 1.0, rng.range(1.0, 4.0)];
-            let checker = ((p[0] * 2.0).floor() as i32 + (p[2] * 2.0).floor() as i32) & 1;
-            c = if checker == 0 {
-                [150, 120, 90]
-            } else {
-                [110, 85, 60]
-            };
-        } else if r < 0.5 {
-            p = [rng.range(-1.5, 1.5), rng.range(-1.0, 1.0), 4.0];
-            c = [200, 200, 185];
-        } else if r < 0.65 {
-            p = [-1.5, rng.range(-1.0, 1.0), rng.range(1.0, 4.0)];
-            c = [170, 190, 210];
-        } else if r < 0.85 {
-            // box on the floor
-            let face = rng.usize(3);
-            let (u, v) = (rng.range(0.0, 1.0), rng.range(0.0, 1.0));
-            p = match face {
-                0 => [0.2 + 0.6 * u, 0.4, 2.2 + 0.6 * v],
-                1 => [0.2 + 0.6 * u, 0.4 + 0.6 * v, 2.2],
-                _ => [0.2, 0.4 + 0.6 * u, 2.2 + 0.6 * v],
-            };
-            c = [190, 60, 50];
-        } else {
-            let (th, ph) = (rng.range(0.0, std::f32::consts::TAU), rng.range(-1.0, 1.0));
-            let s = (1.0 - ph * ph).sqrt();
-            p = [
-                -0.7 + 0.35 * s * th.cos(),
-                0.65 + 0.35 * ph,
-                2.8 + 0.35 * s * th.sin(),
-            ];
-            c = [60, 140, 70];
-        }
-        pts.push((p, c));
+impl Draws {
+    fn new(seed: u64) -> Self {
+        Self { seed, n: 0 }
     }
-    pts
+    fn f32(&mut self) -> f32 {
+        self.n += 1;
+        unit(hash64(self.seed ^ hash64(self.n))) as f32
+    }
+    fn range(&mut self, a: f32, b: f32) -> f32 {
+        a + (b - a) * self.f32()
+    }
+    fn usize(&mut self, n: usize) -> usize {
+        ((self.f32() * n as f32) as usize).min(n.saturating_sub(1))
+    }
 }
 
 fn iso(rx: f64, ry: f64, rz: f64, t: [f64; 3]) -> Isometry3<f64> {
@@ -87,162 +57,151 @@ fn to_f64(p: [f32; 3]) -> Point3<f64> {
     Point3::new(p[0] as f64, p[1] as f64, p[2] as f64)
 }
 
-/// Splat points into a view image; returns the image, a depth visualisation and a
-/// per-pixel index of the nearest point (for pixel lookups).
-fn render_view(
-    pts: &[([f32; 3], [u8; 3])],
-    cam: &ViewCamera,
-    tint: [f32; 3],
-) -> (RgbImage, RgbImage, Vec<f32>) {
-    let (w, h) = cam.camera.size();
-    let mut img = RgbImage::new(w, h);
-    // background gradient so empty pixels read as "generated sky", not black holes
-    for y in 0..h {
-        for x in 0..w {
-            let g = (40.0 + 60.0 * y as f32 / h as f32) as u8;
-            img.put(x, y, [g, g, (g as f32 * 1.2) as u8]);
-        }
+/// Camera-to-world pose of frame `i` of sequence `seq`.
+fn world_from_camera(seq: usize, i: usize) -> Isometry3<f64> {
+    camera_path(frame_param(seq, i, FRAMES))
+}
+
+/// The demo room's intrinsics at `width` pixels (4:3).
+fn intrinsics(width: u32) -> Intrinsics {
+    DemoParams {
+        width,
+        height: width * 3 / 4,
+        ..Default::default()
     }
-    let mut zbuf = vec![f32::INFINITY; (w * h) as usize];
-    let camera_from_cloud = cam.cloud_from_camera.inverse();
-    for (p, c) in pts {
-        let pc = camera_from_cloud * to_f64(*p);
-        if let Some((u, v)) = cam.camera.project(&pc) {
-            let r = (5.0 / pc.z).clamp(1.0, 4.0) as i64;
-            let (ui, vi) = (u as i64, v as i64);
-            for dy in -r..=r {
-                for dx in -r..=r {
-                    let (x, y) = (ui + dx, vi + dy);
-                    if x < 0 || y < 0 || x >= w as i64 || y >= h as i64 {
-                        continue;
-                    }
-                    let i = (y as u32 * w + x as u32) as usize;
-                    if (pc.z as f32) < zbuf[i] {
-                        zbuf[i] = pc.z as f32;
-                        let shade = (1.2 - 0.12 * pc.z as f32).clamp(0.5, 1.0);
-                        let col = [
-                            (c[0] as f32 * shade * tint[0]).min(255.0) as u8,
-                            (c[1] as f32 * shade * tint[1]).min(255.0) as u8,
-                            (c[2] as f32 * shade * tint[2]).min(255.0) as u8,
-                        ];
-                        img.put(x as u32, y as u32, col);
-                    }
+    .intrinsics()
+}
+
+/// One scan: every frame of sequence `seq` ray-cast and back-projected into the camera frame
+/// of its first frame, then `n` points taken evenly (the image size grows with `n`).
+fn scan(scene: &Scene, seq: usize, n: usize) -> Vec<[f32; 3]> {
+    let mut width = 160u32;
+    while (FRAMES * (width * width * 3 / 4) as usize) < n && width < 4096 {
+        width += 32;
+    }
+    let k = intrinsics(width);
+    let cam0_from_world = world_from_camera(seq, 0).inverse();
+    let mut pts = Vec::new();
+    for i in 0..FRAMES {
+        let pose = world_from_camera(seq, i);
+        let (depth, _) = render_frame(scene, &k, &pose, None);
+        let cam0_from_cam = cam0_from_world * pose;
+        for v in 0..k.height {
+            for u in 0..k.width {
+                if let Some(z) = depth.meters(u, v) {
+                    let q = cam0_from_cam * k.backproject(u as f64, v as f64, z as f64);
+                    pts.push([q.x as f32, q.y as f32, q.z as f32]);
                 }
             }
         }
     }
-    let mut depth = RgbImage::new(w, h);
-    for (i, z) in zbuf.iter().enumerate() {
-        let (x, y) = (i as u32 % w, i as u32 / w);
-        if z.is_finite() {
-            let t = ((z - 1.0) / 4.0).clamp(0.0, 1.0);
-            depth.put(x, y, crate::app::colormap::turbo(1.0 - t));
-        }
+    if pts.len() <= n {
+        return pts;
     }
-    (img, depth, zbuf)
+    (0..n).map(|i| pts[i * pts.len() / n]).collect()
 }
 
-fn pixel_of(cam: &ViewCamera, p: [f32; 3], zbuf: &[f32]) -> Option<[f32; 2]> {
+/// A frame of sequence `seq` as a view of its scan: the ray-cast image, its depth colour-mapped,
+/// its camera in the scan's frame, and the pixel of each match endpoint it sees (`ends`).
+fn view(scene: &Scene, seq: usize, frame: usize, ends: &[[f32; 3]]) -> ViewImage {
+    let k = intrinsics(320);
+    let pose = world_from_camera(seq, frame);
+    let (depth, rgb) = render_frame(scene, &k, &pose, None);
+    let cam = ViewCamera {
+        cloud_from_camera: world_from_camera(seq, 0).inverse() * pose,
+        camera: CameraModel::Pinhole(k),
+    };
+    let match_pixels = ends.iter().map(|p| pixel_of(&cam, &depth, *p)).collect();
+    let side = if seq == SOURCE_SEQ { "src" } else { "tgt" };
+    ViewImage {
+        label: ViewLabel {
+            // A UI test fixture: say so, never name a real generator for these pixels.
+            backend: "ui-fixture render (not generated)".into(),
+            prompt: "A photo of an indoor scene: a room with a table, a shelf of books, a red sofa and a ball".into(),
+            cache_entry: format!("demo/{side}/frame{frame}"),
+        },
+        rgb: RgbImage {
+            width: k.width,
+            height: k.height,
+            pixels: rgb,
+        },
+        depth: Some(depth_colors(&depth)),
+        camera: Some(cam),
+        point_state: Vec::new(),
+        match_pixels,
+    }
+}
+
+/// Depth for display: turbo from near (1 m) to far (5 m), black where there is none.
+fn depth_colors(depth: &DepthImage) -> RgbImage {
+    let mut out = RgbImage::new(depth.width, depth.height);
+    for y in 0..depth.height {
+        for x in 0..depth.width {
+            if let Some(z) = depth.meters(x, y) {
+                let t = ((z - 1.0) / 4.0).clamp(0.0, 1.0);
+                out.put(x, y, crate::app::colormap::turbo(1.0 - t));
+            }
+        }
+    }
+    out
+}
+
+/// The pixel of scan point `p` in a view, when it is inside the image and not occluded.
+fn pixel_of(cam: &ViewCamera, depth: &DepthImage, p: [f32; 3]) -> Option<[f32; 2]> {
     let pc = cam.cloud_from_camera.inverse() * to_f64(p);
     let (u, v) = cam.camera.project(&pc)?;
     let (w, h) = cam.camera.size();
     if u < 0.0 || v < 0.0 || u >= w as f64 || v >= h as f64 {
         return None;
     }
-    let z = zbuf[(v as u32 * w + u as u32) as usize];
-    // occluded points have no pixel
+    let z = depth.meters(u as u32, v as u32)?;
     (pc.z as f32 <= z + 0.05).then_some([u as f32, v as f32])
 }
 
-fn softmax(logits: &[f32]) -> Vec<f32> {
-    let m = logits.iter().cloned().fold(f32::NEG_INFINITY, f32::max);
-    let e: Vec<f32> = logits.iter().map(|l| (l - m).exp()).collect();
-    let s: f32 = e.iter().sum();
-    e.iter().map(|x| x / s).collect()
+/// The K frames of sequence `seq` that see the most of `ends`, in frame order.
+fn views(scene: &Scene, seq: usize, ends: &[[f32; 3]]) -> Vec<ViewImage> {
+    let mut all: Vec<(usize, ViewImage)> = (0..FRAMES)
+        .map(|f| (f, view(scene, seq, f, ends)))
+        .collect();
+    let seen = |v: &ViewImage| v.match_pixels.iter().flatten().count();
+    all.sort_by(|a, b| seen(&b.1).cmp(&seen(&a.1)).then(a.0.cmp(&b.0)));
+    all.truncate(K);
+    all.sort_by_key(|v| v.0);
+    all.into_iter().map(|v| v.1).collect()
 }
 
-pub(super) fn build(n: usize) -> InspectorModel {
-    let mut rng = Rng::new(0x5eed_c0de);
-    let world = scene(n * 2, &mut rng);
-    // Source sees the left part of the room, target the right part; both overlap in the
-    // middle. Each cloud lives in its own frame.
-    let world_from_source = iso(0.05, 0.35, 0.0, [0.3, 0.0, 0.2]);
-    let world_from_target = iso(-0.03, -0.25, 0.02, [-0.4, 0.05, 0.0]);
-    let gt = world_from_target.inverse() * world_from_source;
-    let src_world: Vec<_> = world
-        .iter()
-        .filter(|(p, _)| p[0] < 0.6)
-        .take(n)
-        .cloned()
-        .collect();
-    let tgt_world: Vec<_> = world
-        .iter()
-        .filter(|(p, _)| p[0] > -0.9)
-        .take(n)
-        .cloned()
-        .collect();
-    let to_frame = |pts: &[([f32; 3], [u8; 3])], world_from: &Isometry3<f64>, rng: &mut Rng| {
-        let inv = world_from.inverse();
-        pts.iter()
-            .map(|(p, c)| {
-                let q = inv * to_f64(*p);
-                let noise = 0.004;
-                (
-                    [
-                        q.x as f32 + rng.range(-noise, noise),
-                        q.y as f32 + rng.range(-noise, noise),
-                        q.z as f32 + rng.range(-noise, noise),
-                    ],
-                    *c,
-                )
-            })
-            .collect::<Vec<_>>()
-    };
-    let src = to_frame(&src_world, &world_from_source, &mut rng);
-    let tgt = to_frame(&tgt_world, &world_from_target, &mut rng);
-    let source: Vec<[f32; 3]> = src.iter().map(|(p, _)| *p).collect();
-    let target: Vec<[f32; 3]> = tgt.iter().map(|(p, _)| *p).collect();
-
-    // Ground-truth nearest target point for a sample of source points (brute force over
-    // a strided subset keeps the demo fast at 300k points).
+/// Correspondences: 70 % near-true (the nearest target point of a source point under the
+/// ground truth, within the overlap), the rest to a random target point.
+fn matches(
+    source: &[[f32; 3]],
+    target: &[[f32; 3]],
+    gt: &Isometry3<f64>,
+    draws: &mut Draws,
+) -> Vec<MatchInfo> {
     let stride = (target.len() / 4000).max(1);
-    let nearest_tgt = |q: Point3<f64>| -> (usize, f64) {
-        let mut best = (0, f64::INFINITY);
-        for (i, t) in target.iter().enumerate().step_by(stride) {
-            let d = (to_f64(*t) - q).norm_squared();
-            if d < best.1 {
-                best = (i, d);
-            }
-        }
-        (best.0, best.1.sqrt())
-    };
-
-    // Correspondences: 70 % near-true, the rest random.
     let n_matches = 240;
     let mut matches = Vec::with_capacity(n_matches);
     let mut tries = 0;
     while matches.len() < n_matches && tries < n_matches * 20 {
         tries += 1;
-        let s = rng.usize(source.len());
+        let s = draws.usize(source.len());
         let q = gt * to_f64(source[s]);
-        let (t_true, d) = nearest_tgt(q);
+        let (t_true, d) = nearest(target, stride, q);
         if d > 0.08 {
             continue; // outside the overlap
         }
-        let good = rng.f32() < 0.7;
-        let t = if good {
+        let t = if draws.f32() < 0.7 {
             t_true
         } else {
-            rng.usize(target.len())
+            draws.usize(target.len())
         };
-        let err = (gt * to_f64(source[s]) - to_f64(target[t])).norm();
-        let inlier = err < 0.1;
+        let inlier = (q - to_f64(target[t])).norm() < 0.1;
         let score = if inlier {
-            rng.range(0.45, 1.0)
+            draws.range(0.45, 1.0)
         } else {
-            rng.range(0.0, 0.7)
+            draws.range(0.0, 0.7)
         };
-        let branch = match rng.usize(3) {
+        let branch = match draws.usize(3) {
             0 => Branch::Image,
             1 => Branch::Geometry,
             _ => Branch::Both,
@@ -256,139 +215,102 @@ pub(super) fn build(n: usize) -> InspectorModel {
             survived: Some(inlier && score > 0.5),
         });
     }
+    matches
+}
 
-    // K = 2 views per scan, looking into the room from the scan's own origin.
-    let k = 2;
-    let intr = Intrinsics {
-        fx: 150.0,
-        fy: 150.0,
-        cx: 160.0,
-        cy: 120.0,
-        width: 320,
-        height: 240,
-    };
-    let mk_views = |pts: &[([f32; 3], [u8; 3])], is_src: bool, tint: [f32; 3]| {
-        let n = pts.len().max(1) as f64;
-        let c = pts.iter().fold(nalgebra::Vector3::zeros(), |a, (p, _)| {
-            a + to_f64(*p).coords
-        }) / n;
-        (0..k)
-            .map(|v| {
-                // look at the cloud's centroid from 2.3 m away, K views spread in yaw
-                let yaw = (v as f64 - (k as f64 - 1.0) / 2.0) * 0.5;
-                let back = nalgebra::Vector3::new(-yaw.sin(), -0.45, -yaw.cos()).normalize();
-                let eye = c + back * 2.3;
-                let z = (c - eye).normalize();
-                let x = nalgebra::Vector3::new(0.0, 1.0, 0.0).cross(&z).normalize();
-                let y = z.cross(&x);
-                let rot = nalgebra::Rotation3::from_matrix_unchecked(nalgebra::Matrix3::from_columns(&[x, y, z]));
-                let cam = ViewCamera {
-                    cloud_from_camera: Isometry3::from_parts(
-                        Translation3::from(eye),
-                        UnitQuaternion::from_rotation_matrix(&rot),
-                    ),
-                    camera: CameraModel::Pinhole(intr),
-                };
-                let (rgb, depth, zbuf) = render_view(pts, &cam, tint);
-                let match_pixels = matches
-                    .iter()
-                    .map(|m| {
-                        let p = if is_src { source[m.src] } else { target[m.tgt] };
-                        pixel_of(&cam, p, &zbuf)
-                    })
-                    .collect();
-                ViewImage {
-                    label: ViewLabel {
-                        // A UI test fixture: say so, never name a real generator for these pixels.
-                        backend: "ui-fixture render (not generated)".into(),
-                        prompt: "A photo of an indoor scene: a kitchen corner with a red box and a green ball".into(),
-                        cache_entry: format!("demo/{}/view{v}", if is_src { "src" } else { "tgt" }),
-                    },
-                    rgb,
-                    depth: Some(depth),
-                    camera: Some(cam),
-                    point_state: Vec::new(),
-                    match_pixels,
-                }
-            })
-            .collect::<Vec<_>>()
-    };
-    let source_views = mk_views(&src, true, [1.0, 1.0, 1.0]);
-    let target_views = mk_views(&tgt, false, [0.95, 1.0, 1.08]);
-
-    // Posteriors for the first 12 matched source points over 300 candidates near the
-    // true location.
-    let mut posteriors = Vec::new();
-    for m in matches.iter().take(12) {
-        let q = gt * to_f64(source[m.src]);
-        let mut cand: Vec<(usize, f64)> = target
-            .iter()
-            .enumerate()
-            .step_by(stride)
-            .map(|(i, t)| (i, (to_f64(*t) - q).norm()))
-            .collect();
-        cand.sort_by(|a, b| a.1.total_cmp(&b.1));
-        cand.truncate(300);
-        let gt_target = cand.first().map(|c| c.0);
-        // image branch: peaked at the truth with a decoy 0.5 m away; geometry: broad
-        let decoy = to_f64(target[cand[cand.len() / 2].0]);
-        let image_logits: Vec<f32> = cand
-            .iter()
-            .map(|(i, d)| {
-                let dd = (to_f64(target[*i]) - decoy).norm();
-                (-(d * d) / 0.01).max(-(dd * dd) / 0.01 - 0.7) as f32 * 1.0
-            })
-            .collect();
-        let geo_logits: Vec<f32> = cand
-            .iter()
-            .map(|(_, d)| (-(d * d) / 0.08) as f32 + 0.3 * rng.f32())
-            .collect();
-        let image = softmax(&image_logits);
-        let geometric = softmax(&geo_logits);
-        let prod: Vec<f32> = image.iter().zip(&geometric).map(|(a, b)| a * b).collect();
-        let s: f32 = prod.iter().sum::<f32>().max(1e-12);
-        let fused = prod.iter().map(|p| p / s).collect();
-        let tv = 0;
-        let cam = target_views[tv].camera.clone();
-        let candidate_pixels = cand
-            .iter()
-            .map(|(i, _)| {
-                let cam = cam.as_ref()?;
-                let pc = cam.cloud_from_camera.inverse() * to_f64(target[*i]);
-                let (u, v) = cam.camera.project(&pc)?;
-                (u >= 0.0 && v >= 0.0 && u < intr.width as f64 && v < intr.height as f64)
-                    .then_some([u as f32, v as f32])
-            })
-            .collect();
-        let source_pixel = source_views[0].match_pixels[posteriors.len()];
-        posteriors.push(Posterior {
-            source_point: m.src,
-            source_pixel,
-            source_view: 0,
-            candidates: cand.iter().map(|c| c.0).collect(),
-            image,
-            geometric,
-            fused,
-            target_view: tv,
-            candidate_pixels,
-            gt_target,
-            survived: m.survived,
-            reason: "demo fixture (made-up posterior)".into(),
-        });
+/// The nearest point of a strided subset of `pts` to `q` (brute force keeps the demo fast at
+/// 300k points), and its distance.
+fn nearest(pts: &[[f32; 3]], stride: usize, q: Point3<f64>) -> (usize, f64) {
+    let mut best = (0, f64::INFINITY);
+    for (i, t) in pts.iter().enumerate().step_by(stride) {
+        let d = (to_f64(*t) - q).norm_squared();
+        if d < best.1 {
+            best = (i, d);
+        }
     }
+    (best.0, best.1.sqrt())
+}
 
-    let estimated = iso(0.01, -0.008, 0.004, [0.02, -0.01, 0.015]) * gt;
-    let initial = Isometry3::identity();
-    let (rre, rte) = pose_errors(&gt, &estimated);
+/// The posterior of the source point of match `m` over 300 target points near its true
+/// location: made-up image and geometric similarities (the image peaked at the truth with a
+/// decoy, the geometry broad) calibrated and fused by the library ([`posterior_row`], the
+/// paper's parameters).
+fn posterior(
+    model: &InspectorModel,
+    m: &MatchInfo,
+    source_pixel: Option<[f32; 2]>,
+    draws: &mut Draws,
+) -> Option<Posterior> {
+    let (target, gt) = (&model.target, model.ground_truth?);
+    let stride = (target.len() / 4000).max(1);
+    let q = gt * to_f64(model.source[m.src]);
+    let mut cand: Vec<(usize, f64)> = target
+        .iter()
+        .enumerate()
+        .step_by(stride)
+        .map(|(i, t)| (i, (to_f64(*t) - q).norm()))
+        .collect();
+    cand.sort_by(|a, b| a.1.total_cmp(&b.1));
+    cand.truncate(300);
+    let decoy = to_f64(target[cand.get(cand.len() / 2)?.0]);
+    let params = FusionParams::default();
+    let (tau_img, tau_geo) = (params.calibration_img.tau(), params.calibration_geo.tau());
+    let img: Vec<f32> = cand
+        .iter()
+        .map(|(i, d)| {
+            let dd = (to_f64(target[*i]) - decoy).norm();
+            let logit = (-(d * d) / 0.01).max(-(dd * dd) / 0.01 - 0.7) as f32;
+            (tau_img * logit).max(-1.0)
+        })
+        .collect();
+    let geo: Vec<f32> = cand
+        .iter()
+        .map(|(_, d)| (tau_geo * ((-(d * d) / 0.08) as f32 + 0.3 * draws.f32())).max(-1.0))
+        .collect();
+    let c = cand.len();
+    let (img, geo) = (
+        DenseMatrix::from_vec(1, c, img).ok()?,
+        DenseMatrix::from_vec(1, c, geo).ok()?,
+    );
+    let row = posterior_row(Some((&img, None, None)), Some(&geo), &params, 0).ok()?;
+    let tv = 0;
+    let cam = model.target_views.get(tv)?.camera.clone()?;
+    let candidate_pixels = cand
+        .iter()
+        .map(|(i, _)| {
+            let pc = cam.cloud_from_camera.inverse() * to_f64(target[*i]);
+            let (u, v) = cam.camera.project(&pc)?;
+            let (w, h) = cam.camera.size();
+            (u >= 0.0 && v >= 0.0 && u < w as f64 && v < h as f64).then_some([u as f32, v as f32])
+        })
+        .collect();
+    Some(Posterior {
+        source_point: m.src,
+        source_pixel,
+        source_view: 0,
+        candidates: cand.iter().map(|c| c.0).collect(),
+        image: row.image?,
+        geometric: row.geometric?,
+        fused: row.fused,
+        target_view: tv,
+        candidate_pixels,
+        gt_target: cand.first().map(|c| c.0),
+        survived: m.survived,
+        reason: "demo fixture (made-up similarities, library posterior)".into(),
+    })
+}
+
+/// The demo pair's row, and rows of made-up pairs for the pair browser.
+fn pair_rows(rre: f64, rte: f64, correspondences: usize) -> Vec<PairEntry> {
     let mut pairs = vec![PairEntry {
-        id: "demo/room-corner 0-1".into(),
+        id: "demo/synth-room 0-1".into(),
         status: PairStatus::Done,
         rre_deg: Some(rre),
         rte_m: Some(rte),
         split: "demo".into(),
         success: Some(rre <= 15.0 && rte <= 0.30),
         inlier_ratio: Some(0.62),
-        correspondences: Some(matches.len()),
+        correspondences: Some(correspondences),
         time_ms: Some(64.0),
     }];
     for i in 1..8 {
@@ -413,8 +335,12 @@ pub(super) fn build(n: usize) -> InspectorModel {
         "fixture/pair-8 (made-up metrics)",
         "3DMatch",
     ));
+    pairs
+}
 
-    let stages = [
+/// Made-up stage states and times.
+fn stage_rows() -> Vec<StageInfo> {
+    [
         ("read scans", StageState::Cached, Some(12.0)),
         ("depth frames", StageState::Cached, Some(8.5)),
         ("generation (WFM)", StageState::Cached, Some(0.4)),
@@ -432,8 +358,11 @@ pub(super) fn build(n: usize) -> InspectorModel {
         time_ms: t,
         role: crate::app::stages_panel::StageRole::Stage,
     })
-    .collect();
+    .collect()
+}
 
+/// Made-up PR curves, K sweep and prompt study.
+fn plot_data() -> PlotData {
     let pr = |name: &str, sharp: f64| PrCurve {
         name: name.into(),
         points: (0..=20)
@@ -443,7 +372,7 @@ pub(super) fn build(n: usize) -> InspectorModel {
             })
             .collect(),
     };
-    let plots = PlotData {
+    PlotData {
         pr_curves: vec![
             pr("Noisy-AND (made-up)", 2.6),
             pr("Noisy-OR (made-up)", 1.4),
@@ -479,26 +408,48 @@ pub(super) fn build(n: usize) -> InspectorModel {
         prompt_source: "synthetic UI fixture (made-up values)".into(),
         study_progress: None,
         figure7_pending: false,
-    };
+    }
+}
 
-    InspectorModel {
-        pairs,
+/// The demo with (at most) `n` points per cloud.
+pub(super) fn build(n: usize) -> InspectorModel {
+    let scene = Scene::demo_room();
+    let gt = world_from_camera(TARGET_SEQ, 0).inverse() * world_from_camera(SOURCE_SEQ, 0);
+    let source = scan(&scene, SOURCE_SEQ, n);
+    let target = scan(&scene, TARGET_SEQ, n);
+    let mut draws = Draws::new(0x5eed_c0de);
+    let matches = matches(&source, &target, &gt, &mut draws);
+    let src_ends: Vec<[f32; 3]> = matches.iter().map(|m| source[m.src]).collect();
+    let tgt_ends: Vec<[f32; 3]> = matches.iter().map(|m| target[m.tgt]).collect();
+    let estimated = iso(0.01, -0.008, 0.004, [0.02, -0.01, 0.015]) * gt;
+    let (rre, rte) = pose_errors(&gt, &estimated);
+    let mut model = InspectorModel {
+        pairs: pair_rows(rre, rte, matches.len()),
         current_pair: Some(0),
+        source_views: views(&scene, SOURCE_SEQ, &src_ends),
+        target_views: views(&scene, TARGET_SEQ, &tgt_ends),
         source,
         target,
-        initial,
+        initial: Isometry3::identity(),
         estimated: Some(estimated),
         ground_truth: Some(gt),
         matches,
-        source_views,
-        target_views,
-        default_posterior: posteriors.first().map(|p: &Posterior| p.source_point),
-        posteriors,
-        stages,
-        plots,
-        generation_missing: None,
-        image_branch_note: None,
-        convention_warning: None,
-        hypotheses: None,
-    }
+        stages: stage_rows(),
+        plots: plot_data(),
+        ..Default::default()
+    };
+    // Posteriors for the first 12 matched source points.
+    let posteriors: Vec<Posterior> = model
+        .matches
+        .iter()
+        .take(12)
+        .enumerate()
+        .filter_map(|(i, m)| {
+            let pixel = model.source_views.first()?.match_pixels.get(i).copied()?;
+            posterior(&model, m, pixel, &mut draws)
+        })
+        .collect();
+    model.default_posterior = posteriors.first().map(|p| p.source_point);
+    model.posteriors = posteriors;
+    model
 }

@@ -429,11 +429,27 @@ mod tests {
                 "too few visible endpoints: {visible}"
             );
         }
+        // The library's posteriors: row softmaxes sum to 1, the Noisy-AND fusion lies in
+        // [0, 1] and ranks the candidates as the product of the branch odds does.
+        assert_eq!(m.posteriors.len(), 12);
         for p in &m.posteriors {
-            for row in [&p.image, &p.geometric, &p.fused] {
+            assert_eq!(p.candidates.len(), 300);
+            for row in [&p.image, &p.geometric] {
                 let s: f32 = row.iter().sum();
                 assert!((s - 1.0).abs() < 1e-3);
             }
+            assert!(p.fused.iter().all(|f| (0.0..=1.0).contains(f)));
+            let odds = |j: usize| {
+                let (a, b) = (p.image[j] as f64, p.geometric[j] as f64);
+                a * b / ((1.0 - a) * (1.0 - b))
+            };
+            let best = (0..300)
+                .max_by(|&i, &j| odds(i).total_cmp(&odds(j)))
+                .unwrap();
+            let top = (0..300)
+                .max_by(|&i, &j| p.fused[i].total_cmp(&p.fused[j]))
+                .unwrap();
+            assert!(p.fused[top] == p.fused[best], "{top} vs {best}");
         }
         let (rre, rte) = pose_errors(&gt, m.estimated.as_ref().unwrap());
         assert!(rre > 0.1 && rre < 3.0 && rte < 0.1);

@@ -64,28 +64,8 @@ fn cell_text(p: &PairEntry, c: PairColumn) -> String {
     }
 }
 
-/// The widest texts a column shows besides the ids and splits (numbers have bounded widths).
-fn widest_samples(c: PairColumn) -> &'static [&'static str] {
-    match c {
-        PairColumn::Status => &[
-            "success",
-            "failure",
-            "running",
-            "pending",
-            "error",
-            "done (no GT)",
-        ],
-        PairColumn::Rre => &["179.99"],
-        PairColumn::Rte => &["9999.9"],
-        PairColumn::InlierRatio => &["100.0"],
-        PairColumn::Correspondences => &["99999"],
-        PairColumn::Time => &["999.99"],
-        PairColumn::Pair | PairColumn::Split => &[],
-    }
-}
-
 /// Column widths shared by the header and every row: the header (with its sort mark) or the
-/// widest content, whichever is wider. Ids and splits are measured on the longest few.
+/// widest content, whichever is wider (measured on each column's longest few texts).
 fn column_widths(
     ui: &egui::Ui,
     model: &InspectorModel,
@@ -102,30 +82,23 @@ fn column_widths(
                 .x
         })
     };
-    let pad = 2.0 * ui.spacing().button_padding.x + 4.0;
+    let pad = 2.0 * ui.spacing().button_padding.x + 2.0;
     columns
         .iter()
         .map(|&c| {
             let head = width(&format!("{} v", c.label()), &strong);
-            let body = match c {
-                PairColumn::Pair | PairColumn::Split => {
-                    let mut texts: Vec<String> = rows
-                        .iter()
-                        .map(|&i| cell_text(&model.pairs[i], c))
-                        .collect();
-                    texts.sort_by_key(|t| std::cmp::Reverse(t.chars().count()));
-                    texts.dedup();
-                    texts
-                        .iter()
-                        .take(6)
-                        .map(|t| width(t, &font))
-                        .fold(0.0, f32::max)
-                }
-                _ => widest_samples(c)
-                    .iter()
-                    .map(|t| width(t, &font))
-                    .fold(0.0, f32::max),
-            };
+            // the longest few texts by characters, measured (bounded work on large datasets)
+            let mut texts: Vec<String> = rows
+                .iter()
+                .map(|&i| cell_text(&model.pairs[i], c))
+                .collect();
+            texts.sort_by_key(|t| std::cmp::Reverse(t.chars().count()));
+            texts.dedup();
+            let body = texts
+                .iter()
+                .take(6)
+                .map(|t| width(t, &font))
+                .fold(0.0, f32::max);
             head.max(body) + pad
         })
         .collect()
@@ -167,6 +140,9 @@ pub struct TableView<'a> {
     pub columns: &'a [PairColumn],
     /// Height of the rows' area; None: what the panel has left.
     pub max_height: Option<f32>,
+    /// Header and rows scroll sideways together when wider than the panel (the tab); false:
+    /// the table asks the panel for its width (the side panel grows to fit it).
+    pub sideways: bool,
 }
 
 /// The table: the header stays in view above the rows, which scroll under it; the two
@@ -180,39 +156,64 @@ pub fn table(
     scrolled: &mut Option<String>,
     out: &mut Vec<Command>,
 ) {
-    let widths = column_widths(ui, v.model, v.rows, v.columns);
+    let mut widths = column_widths(ui, v.model, v.rows, v.columns);
     let gap = ui.spacing().item_spacing.x;
-    let total: f32 = widths.iter().sum::<f32>() + gap * widths.len().saturating_sub(1) as f32;
+    let mut total: f32 = widths.iter().sum::<f32>() + gap * widths.len().saturating_sub(1) as f32;
+    if !v.sideways {
+        // the side panel does not scroll sideways: the pair column gives up what does not
+        // fit (its ids are elided, the full id is the tooltip), so the metrics stay in view
+        let over = total - ui.available_width();
+        if over > 0.0 {
+            if let Some(w0) = widths.first_mut() {
+                let shrunk = (*w0 - over).max(MIN_ID_WIDTH.min(*w0));
+                total -= *w0 - shrunk;
+                *w0 = shrunk;
+            }
+        }
+    }
     let row_h = ui.spacing().interact_size.y;
-    egui::ScrollArea::horizontal()
-        .id_salt((v.id, "sideways"))
-        .auto_shrink([false, true])
-        .show(ui, |ui| {
-            ui.horizontal(|ui| {
-                for (&c, &w) in v.columns.iter().zip(&widths) {
-                    fixed_cell(ui, w, row_h, false, |ui| header(ui, c, sort));
-                }
-            });
-            ui.separator();
-            // what is left below the header, less the sideways scroll bar
-            let h = v
-                .max_height
-                .unwrap_or_else(|| ui.available_height() - ui.spacing().scroll.allocated_width())
-                .max(row_h);
-            ui.allocate_ui_with_layout(
-                egui::vec2(total, h),
-                egui::Layout::top_down(egui::Align::Min),
-                |ui| {
-                    ui.set_width(total);
-                    egui::ScrollArea::vertical()
-                        .id_salt((v.id, "rows"))
-                        .max_height(h)
-                        .auto_shrink([false, v.max_height.is_some()])
-                        .show(ui, |ui| rows(ui, &v, &widths, row_h, scrolled, out));
-                },
-            );
+    let mut body = |ui: &mut egui::Ui| {
+        ui.horizontal(|ui| {
+            for (&c, &w) in v.columns.iter().zip(&widths) {
+                fixed_cell(ui, w, row_h, false, |ui| header(ui, c, sort));
+            }
         });
+        ui.separator();
+        // what is left below the header, less the sideways scroll bar
+        let bar = if v.sideways {
+            ui.spacing().scroll.allocated_width()
+        } else {
+            0.0
+        };
+        let h = v
+            .max_height
+            .unwrap_or_else(|| ui.available_height() - bar)
+            .max(row_h);
+        ui.allocate_ui_with_layout(
+            egui::vec2(total, h),
+            egui::Layout::top_down(egui::Align::Min),
+            |ui| {
+                ui.set_width(total);
+                egui::ScrollArea::vertical()
+                    .id_salt((v.id, "rows"))
+                    .max_height(h)
+                    .auto_shrink([false, v.max_height.is_some()])
+                    .show(ui, |ui| rows(ui, &v, &widths, row_h, scrolled, out));
+            },
+        );
+    };
+    if v.sideways {
+        egui::ScrollArea::horizontal()
+            .id_salt((v.id, "sideways"))
+            .auto_shrink([false, true])
+            .show(ui, body);
+    } else {
+        body(ui);
+    }
 }
+
+/// The narrowest the pair column gets in a table that does not scroll sideways.
+const MIN_ID_WIDTH: f32 = 80.0;
 
 /// The rows of [`table`], striped.
 fn rows(
@@ -230,7 +231,8 @@ fn rows(
         let row = ui.horizontal(|ui| {
             let id_w = widths.first().copied().unwrap_or(120.0);
             let r = fixed_cell(ui, id_w, row_h, false, |ui| {
-                ui.selectable_label(current, &p.id)
+                ui.style_mut().wrap_mode = Some(egui::TextWrapMode::Truncate);
+                ui.selectable_label(current, &p.id).on_hover_text(&p.id)
             });
             for (&c, &w) in v.columns.iter().zip(widths).skip(1) {
                 fixed_cell(ui, w, row_h, is_number(c), |ui| match c {

@@ -371,25 +371,13 @@ pub fn paint(
     frame: &SceneFrame,
 ) -> Result<(), String> {
     gpu_for(gl)?;
-    let vp = info.viewport_in_pixels();
-    let clip = info.clip_rect_in_pixels();
-    // Clear only where the panel is visible, or the heading above it is wiped.
-    let x0 = vp.left_px.max(clip.left_px);
-    let y0 = vp.from_bottom_px.max(clip.from_bottom_px);
-    let x1 = (vp.left_px + vp.width_px).min(clip.left_px + clip.width_px);
-    let y1 = (vp.from_bottom_px + vp.height_px).min(clip.from_bottom_px + clip.height_px);
-    if x1 <= x0 || y1 <= y0 || vp.width_px <= 0 || vp.height_px <= 0 {
+    let Some((panel_vp, [x0, y0, w, h])) = panel_viewport(info) else {
         return Ok(());
-    }
-    let panel_vp = Viewport {
-        x: vp.left_px,
-        y: vp.from_bottom_px,
-        width: vp.width_px as u32,
-        height: vp.height_px as u32,
     };
+    // Clear and draw only where the panel is visible, or the heading above it is wiped.
     let clip_panel = || unsafe {
         gl.enable(glow::SCISSOR_TEST);
-        gl.scissor(x0, y0, x1 - x0, y1 - y0);
+        gl.scissor(x0, y0, w, h);
     };
     GPU.with(|g| {
         let mut g = g.borrow_mut();
@@ -409,184 +397,37 @@ pub fn paint(
             gl.depth_mask(true);
             gl.clear(glow::COLOR_BUFFER_BIT | glow::DEPTH_BUFFER_BIT);
         }
-        let normals = frame.depth_cue == DepthCue::Normals;
-        gpu.source.sync(
-            &ctx,
-            frame.source.id,
-            &frame.source.positions,
-            &frame.source.colors,
-            frame.source.normals.as_deref().map(|v| v.as_slice()),
-            true,
-        );
-        gpu.target.sync(
-            &ctx,
-            frame.target.id,
-            &frame.target.positions,
-            &frame.target.colors,
-            frame.target.normals.as_deref().map(|v| v.as_slice()),
-            true,
-        );
-        gpu.overlay.sync(
-            &ctx,
-            frame.overlay_lines.id,
-            &frame.overlay_lines.positions,
-            &frame.overlay_lines.colors,
-            None,
-            false,
-        );
-        gpu.scene_lines.sync(
-            &ctx,
-            frame.scene_lines.id,
-            &frame.scene_lines.positions,
-            &frame.scene_lines.colors,
-            None,
-            false,
-        );
-        let prog = &gpu.points;
-        let draw = |cloud: &GpuCloud,
-                    mode: u32,
-                    model: &[f32; 16],
-                    tint: [f32; 4],
-                    shade: bool,
-                    states: RenderStates,
-                    viewport: Viewport| {
-            let n = if mode == glow::LINES {
-                cloud.count / 2 * 2
-            } else {
-                frame
-                    .point_budget
-                    .map_or(cloud.count, |b| cloud.count.min(b))
-            };
-            if n == 0 {
-                return;
-            }
-            let m = mat4(model);
-            prog.use_uniform("mvp", mat4(&frame.view_proj) * m);
-            prog.use_uniform_if_required("model", m);
-            prog.use_uniform_if_required(
-                "eye",
-                three_d::vec3(frame.eye[0], frame.eye[1], frame.eye[2]),
-            );
-            prog.use_uniform_if_required("tint", three_d::vec4(tint[0], tint[1], tint[2], tint[3]));
-            prog.use_uniform_if_required("point_size", frame.point_size.clamp(1.0, 16.0));
-            let with_normals = shade && cloud.normals.is_some();
-            prog.use_uniform_if_required("shade", if with_normals { 1i32 } else { 0 });
-            prog.use_vertex_attribute("position", &cloud.positions);
-            prog.use_vertex_attribute("color", &cloud.colors);
-            if let (true, Some(nb)) = (with_normals, &cloud.normals) {
-                if prog.requires_attribute("normal") {
-                    prog.use_vertex_attribute("normal", nb);
-                }
-            }
-            prog.draw_with(states, viewport, || unsafe {
-                gl.draw_arrays(mode, 0, n as i32);
-            });
-        };
-        let depth_tested = RenderStates {
-            depth_test: DepthTest::Less,
-            ..Default::default()
-        };
-        let draw_points = |viewport: Viewport| {
-            unsafe { gl.enable(glow::PROGRAM_POINT_SIZE) };
-            if frame.show_target {
-                draw(
-                    &gpu.target,
-                    glow::POINTS,
-                    &IDENTITY,
-                    [1.0; 4],
-                    normals,
-                    depth_tested,
-                    viewport,
-                );
-            }
-            for inst in &frame.source_instances {
-                draw(
-                    &gpu.source,
-                    glow::POINTS,
-                    &inst.model,
-                    inst.tint,
-                    normals,
-                    depth_tested,
-                    viewport,
-                );
-            }
-            unsafe { gl.disable(glow::PROGRAM_POINT_SIZE) };
-        };
+        sync_buffers(gpu, &ctx, frame);
         if frame.depth_cue == DepthCue::Edl {
-            let size = (panel_vp.width, panel_vp.height);
-            if gpu.edl_target.as_ref().is_none_or(|t| t.size != size) {
-                gpu.edl_target = Some(EdlTarget {
-                    size,
-                    color: Texture2D::new_empty::<[u8; 4]>(
-                        &ctx,
-                        size.0,
-                        size.1,
-                        Interpolation::Nearest,
-                        Interpolation::Nearest,
-                        None,
-                        Wrapping::ClampToEdge,
-                        Wrapping::ClampToEdge,
-                    ),
-                    depth: DepthTexture2D::new::<f32>(
-                        &ctx,
-                        size.0,
-                        size.1,
-                        Wrapping::ClampToEdge,
-                        Wrapping::ClampToEdge,
-                    ),
-                });
-            }
-            let t = gpu.edl_target.as_ref().expect("made above");
-            let rt = RenderTarget::new(t.color.as_color_target(None), t.depth.as_depth_target());
-            rt.clear(ClearState::color_and_depth(b[0], b[1], b[2], b[3], 1.0))
-                .write::<std::convert::Infallible>(|| {
-                    draw_points(Viewport::new_at_origo(size.0, size.1));
-                    Ok(())
-                })
-                .ok();
-            drop(rt);
-            // back to egui's framebuffer: composite, writing the points' depth for the lines
-            unsafe { gl.bind_framebuffer(glow::DRAW_FRAMEBUFFER, egui_fbo) };
-            clip_panel();
-            let e = &gpu.edl;
-            e.use_texture("color_tex", &t.color);
-            e.use_depth_texture("depth_tex", &t.depth);
-            e.use_uniform_if_required(
-                "texel",
-                three_d::vec2(1.0 / size.0 as f32, 1.0 / size.1 as f32),
-            );
-            e.use_uniform_if_required("near", frame.near);
-            e.use_uniform_if_required("far", frame.far);
-            e.use_uniform_if_required("strength", frame.edl_strength);
-            e.use_uniform_if_required("background", three_d::vec4(b[0], b[1], b[2], b[3]));
-            e.use_vertex_attribute("corner", &gpu.quad);
-            e.draw_with(
-                RenderStates {
-                    depth_test: DepthTest::Always,
-                    write_mask: WriteMask::COLOR_AND_DEPTH,
-                    ..Default::default()
-                },
-                panel_vp,
-                || unsafe { gl.draw_arrays(glow::TRIANGLES, 0, 3) },
-            );
-        } else {
-            draw_points(panel_vp);
+            ensure_edl_target(&mut gpu.edl_target, &ctx, (panel_vp.width, panel_vp.height));
         }
-        draw(
-            &gpu.scene_lines,
-            glow::LINES,
-            &IDENTITY,
-            [1.0; 4],
-            false,
-            depth_tested,
-            panel_vp,
-        );
-        draw(
+        let gpu = &*gpu;
+        let d = Draw {
+            prog: &gpu.points,
+            gl,
+            frame,
+        };
+        match (frame.depth_cue, &gpu.edl_target) {
+            (DepthCue::Edl, Some(t)) => {
+                let rt =
+                    RenderTarget::new(t.color.as_color_target(None), t.depth.as_depth_target());
+                rt.clear(ClearState::color_and_depth(b[0], b[1], b[2], b[3], 1.0))
+                    .write::<std::convert::Infallible>(|| {
+                        d.points(gpu, Viewport::new_at_origo(t.size.0, t.size.1));
+                        Ok(())
+                    })
+                    .ok();
+                drop(rt);
+                // back to egui's framebuffer: composite, writing the points' depth for the lines
+                unsafe { gl.bind_framebuffer(glow::DRAW_FRAMEBUFFER, egui_fbo) };
+                clip_panel();
+                edl_composite(gl, gpu, t, frame, panel_vp);
+            }
+            _ => d.points(gpu, panel_vp),
+        }
+        d.lines(&gpu.scene_lines, depth_tested(), panel_vp);
+        d.lines(
             &gpu.overlay,
-            glow::LINES,
-            &IDENTITY,
-            [1.0; 4],
-            false,
             RenderStates {
                 depth_test: DepthTest::Always,
                 write_mask: WriteMask::COLOR,
@@ -599,6 +440,208 @@ pub fn paint(
         }
         Ok(())
     })
+}
+
+/// The panel's viewport, and the part of it inside the clip rectangle as a scissor box
+/// (x, y, width, height); None when nothing of the panel is visible.
+fn panel_viewport(info: &egui::PaintCallbackInfo) -> Option<(Viewport, [i32; 4])> {
+    let vp = info.viewport_in_pixels();
+    let clip = info.clip_rect_in_pixels();
+    let x0 = vp.left_px.max(clip.left_px);
+    let y0 = vp.from_bottom_px.max(clip.from_bottom_px);
+    let x1 = (vp.left_px + vp.width_px).min(clip.left_px + clip.width_px);
+    let y1 = (vp.from_bottom_px + vp.height_px).min(clip.from_bottom_px + clip.height_px);
+    if x1 <= x0 || y1 <= y0 || vp.width_px <= 0 || vp.height_px <= 0 {
+        return None;
+    }
+    let panel_vp = Viewport {
+        x: vp.left_px,
+        y: vp.from_bottom_px,
+        width: vp.width_px as u32,
+        height: vp.height_px as u32,
+    };
+    Some((panel_vp, [x0, y0, x1 - x0, y1 - y0]))
+}
+
+/// Uploads the clouds and line sets whose generation changed.
+fn sync_buffers(gpu: &mut Gpu, ctx: &Context, frame: &SceneFrame) {
+    for (buf, cloud) in [
+        (&mut gpu.source, &frame.source),
+        (&mut gpu.target, &frame.target),
+    ] {
+        buf.sync(
+            ctx,
+            cloud.id,
+            &cloud.positions,
+            &cloud.colors,
+            cloud.normals.as_deref().map(|v| v.as_slice()),
+            true,
+        );
+    }
+    for (buf, lines) in [
+        (&mut gpu.overlay, &frame.overlay_lines),
+        (&mut gpu.scene_lines, &frame.scene_lines),
+    ] {
+        buf.sync(ctx, lines.id, &lines.positions, &lines.colors, None, false);
+    }
+}
+
+/// The offscreen colour + depth target of eye-dome lighting, made again when the panel's
+/// size changes.
+fn ensure_edl_target(target: &mut Option<EdlTarget>, ctx: &Context, size: (u32, u32)) {
+    if target.as_ref().is_some_and(|t| t.size == size) {
+        return;
+    }
+    *target = Some(EdlTarget {
+        size,
+        color: Texture2D::new_empty::<[u8; 4]>(
+            ctx,
+            size.0,
+            size.1,
+            Interpolation::Nearest,
+            Interpolation::Nearest,
+            None,
+            Wrapping::ClampToEdge,
+            Wrapping::ClampToEdge,
+        ),
+        depth: DepthTexture2D::new::<f32>(
+            ctx,
+            size.0,
+            size.1,
+            Wrapping::ClampToEdge,
+            Wrapping::ClampToEdge,
+        ),
+    });
+}
+
+/// Composites the offscreen points into the bound framebuffer with eye-dome lighting,
+/// writing their depth too (so the lines drawn after are depth-tested against them).
+fn edl_composite(
+    gl: &glow::Context,
+    gpu: &Gpu,
+    t: &EdlTarget,
+    frame: &SceneFrame,
+    panel_vp: Viewport,
+) {
+    let b = frame.background;
+    let e = &gpu.edl;
+    e.use_texture("color_tex", &t.color);
+    e.use_depth_texture("depth_tex", &t.depth);
+    e.use_uniform_if_required(
+        "texel",
+        three_d::vec2(1.0 / t.size.0 as f32, 1.0 / t.size.1 as f32),
+    );
+    e.use_uniform_if_required("near", frame.near);
+    e.use_uniform_if_required("far", frame.far);
+    e.use_uniform_if_required("strength", frame.edl_strength);
+    e.use_uniform_if_required("background", three_d::vec4(b[0], b[1], b[2], b[3]));
+    e.use_vertex_attribute("corner", &gpu.quad);
+    e.draw_with(
+        RenderStates {
+            depth_test: DepthTest::Always,
+            write_mask: WriteMask::COLOR_AND_DEPTH,
+            ..Default::default()
+        },
+        panel_vp,
+        || unsafe { gl.draw_arrays(glow::TRIANGLES, 0, 3) },
+    );
+}
+
+/// Points and scene lines: depth-tested, writing colour and depth.
+fn depth_tested() -> RenderStates {
+    RenderStates {
+        depth_test: DepthTest::Less,
+        ..Default::default()
+    }
+}
+
+/// The point program with what every draw call of a frame shares.
+struct Draw<'a> {
+    prog: &'a Program,
+    gl: &'a glow::Context,
+    frame: &'a SceneFrame,
+}
+
+impl Draw<'_> {
+    /// The target (when shown) and every drawing of the source, as points.
+    fn points(&self, gpu: &Gpu, viewport: Viewport) {
+        let normals = self.frame.depth_cue == DepthCue::Normals;
+        unsafe { self.gl.enable(glow::PROGRAM_POINT_SIZE) };
+        if self.frame.show_target {
+            let identity = (&IDENTITY, [1.0; 4]);
+            self.cloud(
+                &gpu.target,
+                glow::POINTS,
+                identity,
+                normals,
+                depth_tested(),
+                viewport,
+            );
+        }
+        for inst in &self.frame.source_instances {
+            let placed = (&inst.model, inst.tint);
+            self.cloud(
+                &gpu.source,
+                glow::POINTS,
+                placed,
+                normals,
+                depth_tested(),
+                viewport,
+            );
+        }
+        unsafe { self.gl.disable(glow::PROGRAM_POINT_SIZE) };
+    }
+
+    /// A line set in the target frame.
+    fn lines(&self, lines: &GpuCloud, states: RenderStates, viewport: Viewport) {
+        let identity = (&IDENTITY, [1.0; 4]);
+        self.cloud(lines, glow::LINES, identity, false, states, viewport);
+    }
+
+    /// One buffer as `mode` (points: at most the frame's point budget; lines: whole
+    /// segments), under (model matrix, tint), lit by its normals when `shade`.
+    fn cloud(
+        &self,
+        cloud: &GpuCloud,
+        mode: u32,
+        (model, tint): (&[f32; 16], [f32; 4]),
+        shade: bool,
+        states: RenderStates,
+        viewport: Viewport,
+    ) {
+        let (prog, frame) = (self.prog, self.frame);
+        let n = if mode == glow::LINES {
+            cloud.count / 2 * 2
+        } else {
+            frame
+                .point_budget
+                .map_or(cloud.count, |b| cloud.count.min(b))
+        };
+        if n == 0 {
+            return;
+        }
+        let m = mat4(model);
+        prog.use_uniform("mvp", mat4(&frame.view_proj) * m);
+        prog.use_uniform_if_required("model", m);
+        prog.use_uniform_if_required(
+            "eye",
+            three_d::vec3(frame.eye[0], frame.eye[1], frame.eye[2]),
+        );
+        prog.use_uniform_if_required("tint", three_d::vec4(tint[0], tint[1], tint[2], tint[3]));
+        prog.use_uniform_if_required("point_size", frame.point_size.clamp(1.0, 16.0));
+        let with_normals = shade && cloud.normals.is_some();
+        prog.use_uniform_if_required("shade", if with_normals { 1i32 } else { 0 });
+        prog.use_vertex_attribute("position", &cloud.positions);
+        prog.use_vertex_attribute("color", &cloud.colors);
+        if let (true, Some(nb)) = (with_normals, &cloud.normals) {
+            if prog.requires_attribute("normal") {
+                prog.use_vertex_attribute("normal", nb);
+            }
+        }
+        prog.draw_with(states, viewport, || unsafe {
+            self.gl.draw_arrays(mode, 0, n as i32);
+        });
+    }
 }
 
 #[cfg(test)]

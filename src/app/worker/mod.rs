@@ -58,6 +58,8 @@ struct Kept {
     /// Both similarity matrices (about 2 x 200 MB at 7k keypoints, for the current pair only):
     /// a temperature change then costs fusion + estimate only.
     sims: Option<Arc<Similarities>>,
+    /// The last re-fusion's estimate and its inputs (skipped when they repeat).
+    estimates: crate::pipeline::fuse::EstimateMemo,
     image: Option<ImageBranchOutput>,
     /// Stages of that run (shown as cached when only fusion onward re-runs).
     stages: Vec<StageInfo>,

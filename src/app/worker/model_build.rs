@@ -265,15 +265,16 @@ fn view_images(
     // One content hash per display cloud keys the views' visibility memo (hashed as one
     // buffer: per-value updates cost more than the fusion they follow).
     let cloud_key = |c: &[[f32; 3]]| {
-        let bytes: Vec<u8> = c
-            .iter()
-            .flat_map(|p| p.iter().flat_map(|x| x.to_le_bytes()))
-            .collect();
+        let mut bytes = Vec::with_capacity(c.len() * 12);
+        for x in c.iter().flatten() {
+            bytes.extend_from_slice(&x.to_le_bytes());
+        }
         blake3::hash(&bytes)
     };
-    let (source_key, target_key) = (cloud_key(source), cloud_key(target));
     match image {
         Some(img) => {
+            // only views need it (geometry-only runs skip hashing both clouds)
+            let (source_key, target_key) = (cloud_key(source), cloud_key(target));
             let prov = &img.provenance;
             let mk = |views: &[crate::pipeline::ViewInfo],
                       links: &[Option<crate::vfm::lift::PixelLink>],

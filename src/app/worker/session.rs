@@ -16,7 +16,7 @@ use crate::app::model::{
 use crate::app::stages_panel::StageRole;
 use crate::dataset::ScanPair;
 use crate::fusion::fuse::FusionMode;
-use crate::pipeline::fuse::{fuse_and_finish, similarities, FusionInputs};
+use crate::pipeline::fuse::{fuse_and_finish, fuse_and_finish_memo, similarities, FusionInputs};
 use crate::pipeline::geo::{fpfh_branch, GeoBranch};
 use crate::pipeline::image_branch::register_with_image_keep;
 use crate::pipeline::stages::{StageKeys, StageName};
@@ -114,6 +114,7 @@ impl PipelineWorker {
         let kept = inputs.map(|inputs| Kept {
             keys,
             sims: similarities(&inputs).ok().map(Arc::new),
+            estimates: Default::default(),
             inputs,
             image: result.image.clone(),
             stages: model.stages.clone(),
@@ -286,7 +287,13 @@ impl PipelineWorker {
         }
         // the re-fuse row times the re-fuse alone (the key comparison has its own row)
         let t0 = Instant::now();
-        let run = fuse_and_finish(&cur.pair, &params, &kept.inputs, kept.sims.as_deref());
+        let run = fuse_and_finish_memo(
+            &cur.pair,
+            &params,
+            &kept.inputs,
+            kept.sims.as_deref(),
+            Some(&kept.estimates),
+        );
         let mut result = match run {
             Ok(r) => r,
             Err(e) => return Some(Err(e)),

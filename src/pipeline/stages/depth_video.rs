@@ -7,7 +7,7 @@ use super::Ctx;
 use crate::camera::CameraModel;
 use crate::dataset::{FrameSet, Scan, ScanPair};
 use crate::error::{Error, Result};
-use crate::pipeline::cache::{hash_file, Cache, CacheKey};
+use crate::pipeline::cache::{hash_file_memo, Cache, CacheKey};
 use image::RgbImage;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -150,7 +150,7 @@ pub(crate) fn plan(src_fs: &FrameSet, tgt_fs: &FrameSet, l: usize) -> Result<Vid
     let depth_hashes: Vec<String> = src_paths
         .par_iter()
         .chain(tgt_paths.par_iter())
-        .map(|p| hash_file(p))
+        .map(|p| hash_file_memo(p))
         .collect::<Result<_>>()?;
     // One video, one clip: the larger of the two scans' (a LiDAR scan keeps its range).
     let lidar = [src_fs, tgt_fs]

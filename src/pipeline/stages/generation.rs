@@ -7,7 +7,7 @@ use super::depth_video::DepthVideo;
 use super::Ctx;
 use crate::dataset::{FrameSet, ScanPair};
 use crate::error::{Error, Result};
-use crate::pipeline::cache::{hash_file, Cache, CacheKey, Entry};
+use crate::pipeline::cache::{hash_file_memo, Cache, CacheKey, Entry};
 use crate::pipeline::params::{ImageBranchParams, WfmSpec};
 use crate::wfm::backend::{GenerateRequest, Generation, Provenance, WfmBackend};
 use image::RgbImage;
@@ -250,7 +250,7 @@ pub(crate) fn plan(
         let h: Vec<String> = s
             .par_iter()
             .chain(t.par_iter())
-            .map(|p| hash_file(p))
+            .map(|p| hash_file_memo(p))
             .collect::<Result<_>>()?;
         inputs.extend(h);
     }

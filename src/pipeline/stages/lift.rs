@@ -8,7 +8,7 @@ use super::Ctx;
 use crate::camera::CameraModel;
 use crate::dataset::FrameSet;
 use crate::error::{Error, Result};
-use crate::pipeline::cache::{hash_file, Cache, CacheKey, Entry};
+use crate::pipeline::cache::{hash_file_memo, Cache, CacheKey, Entry};
 use crate::vfm::lift::{lift_views, LiftView, PixelLink};
 use nalgebra::Point3;
 use rayon::prelude::*;
@@ -155,7 +155,7 @@ fn prepare<'a>(inp: &LiftInput<'a>, radius: f32, image_size: (u32, u32)) -> Resu
         .collect::<Result<_>>()?;
     let hashes: Vec<String> = paths
         .par_iter()
-        .map(|p| hash_file(p))
+        .map(|p| hash_file_memo(p))
         .collect::<Result<_>>()?;
     let poses = poses(inp);
     let key = key(

@@ -6,7 +6,7 @@
 use super::generation::GenOut;
 use super::Ctx;
 use crate::error::{Error, Result};
-use crate::pipeline::cache::{hash_file, Cache, CacheKey, Entry};
+use crate::pipeline::cache::{hash_file_memo, Cache, CacheKey, Entry};
 use crate::pipeline::params::VfmSpec;
 use crate::vfm::{DenseDescriptors, PairModel, PerImageModel};
 use image::RgbImage;
@@ -123,7 +123,7 @@ pub fn vfm_id(spec: &VfmSpec) -> Result<String> {
             spec.name()
         )));
     }
-    Ok(format!("{}@{}", spec.name(), &hash_file(model)?[..16]))
+    Ok(format!("{}@{}", spec.name(), &hash_file_memo(model)?[..16]))
 }
 
 #[derive(Serialize, Deserialize)]
