@@ -44,6 +44,8 @@ impl Side {
 
 /// What the user asked for in the panel; the app carries it out.
 #[derive(Clone, Debug, PartialEq)]
+// One action per frame at most, returned and consumed at once: boxing `Send` buys nothing.
+#[allow(clippy::large_enum_variant)]
 pub enum CompareAction {
     /// Open `pair` in the inspector with the settings of run `side`.
     Open(Side, String),

@@ -482,11 +482,9 @@ pub fn probe_mp4(path: &Path) -> Result<VideoInfo> {
     let dur_msec = (mdhd.duration as u128 * 1000)
         .checked_div(mdhd.timescale as u128)
         .unwrap_or(0);
-    let fps = if dur_msec > 0 {
-        (frame_count as u128 * 1000 / dur_msec) as f64
-    } else {
-        0.0
-    };
+    let fps = (frame_count as u128 * 1000)
+        .checked_div(dur_msec)
+        .map_or(0.0, |f| f as f64);
     Ok(VideoInfo {
         codec,
         width: track.width() as u32,
