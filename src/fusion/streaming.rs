@@ -22,11 +22,7 @@ pub fn row_nn_posterior(src: &Features, tgt: &Features, tau: f32) -> Result<Vec<
             src.dim, tgt.dim
         )));
     }
-    if !(tau > 0.0 && tau.is_finite()) {
-        return Err(Error::Invalid(format!(
-            "row-nn: temperature must be > 0, got {tau}"
-        )));
-    }
+    check_tau(tau)?;
     let (n, m, d) = (src.len(), tgt.len(), src.dim);
     if n == 0 || m == 0 || d == 0 {
         return Ok(Vec::new());
@@ -55,13 +51,19 @@ pub fn row_nn_posterior(src: &Features, tgt: &Features, tau: f32) -> Result<Vec<
                 .collect::<Vec<_>>()
         })
         .collect();
-    out.sort_unstable_by(|a, b| {
-        b.score
-            .total_cmp(&a.score)
-            .then(a.src.cmp(&b.src))
-            .then(a.tgt.cmp(&b.tgt))
-    });
+    out.sort_unstable_by(super::select::order);
     Ok(out)
+}
+
+/// The row-NN paths' temperature check (one message for all three).
+fn check_tau(tau: f32) -> Result<()> {
+    if tau > 0.0 && tau.is_finite() {
+        Ok(())
+    } else {
+        Err(Error::Invalid(format!(
+            "row-nn: temperature must be > 0, got {tau}"
+        )))
+    }
 }
 
 /// A row's first argmax and its row-softmax probability 1 / sum_j exp((s_j - max) / tau), with
@@ -129,11 +131,7 @@ pub fn row_nn_from_maxima(
     maxima: &[Option<(u32, f32)>],
     tau: f32,
 ) -> Result<Vec<Correspondence>> {
-    if !(tau > 0.0 && tau.is_finite()) {
-        return Err(Error::Invalid(format!(
-            "row-nn: temperature must be > 0, got {tau}"
-        )));
-    }
+    check_tau(tau)?;
     let m = sim.cols;
     if sim.rows == 0 || m == 0 {
         return Ok(Vec::new());
@@ -160,12 +158,7 @@ pub fn row_nn_from_maxima(
             })
         })
         .collect();
-    out.sort_unstable_by(|a, b| {
-        b.score
-            .total_cmp(&a.score)
-            .then(a.src.cmp(&b.src))
-            .then(a.tgt.cmp(&b.tgt))
-    });
+    out.sort_unstable_by(super::select::order);
     Ok(out)
 }
 
@@ -175,11 +168,7 @@ pub fn row_nn_from_similarity(
     sim: &super::matrix::DenseMatrix,
     tau: f32,
 ) -> Result<Vec<Correspondence>> {
-    if !(tau > 0.0 && tau.is_finite()) {
-        return Err(Error::Invalid(format!(
-            "row-nn: temperature must be > 0, got {tau}"
-        )));
-    }
+    check_tau(tau)?;
     let m = sim.cols;
     if sim.rows == 0 || m == 0 {
         return Ok(Vec::new());
@@ -200,12 +189,7 @@ pub fn row_nn_from_similarity(
         .collect::<Vec<_>>())
     .map(|mut out| {
         // the same order as row_nn_posterior
-        out.sort_unstable_by(|a, b| {
-            b.score
-                .total_cmp(&a.score)
-                .then(a.src.cmp(&b.src))
-                .then(a.tgt.cmp(&b.tgt))
-        });
+        out.sort_unstable_by(super::select::order);
         out
     })
 }
