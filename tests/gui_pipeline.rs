@@ -11,7 +11,9 @@ use std::time::{Duration, Instant};
 use cgenreg::app::colormap::{SOURCE_RGB, TARGET_RGB};
 use cgenreg::app::headless::render_screenshot;
 use cgenreg::app::model::{PairStatus, StageState};
-use cgenreg::app::worker::{result_to_model, PipelineWorker, GT_INLIER_M, IMAGE_BRANCH_OFF};
+use cgenreg::app::worker::{
+    result_to_model, PipelineWorker, ViewMemo, GT_INLIER_M, IMAGE_BRANCH_OFF, VIEW_MEMO,
+};
 use cgenreg::app::{spawn_worker, Command, Panel, WorkerEvent};
 use cgenreg::dataset::manifest::Dataset;
 use cgenreg::pipeline::{register_pair, RegisterParams};
@@ -29,7 +31,13 @@ fn registration_result_becomes_a_consistent_model() {
     let id = ds.pairs()[0].id.clone();
     let pair = ds.load_pair(&id).unwrap();
     let res = register_pair(&pair, &params()).unwrap();
-    let model = result_to_model(&pair, &res, "geometry", Vec::new());
+    let model = result_to_model(
+        &pair,
+        &res,
+        "geometry",
+        Vec::new(),
+        &mut ViewMemo::new(VIEW_MEMO),
+    );
 
     // keypoints first, then a bounded display subsample
     let (ns, nt) = (res.source_keypoints.len(), res.target_keypoints.len());
@@ -652,10 +660,17 @@ fn refusion_from_memory_equals_the_library_and_a_fresh_run() {
 
     let ds = Dataset::load(&demo_manifest()).unwrap();
     let pair = ds.load_pair(&id).unwrap();
-    let (fresh, inputs) = cgenreg::pipeline::register_pair_cached_keep(&pair, &s, None).unwrap();
+    let (fresh, inputs) =
+        cgenreg::pipeline::register_pair_cached_keep(&pair, &s, None, &Default::default()).unwrap();
     let sims = cgenreg::pipeline::fuse::similarities(&inputs).unwrap();
     let lib = cgenreg::pipeline::fuse::fuse_and_finish(&pair, &s, &inputs, Some(&sims)).unwrap();
-    let lib = result_to_model(&pair, &lib, "lib", Vec::new());
+    let lib = result_to_model(
+        &pair,
+        &lib,
+        "lib",
+        Vec::new(),
+        &mut ViewMemo::new(VIEW_MEMO),
+    );
     let key = |m: &cgenreg::app::InspectorModel| {
         m.matches
             .iter()

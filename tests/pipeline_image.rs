@@ -104,7 +104,7 @@ fn full_method_on_demo_with_cache() {
     );
 
     // The stage keys computed without running anything are the ones the run stored under.
-    let keys = StageKeys::compute(&pair, &p, Some(&cache)).unwrap();
+    let keys = StageKeys::compute(&pair, &p, Some(&cache), &Default::default()).unwrap();
     assert_stored(&keys, dir.path());
 
     // 2. Same parameters: every stage up to the similarities is a cache hit, same pose.
@@ -119,7 +119,7 @@ fn full_method_on_demo_with_cache() {
     let mut p3 = p.clone();
     p3.fusion.calibration_img = Calibration::RowSoftmax { tau: 0.05 };
     assert_eq!(
-        invalidated(&pair, &p, &p3, Some(&cache)).unwrap(),
+        invalidated(&pair, &p, &p3, Some(&cache), &Default::default()).unwrap(),
         [StageName::Fusion]
     );
     let r3 = register_pair_cached(&pair, &p3, Some(&cache)).unwrap();
@@ -209,7 +209,7 @@ fn pair_conditioned_vfm_end_to_end() {
     assert!(img.vfm.starts_with("mast3r@"), "{}", img.vfm);
     assert!(img.vfm.contains("2x2 view pairs"), "{}", img.vfm);
     assert!(r1.n_correspondences > 0);
-    let keys = StageKeys::compute(&pair, &p, Some(&cache)).unwrap();
+    let keys = StageKeys::compute(&pair, &p, Some(&cache), &Default::default()).unwrap();
     assert!(keys.is_known(StageName::PairVfm) && !keys.is_known(StageName::Vfm));
     assert_stored(&keys, dir.path());
     let r2 = register_pair_cached(&pair, &p, Some(&cache)).unwrap();
@@ -237,8 +237,15 @@ fn fuse_from_kept_similarities_equals_full_tail() {
     let ds = Dataset::load(&manifest).unwrap();
     let pair = ds.load_pair(&ds.pairs()[0].id.clone()).unwrap();
     let p = params();
-    let (_, inputs) =
-        register_with_image_keep(&pair, &p, p.image.as_ref().unwrap(), None, true).unwrap();
+    let (_, inputs) = register_with_image_keep(
+        &pair,
+        &p,
+        p.image.as_ref().unwrap(),
+        None,
+        &Default::default(),
+        true,
+    )
+    .unwrap();
     let geo_only = FusionInputs {
         image: None,
         image_label: None,
@@ -488,4 +495,32 @@ fn cloud_only_pair_without_cache_leaves_no_virtual_frames() {
     let r = register_pair_cached(&pair, &params(), None).unwrap();
     assert!(r.warnings.iter().any(|w| w.contains("virtual pinhole")));
     assert_eq!(leftovers(), Vec::<String>::new());
+}
+
+/// The caller owns what is kept between registrations: one memo loads the VFM once for two
+/// runs and remembers the input files' hashes; a memo bounded to a single file hash and model
+/// gives the same result (the bound changes only what is recomputed).
+#[test]
+fn a_callers_memo_loads_the_model_once_and_its_bound_changes_no_result() {
+    use cgenreg::pipeline::{memo::Memo, register_pair_cached_keep};
+    let ds = Dataset::load(&common::demo_manifest()).unwrap();
+    let pair = ds.load_pair(&ds.pairs()[0].id.clone()).unwrap();
+    let p = params();
+    let memo = Memo::default();
+    assert_eq!(memo.sizes().models, 0);
+    let (a, _) = register_pair_cached_keep(&pair, &p, None, &memo).unwrap();
+    let after_one = memo.sizes();
+    assert_eq!(after_one.models, 1, "{after_one:?}");
+    let l = p.image.as_ref().unwrap().frames_per_fragment;
+    // the model file and (at least) the 2L depth frames of the depth video
+    assert!(after_one.file_hashes > 2 * l, "{after_one:?}");
+    let (b, _) = register_pair_cached_keep(&pair, &p, None, &memo).unwrap();
+    assert_eq!(memo.sizes(), after_one, "a second run adds nothing");
+    let tiny = Memo::with_capacity(1, 1, 1);
+    let (c, _) = register_pair_cached_keep(&pair, &p, None, &tiny).unwrap();
+    assert_eq!(tiny.sizes().file_hashes, 1);
+    for r in [&b, &c] {
+        assert_eq!(r.estimate, a.estimate);
+        assert_eq!(r.correspondences.len(), a.correspondences.len());
+    }
 }

@@ -146,6 +146,7 @@ fn a_cancelled_study_keeps_the_pairs_run_and_says_so() {
         &params(),
         &k_settings(&[2]),
         Some(&cache),
+        &cgenreg::pipeline::Memo::default(),
         true,
         &mut |_| cancel.store(true, Ordering::Relaxed),
         Some(&cancel),

@@ -8,11 +8,11 @@ use crate::dataset::fragment_cache::pair_summary;
 use crate::dataset::manifest::{Dataset, PairSpec};
 use crate::error::{Error, Result};
 use crate::metrics::{PairMetrics, Summary};
-use crate::pipeline::register_pair_cached;
 use crate::pipeline::shard::{
     run_pending, stage_totals, PairRecord, Progress, ResumeMode, RunFile, RunHeader, RunIdentity,
     Shard, StageTime, DONE, FAILED,
 };
+use crate::pipeline::{register_pair_cached_keep, Memo};
 use clap::Args;
 use serde::Serialize;
 use std::path::PathBuf;
@@ -276,6 +276,8 @@ pub fn run(a: BenchArgs) -> Result<()> {
     let mut warnings = 0usize;
     let bar = progress_bar(progress.positions.len());
     bar.set_position((progress.positions.len() - progress.pending().len()) as u64);
+    // one memo for the run: the VFM model loads once, each input file is hashed once
+    let memo = Memo::default();
     let mut run_pair = |pos: usize, id: &str| -> Result<PairRecord> {
         let spec = specs[pos];
         bar.set_message(id.to_string());
@@ -291,7 +293,7 @@ pub fn run(a: BenchArgs) -> Result<()> {
                 warnings += 1;
             }
             let loaded = hit == Some(true);
-            let mut r = register_pair_cached(&pair, &params, cache.as_ref())?;
+            let (mut r, _) = register_pair_cached_keep(&pair, &params, cache.as_ref(), &memo)?;
             r.timings.insert(
                 0,
                 crate::pipeline::StageTiming {

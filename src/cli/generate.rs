@@ -100,6 +100,8 @@ pub fn run(a: GenerateArgs) -> Result<()> {
         }
     }
     let bar = progress_bar(progress.positions.len());
+    // one memo for the run: each pair's VFM model loads once
+    let memo = crate::pipeline::Memo::default();
     let mut run_pair = |pos: usize, id: &str| -> Result<PairRecord> {
         if let Some(e) = batch_errors.get(id) {
             bar.inc(1);
@@ -113,6 +115,7 @@ pub fn run(a: GenerateArgs) -> Result<()> {
                 &params,
                 &ib,
                 cache.as_ref(),
+                &memo,
                 !batched,
             )
         });
@@ -176,11 +179,12 @@ fn generate_batch(
 ) -> std::collections::HashMap<String, String> {
     use crate::pipeline::image_branch::{pending_generation, store_pending};
     let mut errors = std::collections::HashMap::new();
+    let memo = crate::pipeline::Memo::default();
     let mut pending = Vec::new();
     for id in ids {
         match ds
             .load_pair(id)
-            .and_then(|pair| pending_generation(&pair, ib, cache))
+            .and_then(|pair| pending_generation(&pair, ib, cache, &memo))
         {
             Ok(Some(p)) => pending.push(p),
             Ok(None) => {}

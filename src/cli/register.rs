@@ -64,7 +64,8 @@ pub fn run(a: RegisterArgs) -> Result<()> {
     let (pair, load_hit) = load_pair(&a)?;
     let load_ms = t0.elapsed().as_secs_f64() * 1e3;
     let (params, cache) = a.image.params_and_cache(&a.pipeline)?;
-    let (mut res, inputs) = register_pair_cached_keep(&pair, &params, cache.as_ref())?;
+    let memo = crate::pipeline::Memo::default();
+    let (mut res, inputs) = register_pair_cached_keep(&pair, &params, cache.as_ref(), &memo)?;
     res.timings.insert(
         0,
         crate::pipeline::StageTiming {

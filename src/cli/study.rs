@@ -222,6 +222,8 @@ fn run_common(a: &CommonArgs, settings: Vec<StudySetting>, command: &str) -> Res
         .count();
     let bar = progress_bar(progress.positions.len() * runnable);
     let t = std::time::Instant::now();
+    // one memo for the run: the VFM model loads once, each file is hashed once
+    let memo = crate::pipeline::Memo::default();
     let mut run_pair = |_pos: usize, id: &str| -> Result<PairRecord> {
         let t = std::time::Instant::now();
         let pair = ds.load_pair(id).map_err(|e| e.to_string());
@@ -229,7 +231,7 @@ fn run_common(a: &CommonArgs, settings: Vec<StudySetting>, command: &str) -> Res
             &plan,
             pair.as_ref(),
             &params,
-            cache.as_ref(),
+            (cache.as_ref(), &memo),
             generate,
             &mut |s| {
                 bar.inc(1);

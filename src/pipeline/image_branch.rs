@@ -12,6 +12,7 @@ pub use super::stages::depth_video::depth_video_clip;
 
 use super::cache::{Cache, CacheKey};
 use super::fuse::{fuse_and_finish, FusionInputs, ImageInputs};
+use super::memo::Memo;
 use super::params::{GeoFeatureSource, ImageBranchParams, RegisterParams};
 use super::result::{ImageBranchOutput, RegistrationResult, ViewInfo};
 use super::stages::depth_video::frames_of;
@@ -30,31 +31,35 @@ use crate::wfm::ViewSelection;
 use image::RgbImage;
 use std::borrow::Cow;
 
-/// The full method on one pair; `cache` None computes everything in memory.
+/// The full method on one pair; `cache` None computes everything in memory. The models and
+/// file hashes are kept for this call only (a caller of many pairs passes its own [`Memo`]
+/// to [`register_with_image_keep`]).
 pub fn register_with_image(
     pair: &ScanPair,
     params: &RegisterParams,
     ib: &ImageBranchParams,
     cache: Option<&Cache>,
 ) -> Result<RegistrationResult> {
-    register_with_image_keep(pair, params, ib, cache, true).map(|(r, _)| r)
+    register_with_image_keep(pair, params, ib, cache, &Memo::default(), true).map(|(r, _)| r)
 }
 
 /// [`register_with_image`] that also returns the [`FusionInputs`]. With `generate` false a
 /// generation missing from the cache is not produced: the call fails with
-/// [`Error::GenerationNotCached`] (the GUI then offers to run the generator).
+/// [`Error::GenerationNotCached`] (the GUI then offers to run the generator). `memo` keeps
+/// the loaded models and file hashes for the caller's next registration.
 pub fn register_with_image_keep(
     pair: &ScanPair,
     params: &RegisterParams,
     ib: &ImageBranchParams,
     cache: Option<&Cache>,
+    memo: &Memo,
     generate: bool,
 ) -> Result<(RegistrationResult, FusionInputs)> {
     // Point-cloud-only scans: depth frames from a virtual camera (stage `virtual-frames`).
     // Without a cache they live in a scratch folder until `store` is dropped, after the run.
     let mut store = FrameStore::new(cache);
     let (framed, notes) = framed_pair(&mut store, pair, ib)?;
-    let (mut r, inputs) = register_with_frames(&framed, params, ib, cache, generate)?;
+    let (mut r, inputs) = register_with_frames(&framed, params, ib, (cache, memo), generate)?;
     if let Cow::Owned(_) = framed {
         r.warnings.extend(notes);
         r.warnings.append(&mut store.warnings);
@@ -81,15 +86,17 @@ pub fn pending_generation(
     pair: &ScanPair,
     ib: &ImageBranchParams,
     cache: &Cache,
+    memo: &Memo,
 ) -> Result<Option<PendingGeneration>> {
     let mut store = FrameStore::new(Some(cache));
     let (framed, _) = framed_pair(&mut store, pair, ib)?;
     let pair = &*framed;
-    let mut ctx = Ctx::new(Some(cache));
+    let mut ctx = Ctx::new(Some(cache), memo);
     let l = ib.frames_per_fragment;
     let (src_fs, tgt_fs) = (frames_of(&pair.source, l)?, frames_of(&pair.target, l)?);
     let mut video = depth_video::run(&mut ctx, pair, src_fs, tgt_fs, l)?;
-    let planned = generation::plan(pair, ib, (&video.meta.hash, video.lidar), src_fs, tgt_fs, l)?;
+    let video_in = (video.meta.hash.as_str(), video.lidar);
+    let planned = generation::plan(memo, pair, ib, video_in, src_fs, tgt_fs, l)?;
     if generation::is_cached(cache, &planned.key) {
         return Ok(None);
     }
@@ -126,7 +133,7 @@ fn register_with_frames(
     pair: &ScanPair,
     params: &RegisterParams,
     ib: &ImageBranchParams,
-    cache: Option<&Cache>,
+    (cache, memo): (Option<&Cache>, &Memo),
     generate: bool,
 ) -> Result<(RegistrationResult, FusionInputs)> {
     if !matches!(params.geo_features, GeoFeatureSource::Fpfh) {
@@ -136,13 +143,13 @@ fn register_with_frames(
                 .into(),
         ));
     }
-    let mut ctx = Ctx::new(cache);
+    let mut ctx = Ctx::new(cache, memo);
     let l = ib.frames_per_fragment;
     let src_fs = frames_of(&pair.source, l)?;
     let tgt_fs = frames_of(&pair.target, l)?;
     // Fail early on bad K / m (before anything expensive).
     let planned = view_select::planned(ib)?;
-    let vfm_id = vfm::vfm_id(&ib.vfm)?;
+    let vfm_id = vfm::vfm_id(memo, &ib.vfm)?;
 
     // Geometric branch (dense path: the image branch needs the N x M similarity).
     let (src_geo, src_geo_key) = geo::run(&mut ctx, "fpfh source", &pair.source, params.voxel)?;

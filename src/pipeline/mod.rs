@@ -2,7 +2,8 @@
 //! keyed by content so the GUI and `bench` re-run only what changed.
 //!
 //! Modules, leaves first: `params` (the parameter types), `result` (what a registration
-//! returns, the stage timer), `cache` (the content-addressed store), `geo` (the geometric
+//! returns, the stage timer), `cache` (the content-addressed store), `memo` (what a caller keeps in memory between
+//! registrations), `geo` (the geometric
 //! branch), `fuse` (the in-memory tail: similarity to evaluation), `stages` (one file per
 //! cached stage), `image_branch` (wires the stages), `register` (entry points), then `study`
 //! and `shard` (many pairs).
@@ -13,6 +14,7 @@ pub mod fuse;
 pub mod geo;
 pub mod hypotheses;
 pub mod image_branch;
+pub mod memo;
 pub mod params;
 pub mod register;
 pub mod result;
@@ -20,6 +22,7 @@ pub mod shard;
 pub mod stages;
 pub mod study;
 
+pub use memo::Memo;
 pub use params::{ImageBranchParams, RegisterParams, VfmSpec, WfmSpec};
 pub use register::{register_pair, register_pair_cached, register_pair_cached_keep};
 pub use result::{ImageBranchOutput, RegistrationResult, StageTiming, ViewInfo};

@@ -5,6 +5,7 @@
 use super::cache::Cache;
 use super::fuse::{fuse_and_finish, FusionInputs};
 use super::geo::geo_branches;
+use super::memo::Memo;
 use super::params::RegisterParams;
 use super::result::{RegistrationResult, Timer};
 use crate::dataset::ScanPair;
@@ -16,24 +17,29 @@ pub fn register_pair(pair: &ScanPair, params: &RegisterParams) -> Result<Registr
     register_pair_cached(pair, params, None)
 }
 
-/// [`register_pair`] with the image branch's stages read from / written to `cache`.
+/// [`register_pair`] with the image branch's stages read from / written to `cache` (models
+/// and file hashes kept for this call only; see [`register_pair_cached_keep`]).
 pub fn register_pair_cached(
     pair: &ScanPair,
     params: &RegisterParams,
     cache: Option<&Cache>,
 ) -> Result<RegistrationResult> {
-    register_pair_cached_keep(pair, params, cache).map(|(r, _)| r)
+    register_pair_cached_keep(pair, params, cache, &Memo::default()).map(|(r, _)| r)
 }
 
 /// [`register_pair_cached`] that also returns the [`FusionInputs`] the result was computed
-/// from (what the correspondence export and the posterior inspector recompute from).
+/// from (what the correspondence export and the posterior inspector recompute from). `memo`
+/// is the caller's: a caller of many pairs keeps one, so each model loads once.
 pub fn register_pair_cached_keep(
     pair: &ScanPair,
     params: &RegisterParams,
     cache: Option<&Cache>,
+    memo: &Memo,
 ) -> Result<(RegistrationResult, FusionInputs)> {
     match &params.image {
-        Some(ib) => super::image_branch::register_with_image_keep(pair, params, ib, cache, true),
+        Some(ib) => {
+            super::image_branch::register_with_image_keep(pair, params, ib, cache, memo, true)
+        }
         None => register_geometry(pair, params),
     }
 }

@@ -16,6 +16,7 @@
 
 use super::cache::Cache;
 use super::image_branch::register_with_image_keep;
+use super::memo::Memo;
 use super::params::{ImageBranchParams, RegisterParams};
 use crate::dataset::manifest::Dataset;
 use crate::dataset::ScanPair;
@@ -240,6 +241,7 @@ pub fn run_study(
         params,
         settings,
         cache,
+        &Memo::default(),
         generate,
         progress,
         None,
@@ -260,6 +262,7 @@ pub fn run_study_with(
     params: &RegisterParams,
     settings: &[StudySetting],
     cache: Option<&Cache>,
+    memo: &Memo,
     generate: bool,
     progress: &mut dyn FnMut(&StudyProgress),
     cancel: Option<&std::sync::atomic::AtomicBool>,
@@ -287,7 +290,7 @@ pub fn run_study_with(
             &plan,
             pair.as_ref(),
             params,
-            cache,
+            (cache, memo),
             generate,
             &mut |setting| {
                 done += 1;
@@ -399,7 +402,7 @@ pub fn study_pair(
     plan: &StudyPlan,
     pair: std::result::Result<&ScanPair, &String>,
     params: &RegisterParams,
-    cache: Option<&Cache>,
+    (cache, memo): (Option<&Cache>, &Memo),
     generate: bool,
     on_setting: &mut dyn FnMut(&str),
 ) -> Vec<SettingOutcome> {
@@ -411,7 +414,7 @@ pub fn study_pair(
                 return SettingOutcome::SettingSkipped;
             }
             let o = match pair {
-                Ok(pair) => run_one(pair, params, ib, cache, generate, plan.kind),
+                Ok(pair) => run_one(pair, params, ib, (cache, memo), generate, plan.kind),
                 Err(e) => SettingOutcome::Failed {
                     reason: format!("loading the pair: {e}"),
                 },
@@ -475,7 +478,7 @@ fn run_one(
     pair: &ScanPair,
     params: &RegisterParams,
     ib: &ImageBranchParams,
-    cache: Option<&Cache>,
+    (cache, memo): (Option<&Cache>, &Memo),
     generate: bool,
     kind: StudyKind,
 ) -> SettingOutcome {
@@ -485,8 +488,9 @@ fn run_one(
         return skipped("no ground truth: RRE/RTE cannot be measured".into());
     }
     let t = Instant::now();
-    let r =
-        super::shard::catch_pair(|| register_with_image_keep(pair, params, ib, cache, generate));
+    let r = super::shard::catch_pair(|| {
+        register_with_image_keep(pair, params, ib, cache, memo, generate)
+    });
     let r = match r {
         Ok((r, _)) => r,
         Err(e @ Error::GenerationNotCached { .. }) => return skipped(e.to_string()),
@@ -635,6 +639,7 @@ mod tests {
             &p,
             &k_settings(&[1]),
             None,
+            &Memo::default(),
             true,
             &mut |_| {},
             None,
@@ -653,6 +658,7 @@ mod tests {
             &p,
             &mixed,
             None,
+            &Memo::default(),
             true,
             &mut |_| {},
             None,

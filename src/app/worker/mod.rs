@@ -26,7 +26,6 @@ mod run_all;
 mod session;
 mod study;
 
-use std::collections::HashMap;
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -38,13 +37,19 @@ use crate::dataset::ScanPair;
 use crate::fusion::fuse::FusionMode;
 use crate::pipeline::cache::Cache;
 use crate::pipeline::fuse::{FusionInputs, Similarities};
+use crate::pipeline::memo::{Lru, Memo};
 use crate::pipeline::stages::{StageKeys, StageName};
 use crate::pipeline::{ImageBranchOutput, RegisterParams, RegistrationResult};
 
 pub use model_build::{
-    default_posterior_point, point_posterior, pr_curve, result_to_model, DISPLAY_POINTS,
-    FIGURE7_CORRECT_M, GT_INLIER_M, IMAGE_BRANCH_OFF,
+    default_posterior_point, point_posterior, pr_curve, result_to_model, ViewMemo, DISPLAY_POINTS,
+    FIGURE7_CORRECT_M, GT_INLIER_M, IMAGE_BRANCH_OFF, VIEW_MEMO,
 };
+
+/// Loaded pairs the worker keeps (a real 3DMatch pair is a few hundred thousand points).
+pub const LOADED_PAIRS: usize = 8;
+/// Geometric branches the worker keeps (per pair and voxel size).
+pub const GEO_BRANCHES: usize = 8;
 pub use run_all::RunAllSummary;
 use study::StudyPlots;
 
@@ -103,10 +108,16 @@ pub struct PipelineWorker {
     params: RegisterParams,
     pairs: Vec<PairEntry>,
     current: Option<Current>,
-    /// Loaded pairs by id (loading a fragment is the slowest step for real scans).
-    loaded: HashMap<String, ScanPair>,
-    /// Geometric branch per (pair, voxel), so geometry-only re-runs skip FPFH.
-    geo: HashMap<(String, u64), Arc<FusionInputs>>,
+    /// Loaded pairs by id (loading a fragment is the slowest step for real scans); the
+    /// [`LOADED_PAIRS`] most recently used.
+    loaded: Lru<String, ScanPair>,
+    /// Geometric branch by the two scans' `geo-fpfh` stage keys, so geometry-only re-runs
+    /// skip FPFH; the [`GEO_BRANCHES`] most recently used.
+    geo: Lru<String, Arc<FusionInputs>>,
+    /// File hashes and loaded VFM models, for every registration this worker runs.
+    memo: Memo,
+    /// The views' depth frames and visibility, for re-fusions that show the same views.
+    views: ViewMemo,
     /// The stage cache of the image branch (None: everything computed in memory).
     cache: Option<Arc<Cache>>,
     /// Why there is no cache, reported once.
@@ -159,8 +170,10 @@ impl PipelineWorker {
             params,
             pairs,
             current: None,
-            loaded: HashMap::new(),
-            geo: HashMap::new(),
+            loaded: Lru::new(LOADED_PAIRS),
+            geo: Lru::new(GEO_BRANCHES),
+            memo: Memo::default(),
+            views: ViewMemo::new(VIEW_MEMO),
             cache,
             cache_note,
             studies: StudyPlots::default(),

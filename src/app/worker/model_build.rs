@@ -14,6 +14,7 @@ use crate::app::stages_panel::StageRole;
 use crate::dataset::ScanPair;
 use crate::fusion::fuse::FusionMode;
 use crate::pipeline::fuse::{FusionInputs, Similarities};
+use crate::pipeline::memo::Lru;
 use crate::pipeline::{ImageBranchOutput, RegistrationResult};
 
 /// Inlier threshold of the GT flags on correspondences (metres).
@@ -69,18 +70,24 @@ pub fn pr_curve(name: &str, matches: &[MatchInfo]) -> Option<PrCurve> {
     })
 }
 
+/// A view's depth frame and display-point visibility (see [`view_depth_and_visibility`]).
+pub type ViewExtras = Arc<(RgbImage, Vec<u8>)>;
+/// The worker's memo of [`ViewExtras`], keyed by the hash of (depth file, camera, display
+/// cloud): a re-fusion (temperature, fusion mode) shows the same views and must not redo them.
+pub type ViewMemo = Lru<blake3::Hash, ViewExtras>;
+/// Views a [`ViewMemo`] keeps (K per side for a couple of pairs).
+pub const VIEW_MEMO: usize = 16;
+
 /// The depth frame of a view as the WFM saw it (the depth video's grey inverse depth) and, per
-/// display point of its scan, 0 outside the view, 1 occluded, 2 visible. Memoised: a re-fusion
-/// (temperature, fusion mode) shows the same views and must not redo this.
-type ViewExtras = Arc<(RgbImage, Vec<u8>)>;
+/// display point of its scan, 0 outside the view, 1 occluded, 2 visible; from `memo` when it
+/// holds them.
 fn view_depth_and_visibility(
+    memo: &mut ViewMemo,
     depth_path: &std::path::Path,
     cam: &ViewCamera,
     cloud: &[[f32; 3]],
     cloud_key: &blake3::Hash,
 ) -> Option<ViewExtras> {
-    static MEMO: std::sync::OnceLock<std::sync::Mutex<Vec<(blake3::Hash, ViewExtras)>>> =
-        std::sync::OnceLock::new();
     let mut h = blake3::Hasher::new();
     h.update(depth_path.as_os_str().as_encoded_bytes());
     for x in cam.cloud_from_camera.to_homogeneous().iter() {
@@ -89,15 +96,8 @@ fn view_depth_and_visibility(
     h.update(format!("{:?}", cam.camera).as_bytes());
     h.update(cloud_key.as_bytes());
     let key = h.finalize();
-    let memo = MEMO.get_or_init(Default::default);
-    if let Some(hit) = memo
-        .lock()
-        .ok()?
-        .iter()
-        .find(|(k, _)| *k == key)
-        .map(|(_, v)| v.clone())
-    {
-        return Some(hit);
+    if let Some(hit) = memo.get(&key) {
+        return Some(hit.clone());
     }
     // A missing or unreadable depth frame leaves the view without its depth toggle; the
     // pipeline already read the same file, so this is not expected.
@@ -139,22 +139,19 @@ fn view_depth_and_visibility(
         },
         state,
     ));
-    if let Ok(mut m) = memo.lock() {
-        if m.len() >= 16 {
-            m.remove(0);
-        }
-        m.push((key, out.clone()));
-    }
+    memo.insert(key, out.clone());
     Some(out)
 }
 
 /// Converts a registration result and its pair into the inspector's model. `pairs` is the
-/// pair browser (the current pair's row is updated here).
+/// pair browser (the current pair's row is updated here); `views` is the caller's memo of the
+/// views' depth frames and visibility.
 pub fn result_to_model(
     pair: &ScanPair,
     result: &RegistrationResult,
     fusion_label: &str,
     mut pairs: Vec<PairEntry>,
+    views: &mut ViewMemo,
 ) -> InspectorModel {
     let source = display_cloud(
         &result.source_keypoints,
@@ -201,7 +198,7 @@ pub fn result_to_model(
         .collect();
 
     let (source_views, target_views, note) =
-        view_images(result.image.as_ref(), &matches, &source, &target);
+        view_images(result.image.as_ref(), &matches, &source, &target, views);
 
     let stages = result
         .timings
@@ -261,6 +258,7 @@ fn view_images(
     matches: &[MatchInfo],
     source: &[[f32; 3]],
     target: &[[f32; 3]],
+    memo: &mut ViewMemo,
 ) -> (Vec<ViewImage>, Vec<ViewImage>, Option<String>) {
     // One content hash per display cloud keys the views' visibility memo (hashed as one
     // buffer: per-value updates cost more than the fusion they follow).
@@ -276,9 +274,9 @@ fn view_images(
             // only views need it (geometry-only runs skip hashing both clouds)
             let (source_key, target_key) = (cloud_key(source), cloud_key(target));
             let prov = &img.provenance;
-            let mk = |views: &[crate::pipeline::ViewInfo],
-                      links: &[Option<crate::vfm::lift::PixelLink>],
-                      is_src: bool| {
+            let mut mk = |views: &[crate::pipeline::ViewInfo],
+                          links: &[Option<crate::vfm::lift::PixelLink>],
+                          is_src: bool| {
                 views
                     .iter()
                     .enumerate()
@@ -315,7 +313,9 @@ fn view_images(
                             .depth_path
                             .as_deref()
                             .zip(cam.as_ref())
-                            .and_then(|(p, c)| view_depth_and_visibility(p, c, cloud, cloud_key));
+                            .and_then(|(p, c)| {
+                                view_depth_and_visibility(memo, p, c, cloud, cloud_key)
+                            });
                         ViewImage {
                             label: ViewLabel {
                                 backend: prov.model.clone(),

@@ -134,7 +134,10 @@ impl PipelineWorker {
     ) {
         let params = self.params.clone();
         let cache = self.cache.take();
+        // the models and file hashes stay valid across datasets
+        let memo = std::mem::take(&mut self.memo);
         *self = Self::with_cache(d, params.clone(), cache, None);
+        self.memo = memo;
         self.params = params;
         if let Some(p) = first {
             self.loaded.insert(p.id.clone(), p);

@@ -42,11 +42,10 @@ impl PipelineWorker {
     /// The geometric branch of `pair` from memory, or computed (FPFH) and kept.
     fn geometry(
         &mut self,
-        id: &str,
         pair: &ScanPair,
         voxel: f64,
     ) -> crate::Result<(Arc<FusionInputs>, Vec<crate::pipeline::StageTiming>)> {
-        let key = (id.to_string(), voxel.to_bits());
+        let key = geo_memo_key(pair, voxel)?;
         if let Some(g) = self.geo.get(&key) {
             let t = crate::pipeline::StageTiming {
                 stage: "fpfh source + target (in memory)".into(),
@@ -98,7 +97,8 @@ impl PipelineWorker {
             missing,
         } = self.register(id, &pair, generate)?;
         let label = self.fusion_label(&result);
-        let mut model = result_to_model(&pair, &result, &label, self.pairs.clone());
+        let mut model =
+            result_to_model(&pair, &result, &label, self.pairs.clone(), &mut self.views);
         if params.image.is_some() {
             model.image_branch_note = note.clone();
         }
@@ -108,9 +108,9 @@ impl PipelineWorker {
         if let Some(row) = invalidated {
             model.stages.insert(0, row);
         }
-        let keys = inputs
-            .as_ref()
-            .and_then(|_| StageKeys::compute(&pair, &params, self.cache.as_deref()).ok());
+        let keys = inputs.as_ref().and_then(|_| {
+            StageKeys::compute(&pair, &params, self.cache.as_deref(), &self.memo).ok()
+        });
         let kept = inputs.map(|inputs| Kept {
             keys,
             sims: similarities(&inputs).ok().map(Arc::new),
@@ -150,7 +150,14 @@ impl PipelineWorker {
             }
             let cache = self.cache.clone();
             // A panic here reaches the worker thread's guard (`spawn_worker`), which reports it.
-            match register_with_image_keep(pair, &params, ib, cache.as_deref(), generate) {
+            match register_with_image_keep(
+                pair,
+                &params,
+                ib,
+                cache.as_deref(),
+                &self.memo,
+                generate,
+            ) {
                 Ok(x) => with_image = Some(x),
                 Err(e @ crate::Error::GenerationNotCached { .. }) => {
                     missing = Some(ib.prompt.text());
@@ -171,16 +178,16 @@ impl PipelineWorker {
         let (result, inputs) = match with_image {
             Some((r, i)) => {
                 // keep its geometric branch for geometry-only runs of this pair
-                self.geo
-                    .entry((id.to_string(), params.voxel.to_bits()))
-                    .or_insert_with(|| {
-                        Arc::new(FusionInputs {
-                            source_geo: i.source_geo.clone(),
-                            target_geo: i.target_geo.clone(),
-                            image: None,
-                            image_label: None,
-                        })
+                let key = geo_memo_key(pair, params.voxel)?;
+                if !self.geo.contains_key(&key) {
+                    let g = Arc::new(FusionInputs {
+                        source_geo: i.source_geo.clone(),
+                        target_geo: i.target_geo.clone(),
+                        image: None,
+                        image_label: None,
                     });
+                    self.geo.insert(key, g);
+                }
                 (r, Some(Arc::new(i)))
             }
             None => {
@@ -188,7 +195,7 @@ impl PipelineWorker {
                 gp.image = None;
                 if gp.geo_features == crate::pipeline::params::GeoFeatureSource::Fpfh {
                     let t0 = Instant::now();
-                    let (g, mut timings) = self.geometry(id, pair, gp.voxel)?;
+                    let (g, mut timings) = self.geometry(pair, gp.voxel)?;
                     let mut r = fuse_and_finish(pair, &gp, &g, None)?;
                     timings.append(&mut r.timings);
                     r.timings = timings;
@@ -196,7 +203,8 @@ impl PipelineWorker {
                     (r, Some(g))
                 } else {
                     // learned features: keep the inputs too (posteriors, export)
-                    let (r, i) = crate::pipeline::register_pair_cached_keep(pair, &gp, None)?;
+                    let (r, i) =
+                        crate::pipeline::register_pair_cached_keep(pair, &gp, None, &self.memo)?;
                     (r, Some(Arc::new(i)))
                 }
             }
@@ -275,7 +283,7 @@ impl PipelineWorker {
         // Compare every stage's key under the new settings with the kept run's: the inputs in
         // memory serve only when nothing before fusion changed.
         let t0 = Instant::now();
-        let new = StageKeys::compute(&cur.pair, &params, cache.as_deref()).ok();
+        let new = StageKeys::compute(&cur.pair, &params, cache.as_deref(), &self.memo).ok();
         let changed = match (&kept.keys, &new) {
             (Some(old), Some(new)) => old.invalidated_by(new),
             _ => StageName::ALL.to_vec(),
@@ -303,7 +311,13 @@ impl PipelineWorker {
             Some(_) => label_settings.label().to_string(),
             None => format!("geometry only ({}; image branch off)", result.geo_features),
         };
-        let mut model = result_to_model(&cur.pair, &result, &label, self.pairs.clone());
+        let mut model = result_to_model(
+            &cur.pair,
+            &result,
+            &label,
+            self.pairs.clone(),
+            &mut self.views,
+        );
         let mut stages: Vec<StageInfo> = kept
             .stages
             .iter()
@@ -566,4 +580,12 @@ impl PipelineWorker {
         let r = self.run_pair_with(id, generate);
         self.report(id, t, r, "load + register", events);
     }
+}
+
+/// The worker's key of a pair's geometric branch: both scans' `geo-fpfh` stage keys (the
+/// clouds' content and the voxel size), so a reloaded pair with other points is not served
+/// another's features.
+fn geo_memo_key(pair: &ScanPair, voxel: f64) -> crate::Result<String> {
+    let key = |s| crate::pipeline::stages::geo::key(s, voxel).map(|k| k.hash);
+    Ok(format!("{}+{}", key(&pair.source)?, key(&pair.target)?))
 }

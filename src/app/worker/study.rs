@@ -100,13 +100,14 @@ impl PipelineWorker {
         let (loaded, dataset) = (&self.loaded, &self.dataset);
         let rep = run_study_with(
             &ids,
-            &mut |id| match loaded.get(id) {
+            &mut |id| match loaded.peek(id) {
                 Some(p) => Ok(p.clone()),
                 None => dataset.load_pair(id),
             },
             &params,
             &settings,
             self.cache.as_deref(),
+            &self.memo,
             generate,
             &mut |p| progress(p.done, p.total),
             Some(&self.cancel),

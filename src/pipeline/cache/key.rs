@@ -65,53 +65,6 @@ pub fn hash_file(path: &Path) -> Result<String> {
     Ok(h.finalize().to_hex().to_string())
 }
 
-/// [`hash_file`] memoised by (path, length, modification time): the stage keys hash the same
-/// input files (depth frames, colour frames, model files) on every key computation, and the
-/// inspector computes every stage's key on each settings change. A file rewritten in place
-/// changes its modification time (or length), so its content is hashed again. At most
-/// [`FILE_HASH_MEMO`] files are remembered (the oldest is dropped first).
-pub fn hash_file_memo(path: &Path) -> Result<String> {
-    use std::collections::HashMap;
-    use std::sync::{Mutex, OnceLock};
-    type Stamp = (u64, Option<std::time::SystemTime>);
-    type Memo = (HashMap<std::path::PathBuf, (Stamp, String, u64)>, u64);
-    static MEMO: OnceLock<Mutex<Memo>> = OnceLock::new();
-    let meta = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
-    let stamp: Stamp = (meta.len(), meta.modified().ok());
-    // without a modification time the file cannot be told apart from a rewrite: hash it
-    if stamp.1.is_none() {
-        return hash_file(path);
-    }
-    let memo = MEMO.get_or_init(Default::default);
-    if let Ok(m) = memo.lock() {
-        if let Some((s, h, _)) = m.0.get(path) {
-            if *s == stamp {
-                return Ok(h.clone());
-            }
-        }
-    }
-    let h = hash_file(path)?;
-    if let Ok(mut m) = memo.lock() {
-        let (map, clock) = &mut *m;
-        *clock += 1;
-        if map.len() >= FILE_HASH_MEMO && !map.contains_key(path) {
-            if let Some(oldest) = map
-                .iter()
-                .min_by_key(|(_, (_, _, t))| *t)
-                .map(|(p, _)| p.clone())
-            {
-                map.remove(&oldest);
-            }
-        }
-        map.insert(path.to_path_buf(), (stamp, h.clone(), *clock));
-    }
-    Ok(h)
-}
-
-/// Files [`hash_file_memo`] remembers (a pair's 2L depth frames, 2L colour frames and the
-/// model file, for several pairs).
-pub const FILE_HASH_MEMO: usize = 4096;
-
 /// JSON with object keys sorted at every level (independent of serde_json's map order).
 pub fn canonical(v: &Value) -> Value {
     match v {
@@ -163,33 +116,5 @@ fn write_canonical(v: &Value, s: &mut String) {
             s.push(']');
         }
         other => s.push_str(&other.to_string()),
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn memoised_file_hash_follows_rewrites() {
-        let dir = tempfile::tempdir().unwrap();
-        let p = dir.path().join("f.bin");
-        std::fs::write(&p, b"first").unwrap();
-        let a = hash_file_memo(&p).unwrap();
-        assert_eq!(a, hash_file(&p).unwrap());
-        assert_eq!(hash_file_memo(&p).unwrap(), a);
-        // a rewrite with other content (same length, later time) is hashed again
-        let f = std::fs::File::options().write(true).open(&p).unwrap();
-        std::io::Write::write_all(&mut &f, b"other").unwrap();
-        let later = std::time::SystemTime::now() + std::time::Duration::from_secs(5);
-        f.set_modified(later).unwrap();
-        drop(f);
-        let b = hash_file_memo(&p).unwrap();
-        assert_eq!(b, hash_file(&p).unwrap());
-        assert_ne!(a, b);
-        // a longer file, too
-        std::fs::write(&p, b"a longer content").unwrap();
-        assert_eq!(hash_file_memo(&p).unwrap(), hash_file(&p).unwrap());
-        assert!(hash_file_memo(&dir.path().join("missing")).is_err());
     }
 }

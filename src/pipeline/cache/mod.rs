@@ -37,7 +37,7 @@ mod marker;
 mod verify;
 
 pub use entry::{Entry, NewEntry};
-pub use key::{canonical, hash_bytes, hash_file, hash_file_memo, CacheKey};
+pub use key::{canonical, hash_bytes, hash_file, CacheKey};
 pub use verify::owned_entry;
 use verify::{is_entry_name, is_stage_name, verify_dir};
 

@@ -7,7 +7,8 @@ use super::Ctx;
 use crate::camera::CameraModel;
 use crate::dataset::{FrameSet, Scan, ScanPair};
 use crate::error::{Error, Result};
-use crate::pipeline::cache::{hash_file_memo, Cache, CacheKey};
+use crate::pipeline::cache::{Cache, CacheKey};
+use crate::pipeline::memo::Memo;
 use image::RgbImage;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -139,7 +140,12 @@ pub(crate) struct VideoPlan {
 }
 
 /// The [`VideoPlan`] of the first `l` frames of each scan (hashes the 2L depth files).
-pub(crate) fn plan(src_fs: &FrameSet, tgt_fs: &FrameSet, l: usize) -> Result<VideoPlan> {
+pub(crate) fn plan(
+    memo: &Memo,
+    src_fs: &FrameSet,
+    tgt_fs: &FrameSet,
+    l: usize,
+) -> Result<VideoPlan> {
     let paths = |fs: &FrameSet| -> Vec<PathBuf> {
         fs.frames[..l]
             .iter()
@@ -150,7 +156,7 @@ pub(crate) fn plan(src_fs: &FrameSet, tgt_fs: &FrameSet, l: usize) -> Result<Vid
     let depth_hashes: Vec<String> = src_paths
         .par_iter()
         .chain(tgt_paths.par_iter())
-        .map(|p| hash_file_memo(p))
+        .map(|p| memo.hash_file(p))
         .collect::<Result<_>>()?;
     // One video, one clip: the larger of the two scans' (a LiDAR scan keeps its range).
     let lidar = [src_fs, tgt_fs]
@@ -195,7 +201,7 @@ pub(crate) fn run(
         tgt_paths,
         lidar,
         clip,
-    } = plan(src_fs, tgt_fs, l)?;
+    } = plan(ctx.memo, src_fs, tgt_fs, l)?;
     let mut frames: Option<Vec<RgbImage>> = None;
     let (meta, hit) = ctx.cached(
         &key,

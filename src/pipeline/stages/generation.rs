@@ -7,7 +7,8 @@ use super::depth_video::DepthVideo;
 use super::Ctx;
 use crate::dataset::{FrameSet, ScanPair};
 use crate::error::{Error, Result};
-use crate::pipeline::cache::{hash_file_memo, Cache, CacheKey, Entry};
+use crate::pipeline::cache::{Cache, CacheKey, Entry};
+use crate::pipeline::memo::Memo;
 use crate::pipeline::params::{ImageBranchParams, WfmSpec};
 use crate::wfm::backend::{GenerateRequest, Generation, Provenance, WfmBackend};
 use image::RgbImage;
@@ -222,6 +223,7 @@ impl Planned {
 /// The generation of a depth video with content hash `video_hash` (`lidar`: either scan is
 /// a LiDAR scan, which sets the built-in generator's frame size).
 pub(crate) fn plan(
+    memo: &Memo,
     pair: &ScanPair,
     ib: &ImageBranchParams,
     (video_hash, lidar): (&str, bool),
@@ -250,7 +252,7 @@ pub(crate) fn plan(
         let h: Vec<String> = s
             .par_iter()
             .chain(t.par_iter())
-            .map(|p| hash_file_memo(p))
+            .map(|p| memo.hash_file(p))
             .collect::<Result<_>>()?;
         inputs.extend(h);
     }
@@ -297,7 +299,15 @@ pub(crate) fn run(
     l: usize,
     generate: bool,
 ) -> Result<(GenOut, CacheKey)> {
-    let planned = plan(pair, ib, (&video.meta.hash, video.lidar), src_fs, tgt_fs, l)?;
+    let planned = plan(
+        ctx.memo,
+        pair,
+        ib,
+        (&video.meta.hash, video.lidar),
+        src_fs,
+        tgt_fs,
+        l,
+    )?;
     let backend_id = planned.backend.id();
     let key = planned.key.clone();
     let t = Instant::now();

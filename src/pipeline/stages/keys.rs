@@ -23,6 +23,7 @@ use crate::dataset::{FrameSet, Scan, ScanPair};
 use crate::error::Result;
 use crate::pipeline::cache::{Cache, CacheKey};
 use crate::pipeline::fuse;
+use crate::pipeline::memo::Memo;
 use crate::pipeline::params::{GeoFeatureSource, ImageBranchParams, RegisterParams};
 
 /// The stages of one registration, in the order they run.
@@ -109,6 +110,7 @@ impl StageKeys {
         pair: &ScanPair,
         params: &RegisterParams,
         cache: Option<&Cache>,
+        memo: &Memo,
     ) -> Result<StageKeys> {
         let mut k = StageKeys::default();
         let geo = geo_keys(pair, params)?;
@@ -118,7 +120,7 @@ impl StageKeys {
             k.set(StageName::Fusion, Some(vec![fusion.hash]));
             return Ok(k);
         };
-        let image = image_keys(&mut k, pair, params, ib, cache, &geo)?;
+        let image = image_keys(&mut k, pair, params, ib, (cache, memo), &geo)?;
         let fusion = match image {
             Some(i) => Some(vec![fuse::key(params, &[&geo[0], &geo[1], &i])?.hash]),
             None => None,
@@ -186,9 +188,10 @@ pub fn invalidated(
     old: &RegisterParams,
     new: &RegisterParams,
     cache: Option<&Cache>,
+    memo: &Memo,
 ) -> Result<Vec<StageName>> {
-    let a = StageKeys::compute(pair, old, cache)?;
-    let b = StageKeys::compute(pair, new, cache)?;
+    let a = StageKeys::compute(pair, old, cache, memo)?;
+    let b = StageKeys::compute(pair, new, cache, memo)?;
     Ok(a.invalidated_by(&b))
 }
 
@@ -219,7 +222,7 @@ fn image_keys(
     pair: &ScanPair,
     params: &RegisterParams,
     ib: &ImageBranchParams,
-    cache: Option<&Cache>,
+    (cache, memo): (Option<&Cache>, &Memo),
     geo: &[String],
 ) -> Result<Option<String>> {
     k.set(StageName::Geo, Some(geo.to_vec()));
@@ -262,14 +265,15 @@ fn image_keys(
     let l = ib.frames_per_fragment;
     let (src_fs, tgt_fs) = (frames_of(&pair.source, l)?, frames_of(&pair.target, l)?);
     let planned = view_select::planned(ib)?;
-    let vfm_id = vfm::vfm_id(&ib.vfm)?;
-    let video = depth_video::plan(src_fs, tgt_fs, l)?;
+    let vfm_id = vfm::vfm_id(memo, &ib.vfm)?;
+    let video = depth_video::plan(memo, src_fs, tgt_fs, l)?;
     k.set(StageName::DepthVideo, Some(vec![video.key.hash.clone()]));
     let Some(video_hash) = cache.and_then(|c| depth_video::cached_hash(c, &video.key)) else {
         k.unknown_from(StageName::Generation, ib);
         return Ok(None);
     };
-    let gen = generation::plan(pair, ib, (&video_hash, video.lidar()), src_fs, tgt_fs, l)?.key;
+    let lidar = video.lidar();
+    let gen = generation::plan(memo, pair, ib, (&video_hash, lidar), src_fs, tgt_fs, l)?.key;
     k.set(StageName::Generation, Some(vec![gen.hash.clone()]));
     let Some(meta) = cache.and_then(|c| generation::cached_meta(c, &gen)) else {
         k.unknown_from(StageName::ViewSelect, ib);
@@ -288,7 +292,7 @@ fn image_keys(
             frames: fs,
             depth_idx,
         };
-        lift::key_for(&inp, ib.lift_radius, (meta.width, meta.height))
+        lift::key_for(memo, &inp, ib.lift_radius, (meta.width, meta.height))
     };
     let src_lift = lift_key(&pair.source, src_fs, &sel.src_depth)?;
     let tgt_lift = lift_key(&pair.target, tgt_fs, &sel.tgt_depth)?;
@@ -353,7 +357,8 @@ mod tests {
     fn generate(pair: &ScanPair, params: &RegisterParams, cache: &Cache) {
         let ib = params.image.as_ref().unwrap();
         let l = ib.frames_per_fragment;
-        let mut ctx = Ctx::new(Some(cache));
+        let memo = Memo::default();
+        let mut ctx = Ctx::new(Some(cache), &memo);
         let (s, t) = (
             frames_of(&pair.source, l).unwrap(),
             frames_of(&pair.target, l).unwrap(),
@@ -365,11 +370,12 @@ mod tests {
     #[test]
     fn a_change_invalidates_exactly_the_stages_whose_keys_differ() {
         let pair = demo_pair();
+        let memo = Memo::default();
         let dir = tempfile::tempdir().unwrap();
         let cache = Cache::open(dir.path()).unwrap();
         let old = demo_params();
         generate(&pair, &old, &cache);
-        let keys = StageKeys::compute(&pair, &old, Some(&cache)).unwrap();
+        let keys = StageKeys::compute(&pair, &old, Some(&cache), &Memo::default()).unwrap();
         assert_eq!(
             keys.stages().collect::<Vec<_>>(),
             [
@@ -390,7 +396,8 @@ mod tests {
             assert!(dir.path().join(s.key_name()).join(k).is_dir(), "{s:?}");
         }
         assert_eq!(keys.get(Vfm).unwrap().len(), 4);
-        let inv = |new: &RegisterParams| invalidated(&pair, &old, new, Some(&cache)).unwrap();
+        let inv =
+            |new: &RegisterParams| invalidated(&pair, &old, new, Some(&cache), &memo).unwrap();
         assert_eq!(inv(&old), []);
 
         // The image temperature: only the in-memory tail.
@@ -430,7 +437,7 @@ mod tests {
         assert_eq!(inv(&p), [Lift, ImagePoints, Fusion]);
 
         // Without a cache the generation's input is not known before the depth video runs.
-        let none = invalidated(&pair, &old, &old, None).unwrap();
+        let none = invalidated(&pair, &old, &old, None, &memo).unwrap();
         assert_eq!(
             none,
             [Generation, ViewSelect, Vfm, Lift, ImagePoints, Fusion]
@@ -440,27 +447,31 @@ mod tests {
     #[test]
     fn geometry_only_and_switching_the_image_branch() {
         let pair = demo_pair();
+        let memo = Memo::default();
         let geo_only = RegisterParams {
             image: None,
             ..demo_params()
         };
-        let keys = StageKeys::compute(&pair, &geo_only, None).unwrap();
+        let keys = StageKeys::compute(&pair, &geo_only, None, &Memo::default()).unwrap();
         assert_eq!(keys.stages().collect::<Vec<_>>(), [Geo, Fusion]);
         let mut p = geo_only.clone();
         p.voxel = 0.04;
         assert_eq!(
-            invalidated(&pair, &geo_only, &p, None).unwrap(),
+            invalidated(&pair, &geo_only, &p, None, &memo).unwrap(),
             [Geo, Fusion]
         );
         let mut p = geo_only.clone();
         p.fusion.calibration_geo = Calibration::RowSoftmax { tau: 0.2 };
-        assert_eq!(invalidated(&pair, &geo_only, &p, None).unwrap(), [Fusion]);
+        assert_eq!(
+            invalidated(&pair, &geo_only, &p, None, &memo).unwrap(),
+            [Fusion]
+        );
         // Turning the image branch on runs its stages (the geometric keys are the same).
         let dir = tempfile::tempdir().unwrap();
         let cache = Cache::open(dir.path()).unwrap();
         generate(&pair, &demo_params(), &cache);
         assert_eq!(
-            invalidated(&pair, &geo_only, &demo_params(), Some(&cache)).unwrap(),
+            invalidated(&pair, &geo_only, &demo_params(), Some(&cache), &memo).unwrap(),
             [
                 DepthVideo,
                 Generation,
@@ -474,6 +485,6 @@ mod tests {
         // A bad K is the error the run would give.
         let mut p = demo_params();
         p.image.as_mut().unwrap().k = 9;
-        assert!(StageKeys::compute(&pair, &p, Some(&cache)).is_err());
+        assert!(StageKeys::compute(&pair, &p, Some(&cache), &Memo::default()).is_err());
     }
 }

@@ -8,7 +8,8 @@ use super::Ctx;
 use crate::camera::CameraModel;
 use crate::dataset::FrameSet;
 use crate::error::{Error, Result};
-use crate::pipeline::cache::{hash_file_memo, Cache, CacheKey, Entry};
+use crate::pipeline::cache::{Cache, CacheKey, Entry};
+use crate::pipeline::memo::Memo;
 use crate::vfm::lift::{lift_views, LiftView, PixelLink};
 use nalgebra::Point3;
 use rayon::prelude::*;
@@ -141,7 +142,12 @@ fn compute(
 /// The selected depth files, their content hashes, the views' poses and the stage key.
 type Prepared<'a> = (Vec<&'a Path>, Vec<String>, Vec<Vec<f64>>, CacheKey);
 
-fn prepare<'a>(inp: &LiftInput<'a>, radius: f32, image_size: (u32, u32)) -> Result<Prepared<'a>> {
+fn prepare<'a>(
+    memo: &Memo,
+    inp: &LiftInput<'a>,
+    radius: f32,
+    image_size: (u32, u32),
+) -> Result<Prepared<'a>> {
     let paths: Vec<&Path> = inp
         .depth_idx
         .iter()
@@ -155,7 +161,7 @@ fn prepare<'a>(inp: &LiftInput<'a>, radius: f32, image_size: (u32, u32)) -> Resu
         .collect::<Result<_>>()?;
     let hashes: Vec<String> = paths
         .par_iter()
-        .map(|p| hash_file_memo(p))
+        .map(|p| memo.hash_file(p))
         .collect::<Result<_>>()?;
     let poses = poses(inp);
     let key = key(
@@ -171,8 +177,13 @@ fn prepare<'a>(inp: &LiftInput<'a>, radius: f32, image_size: (u32, u32)) -> Resu
 }
 
 /// The stage key of `inp`'s lift (hashes the selected depth files; the keypoints are not read).
-pub(crate) fn key_for(inp: &LiftInput, radius: f32, image_size: (u32, u32)) -> Result<CacheKey> {
-    prepare(inp, radius, image_size).map(|p| p.3)
+pub(crate) fn key_for(
+    memo: &Memo,
+    inp: &LiftInput,
+    radius: f32,
+    image_size: (u32, u32),
+) -> Result<CacheKey> {
+    prepare(memo, inp, radius, image_size).map(|p| p.3)
 }
 
 /// The keypoints' pixel links, timed as `name`; with the stage key (image points chain it).
@@ -183,7 +194,7 @@ pub(crate) fn run(
     radius: f32,
     image_size: (u32, u32),
 ) -> Result<(Vec<Option<PixelLink>>, CacheKey)> {
-    let (paths, hashes, poses, key) = prepare(inp, radius, image_size)?;
+    let (paths, hashes, poses, key) = prepare(ctx.memo, inp, radius, image_size)?;
     let links = ctx.stage(
         name,
         &key,

@@ -35,6 +35,7 @@ pub mod virtual_frames;
 pub use keys::{invalidated, StageKeys, StageName};
 
 use super::cache::{Cache, CacheKey, Entry};
+use super::memo::Memo;
 use super::result::Timer;
 use crate::error::{Error, Result};
 use crate::geometry::PointCloud;
@@ -42,18 +43,21 @@ use nalgebra::Point3;
 use std::path::Path;
 use std::time::Instant;
 
-/// What the stages of one registration share: the cache (None: all in memory), the timer and
-/// the warnings that go into the result.
+/// What the stages of one registration share: the cache (None: all in memory), the caller's
+/// in-memory memo (file hashes, loaded models), the timer and the warnings that go into the
+/// result.
 pub(crate) struct Ctx<'a> {
     pub(crate) cache: Option<&'a Cache>,
+    pub(crate) memo: &'a Memo,
     pub(crate) timer: Timer,
     pub(crate) warnings: Vec<String>,
 }
 
 impl<'a> Ctx<'a> {
-    pub(crate) fn new(cache: Option<&'a Cache>) -> Self {
+    pub(crate) fn new(cache: Option<&'a Cache>, memo: &'a Memo) -> Self {
         Ctx {
             cache,
+            memo,
             timer: Timer::new(),
             warnings: Vec::new(),
         }

@@ -90,6 +90,7 @@ pub(crate) fn run(
 ) -> Result<(PairPointDescriptors, String)> {
     let (k_src, k_tgt) = (inp.src_images.len(), inp.tgt_images.len());
     let mut loaded = false;
+    let memo = ctx.memo;
     let d = ctx.stage(
         "vfm view pairs + point features",
         key,
@@ -101,7 +102,7 @@ pub(crate) fn run(
             )
         },
         || {
-            let m = load_pair_vfm(spec)?;
+            let m = load_pair_vfm(memo, spec, vfm_id)?;
             loaded = true;
             let pairs = crate::vfm::describe_all_pairs(m.as_ref(), inp.src_images, inp.tgt_images)?;
             pair_point_descriptors(&pairs, k_src, k_tgt, inp.src_links, inp.tgt_links)

@@ -6,15 +6,15 @@
 use super::generation::GenOut;
 use super::Ctx;
 use crate::error::{Error, Result};
-use crate::pipeline::cache::{hash_file_memo, Cache, CacheKey, Entry};
+use crate::pipeline::cache::{Cache, CacheKey, Entry};
+use crate::pipeline::memo::Memo;
 use crate::pipeline::params::VfmSpec;
 use crate::vfm::{DenseDescriptors, PairModel, PerImageModel};
 use image::RgbImage;
 use serde::{Deserialize, Serialize};
 use serde_json::json;
-use std::collections::HashMap;
-use std::path::{Path, PathBuf};
-use std::sync::{Arc, Mutex, OnceLock};
+use std::path::Path;
+use std::sync::Arc;
 use std::time::Instant;
 
 pub const STAGE: &str = "vfm-view";
@@ -26,14 +26,17 @@ pub fn is_pair_conditioned(spec: &VfmSpec) -> bool {
     matches!(spec, VfmSpec::Mast3r { .. })
 }
 
-/// The per-image model of `spec`, loaded once per model file for the process (bench
+/// The per-image model of `spec` (cache id `vfm_id`), loaded once per `memo` (bench
 /// registers many pairs with one model).
-pub(crate) fn load_vfm(spec: &VfmSpec) -> Result<Arc<dyn PerImageModel>> {
-    static MODELS: OnceLock<Mutex<HashMap<PathBuf, Arc<dyn PerImageModel>>>> = OnceLock::new();
+pub(crate) fn load_vfm(
+    memo: &Memo,
+    spec: &VfmSpec,
+    vfm_id: &str,
+) -> Result<Arc<dyn PerImageModel>> {
     match spec {
-        VfmSpec::Xfeat { model } => memoized(&MODELS, model, load_xfeat),
+        VfmSpec::Xfeat { model } => memo.per_image_model(vfm_id, || load_xfeat(model)),
         VfmSpec::Disk { model } | VfmSpec::Alike { model } => {
-            memoized(&MODELS, model, |p| load_dense(spec, p))
+            memo.per_image_model(vfm_id, || load_dense(spec, model))
         }
         VfmSpec::Mast3r { model } => Err(Error::Invalid(format!(
             "{} is a pair-conditioned model, not a per-image one",
@@ -42,34 +45,19 @@ pub(crate) fn load_vfm(spec: &VfmSpec) -> Result<Arc<dyn PerImageModel>> {
     }
 }
 
-/// The pair-conditioned model of `spec`, loaded once per model file.
-pub(crate) fn load_pair_vfm(spec: &VfmSpec) -> Result<Arc<dyn PairModel>> {
-    static MODELS: OnceLock<Mutex<HashMap<PathBuf, Arc<dyn PairModel>>>> = OnceLock::new();
+/// The pair-conditioned model of `spec` (cache id `vfm_id`), loaded once per `memo`.
+pub(crate) fn load_pair_vfm(
+    memo: &Memo,
+    spec: &VfmSpec,
+    vfm_id: &str,
+) -> Result<Arc<dyn PairModel>> {
     match spec {
-        VfmSpec::Mast3r { model } => memoized(&MODELS, model, load_mast3r),
+        VfmSpec::Mast3r { model } => memo.pair_model(vfm_id, || load_mast3r(model)),
         other => Err(Error::Invalid(format!(
             "{} is a per-image model, not a pair-conditioned one",
             other.model().display()
         ))),
     }
-}
-
-/// `load` runs once per model file and kind.
-fn memoized<T: ?Sized>(
-    models: &OnceLock<Mutex<HashMap<PathBuf, Arc<T>>>>,
-    model: &Path,
-    load: impl FnOnce(&Path) -> Result<Arc<T>>,
-) -> Result<Arc<T>> {
-    let map = models.get_or_init(|| Mutex::new(HashMap::new()));
-    let mut g = map
-        .lock()
-        .map_err(|_| Error::Invalid("VFM model cache poisoned".into()))?;
-    if let Some(m) = g.get(model) {
-        return Ok(m.clone());
-    }
-    let m = load(model)?;
-    g.insert(model.to_path_buf(), m.clone());
-    Ok(m)
 }
 
 #[cfg(feature = "onnx")]
@@ -114,7 +102,7 @@ fn no_onnx(path: &Path) -> Error {
 }
 
 /// Id of the VFM for cache keys, from the model file's content (no need to load it).
-pub fn vfm_id(spec: &VfmSpec) -> Result<String> {
+pub fn vfm_id(memo: &Memo, spec: &VfmSpec) -> Result<String> {
     let model = spec.model();
     if !model.is_file() {
         return Err(Error::Invalid(format!(
@@ -123,7 +111,7 @@ pub fn vfm_id(spec: &VfmSpec) -> Result<String> {
             spec.name()
         )));
     }
-    Ok(format!("{}@{}", spec.name(), &hash_file_memo(model)?[..16]))
+    Ok(format!("{}@{}", spec.name(), &memo.hash_file(model)?[..16]))
 }
 
 #[derive(Serialize, Deserialize)]
@@ -189,6 +177,7 @@ pub(crate) fn run_side(
     model: &mut Option<Arc<dyn PerImageModel>>,
 ) -> Result<SideViews> {
     let t = Instant::now();
+    let memo = ctx.memo;
     let mut all_hit = true;
     let mut out = SideViews {
         grids: Vec::new(),
@@ -204,7 +193,7 @@ pub(crate) fn run_side(
             || {
                 let m = match model {
                     Some(m) => m.clone(),
-                    None => model.insert(load_vfm(spec)?).clone(),
+                    None => model.insert(load_vfm(memo, spec, vfm_id)?).clone(),
                 };
                 m.describe(&img)
             },
