@@ -100,14 +100,6 @@ impl<K: Eq + Hash + Clone, V> Lru<K, V> {
     pub fn is_empty(&self) -> bool {
         self.map.is_empty()
     }
-
-    pub fn capacity(&self) -> usize {
-        self.cap
-    }
-
-    pub fn clear(&mut self) {
-        self.map.clear();
-    }
 }
 
 /// Files whose content hash a [`Memo`] remembers (a pair's 2L depth frames, 2L colour frames

@@ -45,13 +45,13 @@ pub use model_build::{
     default_posterior_point, point_posterior, pr_curve, result_to_model, ViewMemo, DISPLAY_POINTS,
     FIGURE7_CORRECT_M, GT_INLIER_M, IMAGE_BRANCH_OFF, VIEW_MEMO,
 };
+pub use run_all::RunAllSummary;
+use study::StudyPlots;
 
 /// Loaded pairs the worker keeps (a real 3DMatch pair is a few hundred thousand points).
 pub const LOADED_PAIRS: usize = 8;
 /// Geometric branches the worker keeps (per pair and voxel size).
 pub const GEO_BRANCHES: usize = 8;
-pub use run_all::RunAllSummary;
-use study::StudyPlots;
 
 /// What a run left in memory for fast re-runs of the stages after it.
 struct Kept {
