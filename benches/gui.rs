@@ -29,16 +29,31 @@ fn stats(mut v: Vec<f64>) -> (f64, f64, f64) {
     (v[v.len() / 2], mean, v[(v.len() * 9) / 10])
 }
 
+/// How a run's frames are drawn.
+#[derive(Clone, Copy, PartialEq)]
+enum Motion {
+    /// The camera moves every frame (the moving point budget applies).
+    Orbit,
+    /// The camera stops after the warm-up; its first frame draws every point not yet drawn
+    /// (the headless mode), later frames of the unchanged view only composite.
+    StillComplete,
+    /// The camera stops after the warm-up; the view is refined over frames, then kept (the
+    /// interactive default).
+    StillProgressive,
+}
+
 fn run(
     label: &str,
     model: InspectorModel,
     panel: Panel,
     size: (u32, u32),
     frames: usize,
-    orbit: bool,
+    motion: Motion,
 ) -> Result<(), String> {
     let mut r = HeadlessRenderer::new(model, size)?;
     r.app.ui_state.tab = panel;
+    r.app
+        .set_complete_3d_frames(motion == Motion::StillComplete);
     if std::env::var_os("GUI_BENCH_NOPOINTS").is_some() {
         let p = r.app.view3d_prefs_mut();
         p.show_target = false;
@@ -67,21 +82,35 @@ fn run(
         r.frame(false)?;
     }
     let mut times = Vec::with_capacity(frames);
+    // still views: frames from the camera's stop until every point is drawn
+    let mut to_complete: Option<(usize, f64)> = None;
     let cpu0 = cpu_ms();
-    for _ in 0..frames {
-        // orbiting: the camera moves every frame (the point budget applies); still: it does not
-        if orbit {
+    for i in 0..frames {
+        if motion == Motion::Orbit {
             r.app.orbit_3d(3.0, 0.0);
         }
         let t = Instant::now();
         r.frame(false)?;
         times.push(t.elapsed().as_secs_f64() * 1e3);
+        if motion != Motion::Orbit && to_complete.is_none() && !r.app.view3d_refining() {
+            to_complete = Some((i + 1, times.iter().sum()));
+        }
     }
     let cpu = (cpu_ms() - cpu0) / frames as f64;
+    let first: Vec<String> = times.iter().take(3).map(|t| format!("{t:.1}")).collect();
+    let max = times.iter().cloned().fold(0.0f64, f64::max);
     let (med, mean, p90) = stats(times);
+    let complete = match to_complete {
+        Some((n, ms)) => format!("; complete after {n} frame(s), {ms:.1} ms"),
+        None if motion == Motion::Orbit => String::new(),
+        None => "; NOT complete".to_string(),
+    };
     println!(
-        "{label:<32} {}x{}  median {med:6.1} ms  mean {mean:6.1} ms  p90 {p90:6.1} ms  cpu {cpu:6.1} ms/frame  (depth cue: {cue}; {})",
-        size.0, size.1, r.gl.renderer
+        "{label:<44} {}x{}  median {med:6.1} ms  mean {mean:6.1} ms  p90 {p90:6.1} ms  max {max:6.1} ms  cpu {cpu:6.1} ms/frame  first [{}] ms{complete}  (depth cue: {cue}; {})",
+        size.0,
+        size.1,
+        first.join(", "),
+        r.gl.renderer
     );
     Ok(())
 }
@@ -240,7 +269,7 @@ fn main() {
             Panel::Stages,
             size,
             frames,
-            false,
+            Motion::StillComplete,
         )?;
         for n in [100_000usize, 300_000] {
             let t = Instant::now();
@@ -249,30 +278,24 @@ fn main() {
                 "built demo with {n} points per cloud in {:.0} ms",
                 t.elapsed().as_secs_f64() * 1e3
             );
-            run(
-                &format!("3D panel, {}k points/cloud, orbiting", n / 1000),
-                model.clone(),
-                Panel::View3d,
-                size,
-                frames,
-                true,
-            )?;
-            run(
-                &format!("3D panel, {}k points/cloud, still", n / 1000),
-                model.clone(),
-                Panel::View3d,
-                size,
-                frames,
-                false,
-            )?;
-            run(
-                &format!("views + 3D, {}k points/cloud", n / 1000),
-                model,
-                Panel::Views,
-                size,
-                frames,
-                true,
-            )?;
+            let k = n / 1000;
+            for (what, panel, motion) in [
+                ("3D panel, orbiting", Panel::View3d, Motion::Orbit),
+                (
+                    "3D panel, still, one frame",
+                    Panel::View3d,
+                    Motion::StillComplete,
+                ),
+                (
+                    "3D panel, still, progressive",
+                    Panel::View3d,
+                    Motion::StillProgressive,
+                ),
+                ("views + 3D, orbiting", Panel::Views, Motion::Orbit),
+            ] {
+                let label = format!("{what}, {k}k points/cloud");
+                run(&label, model.clone(), panel, size, frames, motion)?;
+            }
         }
         Ok(())
     })();

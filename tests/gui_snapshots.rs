@@ -442,3 +442,55 @@ fn the_built_in_browser_opens_a_typed_manifest_and_the_dataset_loads() {
         std::thread::sleep(std::time::Duration::from_millis(20));
     }
 }
+
+/// A still 3D view of 300k points per cloud refined over frames (the interactive default)
+/// ends in the image one complete frame draws; the frames before are partial, and once
+/// complete, further frames (which only composite the kept target) do not change it.
+#[test]
+fn progressive_3d_refinement_ends_in_the_complete_image() {
+    use cgenreg::app::headless::HeadlessRenderer;
+    if renderer().is_none() {
+        return;
+    }
+    let model = InspectorModel::demo_sized(300_000);
+    let size = (640, 400);
+    let mut one = HeadlessRenderer::new(model.clone(), size).unwrap();
+    one.app.ui_state.tab = Panel::View3d;
+    let complete = one.settled_frame().unwrap();
+    drop(one);
+    let mut prog = HeadlessRenderer::new(model, size).unwrap();
+    prog.app.ui_state.tab = Panel::View3d;
+    prog.app.set_complete_3d_frames(false);
+    let mut frames = Vec::new();
+    while frames.len() < 12 {
+        frames.push(prog.frame(true).unwrap().unwrap());
+        if frames.len() > 2 && !prog.app.view3d_refining() {
+            break;
+        }
+    }
+    assert!(
+        !prog.app.view3d_refining(),
+        "still refining after 12 frames"
+    );
+    let differ = |a: &image::RgbaImage, b: &image::RgbaImage| {
+        a.pixels()
+            .zip(b.pixels())
+            .filter(|(p, q)| (0..3).any(|k| (p.0[k] as i32 - q.0[k] as i32).abs() > 2))
+            .count()
+    };
+    let last = frames.last().unwrap();
+    let total = (size.0 * size.1) as usize;
+    // equal depths of different points may resolve the other way when drawn in another order
+    let d = differ(last, &complete);
+    assert!(
+        d * 1000 <= total,
+        "refined image differs from the complete one in {d} of {total} pixels"
+    );
+    let first = differ(&frames[0], &complete);
+    assert!(
+        first > d + total / 200,
+        "the first frame is not partial: {first} pixels differ"
+    );
+    let again = prog.frame(true).unwrap().unwrap();
+    assert_eq!(differ(&again, last), 0, "a kept still view changed");
+}

@@ -292,6 +292,8 @@ impl HeadlessRenderer {
         ctx.set_missing_glyph_policy(egui::MissingGlyphPolicy::Tofu);
         let mut app = App::new(model, None, None);
         app.allow_dialogs = false;
+        // a screenshot keeps one frame: draw it complete
+        app.set_complete_3d_frames(true);
         Ok(Self {
             gl,
             ctx,

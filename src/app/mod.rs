@@ -365,6 +365,18 @@ impl App {
         self.view3d.camera.orbit(dx, dy);
     }
 
+    /// Draw every point of a still 3D view in one frame (true: headless screenshots) or
+    /// refine it over a few frames (false: the interactive default).
+    pub fn set_complete_3d_frames(&mut self, on: bool) {
+        self.view3d.complete_frames = on;
+        self.posterior.view3d.complete_frames = on;
+    }
+
+    /// The 3D panel's last frame left points of a still view to later frames.
+    pub fn view3d_refining(&self) -> bool {
+        self.view3d.refining
+    }
+
     pub fn view3d_prefs_mut(&mut self) -> &mut View3dPrefs {
         &mut self.view3d.prefs
     }

@@ -9,9 +9,15 @@
 //! uploaded only when their generation number changes, so a 100k-point cloud costs one draw
 //! call per frame.
 //!
+//! Points are drawn into an offscreen colour + depth target that is kept across frames, then
+//! composited into egui's framebuffer (lines go on top, depth-tested against the points).
+//! Under llvmpipe each point costs CPU, so a still view is drawn progressively: the frame
+//! says which range of the (scattered) buffers to add ([`SceneFrame::draw_range`]), and once
+//! the view is complete, later frames of the same view only composite.
+//!
 //! Depth cues ([`DepthCue`]): shading by the point normals against the view direction, or
-//! eye-dome lighting (points drawn into an offscreen colour + depth target, then composited
-//! with each pixel darkened by how much nearer its neighbours are, in log depth).
+//! eye-dome lighting (the composite darkens each pixel by how much nearer its neighbours
+//! are, in log depth).
 
 use std::cell::RefCell;
 use std::sync::Arc;
@@ -26,7 +32,9 @@ use three_d::{
 };
 
 /// How depth is made visible on the points.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize, clap::ValueEnum,
+)]
 pub enum DepthCue {
     /// Flat colours.
     None,
@@ -94,11 +102,59 @@ pub struct SceneFrame {
     pub scene_lines: LineData,
     pub point_size: f32,
     pub background: [f32; 4],
-    /// At most this many points per cloud (the camera is moving); None draws every point.
-    pub point_budget: Option<u32>,
+    /// Points `[start, end)` of each cloud's scattered buffer to draw this frame. With
+    /// `start > 0` they are added to what the offscreen target holds from the frames before
+    /// (progressive refinement of a still view, see [`SceneFrame::points_key`]); the GL side
+    /// draws `[0, end)` afresh whenever its target does not hold exactly `[0, start)` of
+    /// this key. While the camera moves `end` is the point budget.
+    pub draw_range: (u32, u32),
+    /// A still view: draw into the kept offscreen target (refined over frames, then only
+    /// composited). False while the camera moves: points go straight into egui's
+    /// framebuffer (one pass less per frame), unless eye-dome lighting needs the target.
+    pub keep: bool,
     pub depth_cue: DepthCue,
     /// Eye-dome lighting strength (about 1: moderate).
     pub edl_strength: f32,
+}
+
+impl SceneFrame {
+    /// Everything that decides the points' pixels in the offscreen target: two frames with
+    /// the same key draw the same points the same way, so a still view can be refined over
+    /// several frames and then kept. (Line sets, eye-dome lighting strength and the clip
+    /// planes only act after the points, in the composite or on top.)
+    pub fn points_key(&self) -> u64 {
+        use std::hash::{Hash, Hasher};
+        let mut h = std::collections::hash_map::DefaultHasher::new();
+        let bits = |v: &[f32], h: &mut std::collections::hash_map::DefaultHasher| {
+            v.iter().for_each(|x| x.to_bits().hash(h))
+        };
+        for c in [&self.source, &self.target] {
+            (c.id, c.normals.is_some(), c.positions.len()).hash(&mut h);
+        }
+        for inst in &self.source_instances {
+            bits(&inst.model, &mut h);
+            bits(&inst.tint, &mut h);
+        }
+        (
+            self.source_instances.len(),
+            self.show_target,
+            self.depth_cue,
+        )
+            .hash(&mut h);
+        bits(&self.view_proj, &mut h);
+        if self.depth_cue == DepthCue::Normals {
+            bits(&self.eye, &mut h);
+        }
+        bits(&[self.point_size], &mut h);
+        bits(&self.background, &mut h);
+        h.finish()
+    }
+
+    /// Points in the larger cloud: the end of a complete draw range.
+    pub fn max_points(&self) -> u32 {
+        let n = |c: &CloudData| c.positions.len().min(c.colors.len()) as u32;
+        n(&self.source).max(n(&self.target))
+    }
 }
 
 // Colours as bytes bound as integer attributes (three-d binds u8 that way), hence uvec4.
@@ -142,6 +198,18 @@ out vec2 uv;
 void main() {
     uv = corner * 0.5 + 0.5;
     gl_Position = vec4(corner, 0.0, 1.0);
+}
+"#;
+
+// The offscreen points as they are (no depth cue, or normal shading done per point).
+const COPY_FS: &str = r#"
+uniform sampler2D color_tex;
+uniform sampler2D depth_tex;
+in vec2 uv;
+out vec4 out_color;
+void main() {
+    out_color = vec4(texture(color_tex, uv).rgb, 1.0);
+    gl_FragDepth = texture(depth_tex, uv).r;
 }
 "#;
 
@@ -189,22 +257,25 @@ struct GpuCloud {
     colors: VertexBuffer<[u8; 4]>,
     normals: Option<VertexBuffer<[f32; 3]>>,
     count: u32,
+    /// A line set (drawn as GL_LINES, uploaded in order) rather than a cloud.
+    lines: bool,
 }
 
 impl GpuCloud {
-    fn new(ctx: &Context) -> Self {
+    fn new(ctx: &Context, lines: bool) -> Self {
         Self {
             id: None,
             positions: VertexBuffer::new(ctx),
             colors: VertexBuffer::new(ctx),
             normals: None,
             count: 0,
+            lines,
         }
     }
 
     /// Uploads only when the contents' id changed, in a scattered order ([`scatter_order`])
     /// so that any prefix of the buffer is a uniform subsample: a point budget then just
-    /// draws fewer vertices. Lines (`scatter` false) keep their order.
+    /// draws fewer vertices. Line sets keep their order.
     fn sync(
         &mut self,
         ctx: &Context,
@@ -212,14 +283,13 @@ impl GpuCloud {
         pos: &[[f32; 3]],
         colors: &[[u8; 4]],
         normals: Option<&[[f32; 3]]>,
-        scatter: bool,
     ) {
         if self.id == Some(id) {
             return;
         }
         let n = pos.len().min(colors.len());
         let normals = normals.filter(|v| v.len() >= n);
-        if scatter {
+        if !self.lines {
             let order: Vec<usize> = scatter_order(n).collect();
             self.positions
                 .fill(&order.iter().map(|&i| pos[i]).collect::<Vec<_>>());
@@ -256,11 +326,15 @@ pub fn scatter_order(n: usize) -> impl Iterator<Item = usize> {
     (0..n).map(move |i| ((i as u128 * step as u128) % n.max(1) as u128) as usize)
 }
 
-/// The offscreen colour + depth target of eye-dome lighting, kept while the size holds.
-struct EdlTarget {
+/// The offscreen colour + depth target every frame's points are drawn into, then
+/// composited (eye-dome lighting or a copy); kept across frames so that a still view is
+/// refined in steps and, once complete, only composited.
+struct SceneTarget {
     size: (u32, u32),
     color: Texture2D,
     depth: DepthTexture2D,
+    /// (points key, end) of what the target holds: points [0, end) of that key's frame.
+    holds: Option<(u64, u32)>,
 }
 
 struct Gpu {
@@ -268,8 +342,9 @@ struct Gpu {
     ctx: Context,
     points: Program,
     edl: Program,
+    copy: Program,
     quad: VertexBuffer<[f32; 2]>,
-    edl_target: Option<EdlTarget>,
+    scene_target: Option<SceneTarget>,
     source: GpuCloud,
     target: GpuCloud,
     overlay: GpuCloud,
@@ -302,18 +377,21 @@ fn gpu_for(gl: &Arc<glow::Context>) -> Result<(), String> {
             .map_err(|e| format!("3D point shader: {e}"))?;
         let edl = Program::from_source(&ctx, QUAD_VS, EDL_FS)
             .map_err(|e| format!("3D eye-dome lighting shader: {e}"))?;
+        let copy = Program::from_source(&ctx, QUAD_VS, COPY_FS)
+            .map_err(|e| format!("3D composite shader: {e}"))?;
         // one triangle covering the viewport
         let quad = VertexBuffer::new_with_data(&ctx, &[[-1.0f32, -1.0], [3.0, -1.0], [-1.0, 3.0]]);
         *g = Some(Gpu {
             gl: gl.clone(),
-            source: GpuCloud::new(&ctx),
-            target: GpuCloud::new(&ctx),
-            overlay: GpuCloud::new(&ctx),
-            scene_lines: GpuCloud::new(&ctx),
+            source: GpuCloud::new(&ctx, false),
+            target: GpuCloud::new(&ctx, false),
+            overlay: GpuCloud::new(&ctx, true),
+            scene_lines: GpuCloud::new(&ctx, true),
             points,
             edl,
+            copy,
             quad,
-            edl_target: None,
+            scene_target: None,
             ctx,
         });
         Ok(())
@@ -398,43 +476,71 @@ pub fn paint(
             gl.clear(glow::COLOR_BUFFER_BIT | glow::DEPTH_BUFFER_BIT);
         }
         sync_buffers(gpu, &ctx, frame);
-        if frame.depth_cue == DepthCue::Edl {
-            ensure_edl_target(&mut gpu.edl_target, &ctx, (panel_vp.width, panel_vp.height));
+        if !frame.keep && frame.depth_cue != DepthCue::Edl {
+            if let Some(t) = gpu.scene_target.as_mut() {
+                t.holds = None;
+            }
+            let gpu = &*gpu;
+            let d = Draw {
+                prog: &gpu.points,
+                gl,
+                frame,
+            };
+            d.points(&gpu.source, &gpu.target, frame.draw_range, panel_vp);
+            d.lines(&gpu.scene_lines, depth_tested(), panel_vp);
+            d.overlay(&gpu.overlay, panel_vp);
+            unsafe { gl.use_program(None) };
+            return Ok(());
         }
+        let size = (panel_vp.width, panel_vp.height);
+        ensure_scene_target(&mut gpu.scene_target, &ctx, size);
+        let Some(t) = gpu.scene_target.as_mut() else {
+            return Err("no offscreen target".to_string());
+        };
+        // Continue the target's points only when it holds exactly [0, start) of this key;
+        // otherwise (first frame, camera moved, resize, another view drew in between) start
+        // again from the first point.
+        let key = frame.points_key();
+        let (start, end) = frame.draw_range;
+        let from = match t.holds {
+            Some((k, held)) if k == key && held == start => start,
+            _ => 0,
+        };
+        {
+            let rt = RenderTarget::new(t.color.as_color_target(None), t.depth.as_depth_target());
+            if from == 0 {
+                rt.clear(ClearState::color_and_depth(b[0], b[1], b[2], b[3], 1.0));
+            }
+            if end > from {
+                let d = Draw {
+                    prog: &gpu.points,
+                    gl,
+                    frame,
+                };
+                rt.write::<std::convert::Infallible>(|| {
+                    let vp = Viewport::new_at_origo(t.size.0, t.size.1);
+                    d.points(&gpu.source, &gpu.target, (from, end), vp);
+                    Ok(())
+                })
+                .ok();
+            }
+        }
+        t.holds = Some((key, end.max(from)));
+        // back to egui's framebuffer: composite, writing the points' depth for the lines
+        unsafe { gl.bind_framebuffer(glow::DRAW_FRAMEBUFFER, egui_fbo) };
+        clip_panel();
         let gpu = &*gpu;
+        let Some(t) = gpu.scene_target.as_ref() else {
+            return Err("no offscreen target".to_string());
+        };
+        composite(gl, gpu, t, frame, panel_vp);
         let d = Draw {
             prog: &gpu.points,
             gl,
             frame,
         };
-        match (frame.depth_cue, &gpu.edl_target) {
-            (DepthCue::Edl, Some(t)) => {
-                let rt =
-                    RenderTarget::new(t.color.as_color_target(None), t.depth.as_depth_target());
-                rt.clear(ClearState::color_and_depth(b[0], b[1], b[2], b[3], 1.0))
-                    .write::<std::convert::Infallible>(|| {
-                        d.points(gpu, Viewport::new_at_origo(t.size.0, t.size.1));
-                        Ok(())
-                    })
-                    .ok();
-                drop(rt);
-                // back to egui's framebuffer: composite, writing the points' depth for the lines
-                unsafe { gl.bind_framebuffer(glow::DRAW_FRAMEBUFFER, egui_fbo) };
-                clip_panel();
-                edl_composite(gl, gpu, t, frame, panel_vp);
-            }
-            _ => d.points(gpu, panel_vp),
-        }
         d.lines(&gpu.scene_lines, depth_tested(), panel_vp);
-        d.lines(
-            &gpu.overlay,
-            RenderStates {
-                depth_test: DepthTest::Always,
-                write_mask: WriteMask::COLOR,
-                ..Default::default()
-            },
-            panel_vp,
-        );
+        d.overlay(&gpu.overlay, panel_vp);
         unsafe {
             gl.use_program(None);
         }
@@ -475,24 +581,22 @@ fn sync_buffers(gpu: &mut Gpu, ctx: &Context, frame: &SceneFrame) {
             &cloud.positions,
             &cloud.colors,
             cloud.normals.as_deref().map(|v| v.as_slice()),
-            true,
         );
     }
     for (buf, lines) in [
         (&mut gpu.overlay, &frame.overlay_lines),
         (&mut gpu.scene_lines, &frame.scene_lines),
     ] {
-        buf.sync(ctx, lines.id, &lines.positions, &lines.colors, None, false);
+        buf.sync(ctx, lines.id, &lines.positions, &lines.colors, None);
     }
 }
 
-/// The offscreen colour + depth target of eye-dome lighting, made again when the panel's
-/// size changes.
-fn ensure_edl_target(target: &mut Option<EdlTarget>, ctx: &Context, size: (u32, u32)) {
+/// The offscreen colour + depth target, made again when the panel's size changes.
+fn ensure_scene_target(target: &mut Option<SceneTarget>, ctx: &Context, size: (u32, u32)) {
     if target.as_ref().is_some_and(|t| t.size == size) {
         return;
     }
-    *target = Some(EdlTarget {
+    *target = Some(SceneTarget {
         size,
         color: Texture2D::new_empty::<[u8; 4]>(
             ctx,
@@ -511,20 +615,26 @@ fn ensure_edl_target(target: &mut Option<EdlTarget>, ctx: &Context, size: (u32, 
             Wrapping::ClampToEdge,
             Wrapping::ClampToEdge,
         ),
+        holds: None,
     });
 }
 
-/// Composites the offscreen points into the bound framebuffer with eye-dome lighting,
-/// writing their depth too (so the lines drawn after are depth-tested against them).
-fn edl_composite(
+/// Composites the offscreen points into the bound framebuffer (with eye-dome lighting when
+/// that is the cue, else as they are), writing their depth too (so the lines drawn after
+/// are depth-tested against them).
+fn composite(
     gl: &glow::Context,
     gpu: &Gpu,
-    t: &EdlTarget,
+    t: &SceneTarget,
     frame: &SceneFrame,
     panel_vp: Viewport,
 ) {
     let b = frame.background;
-    let e = &gpu.edl;
+    let e = if frame.depth_cue == DepthCue::Edl {
+        &gpu.edl
+    } else {
+        &gpu.copy
+    };
     e.use_texture("color_tex", &t.color);
     e.use_depth_texture("depth_tex", &t.depth);
     e.use_uniform_if_required(
@@ -563,63 +673,59 @@ struct Draw<'a> {
 }
 
 impl Draw<'_> {
-    /// The target (when shown) and every drawing of the source, as points.
-    fn points(&self, gpu: &Gpu, viewport: Viewport) {
+    /// Points [from, end) of the target (when shown) and of every drawing of the source.
+    fn points(&self, source: &GpuCloud, target: &GpuCloud, range: (u32, u32), viewport: Viewport) {
         let normals = self.frame.depth_cue == DepthCue::Normals;
         unsafe { self.gl.enable(glow::PROGRAM_POINT_SIZE) };
         if self.frame.show_target {
             let identity = (&IDENTITY, [1.0; 4]);
-            self.cloud(
-                &gpu.target,
-                glow::POINTS,
-                identity,
-                normals,
-                depth_tested(),
-                viewport,
-            );
+            self.cloud(target, range, identity, normals, depth_tested(), viewport);
         }
         for inst in &self.frame.source_instances {
             let placed = (&inst.model, inst.tint);
-            self.cloud(
-                &gpu.source,
-                glow::POINTS,
-                placed,
-                normals,
-                depth_tested(),
-                viewport,
-            );
+            self.cloud(source, range, placed, normals, depth_tested(), viewport);
         }
         unsafe { self.gl.disable(glow::PROGRAM_POINT_SIZE) };
+    }
+
+    /// The overlay lines: over everything, writing no depth.
+    fn overlay(&self, lines: &GpuCloud, viewport: Viewport) {
+        let states = RenderStates {
+            depth_test: DepthTest::Always,
+            write_mask: WriteMask::COLOR,
+            ..Default::default()
+        };
+        self.lines(lines, states, viewport);
     }
 
     /// A line set in the target frame.
     fn lines(&self, lines: &GpuCloud, states: RenderStates, viewport: Viewport) {
         let identity = (&IDENTITY, [1.0; 4]);
-        self.cloud(lines, glow::LINES, identity, false, states, viewport);
+        let n = lines.count / 2 * 2;
+        self.cloud(lines, (0, n), identity, false, states, viewport);
     }
 
-    /// One buffer as `mode` (points: at most the frame's point budget; lines: whole
-    /// segments), under (model matrix, tint), lit by its normals when `shade`.
+    /// Vertices [from, end) of one buffer (points; lines when `cloud` is a line set, whose
+    /// range is whole segments), under (model matrix, tint), lit by its normals when `shade`.
     fn cloud(
         &self,
         cloud: &GpuCloud,
-        mode: u32,
+        (from, end): (u32, u32),
         (model, tint): (&[f32; 16], [f32; 4]),
         shade: bool,
         states: RenderStates,
         viewport: Viewport,
     ) {
         let (prog, frame) = (self.prog, self.frame);
-        let n = if mode == glow::LINES {
-            cloud.count / 2 * 2
-        } else {
-            frame
-                .point_budget
-                .map_or(cloud.count, |b| cloud.count.min(b))
-        };
-        if n == 0 {
+        let end = end.min(cloud.count);
+        if end <= from {
             return;
         }
+        let mode = if cloud.lines {
+            glow::LINES
+        } else {
+            glow::POINTS
+        };
         let m = mat4(model);
         prog.use_uniform("mvp", mat4(&frame.view_proj) * m);
         prog.use_uniform_if_required("model", m);
@@ -639,7 +745,7 @@ impl Draw<'_> {
             }
         }
         prog.draw_with(states, viewport, || unsafe {
-            self.gl.draw_arrays(mode, 0, n as i32);
+            self.gl.draw_arrays(mode, from as i32, (end - from) as i32);
         });
     }
 }

@@ -131,12 +131,24 @@ pub struct View3dState {
     frusta: Option<LineData>,
     /// View-projection of the last frame: a different one means the camera is moving.
     last_view_proj: Option<[f32; 16]>,
+    /// (points key, end) of the last frame's draw range: a still view continues from there.
+    refined: Option<(u64, u32)>,
+    /// Draw every point of a still view in its first frame instead of refining it over
+    /// several (headless screenshots, which keep one frame).
+    pub complete_frames: bool,
+    /// The last frame left points of a still view undrawn (more frames follow).
+    pub refining: bool,
 }
 
 /// Points drawn per cloud while the camera moves (a uniform subsample; see
 /// `render3d::GpuCloud::sync`). Under llvmpipe each point costs about 0.4 µs of CPU, so this
 /// keeps orbiting near 30 fps; the full cloud is drawn as soon as the camera stops.
 pub const MOVING_POINT_BUDGET: u32 = 50_000;
+
+/// Points per cloud a still view adds per frame until every point is drawn (progressive
+/// refinement: a 300k-point pair is complete two frames after the camera stops, and no
+/// frame draws more than this many per cloud).
+pub const REFINE_POINTS_PER_FRAME: u32 = 150_000;
 
 /// A colour override for the target cloud (posterior heat map in 3D).
 pub struct TargetOverride {

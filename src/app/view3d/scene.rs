@@ -11,7 +11,7 @@ use super::colors::{cloud_colors, display_normals, match_rgb};
 use super::legend::legend;
 use super::{
     apply, iso_to_mat, mat_to_arr, next_id, primary_alignment, project, rgba, SceneCamera,
-    TargetOverride, View3dPrefs, View3dState, MOVING_POINT_BUDGET,
+    TargetOverride, View3dPrefs, View3dState, MOVING_POINT_BUDGET, REFINE_POINTS_PER_FRAME,
 };
 use crate::app::colormap::{to_color32, HIGHLIGHT_RGB, SOURCE_RGB, TARGET_RGB};
 use crate::app::model::{bounds_of, InspectorModel, ViewImage};
@@ -63,7 +63,7 @@ pub fn scene_ui(
     }
     use three_d::Viewer;
     let eye = state.camera.camera.position();
-    let frame = SceneFrame {
+    let mut frame = SceneFrame {
         source,
         target,
         source_instances: instances(model, &prefs, hyp_pose),
@@ -74,12 +74,18 @@ pub fn scene_ui(
         far: state.camera.camera.z_far(),
         depth_cue: prefs.depth_cue,
         edl_strength: prefs.edl_strength,
-        point_budget: moving.then_some(MOVING_POINT_BUDGET),
+        draw_range: (0, 0),
+        keep: !moving,
         overlay_lines,
         scene_lines,
         point_size: prefs.point_size,
         background: [0.07, 0.07, 0.09, 1.0],
     };
+    frame.draw_range = draw_range(state, &frame, moving);
+    state.refining = !moving && frame.draw_range.1 < frame.max_points();
+    if state.refining {
+        ui.ctx().request_repaint();
+    }
     ui.painter()
         .add(render3d::paint_callback(rect, Arc::new(frame)));
 
@@ -88,6 +94,32 @@ pub fn scene_ui(
     highlights(&painter, shared, &segments, &src_xf, &vp, rect);
     let hyp = shared.ui.hypothesis.as_ref();
     legend(&painter, rect, model, &prefs, hyp.map(|h| h.legend_label()));
+}
+
+/// Which points of each cloud this frame draws: the moving budget afresh while the camera
+/// moves; for a still view, the next [`REFINE_POINTS_PER_FRAME`] after what the last frame
+/// of the same view drew (everything at once with `complete_frames`), nothing new once
+/// complete.
+fn draw_range(state: &mut View3dState, frame: &SceneFrame, moving: bool) -> (u32, u32) {
+    let n = frame.max_points();
+    if moving {
+        // drawn straight to the screen, not into the kept target: a still view starts afresh
+        state.refined = None;
+        return (0, MOVING_POINT_BUDGET.min(n));
+    }
+    let key = frame.points_key();
+    let start = match state.refined {
+        Some((k, end)) if k == key => end,
+        _ => 0,
+    };
+    let step = if state.complete_frames {
+        n
+    } else {
+        REFINE_POINTS_PER_FRAME
+    };
+    let range = (start, start.saturating_add(step).min(n));
+    state.refined = Some((key, range.1));
+    range
 }
 
 /// Frames the camera on a new model, and keeps the positions (and, for normal shading, the
