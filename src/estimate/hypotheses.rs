@@ -50,6 +50,22 @@ impl Hypotheses {
     pub fn winner(&self) -> Option<&Hypothesis> {
         self.list.iter().find(|h| h.winner)
     }
+
+    /// As [`super::Estimate::reindexed`]: samples and inliers back to input indices.
+    pub(crate) fn reindexed(mut self, order: &[usize]) -> Self {
+        for h in &mut self.list {
+            h.sample = h.sample.iter().map(|&k| order[k]).collect();
+            h.inliers = reindex(&h.inliers, order);
+        }
+        self
+    }
+}
+
+/// `order[k]` for each k of `positions`, ascending.
+pub(crate) fn reindex(positions: &[usize], order: &[usize]) -> Vec<usize> {
+    let mut v: Vec<usize> = positions.iter().map(|&k| order[k]).collect();
+    v.sort_unstable();
+    v
 }
 
 /// The best `n` items under a strict order `better(a, b)` (a before b), best first.

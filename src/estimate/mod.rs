@@ -27,6 +27,15 @@ pub struct Estimate {
     pub warning: Option<String>,
 }
 
+impl Estimate {
+    /// The estimate of a run on the correspondences `order[0], order[1], ...` with its inlier
+    /// indices turned back into input indices (ascending).
+    pub(crate) fn reindexed(mut self, order: &[usize]) -> Self {
+        self.inliers = hypotheses::reindex(&self.inliers, order);
+        self
+    }
+}
+
 /// Which estimator `estimate_pose` runs.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub enum EstimatorKind {

@@ -135,8 +135,9 @@ impl Similarities {
 /// The last estimate [`fuse_and_finish_memo`] computed and what it was computed from: the
 /// estimate is a pure function of the correspondences' endpoints (in their order), the
 /// estimator's parameters and, for weighted SVD (chosen, or SC2-PCR's fallback), the scores.
-/// A re-fusion that selects the same correspondences in the same order (a temperature change
-/// under mutual NN often does) then skips the estimator. The GUI keeps one per pair.
+/// SC2-PCR depends on the set of correspondences it uses (the first `max_points`) alone
+/// ([`crate::estimate::sc2pcr::canonical_order`]), so a temperature change under NN selection,
+/// which reorders the same set, skips the estimator too. The GUI keeps one per pair.
 #[derive(Debug, Default)]
 pub struct EstimateMemo {
     last: std::sync::Mutex<Option<MemoEntry>>,
@@ -144,11 +145,14 @@ pub struct EstimateMemo {
 
 #[derive(Debug)]
 struct MemoEntry {
-    /// x, y, z of source then target endpoints, as bits (exact comparison).
+    /// x, y, z of source then target endpoints, as bits (exact comparison): in the canonical
+    /// order when `canonical`, else in the order given.
     ends: Vec<[u32; 6]>,
+    canonical: bool,
     method: crate::estimate::EstimatorKind,
-    /// The scores, when the estimate read them.
+    /// The scores (in the order given), when the estimate read them.
     weights: Option<Vec<u32>>,
+    /// When `canonical`, its inliers are positions in `ends`.
     est: Estimate,
 }
 
@@ -162,33 +166,75 @@ impl EstimateMemo {
         w: &[f32],
         method: &crate::estimate::EstimatorKind,
     ) -> Result<(Estimate, bool)> {
-        let ends: Vec<[u32; 6]> = sp
-            .iter()
-            .zip(tp)
-            .map(|(a, b)| [a.x, a.y, a.z, b.x, b.y, b.z].map(f32::to_bits))
-            .collect();
+        let n = sp.len();
+        if n != tp.len() || n != w.len() {
+            return estimate_pose(sp, tp, w, method).map(|e| (e, false));
+        }
+        let end = |i: usize| {
+            let (a, b) = (sp[i], tp[i]);
+            [a.x, a.y, a.z, b.x, b.y, b.z].map(f32::to_bits)
+        };
         let bits = |w: &[f32]| w.iter().map(|x| x.to_bits()).collect::<Vec<u32>>();
-        if sp.len() == tp.len() && sp.len() == w.len() {
-            if let Ok(last) = self.last.lock() {
-                if let Some(m) = last.as_ref().filter(|m| {
-                    m.ends == ends
-                        && m.method == *method
-                        && m.weights.as_ref().is_none_or(|mw| *mw == bits(w))
-                }) {
-                    return Ok((m.est.clone(), true));
+        // SC2-PCR reads the first max_points, as a set
+        let order = match method {
+            crate::estimate::EstimatorKind::Sc2Pcr(p) => {
+                let m = n.min(p.max_points);
+                Some(crate::estimate::sc2pcr::canonical_order(&sp[..m], &tp[..m]))
+            }
+            _ => None,
+        };
+        if let Ok(last) = self.last.lock() {
+            if let Some(m) = last.as_ref().filter(|m| m.method == *method) {
+                match (&order, m.canonical) {
+                    (Some(o), true) => {
+                        if o.len() == m.ends.len()
+                            && o.iter().zip(&m.ends).all(|(&i, e)| end(i) == *e)
+                        {
+                            return Ok((m.est.clone().reindexed(o), true));
+                        }
+                    }
+                    (_, false) => {
+                        if m.ends.len() == n
+                            && (0..n).all(|i| end(i) == m.ends[i])
+                            && m.weights.as_ref().is_none_or(|mw| *mw == bits(w))
+                        {
+                            return Ok((m.est.clone(), true));
+                        }
+                    }
+                    (None, true) => {}
                 }
             }
         }
         let est = estimate_pose(sp, tp, w, method)?;
         let read_scores = matches!(method, crate::estimate::EstimatorKind::WeightedSvd)
             || est.method.starts_with("weighted-svd");
-        if let Ok(mut last) = self.last.lock() {
-            *last = Some(MemoEntry {
-                ends,
+        // SC2-PCR's own result (not its fallback) is the set's
+        let entry = match order.filter(|_| est.method == "sc2pcr") {
+            Some(o) => {
+                let mut position = vec![0usize; n];
+                for (k, &i) in o.iter().enumerate() {
+                    position[i] = k;
+                }
+                let mut kept = est.clone();
+                kept.inliers = est.inliers.iter().map(|&i| position[i]).collect();
+                MemoEntry {
+                    ends: o.iter().map(|&i| end(i)).collect(),
+                    canonical: true,
+                    method: method.clone(),
+                    weights: None,
+                    est: kept,
+                }
+            }
+            None => MemoEntry {
+                ends: (0..n).map(end).collect(),
+                canonical: false,
                 method: method.clone(),
                 weights: read_scores.then(|| bits(w)),
                 est: est.clone(),
-            });
+            },
+        };
+        if let Ok(mut last) = self.last.lock() {
+            *last = Some(entry);
         }
         Ok((est, false))
     }
@@ -397,7 +443,8 @@ mod memo_tests {
     }
 
     /// The memo gives what `estimate_pose` gives, and only for the same inputs: the same
-    /// endpoints in the same order and estimator; the scores too where they are read.
+    /// estimator and endpoints (SC2-PCR: the same set of the ones it uses; otherwise in the same
+    /// order); the scores too where they are read.
     #[test]
     fn the_memo_repeats_only_what_it_was_computed_from() {
         let s = crate::estimate::synthetic::synthetic_correspondences(3000, 400, 0.3, 0.01, 7);
@@ -412,13 +459,37 @@ mod memo_tests {
         let w2: Vec<f32> = w.iter().map(|x| x * 0.5).collect();
         let (b, hit) = memo.estimate(&sp, &tp, &w2, &sc2).unwrap();
         assert!(hit && same(&a, &b));
-        // another order is another input
+        // another order of the same set is the same input to SC2-PCR, its inliers reindexed
         let (mut sr, mut tr) = (sp.clone(), tp.clone());
         sr.swap(0, 1);
         tr.swap(0, 1);
         let (c, hit) = memo.estimate(&sr, &tr, &w, &sc2).unwrap();
-        assert!(!hit);
+        assert!(hit);
         assert!(same(&c, &estimate_pose(&sr, &tr, &w, &sc2).unwrap()));
+        // another set is another input
+        let (c, hit) = memo.estimate(&sp[1..], &tp[1..], &w[1..], &sc2).unwrap();
+        assert!(!hit);
+        assert!(same(
+            &c,
+            &estimate_pose(&sp[1..], &tp[1..], &w[1..], &sc2).unwrap()
+        ));
+        // beyond max_points only the first ones count, and which they are
+        let few = EstimatorKind::Sc2Pcr(Sc2PcrParams {
+            max_points: 200,
+            ..Default::default()
+        });
+        let (e, hit) = memo.estimate(&sp, &tp, &w, &few).unwrap();
+        assert!(!hit);
+        let (mut sr, mut tr) = (sp.clone(), tp.clone());
+        sr[200..].reverse();
+        tr[200..].reverse();
+        let (f, hit) = memo.estimate(&sr, &tr, &w, &few).unwrap();
+        assert!(hit && same(&e, &f));
+        sr.swap(0, 300);
+        tr.swap(0, 300);
+        let (f, hit) = memo.estimate(&sr, &tr, &w, &few).unwrap();
+        assert!(!hit);
+        assert!(same(&f, &estimate_pose(&sr, &tr, &w, &few).unwrap()));
         // weighted SVD reads the scores
         let svd = EstimatorKind::WeightedSvd;
         let (_, hit) = memo.estimate(&sp, &tp, &w, &svd).unwrap();

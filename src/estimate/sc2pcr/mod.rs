@@ -13,7 +13,10 @@
 //!   stops once nothing left can enter the top-k1; only the top-k1 are kept.
 //!
 //! Ties are broken deterministically by the lower correspondence index (stable sorts); torch's
-//! unstable argsort may order ties differently.
+//! unstable argsort may order ties differently. The correspondences used (the first
+//! `max_points`) run in a canonical order ([`canonical_order`]), so the result is a function of
+//! their set: the order by score only decides which are used. The reference runs them in score
+//! order; the two differ only in how ties and summation round-off fall.
 //!
 //! Files: this one holds the algorithm (`sc2pcr`, the per-seed weights, the post-refinement);
 //! `graph.rs` the compatibility graph (bitsets, SC matvec, leading eigenvector, NMS seeds,
@@ -124,6 +127,41 @@ pub fn sc2pcr_with(
             "sc2pcr: {n} correspondences are too few (need {k1} neighbours and at least one seed)"
         )));
     }
+    // The first `n` run in the canonical order, so that the result depends on which are used,
+    // not on their order (a temperature change under NN selection reorders the same set).
+    let o = canonical_order(src, tgt);
+    let (s, t): (Vec<_>, Vec<_>) = o.iter().map(|&i| (src[i], tgt[i])).unzip();
+    let (e, hyps) = run(&s, &t, p, top_n, (k1, k2), num_seeds)?;
+    Ok((e.reindexed(&o), hyps.map(|h| h.reindexed(&o))))
+}
+
+/// The order SC2-PCR runs its correspondences in (the first `max_points` given): lexicographic in the source
+/// then target coordinates (`f32::total_cmp`), equal endpoints in their given order.
+/// `order[k]` is the input index of the k-th correspondence run.
+pub fn canonical_order(src: &[Point3<f32>], tgt: &[Point3<f32>]) -> Vec<usize> {
+    let mut order: Vec<usize> = (0..src.len().min(tgt.len())).collect();
+    order.sort_by(|&a, &b| {
+        let key = |i: usize| [src[i].x, src[i].y, src[i].z, tgt[i].x, tgt[i].y, tgt[i].z];
+        key(a)
+            .iter()
+            .zip(key(b).iter())
+            .map(|(x, y)| x.total_cmp(y))
+            .find(|c| c.is_ne())
+            .unwrap_or(std::cmp::Ordering::Equal)
+    });
+    order
+}
+
+/// SC2-PCR on `src`/`tgt` in the order given (validated by [`sc2pcr_with`]).
+fn run(
+    src: &[Point3<f32>],
+    tgt: &[Point3<f32>],
+    p: &Sc2PcrParams,
+    top_n: usize,
+    (k1, k2): (usize, usize),
+    num_seeds: usize,
+) -> Result<(Estimate, Option<Hypotheses>)> {
+    let n = src.len();
     let pts = Soa::new(src, tgt);
     let g = Graph::build(&pts, p.d_thre, p.nms_radius);
     let conf = g.leading_eigenvector(p.num_iterations);
