@@ -494,3 +494,58 @@ fn progressive_3d_refinement_ends_in_the_complete_image() {
     let again = prog.frame(true).unwrap().unwrap();
     assert_eq!(differ(&again, last), 0, "a kept still view changed");
 }
+
+/// A new model with the same clouds (a re-fusion) keeps the camera where the user left it and
+/// the drawn still view (no re-upload, no refinement from scratch); new clouds start afresh.
+#[test]
+fn a_refusion_keeps_the_camera_and_the_drawn_view() {
+    use cgenreg::app::headless::HeadlessRenderer;
+    if renderer().is_none() {
+        return;
+    }
+    let model = InspectorModel::demo_sized(300_000);
+    let mut r = HeadlessRenderer::new(model, (640, 400)).unwrap();
+    r.app.ui_state.tab = Panel::View3d;
+    r.app.set_complete_3d_frames(false);
+    let settle = |r: &mut HeadlessRenderer| {
+        let mut last = None;
+        for _ in 0..12 {
+            last = r.frame(true).unwrap();
+            if !r.app.view3d_refining() {
+                break;
+            }
+        }
+        assert!(!r.app.view3d_refining(), "still refining after 12 frames");
+        last.unwrap()
+    };
+    settle(&mut r);
+    r.app.orbit_3d(40.0, 15.0);
+    r.frame(true).unwrap();
+    let before = settle(&mut r);
+    let same = r.app.model().clone();
+    r.app.set_model(same.clone());
+    let after = r.frame(true).unwrap().unwrap();
+    assert!(
+        !r.app.view3d_refining(),
+        "the same clouds were drawn again from scratch"
+    );
+    let differ = after
+        .pixels()
+        .zip(before.pixels())
+        .filter(|(p, q)| p != q)
+        .count();
+    assert_eq!(
+        differ, 0,
+        "the view changed after a re-fusion with the same result"
+    );
+    let mut other = same;
+    other.target.truncate(other.target.len() - 1);
+    r.app.set_model(other);
+    // the camera frames the new clouds (a moving frame), then their still view refines
+    r.frame(false).unwrap();
+    r.frame(false).unwrap();
+    assert!(
+        r.app.view3d_refining(),
+        "new clouds did not start a new refinement"
+    );
+}

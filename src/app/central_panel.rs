@@ -45,6 +45,7 @@ impl App {
         let mut shared = Shared {
             model: &self.model,
             model_gen: self.model_gen,
+            scene_gen: self.scene_gen,
             ui: &mut self.ui_state,
             commands,
         };

@@ -174,6 +174,9 @@ pub struct Shared<'a> {
     pub model: &'a InspectorModel,
     /// Changes whenever the model is replaced (GPU and texture caches key on it).
     pub model_gen: u64,
+    /// Changes when the model's clouds do (another pair); a re-fusion keeps it, and with it
+    /// the 3D camera and the uploaded points.
+    pub scene_gen: u64,
     pub ui: &'a mut UiState,
     pub commands: &'a mut Vec<Command>,
 }
@@ -234,6 +237,7 @@ type DialogAnswer = Receiver<(OpenKind, Option<Vec<PathBuf>>)>;
 pub struct App {
     model: InspectorModel,
     model_gen: u64,
+    scene_gen: u64,
     pub ui_state: UiState,
     /// What the controls edit and the worker runs: the pipeline's own parameters.
     pub params: RegisterParams,
@@ -276,6 +280,7 @@ impl App {
         let mut app = Self {
             model,
             model_gen: view3d::next_id(),
+            scene_gen: view3d::next_id(),
             ui_state: UiState::default(),
             params: RegisterParams::default(),
             image_off: ImageBranchParams::default(),
@@ -345,8 +350,12 @@ impl App {
         &self.model
     }
 
-    /// Replaces the shown model (caches keyed on the generation are rebuilt).
+    /// Replaces the shown model (caches keyed on the generation are rebuilt; the 3D view keeps
+    /// its camera and points when the clouds are the same).
     pub fn set_model(&mut self, model: InspectorModel) {
+        if model.source != self.model.source || model.target != self.model.target {
+            self.scene_gen = view3d::next_id();
+        }
         self.model = model;
         self.model_gen = view3d::next_id();
         // a hypothesis indexes the old model's matches

@@ -33,7 +33,7 @@ pub fn scene_ui(
         ui.available_size().max(egui::vec2(64.0, 64.0)),
         egui::Sense::click_and_drag(),
     );
-    sync_with_model(state, model, shared.model_gen);
+    sync_with_model(state, model, shared.scene_gen);
     camera_input(ui, &response, rect, state);
 
     let prefs = state.prefs.clone();
@@ -122,8 +122,9 @@ fn draw_range(state: &mut View3dState, frame: &SceneFrame, moving: bool) -> (u32
     range
 }
 
-/// Frames the camera on a new model, and keeps the positions (and, for normal shading, the
-/// display normals) of the model with generation `gen`.
+/// Frames the camera on new clouds, and keeps the positions (and, for normal shading, the
+/// display normals) of the clouds with scene generation `gen` (a re-fusion of the same pair
+/// keeps both, and the camera where the user left it).
 fn sync_with_model(state: &mut View3dState, model: &InspectorModel, gen: u64) {
     if state.framed_for != Some(gen) {
         state.camera = match model.bounds() {
@@ -177,7 +178,8 @@ fn camera_input(
     }
 }
 
-/// Recomputes a cloud's colours only when its mode, the model or the normal shading changes.
+/// Recomputes a cloud's colours only when its mode, the model or the normal shading changes;
+/// keeps the uploaded cloud when they come out the same.
 fn update_colors(state: &mut View3dState, model: &InspectorModel, gen: u64) {
     let shade_normals = state.prefs.depth_cue == DepthCue::Normals;
     let (source_mode, target_mode) = (state.prefs.source_mode, state.prefs.target_mode);
@@ -205,13 +207,25 @@ fn update_colors(state: &mut View3dState, model: &InspectorModel, gen: u64) {
                     n.2.clone()
                 }
             });
+            cache.key = Some(key);
+            // a new model with the same points and colours (a re-fusion that kept them) keeps
+            // the uploaded cloud, and with it the drawn view
+            if cache.data.as_ref().is_some_and(|d| {
+                Arc::ptr_eq(&d.positions, pos)
+                    && d.colors == colors
+                    && match (&d.normals, &normals) {
+                        (Some(a), Some(b)) => Arc::ptr_eq(a, b),
+                        (a, b) => a.is_none() && b.is_none(),
+                    }
+            }) {
+                continue;
+            }
             cache.data = Some(CloudData {
                 id: next_id(),
                 positions: pos.clone(),
                 colors,
                 normals,
             });
-            cache.key = Some(key);
         }
     }
 }
