@@ -1,7 +1,8 @@
 //! Frame time of the inspector's 3D panel rendered headless (surfaceless EGL; Mesa llvmpipe
 //! on machines without a GPU), with 100k and 300k points per cloud; and the latency from a
-//! temperature change to the updated model (and to the first frame drawn with it) on real
-//! 3DMatch redkitchen pairs whose stages are cached (needs `$CGENREG_DATA`).
+//! temperature change to the updated model, to the first 3D frame drawn with it and to the
+//! complete 3D view (still views refine over frames, as in the inspector) on real 3DMatch
+//! redkitchen pairs whose stages are cached (needs `$CGENREG_DATA`).
 //!
 //! Run: `cargo bench --bench gui`. Prints median / mean / p90 per configuration.
 //! `GUI_BENCH_ONLY=latency` (or `frames`) runs one part.
@@ -144,9 +145,16 @@ fn latency(
     let mut settings = worker.params().clone();
     let mut r = HeadlessRenderer::new(m, (1280, 800))?;
     r.app.ui_state.tab = Panel::View3d;
+    // as the inspector draws: a still view refined over frames (its first frame is partial
+    // when a cloud has more than view3d::REFINE_POINTS_PER_FRAME points)
+    r.app.set_complete_3d_frames(false);
     r.frame(false)?;
+    while r.app.view3d_refining() {
+        r.frame(false)?;
+    }
     let h = spawn_worker(Box::new(worker), None);
     let (mut to_model, mut to_frame, mut cpu_model) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut to_complete, mut frames_to_complete) = (Vec::new(), Vec::new());
     let mut stages = String::new();
     for i in 0..reps {
         let tau = if i % 2 == 0 { 0.12 } else { 0.1 };
@@ -185,14 +193,23 @@ fn latency(
         r.app.set_model(*model);
         r.frame(false)?;
         to_frame.push(t.elapsed().as_secs_f64() * 1e3);
+        let mut frames = 1;
+        while r.app.view3d_refining() && frames < 20 {
+            r.frame(false)?;
+            frames += 1;
+        }
+        to_complete.push(t.elapsed().as_secs_f64() * 1e3);
+        frames_to_complete.push(frames as f64);
     }
     let (m1, a1, p1) = stats(to_model);
     let (m2, a2, p2) = stats(to_frame);
+    let (m3, _, p3) = stats(to_complete);
+    let (f3, _, _) = stats(frames_to_complete);
     let (c1, _, _) = stats(cpu_model);
     // CPU: all threads of the process from the command to the model (it moves less than wall
     // time when other processes share the cores)
     println!(
-        "{label:<44} first run {first:7.0} ms ({cached} stages cached, {views} views) | tau change -> model: median {m1:6.1} mean {a1:6.1} p90 {p1:6.1} ms (CPU median {c1:6.1} ms) | -> 3D frame: median {m2:6.1} mean {a2:6.1} p90 {p2:6.1} ms"
+        "{label:<44} first run {first:7.0} ms ({cached} stages cached, {views} views) | tau change -> model: median {m1:6.1} mean {a1:6.1} p90 {p1:6.1} ms (CPU median {c1:6.1} ms) | -> first 3D frame: median {m2:6.1} mean {a2:6.1} p90 {p2:6.1} ms | -> complete 3D view: median {m3:6.1} p90 {p3:6.1} ms ({f3:.0} frames)"
     );
     eprintln!("  last stages: {stages}");
     Ok(())

@@ -706,6 +706,8 @@ fn refusion_from_memory_equals_the_library_and_a_fresh_run() {
             .find(|r| r.name == "estimate")
             .map(|r| r.state.clone())
     };
+    // the demo has 16k correspondences: the temperature changes which 8000 (max_points) of them
+    // SC2-PCR uses, so it runs again
     assert_eq!(estimate_row(&kept), Some(StageState::Done));
     // the same settings again: the same correspondences, so the estimate is remembered
     w.set_params(s);
@@ -713,4 +715,34 @@ fn refusion_from_memory_equals_the_library_and_a_fresh_run() {
     assert_eq!(key(&again), key(&kept));
     assert_eq!(pose(&again), pose(&kept));
     assert_eq!(estimate_row(&again), Some(StageState::Cached));
+}
+
+/// When SC2-PCR uses every correspondence, a temperature change under NN selection keeps their
+/// set (the row softmax is monotone) and the first run's estimate is reused: the same pose as
+/// the library's fresh estimate at the new temperature.
+#[test]
+fn a_temperature_change_under_nn_reuses_the_first_runs_estimate() {
+    let mut p = params();
+    p.estimator = cgenreg::estimate::EstimatorKind::Sc2Pcr(cgenreg::estimate::Sc2PcrParams {
+        max_points: 20_000,
+        ..Default::default()
+    });
+    let mut w = PipelineWorker::open_manifest(&demo_manifest(), p).unwrap();
+    let id = w.pair_ids()[0].clone();
+    let first = w.run_pair(&id).unwrap();
+    let mut s = w.params().clone();
+    *s.fusion.calibration_geo.tau_mut() = 0.07;
+    w.set_params(s.clone());
+    let kept = w.refuse().expect("a temperature change re-fuses").unwrap();
+    let row = kept.stages.iter().find(|r| r.name == "estimate");
+    assert_eq!(row.map(|r| r.state.clone()), Some(StageState::Cached));
+    assert!(kept.matches.len() > 8000 && kept.matches.len() <= 20_000);
+    let pair = Dataset::load(&demo_manifest())
+        .unwrap()
+        .load_pair(&id)
+        .unwrap();
+    let lib = cgenreg::pipeline::register_pair(&pair, &s).unwrap();
+    let pose = |m: &cgenreg::app::InspectorModel| m.estimated.map(|e| e.to_homogeneous());
+    assert_eq!(pose(&kept), Some(lib.estimate.to_homogeneous()));
+    assert_eq!(pose(&kept), pose(&first));
 }

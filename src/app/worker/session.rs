@@ -16,7 +16,7 @@ use crate::app::model::{
 use crate::app::stages_panel::StageRole;
 use crate::dataset::ScanPair;
 use crate::fusion::fuse::FusionMode;
-use crate::pipeline::fuse::{fuse_and_finish, fuse_and_finish_memo, similarities, FusionInputs};
+use crate::pipeline::fuse::{fuse_and_finish_memo, similarities, EstimateMemo, FusionInputs};
 use crate::pipeline::geo::{fpfh_branch, GeoBranch};
 use crate::pipeline::image_branch::register_with_image_keep;
 use crate::pipeline::stages::{StageKeys, StageName};
@@ -30,6 +30,9 @@ pub(super) struct Registered {
     pub(super) inputs: Option<Arc<FusionInputs>>,
     pub(super) note: Option<String>,
     pub(super) missing: Option<String>,
+    /// The estimate of this run with its inputs: the first re-fusion that keeps them (a
+    /// temperature change under NN selection) reuses it.
+    pub(super) estimates: EstimateMemo,
 }
 
 impl PipelineWorker {
@@ -95,6 +98,7 @@ impl PipelineWorker {
             inputs,
             note,
             missing,
+            estimates,
         } = self.register(id, &pair, generate)?;
         let label = self.fusion_label(&result);
         let mut model =
@@ -114,7 +118,7 @@ impl PipelineWorker {
         let kept = inputs.map(|inputs| Kept {
             keys,
             sims: similarities(&inputs).ok().map(Arc::new),
-            estimates: Default::default(),
+            estimates,
             inputs,
             image: result.image.clone(),
             stages: model.stages.clone(),
@@ -144,6 +148,7 @@ impl PipelineWorker {
         let mut note: Option<String> = None;
         let mut missing: Option<String> = None;
         let mut with_image: Option<(RegistrationResult, FusionInputs)> = None;
+        let estimates = EstimateMemo::default();
         if let Some(ib) = &params.image {
             if let Some(n) = self.cache_note.take() {
                 note = Some(n);
@@ -196,7 +201,7 @@ impl PipelineWorker {
                 if gp.geo_features == crate::pipeline::params::GeoFeatureSource::Fpfh {
                     let t0 = Instant::now();
                     let (g, mut timings) = self.geometry(pair, gp.voxel)?;
-                    let mut r = fuse_and_finish(pair, &gp, &g, None)?;
+                    let mut r = fuse_and_finish_memo(pair, &gp, &g, None, Some(&estimates))?;
                     timings.append(&mut r.timings);
                     r.timings = timings;
                     r.total_ms = t0.elapsed().as_secs_f64() * 1e3;
@@ -231,6 +236,7 @@ impl PipelineWorker {
             inputs,
             note,
             missing,
+            estimates,
         })
     }
 
