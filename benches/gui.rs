@@ -103,7 +103,10 @@ fn run(
     let (med, mean, p90) = stats(times);
     let complete = match to_complete {
         Some((n, ms)) => format!("; complete after {n} frame(s), {ms:.1} ms"),
-        None if motion == Motion::Orbit => String::new(),
+        None if motion == Motion::Orbit => format!(
+            "; drawing {} points per cloud while moving (adapted)",
+            r.app.view3d_moving_budget()
+        ),
         None => "; NOT complete".to_string(),
     };
     println!(

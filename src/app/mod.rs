@@ -381,7 +381,12 @@ impl App {
         self.posterior.view3d.complete_frames = on;
     }
 
-    /// The 3D panel's last frame left points of a still view to later frames.
+    /// Points per cloud the 3D panel draws while its camera moves (adapted to the frame time).
+    pub fn view3d_moving_budget(&self) -> u32 {
+        self.view3d.moving_budget()
+    }
+
+    /// The 3D panel's last frame is not its final one (moving, settling or refining).
     pub fn view3d_refining(&self) -> bool {
         self.view3d.refining
     }

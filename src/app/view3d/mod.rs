@@ -136,14 +136,56 @@ pub struct View3dState {
     /// Draw every point of a still view in its first frame instead of refining it over
     /// several (headless screenshots, which keep one frame).
     pub complete_frames: bool,
-    /// The last frame left points of a still view undrawn (more frames follow).
+    /// The last frame is not the final one: the camera moved within [`SETTLE`], or a still
+    /// view has points left undrawn (more frames follow).
     pub refining: bool,
+    /// When the camera last moved: the view counts as moving until [`SETTLE`] after it, so a
+    /// drag whose events come slower than frames does not start a refinement between them.
+    last_motion: Option<std::time::Instant>,
+    /// When the last moving frame was drawn (its interval to the next one is that frame's cost).
+    last_moving_frame: Option<std::time::Instant>,
+    /// Points per cloud drawn while moving; adapted to [`MOVING_FRAME_TARGET`] (0: not yet,
+    /// [`MOVING_POINT_BUDGET`]).
+    moving_budget: u32,
 }
 
-/// Points drawn per cloud while the camera moves (a uniform subsample; see
-/// `render3d::GpuCloud::sync`). Under llvmpipe each point costs about 0.4 µs of CPU, so this
-/// keeps orbiting near 30 fps; the full cloud is drawn as soon as the camera stops.
+impl View3dState {
+    /// Points per cloud drawn while the camera moves.
+    pub fn moving_budget(&self) -> u32 {
+        match self.moving_budget {
+            0 => MOVING_POINT_BUDGET,
+            b => b,
+        }
+    }
+}
+
+/// Points drawn per cloud while the camera moves at first (a uniform subsample; see
+/// `render3d::GpuCloud::sync`); then adapted between [`MOVING_BUDGET_RANGE`] so that moving
+/// frames take [`MOVING_FRAME_TARGET`]. The full cloud is drawn once the camera stops.
 pub const MOVING_POINT_BUDGET: u32 = 50_000;
+
+/// Bounds of the adapted moving budget (points per cloud).
+pub const MOVING_BUDGET_RANGE: (u32, u32) = (10_000, 300_000);
+
+/// The frame interval the moving budget aims at (30 ms: 33 fps).
+pub const MOVING_FRAME_TARGET: std::time::Duration = std::time::Duration::from_millis(30);
+
+/// How long after the last camera motion the view still counts as moving.
+pub const SETTLE: std::time::Duration = std::time::Duration::from_millis(150);
+
+/// The next moving budget after a moving frame that took `dt`: proportional to the ratio of
+/// the target to `dt` (its fixed point is a frame of exactly the target, whatever the part of
+/// the frame that does not scale with points), by at most 0.7x-1.25x per frame. Only
+/// consecutive moving frames are measured (they follow each other: a repaint is asked for).
+pub fn adapt_moving_budget(budget: u32, dt: std::time::Duration) -> u32 {
+    let (lo, hi) = MOVING_BUDGET_RANGE;
+    let (t, d) = (MOVING_FRAME_TARGET.as_secs_f64(), dt.as_secs_f64());
+    if d <= 0.0 || d.is_nan() {
+        return budget.clamp(lo, hi);
+    }
+    let f = (t / d).clamp(0.7, 1.25);
+    ((budget as f64 * f).round() as u32).clamp(lo, hi)
+}
 
 /// Points per cloud a still view adds per frame until every point is drawn (progressive
 /// refinement: a 300k-point pair is complete two frames after the camera stops, and no
@@ -257,4 +299,36 @@ pub fn next_id() -> u64 {
 pub fn view3d_panel(ui: &mut egui::Ui, shared: &mut Shared<'_>, state: &mut View3dState) {
     view3d_options(ui, state);
     scene_ui(ui, shared, state, None);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::time::Duration;
+
+    /// The budget settles where a frame takes the target, from above and below, for frames
+    /// of a fixed part plus a part per point, and it stays in its range.
+    #[test]
+    fn the_moving_budget_converges_to_the_target_frame_time() {
+        let (lo, hi) = MOVING_BUDGET_RANGE;
+        for (fixed_ms, ns_per_point) in [(11.0, 250.0), (2.0, 40.0), (20.0, 1000.0)] {
+            let cost = |b: u32| {
+                Duration::from_secs_f64((fixed_ms + b as f64 * ns_per_point * 1e-6) * 1e-3)
+            };
+            for start in [lo, MOVING_POINT_BUDGET, hi] {
+                let mut b = start;
+                for _ in 0..60 {
+                    b = adapt_moving_budget(b, cost(b));
+                }
+                let want = ((30.0 - fixed_ms) * 1e6 / ns_per_point).clamp(lo as f64, hi as f64);
+                assert!(
+                    (b as f64 - want).abs() <= 0.02 * want + 1.0,
+                    "fixed {fixed_ms} ms, {ns_per_point} ns/point, from {start}: {b}, want {want:.0}"
+                );
+            }
+        }
+        assert_eq!(adapt_moving_budget(50_000, Duration::from_secs(1)), 35_000);
+        assert_eq!(adapt_moving_budget(50_000, Duration::ZERO), 50_000);
+        assert_eq!(adapt_moving_budget(1, Duration::from_millis(30)), lo);
+    }
 }

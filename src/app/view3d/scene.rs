@@ -10,8 +10,9 @@ use nalgebra::{Isometry3, Matrix4, Point3};
 use super::colors::{cloud_colors, display_normals, match_rgb};
 use super::legend::legend;
 use super::{
-    apply, iso_to_mat, mat_to_arr, next_id, primary_alignment, project, rgba, SceneCamera,
-    TargetOverride, View3dPrefs, View3dState, MOVING_POINT_BUDGET, REFINE_POINTS_PER_FRAME,
+    adapt_moving_budget, apply, iso_to_mat, mat_to_arr, next_id, primary_alignment, project, rgba,
+    SceneCamera, TargetOverride, View3dPrefs, View3dState, MOVING_POINT_BUDGET,
+    REFINE_POINTS_PER_FRAME, SETTLE,
 };
 use crate::app::colormap::{to_color32, HIGHLIGHT_RGB, SOURCE_RGB, TARGET_RGB};
 use crate::app::model::{bounds_of, InspectorModel, ViewImage};
@@ -55,12 +56,7 @@ pub fn scene_ui(
     let overlay_lines = keep_or_new(&mut state.overlay, lpos, lcol);
     let scene_lines = keep_or_new(&mut state.frusta, fpos, fcol);
     let view_proj = mat_to_arr(&vp);
-    let moving = state.last_view_proj.is_some_and(|last| last != view_proj);
-    state.last_view_proj = Some(view_proj);
-    if moving {
-        // one more frame after the motion stops, drawn in full
-        ui.ctx().request_repaint();
-    }
+    let moving = motion(ui, state, view_proj);
     use three_d::Viewer;
     let eye = state.camera.camera.position();
     let mut frame = SceneFrame {
@@ -82,7 +78,7 @@ pub fn scene_ui(
         background: [0.07, 0.07, 0.09, 1.0],
     };
     frame.draw_range = draw_range(state, &frame, moving);
-    state.refining = !moving && frame.draw_range.1 < frame.max_points();
+    state.refining = moving || frame.draw_range.1 < frame.max_points();
     if state.refining {
         ui.ctx().request_repaint();
     }
@@ -105,7 +101,7 @@ fn draw_range(state: &mut View3dState, frame: &SceneFrame, moving: bool) -> (u32
     if moving {
         // drawn straight to the screen, not into the kept target: a still view starts afresh
         state.refined = None;
-        return (0, MOVING_POINT_BUDGET.min(n));
+        return (0, state.moving_budget.min(n));
     }
     let key = frame.points_key();
     let start = match state.refined {
@@ -120,6 +116,36 @@ fn draw_range(state: &mut View3dState, frame: &SceneFrame, moving: bool) -> (u32
     let range = (start, start.saturating_add(step).min(n));
     state.refined = Some((key, range.1));
     range
+}
+
+/// Whether this frame counts as moving: the camera changed since the last frame, or within
+/// [`SETTLE`] before it (with `complete_frames`, headless: only the former). While moving, frames follow
+/// each other (a repaint is asked for) and the moving budget adapts to their interval.
+fn motion(ui: &egui::Ui, state: &mut View3dState, view_proj: [f32; 16]) -> bool {
+    let now = std::time::Instant::now();
+    let changed = state.last_view_proj.is_some_and(|last| last != view_proj);
+    if changed {
+        state.last_motion = Some(now);
+    }
+    state.last_view_proj = Some(view_proj);
+    let settling = state
+        .last_motion
+        .is_some_and(|t| now.duration_since(t) < SETTLE);
+    let moving = changed || (settling && !state.complete_frames);
+    if state.moving_budget == 0 {
+        state.moving_budget = MOVING_POINT_BUDGET;
+    }
+    if moving {
+        if let Some(t) = state.last_moving_frame {
+            state.moving_budget = adapt_moving_budget(state.moving_budget, now.duration_since(t));
+        }
+        state.last_moving_frame = Some(now);
+        // the frames that follow, until the settled one drawn in full
+        ui.ctx().request_repaint();
+    } else {
+        state.last_moving_frame = None;
+    }
+    moving
 }
 
 /// Frames the camera on new clouds, and keeps the positions (and, for normal shading, the
