@@ -144,8 +144,8 @@ pub struct View3dState {
     last_motion: Option<std::time::Instant>,
     /// When the last moving frame was drawn (its interval to the next one is that frame's cost).
     last_moving_frame: Option<std::time::Instant>,
-    /// Points per cloud drawn while moving; adapted to [`MOVING_FRAME_TARGET`] (0: not yet,
-    /// [`MOVING_POINT_BUDGET`]).
+    /// Points per cloud drawn while moving, adapted to [`MOVING_FRAME_TARGET`]; 0 until the
+    /// first adaptation (read it through [`View3dState::moving_budget`]).
     moving_budget: u32,
 }
 

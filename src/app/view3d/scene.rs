@@ -11,8 +11,7 @@ use super::colors::{cloud_colors, display_normals, match_rgb};
 use super::legend::legend;
 use super::{
     adapt_moving_budget, apply, iso_to_mat, mat_to_arr, next_id, primary_alignment, project, rgba,
-    SceneCamera, TargetOverride, View3dPrefs, View3dState, MOVING_POINT_BUDGET,
-    REFINE_POINTS_PER_FRAME, SETTLE,
+    SceneCamera, TargetOverride, View3dPrefs, View3dState, REFINE_POINTS_PER_FRAME, SETTLE,
 };
 use crate::app::colormap::{to_color32, HIGHLIGHT_RGB, SOURCE_RGB, TARGET_RGB};
 use crate::app::model::{bounds_of, InspectorModel, ViewImage};
@@ -56,7 +55,7 @@ pub fn scene_ui(
     let overlay_lines = keep_or_new(&mut state.overlay, lpos, lcol);
     let scene_lines = keep_or_new(&mut state.frusta, fpos, fcol);
     let view_proj = mat_to_arr(&vp);
-    let moving = motion(ui, state, view_proj);
+    let moving = motion(state, view_proj);
     use three_d::Viewer;
     let eye = state.camera.camera.position();
     let mut frame = SceneFrame {
@@ -101,7 +100,7 @@ fn draw_range(state: &mut View3dState, frame: &SceneFrame, moving: bool) -> (u32
     if moving {
         // drawn straight to the screen, not into the kept target: a still view starts afresh
         state.refined = None;
-        return (0, state.moving_budget.min(n));
+        return (0, state.moving_budget().min(n));
     }
     let key = frame.points_key();
     let start = match state.refined {
@@ -119,9 +118,10 @@ fn draw_range(state: &mut View3dState, frame: &SceneFrame, moving: bool) -> (u32
 }
 
 /// Whether this frame counts as moving: the camera changed since the last frame, or within
-/// [`SETTLE`] before it (with `complete_frames`, headless: only the former). While moving, frames follow
-/// each other (a repaint is asked for) and the moving budget adapts to their interval.
-fn motion(ui: &egui::Ui, state: &mut View3dState, view_proj: [f32; 16]) -> bool {
+/// [`SETTLE`] before it (with `complete_frames`, headless: only the former). Moving frames
+/// follow each other (`scene_ui` asks for a repaint while `refining`), and the moving budget
+/// adapts to their interval.
+fn motion(state: &mut View3dState, view_proj: [f32; 16]) -> bool {
     let now = std::time::Instant::now();
     let changed = state.last_view_proj.is_some_and(|last| last != view_proj);
     if changed {
@@ -132,16 +132,11 @@ fn motion(ui: &egui::Ui, state: &mut View3dState, view_proj: [f32; 16]) -> bool 
         .last_motion
         .is_some_and(|t| now.duration_since(t) < SETTLE);
     let moving = changed || (settling && !state.complete_frames);
-    if state.moving_budget == 0 {
-        state.moving_budget = MOVING_POINT_BUDGET;
-    }
     if moving {
         if let Some(t) = state.last_moving_frame {
-            state.moving_budget = adapt_moving_budget(state.moving_budget, now.duration_since(t));
+            state.moving_budget = adapt_moving_budget(state.moving_budget(), now.duration_since(t));
         }
         state.last_moving_frame = Some(now);
-        // the frames that follow, until the settled one drawn in full
-        ui.ctx().request_repaint();
     } else {
         state.last_moving_frame = None;
     }

@@ -135,19 +135,17 @@ pub fn sc2pcr_with(
     Ok((e.reindexed(&o), hyps.map(|h| h.reindexed(&o))))
 }
 
-/// The order SC2-PCR runs its correspondences in (the first `max_points` given): lexicographic in the source
-/// then target coordinates (`f32::total_cmp`), equal endpoints in their given order.
-/// `order[k]` is the input index of the k-th correspondence run.
+/// The order SC2-PCR runs its correspondences in (the first `max_points` given):
+/// lexicographic in the source then target coordinates (`f32::total_cmp`), equal endpoints in
+/// their given order. `order[k]` is the input index of the k-th correspondence run.
 pub fn canonical_order(src: &[Point3<f32>], tgt: &[Point3<f32>]) -> Vec<usize> {
+    let key = |i: usize| [src[i].x, src[i].y, src[i].z, tgt[i].x, tgt[i].y, tgt[i].z];
     let mut order: Vec<usize> = (0..src.len().min(tgt.len())).collect();
     order.sort_by(|&a, &b| {
-        let key = |i: usize| [src[i].x, src[i].y, src[i].z, tgt[i].x, tgt[i].y, tgt[i].z];
-        key(a)
-            .iter()
-            .zip(key(b).iter())
-            .map(|(x, y)| x.total_cmp(y))
-            .find(|c| c.is_ne())
-            .unwrap_or(std::cmp::Ordering::Equal)
+        let (ka, kb) = (key(a), key(b));
+        (0..6).fold(std::cmp::Ordering::Equal, |o, k| {
+            o.then_with(|| ka[k].total_cmp(&kb[k]))
+        })
     });
     order
 }
