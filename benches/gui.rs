@@ -158,6 +158,7 @@ fn latency(
     let h = spawn_worker(Box::new(worker), None);
     let (mut to_model, mut to_frame, mut cpu_model) = (Vec::new(), Vec::new(), Vec::new());
     let (mut to_complete, mut frames_to_complete) = (Vec::new(), Vec::new());
+    let mut set_model = Vec::new();
     let mut stages = String::new();
     for i in 0..reps {
         let tau = if i % 2 == 0 { 0.12 } else { 0.1 };
@@ -193,7 +194,9 @@ fn latency(
             })
             .collect::<Vec<_>>()
             .join(", ");
+        let t_set = Instant::now();
         r.app.set_model(*model);
+        set_model.push(t_set.elapsed().as_secs_f64() * 1e3);
         r.frame(false)?;
         to_frame.push(t.elapsed().as_secs_f64() * 1e3);
         let mut frames = 1;
@@ -209,10 +212,11 @@ fn latency(
     let (m3, _, p3) = stats(to_complete);
     let (f3, _, _) = stats(frames_to_complete);
     let (c1, _, _) = stats(cpu_model);
+    let (s1, _, _) = stats(set_model);
     // CPU: all threads of the process from the command to the model (it moves less than wall
     // time when other processes share the cores)
     println!(
-        "{label:<44} first run {first:7.0} ms ({cached} stages cached, {views} views) | tau change -> model: median {m1:6.1} mean {a1:6.1} p90 {p1:6.1} ms (CPU median {c1:6.1} ms) | -> first 3D frame: median {m2:6.1} mean {a2:6.1} p90 {p2:6.1} ms | -> complete 3D view: median {m3:6.1} p90 {p3:6.1} ms ({f3:.0} frames)"
+        "{label:<44} first run {first:7.0} ms ({cached} stages cached, {views} views) | tau change -> model: median {m1:6.1} mean {a1:6.1} p90 {p1:6.1} ms (CPU median {c1:6.1} ms) | -> first 3D frame: median {m2:6.1} mean {a2:6.1} p90 {p2:6.1} ms (App::set_model median {s1:.1} ms) | -> complete 3D view: median {m3:6.1} p90 {p3:6.1} ms ({f3:.0} frames)"
     );
     eprintln!("  last stages: {stages}");
     Ok(())

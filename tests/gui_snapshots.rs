@@ -562,3 +562,63 @@ fn a_refusion_keeps_the_camera_and_the_drawn_view() {
         "new clouds did not start a new refinement ({settled_frames} frames after settling)"
     );
 }
+
+/// A re-fusion that moves the pose on a still view: the first frame previews the new
+/// alignment at the moving budget (straight to the screen, fast), the following frames refine
+/// it into the complete image of the new pose. 100k points fit in one still frame
+/// (`REFINE_POINTS_PER_FRAME`), so without the preview the first frame would be final.
+#[test]
+fn a_moved_pose_is_previewed_then_refined_to_the_complete_view() {
+    use cgenreg::app::headless::HeadlessRenderer;
+    if renderer().is_none() {
+        return;
+    }
+    let model = InspectorModel::demo_sized(100_000);
+    let size = (640, 400);
+    let mut moved = model.clone();
+    let est = moved.estimated.expect("the demo has an estimate");
+    moved.estimated = Some(nalgebra::Isometry3::translation(0.05, 0.0, 0.0) * est);
+    let mut fresh = HeadlessRenderer::new(moved.clone(), size).unwrap();
+    fresh.app.ui_state.tab = Panel::View3d;
+    let complete = fresh.settled_frame().unwrap();
+    drop(fresh);
+
+    let mut r = HeadlessRenderer::new(model, size).unwrap();
+    r.app.ui_state.tab = Panel::View3d;
+    r.app.set_complete_3d_frames(false);
+    let t = std::time::Instant::now();
+    while r.app.view3d_refining() || t.elapsed().as_millis() < 10 {
+        r.frame(false).unwrap();
+        assert!(t.elapsed().as_secs() < 10, "still refining after 10 s");
+    }
+    r.app.set_model(moved);
+    let preview = r.frame(true).unwrap().unwrap();
+    assert!(
+        r.app.view3d_refining(),
+        "a moved pose drew its final frame at once (no preview)"
+    );
+    let mut last = preview.clone();
+    let mut frames = 1;
+    while r.app.view3d_refining() && frames < 12 {
+        last = r.frame(true).unwrap().unwrap();
+        frames += 1;
+    }
+    assert!(!r.app.view3d_refining(), "still refining after 12 frames");
+    let differ = |a: &image::RgbaImage, b: &image::RgbaImage| {
+        a.pixels()
+            .zip(b.pixels())
+            .filter(|(p, q)| (0..3).any(|k| (p.0[k] as i32 - q.0[k] as i32).abs() > 2))
+            .count()
+    };
+    let total = (size.0 * size.1) as usize;
+    let d = differ(&last, &complete);
+    assert!(
+        d * 1000 <= total,
+        "the refined view differs from the moved pose's complete view in {d} of {total} pixels"
+    );
+    let p = differ(&preview, &complete);
+    assert!(
+        p > d,
+        "the preview ({p} pixels off) was not a subsample of the complete view ({d})"
+    );
+}

@@ -70,14 +70,16 @@ pub fn scene_ui(
         depth_cue: prefs.depth_cue,
         edl_strength: prefs.edl_strength,
         draw_range: (0, 0),
-        keep: !moving,
+        keep: true,
         overlay_lines,
         scene_lines,
         point_size: prefs.point_size,
         background: [0.07, 0.07, 0.09, 1.0],
     };
-    frame.draw_range = draw_range(state, &frame, moving);
-    state.refining = moving || frame.draw_range.1 < frame.max_points();
+    let (range, direct) = draw_range(state, &frame, moving);
+    frame.draw_range = range;
+    frame.keep = !direct;
+    state.refining = direct || range.1 < frame.max_points();
     if state.refining {
         ui.ctx().request_repaint();
     }
@@ -91,20 +93,26 @@ pub fn scene_ui(
     legend(&painter, rect, model, &prefs, hyp.map(|h| h.legend_label()));
 }
 
-/// Which points of each cloud this frame draws: the moving budget afresh while the camera
-/// moves; for a still view, the next [`REFINE_POINTS_PER_FRAME`] after what the last frame
-/// of the same view drew (everything at once with `complete_frames`), nothing new once
-/// complete.
-fn draw_range(state: &mut View3dState, frame: &SceneFrame, moving: bool) -> (u32, u32) {
+/// Which points of each cloud this frame draws, and whether straight to the screen (a
+/// preview) rather than into the kept still view: the moving budget afresh while the camera
+/// moves, and once when a still view's content changes (a re-fusion moved the pose or the
+/// colours: the new alignment shows at once, as while orbiting); for a still view, the next
+/// [`REFINE_POINTS_PER_FRAME`] after what the last frame of the same view drew (everything at
+/// once with `complete_frames`), nothing new once complete.
+fn draw_range(state: &mut View3dState, frame: &SceneFrame, moving: bool) -> ((u32, u32), bool) {
     let n = frame.max_points();
-    if moving {
-        // drawn straight to the screen, not into the kept target: a still view starts afresh
+    let preview = |state: &mut View3dState| {
+        // a still view starts afresh after it
         state.refined = None;
-        return (0, state.moving_budget().min(n));
+        ((0, state.moving_budget().min(n)), true)
+    };
+    if moving {
+        return preview(state);
     }
     let key = frame.points_key();
     let start = match state.refined {
         Some((k, end)) if k == key => end,
+        Some(_) if !state.complete_frames && n > state.moving_budget() => return preview(state),
         _ => 0,
     };
     let step = if state.complete_frames {
@@ -114,7 +122,7 @@ fn draw_range(state: &mut View3dState, frame: &SceneFrame, moving: bool) -> (u32
     };
     let range = (start, start.saturating_add(step).min(n));
     state.refined = Some((key, range.1));
-    range
+    (range, false)
 }
 
 /// Whether this frame counts as moving: the camera changed since the last frame, or within

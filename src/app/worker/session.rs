@@ -289,7 +289,12 @@ impl PipelineWorker {
         // Compare every stage's key under the new settings with the kept run's: the inputs in
         // memory serve only when nothing before fusion changed.
         let t0 = Instant::now();
-        let new = StageKeys::compute(&cur.pair, &params, cache.as_deref(), &self.memo).ok();
+        // From the kept keys when only fusion-stage settings changed (no cloud or frame hashed).
+        let new = match &kept.keys {
+            Some(k) => k.refreshed(&cur.pair, &params, cache.as_deref(), &self.memo),
+            None => StageKeys::compute(&cur.pair, &params, cache.as_deref(), &self.memo),
+        }
+        .ok();
         let changed = match (&kept.keys, &new) {
             (Some(old), Some(new)) => old.invalidated_by(new),
             _ => StageName::ALL.to_vec(),

@@ -97,9 +97,13 @@ impl StageName {
 
 /// Every stage's key hashes for one pair and parameter set (several for per-scan and
 /// per-view stages), in run order. `None`: not known before an earlier stage runs.
-#[derive(Clone, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Debug, Default, PartialEq)]
 pub struct StageKeys {
     stages: Vec<(StageName, Option<Vec<String>>)>,
+    /// The fusion key's input hashes (None: not known before an earlier stage runs).
+    fusion_inputs: Option<Vec<String>>,
+    /// The parameters the keys before fusion were computed from (see [`upstream_params`]).
+    upstream: Option<RegisterParams>,
 }
 
 impl StageKeys {
@@ -112,22 +116,55 @@ impl StageKeys {
         cache: Option<&Cache>,
         memo: &Memo,
     ) -> Result<StageKeys> {
-        let mut k = StageKeys::default();
+        let mut k = StageKeys {
+            upstream: Some(upstream_params(params)),
+            ..StageKeys::default()
+        };
         let geo = geo_keys(pair, params)?;
-        let Some(ib) = &params.image else {
-            k.set(StageName::Geo, Some(geo.clone()));
-            let fusion = fuse::key(params, &[&geo[0], &geo[1]])?;
-            k.set(StageName::Fusion, Some(vec![fusion.hash]));
-            return Ok(k);
+        k.fusion_inputs = match &params.image {
+            None => {
+                k.set(StageName::Geo, Some(geo.clone()));
+                Some(geo[..2].to_vec())
+            }
+            Some(ib) => image_keys(&mut k, pair, params, ib, (cache, memo), &geo)?
+                .map(|i| vec![geo[0].clone(), geo[1].clone(), i]),
         };
-        let image = image_keys(&mut k, pair, params, ib, (cache, memo), &geo)?;
-        let fusion = match image {
-            Some(i) => Some(vec![fuse::key(params, &[&geo[0], &geo[1], &i])?.hash]),
-            None => None,
-        };
-        k.set(StageName::Fusion, fusion);
+        k.set_fusion(params)?;
         k.stages.sort_by_key(|(s, _)| *s);
         Ok(k)
+    }
+
+    /// The keys under `params`, from these when `params` differs from theirs only in what the
+    /// fusion stage alone reads (fusion, estimator, inlier threshold): then only the fusion key
+    /// is formed again, without hashing a cloud or a frame. Otherwise [`Self::compute`]. A
+    /// file changed on disk since is not noticed on the first path; the inspector's worker
+    /// re-fuses its in-memory inputs then anyway.
+    pub fn refreshed(
+        &self,
+        pair: &ScanPair,
+        params: &RegisterParams,
+        cache: Option<&Cache>,
+        memo: &Memo,
+    ) -> Result<StageKeys> {
+        if self.upstream.as_ref() != Some(&upstream_params(params)) {
+            return StageKeys::compute(pair, params, cache, memo);
+        }
+        let mut k = self.clone();
+        k.set_fusion(params)?;
+        k.stages.sort_by_key(|(s, _)| *s);
+        Ok(k)
+    }
+
+    fn set_fusion(&mut self, params: &RegisterParams) -> Result<()> {
+        let fusion = match &self.fusion_inputs {
+            Some(inputs) => {
+                let inputs: Vec<&str> = inputs.iter().map(String::as_str).collect();
+                Some(vec![fuse::key(params, &inputs)?.hash])
+            }
+            None => None,
+        };
+        self.set(StageName::Fusion, fusion);
+        Ok(())
     }
 
     /// The key hashes of `stage`: None when the stage is not part of this registration or its
@@ -178,6 +215,17 @@ impl StageKeys {
                 self.set(s, None);
             }
         }
+    }
+}
+
+/// `params` without what only the fusion stage's key reads ([`fuse::key`]: fusion, estimator,
+/// inlier threshold): two parameter sets equal in it give the same keys before fusion.
+fn upstream_params(params: &RegisterParams) -> RegisterParams {
+    RegisterParams {
+        fusion: Default::default(),
+        estimator: Default::default(),
+        inlier_threshold: 0.0,
+        ..params.clone()
     }
 }
 
@@ -442,6 +490,57 @@ mod tests {
             none,
             [Generation, ViewSelect, Vfm, Lift, ImagePoints, Fusion]
         );
+    }
+
+    /// `refreshed` gives exactly `compute`'s keys: from the kept keys for fusion-only changes,
+    /// by computing for any other.
+    #[test]
+    fn refreshed_keys_equal_computed_keys() {
+        let pair = demo_pair();
+        let memo = Memo::default();
+        let dir = tempfile::tempdir().unwrap();
+        let cache = Cache::open(dir.path()).unwrap();
+        let old = demo_params();
+        generate(&pair, &old, &cache);
+        let kept = StageKeys::compute(&pair, &old, Some(&cache), &memo).unwrap();
+        let mut changes: Vec<RegisterParams> = Vec::new();
+        let mut p = old.clone();
+        p.fusion.calibration_img = Calibration::RowSoftmax { tau: 0.05 };
+        changes.push(p);
+        let mut p = old.clone();
+        p.fusion.mode = crate::fusion::FusionMode::NoisyOr;
+        p.inlier_threshold = 0.2;
+        changes.push(p);
+        let mut p = old.clone();
+        p.estimator = crate::estimate::EstimatorKind::WeightedSvd;
+        changes.push(p);
+        let mut p = old.clone();
+        p.voxel = 0.04;
+        changes.push(p);
+        let mut p = old.clone();
+        p.image.as_mut().unwrap().k = 3;
+        changes.push(p);
+        changes.push(RegisterParams {
+            image: None,
+            ..old.clone()
+        });
+        for (i, p) in changes.iter().enumerate() {
+            let computed = StageKeys::compute(&pair, p, Some(&cache), &memo).unwrap();
+            let refreshed = kept.refreshed(&pair, p, Some(&cache), &memo).unwrap();
+            assert_eq!(refreshed, computed, "change {i}");
+            assert!(!kept.invalidated_by(&refreshed).is_empty(), "change {i}");
+        }
+        // Geometry only as well.
+        let geo = RegisterParams {
+            image: None,
+            ..old.clone()
+        };
+        let kept = StageKeys::compute(&pair, &geo, None, &memo).unwrap();
+        let mut p = geo.clone();
+        p.fusion.calibration_geo = Calibration::RowSoftmax { tau: 0.3 };
+        let computed = StageKeys::compute(&pair, &p, None, &memo).unwrap();
+        assert_eq!(kept.refreshed(&pair, &p, None, &memo).unwrap(), computed);
+        assert_eq!(kept.invalidated_by(&computed), [Fusion]);
     }
 
     #[test]
