@@ -195,6 +195,11 @@ pub struct ImageArgs {
     /// camera; 2 or more cover a 360° scan).
     #[arg(long, default_value_t = 1)]
     pub lidar_cameras: usize,
+    /// Cell size (pixels) at which DISK / ALIKE are read at a lifted pixel: 1 = the pixel of the
+    /// full-resolution map; s > 1 = bilinear between the centres of s x s cells.
+    #[arg(long, default_value_t = crate::pipeline::params::DEFAULT_DENSE_STRIDE,
+          value_parser = clap::value_parser!(u32).range(1..=64))]
+    pub dense_stride: u32,
     /// Stage cache directory (default: $CGENREG_CACHE or ~/.cache/cgenreg).
     #[arg(long)]
     pub cache_dir: Option<PathBuf>,
@@ -265,6 +270,7 @@ impl ImageArgs {
             lift_radius: self.lift_radius,
             virtual_camera: self.virtual_camera,
             lidar_cameras: self.lidar_cameras,
+            dense_stride: self.dense_stride,
         }))
     }
 

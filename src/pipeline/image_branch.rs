@@ -162,8 +162,6 @@ fn register_with_frames(
     let sel = view_select::run(&mut ctx, planned, gen.meta.frames, ib)?;
 
     let pair_conditioned = vfm::is_pair_conditioned(&ib.vfm);
-    let (src_views, tgt_views, mut vfm_label) =
-        describe_views(&mut ctx, &gen, &gen_key, &sel, ib, &vfm_id)?;
 
     // Lifting, over all K views.
     let (src_links, src_lift_key) = lift::run(
@@ -191,6 +189,16 @@ fn register_with_frames(
         image_size,
     )?;
     let lift_keys = (&src_lift_key, &tgt_lift_key);
+    // Per-image models describe each view at the pixels just linked to it.
+    let (src_views, tgt_views, mut vfm_label) = describe_views(
+        &mut ctx,
+        (&gen, &gen_key),
+        &sel,
+        (&src_links, &tgt_links),
+        lift_keys,
+        ib,
+        &vfm_id,
+    )?;
 
     // Per-keypoint image descriptors (per-image models) or per-pair descriptors (pair models).
     let image = if pair_conditioned {
@@ -210,7 +218,7 @@ fn register_with_frames(
             lift_keys,
             (&src_views.keys, &tgt_views.keys),
             (&src_links, &tgt_links),
-            (&src_views.grids, &tgt_views.grids),
+            (&src_views.points, &tgt_views.points),
         )?;
         ImageInputs::PerImage(fs, vs, ft, vt)
     };
@@ -252,13 +260,15 @@ fn register_with_frames(
     Ok((res, inputs))
 }
 
-/// VFM descriptors per selected view (per-image models; pair models describe the views
-/// jointly in `pair_vfm`, from the images), and the VFM's label as it ran.
+/// VFM descriptors per selected view at the pixels `links` links to it (per-image models;
+/// pair models describe the views jointly in `pair_vfm`, from the images), and the VFM's label
+/// as it ran.
 fn describe_views(
     ctx: &mut Ctx,
-    gen: &GenOut,
-    gen_key: &CacheKey,
+    gen: (&GenOut, &CacheKey),
     sel: &ViewSelection,
+    links: (&[Option<PixelLink>], &[Option<PixelLink>]),
+    lift_keys: (&CacheKey, &CacheKey),
     ib: &ImageBranchParams,
     vfm_id: &str,
 ) -> Result<(SideViews, SideViews, String)> {
@@ -266,8 +276,8 @@ fn describe_views(
     let (src, tgt) = if vfm::is_pair_conditioned(&ib.vfm) {
         let images_only = |idx: &[usize]| -> Result<SideViews> {
             Ok(SideViews {
-                grids: Vec::new(),
-                images: vfm::images(gen, idx)?,
+                points: Vec::new(),
+                images: vfm::images(gen.0, idx)?,
                 keys: Vec::new(),
             })
         };
@@ -276,12 +286,24 @@ fn describe_views(
             images_only(&sel.tgt_generated)?,
         )
     } else {
-        let mut side = |ctx: &mut Ctx, name: &str, idx: &[usize]| {
-            vfm::run_side(ctx, name, gen, gen_key, idx, &ib.vfm, vfm_id, &mut model)
+        let mut side = |ctx: &mut Ctx, name: &str, idx: &[usize], l, k| {
+            vfm::run_side(ctx, name, gen, idx, (l, k), ib, vfm_id, &mut model)
         };
         (
-            side(ctx, "vfm source views", &sel.src_generated)?,
-            side(ctx, "vfm target views", &sel.tgt_generated)?,
+            side(
+                ctx,
+                "vfm source views",
+                &sel.src_generated,
+                links.0,
+                lift_keys.0,
+            )?,
+            side(
+                ctx,
+                "vfm target views",
+                &sel.tgt_generated,
+                links.1,
+                lift_keys.1,
+            )?,
         )
     };
     let label = match &model {
@@ -295,8 +317,13 @@ fn describe_views(
 fn branch_label(ib: &ImageBranchParams, gen: &GenOut, vfm_id: &str, im: &ImageInputs) -> String {
     let (v_src, v_tgt) = im.validity();
     let n = |v: &[bool]| v.iter().filter(|v| **v).count();
+    let read = match vfm::cell_of(ib) {
+        Some(1) => ", per pixel".to_string(),
+        Some(c) => format!(", {c}-px cells"),
+        None => String::new(),
+    };
     format!(
-        "{} + {} (K={}, m={}, L={}; {} / {} source / target keypoints with a pixel",
+        "{} + {}{read} (K={}, m={}, L={}; {} / {} source / target keypoints with a pixel",
         gen.provenance.backend,
         vfm_id,
         ib.k,

@@ -150,6 +150,12 @@ pub enum VfmSpec {
 }
 
 impl VfmSpec {
+    /// Whether this VFM has a descriptor at every pixel (DISK, ALIKE): the one kind that reads
+    /// [`ImageBranchParams::dense_stride`].
+    pub fn is_dense(&self) -> bool {
+        matches!(self, VfmSpec::Disk { .. } | VfmSpec::Alike { .. })
+    }
+
     pub fn model(&self) -> &std::path::Path {
         match self {
             VfmSpec::Xfeat { model }
@@ -242,11 +248,25 @@ pub struct ImageBranchParams {
     /// them one after the other, L / n frames each.
     #[serde(default = "one")]
     pub lidar_cameras: usize,
+    /// Cell size (pixels) through which a dense per-pixel VFM (DISK, ALIKE) is read at a lifted
+    /// pixel: 1 reads its full-resolution map at the pixel; s > 1 samples the map at the
+    /// centres of s x s cells (each unit) and interpolates between them bilinearly. Chosen on
+    /// the development set (`docs/ablation.md`). XFeat (its own H/8 grid) and MASt3R do not read
+    /// it. Settings written before this field existed read 4: their dense rows ran that way.
+    #[serde(default = "four")]
+    pub dense_stride: u32,
 }
 
 fn one() -> usize {
     1
 }
+
+fn four() -> u32 {
+    4
+}
+
+/// [`ImageBranchParams::dense_stride`]'s default (the development set's choice).
+pub const DEFAULT_DENSE_STRIDE: u32 = 1;
 
 /// How depth frames are made for a scan that is only a point cloud (paper §3.1, appendix B.3).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
@@ -286,6 +306,7 @@ impl Default for ImageBranchParams {
             lift_radius: 0.05,
             virtual_camera: VirtualCamera::Auto,
             lidar_cameras: 1,
+            dense_stride: DEFAULT_DENSE_STRIDE,
         }
     }
 }

@@ -260,4 +260,18 @@ impl PerImageModel for DenseModel {
             Ok(PointDescriptors { dim: m.dim, data })
         })
     }
+
+    /// `cell` > 1: the map on a grid of `cell`-pixel cells, sampled at the pixels, both
+    /// dropped before this returns.
+    fn describe_at_cells(
+        &self,
+        img: &RgbImage,
+        pixels: &[(f32, f32)],
+        cell: u32,
+    ) -> Result<PointDescriptors> {
+        if cell <= 1 {
+            return self.describe_at(img, pixels);
+        }
+        Ok(self.describe_grid(img, cell)?.sample_points(pixels))
+    }
 }

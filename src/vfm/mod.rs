@@ -99,6 +99,20 @@ impl DenseDescriptors {
     }
 
     /// [`sample`](Self::sample) into a caller buffer of length `dim` (no allocation).
+    /// Unit descriptors at `pixels` (bilinear as [`Self::sample_into`], then L2-normalised; a
+    /// descriptor of norm < 1e-12 stays as sampled).
+    pub fn sample_points(&self, pixels: &[(f32, f32)]) -> PointDescriptors {
+        let mut data = vec![0.0f32; pixels.len() * self.dim];
+        for (row, &(u, v)) in data.chunks_mut(self.dim.max(1)).zip(pixels) {
+            self.sample_into(u, v, row);
+            normalize(row);
+        }
+        PointDescriptors {
+            dim: self.dim,
+            data,
+        }
+    }
+
     pub fn sample_into(&self, u: f32, v: f32, out: &mut [f32]) {
         let (x0, x1, fx) = axis(u, self.stride_x, self.width);
         let (y0, y1, fy) = axis(v, self.stride_y, self.height);
@@ -146,13 +160,21 @@ pub trait PerImageModel: Send + Sync {
     /// stays zero. Dense per-pixel models override this to sample their full-resolution map and
     /// drop it, instead of returning it.
     fn describe_at(&self, img: &RgbImage, pixels: &[(f32, f32)]) -> Result<PointDescriptors> {
-        let g = self.describe(img)?;
-        let mut data = vec![0.0f32; pixels.len() * g.dim];
-        for (row, &(u, v)) in data.chunks_mut(g.dim.max(1)).zip(pixels) {
-            g.sample_into(u, v, row);
-            normalize(row);
-        }
-        Ok(PointDescriptors { dim: g.dim, data })
+        Ok(self.describe(img)?.sample_points(pixels))
+    }
+
+    /// [`Self::describe_at`] read through `cell` x `cell`-pixel cells: for a dense per-pixel
+    /// model with `cell` > 1, its map at the cells' centres (each unit), bilinear between them,
+    /// then unit (the points of a `describe` grid of that stride); `cell` = 1 is the pixel
+    /// itself. Models with a grid of their own (XFeat) ignore `cell`.
+    fn describe_at_cells(
+        &self,
+        img: &RgbImage,
+        pixels: &[(f32, f32)],
+        cell: u32,
+    ) -> Result<PointDescriptors> {
+        let _ = cell;
+        self.describe_at(img, pixels)
     }
 }
 

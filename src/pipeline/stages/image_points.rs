@@ -1,42 +1,39 @@
-//! Stage `image-points`: one image descriptor per keypoint for per-image VFMs, sampled at its
-//! linked pixel (bilinear, unit norm); unlinked keypoints are invalid (reference §8.1). Key:
-//! both scans' `lift` keys and every selected view's `vfm-view` key; parameter: the sampling.
+//! Stage `image-points`: one image descriptor per keypoint for per-image VFMs, its view's
+//! descriptor at its linked pixel (`vfm-view` describes each view at exactly those pixels;
+//! unit norm); unlinked keypoints are invalid (reference §8.1). Key: both scans' `lift` keys
+//! and every selected view's `vfm-view` key; parameter: the sampling.
 
+use super::vfm::ViewPoints;
 use super::Ctx;
 use crate::error::{Error, Result};
 use crate::features::Features;
 use crate::pipeline::cache::{Cache, CacheKey, Entry};
 use crate::vfm::lift::PixelLink;
-use crate::vfm::DenseDescriptors;
 use rayon::prelude::*;
 use serde_json::json;
 
 pub const STAGE: &str = "image-points";
-pub const VERSION: u32 = 1;
+pub const VERSION: u32 = 2;
 
 /// (source descriptors, valid, target descriptors, valid).
 pub(crate) type Pts = (Features, Vec<bool>, Features, Vec<bool>);
 
-/// Each keypoint's descriptor at its linked pixel (unit norm), zeros and invalid when unlinked.
-fn point_descriptors(
-    links: &[Option<PixelLink>],
-    grids: &[DenseDescriptors],
-) -> (Features, Vec<bool>) {
-    let dim = grids.first().map_or(0, |g| g.dim);
+/// Each keypoint's descriptor at its linked pixel (its view's descriptor there, unit norm),
+/// zeros and invalid when unlinked or when the model's descriptor there was zero.
+fn point_descriptors(links: &[Option<PixelLink>], views: &[ViewPoints]) -> (Features, Vec<bool>) {
+    let dim = views.iter().map(|v| v.desc.dim).max().unwrap_or(0);
     let mut data = vec![0.0f32; links.len() * dim];
     let mut valid = vec![false; links.len()];
     data.par_chunks_mut(dim.max(1))
         .zip(valid.par_iter_mut())
         .zip(links.par_iter())
         .for_each(|((row, ok), l)| {
-            if let Some(l) = l {
-                if let Some(g) = grids.get(l.view as usize) {
-                    g.sample_into(l.u as f32, l.v as f32, row);
-                    let n = row.iter().map(|v| v * v).sum::<f32>().sqrt();
-                    if n > 1e-12 {
-                        row.iter_mut().for_each(|v| *v /= n);
-                        *ok = true;
-                    }
+            let d = l.and_then(|l| views.get(l.view as usize)?.get(l.u, l.v));
+            if let Some(d) = d.filter(|d| d.len() == row.len()) {
+                // unit, or zero (norm < 1e-12); NaN fails the test
+                if d.iter().map(|x| x * x).sum::<f32>() > 0.25 {
+                    row.copy_from_slice(d);
+                    *ok = true;
                 }
             }
         });
@@ -50,7 +47,12 @@ pub fn key(
     let mut pk: Vec<&str> = vec![&lift_keys.0.hash, &lift_keys.1.hash];
     pk.extend(view_keys.0.iter().map(String::as_str));
     pk.extend(view_keys.1.iter().map(String::as_str));
-    CacheKey::new(STAGE, VERSION, &pk, &json!({ "sample": "bilinear-l2" }))
+    CacheKey::new(
+        STAGE,
+        VERSION,
+        &pk,
+        &json!({ "sample": "vfm-view-at-pixel" }),
+    )
 }
 
 fn load(e: &Entry, n_src: usize, n_tgt: usize) -> Result<Pts> {
@@ -81,7 +83,7 @@ pub(crate) fn run(
     lift_keys: (&CacheKey, &CacheKey),
     view_keys: (&[String], &[String]),
     links: (&[Option<PixelLink>], &[Option<PixelLink>]),
-    grids: (&[DenseDescriptors], &[DenseDescriptors]),
+    views: (&[ViewPoints], &[ViewPoints]),
 ) -> Result<Pts> {
     let (src_links, tgt_links) = links;
     let key = key(lift_keys, view_keys)?;
@@ -90,8 +92,8 @@ pub(crate) fn run(
         &key,
         |e| load(e, src_links.len(), tgt_links.len()),
         || {
-            let (fs, vs) = point_descriptors(src_links, grids.0);
-            let (ft, vt) = point_descriptors(tgt_links, grids.1);
+            let (fs, vs) = point_descriptors(src_links, views.0);
+            let (ft, vt) = point_descriptors(tgt_links, views.1);
             Ok((fs, vs, ft, vt))
         },
         store,

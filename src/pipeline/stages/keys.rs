@@ -37,9 +37,9 @@ pub enum StageName {
     Generation,
     /// In memory.
     ViewSelect,
-    /// Per-image VFM descriptors of the selected views (`vfm-view`).
-    Vfm,
     Lift,
+    /// Per-image VFM descriptors of the selected views at their lifted pixels (`vfm-view`).
+    Vfm,
     /// Per-keypoint image descriptors of a per-image VFM (`image-points`).
     ImagePoints,
     /// Per-keypoint descriptors of a pair-conditioned VFM (`image-points-pair`).
@@ -55,8 +55,8 @@ impl StageName {
         StageName::DepthVideo,
         StageName::Generation,
         StageName::ViewSelect,
-        StageName::Vfm,
         StageName::Lift,
+        StageName::Vfm,
         StageName::ImagePoints,
         StageName::PairVfm,
         StageName::Fusion,
@@ -354,12 +354,16 @@ fn image_keys(
         k.set(StageName::PairVfm, Some(vec![key.hash.clone()]));
         return Ok(Some(key.hash));
     }
-    let views = |idx: &[usize]| -> Result<Vec<String>> {
+    let views = |idx: &[usize], lift: &CacheKey| -> Result<Vec<String>> {
         idx.iter()
-            .map(|&g| vfm::key(&gen, g, &vfm_id).map(|k| k.hash))
+            .enumerate()
+            .map(|(v, &g)| vfm::key(&gen, lift, (g, v), &vfm_id, vfm::cell_of(ib)).map(|k| k.hash))
             .collect()
     };
-    let (src_views, tgt_views) = (views(&sel.src_generated)?, views(&sel.tgt_generated)?);
+    let (src_views, tgt_views) = (
+        views(&sel.src_generated, &src_lift)?,
+        views(&sel.tgt_generated, &tgt_lift)?,
+    );
     k.set(
         StageName::Vfm,
         Some(src_views.iter().chain(&tgt_views).cloned().collect()),
@@ -431,8 +435,8 @@ mod tests {
                 DepthVideo,
                 Generation,
                 ViewSelect,
-                Vfm,
                 Lift,
+                Vfm,
                 ImagePoints,
                 Fusion
             ]
@@ -460,35 +464,36 @@ mod tests {
         // K: view selection and everything after it; the depth video and generation stay.
         let mut p = old.clone();
         p.image.as_mut().unwrap().k = 3;
-        assert_eq!(inv(&p), [ViewSelect, Vfm, Lift, ImagePoints, Fusion]);
+        assert_eq!(inv(&p), [ViewSelect, Lift, Vfm, ImagePoints, Fusion]);
 
         // The prompt: a new generation, so nothing after it is known before it runs.
         let mut p = old.clone();
         p.image.as_mut().unwrap().prompt.scene = "a different room".into();
         assert_eq!(
             inv(&p),
-            [Generation, ViewSelect, Vfm, Lift, ImagePoints, Fusion]
+            [Generation, ViewSelect, Lift, Vfm, ImagePoints, Fusion]
         );
         // Once generated, the lift is found to be unchanged (same frame size, same views).
         generate(&pair, &p, &cache);
         assert_eq!(inv(&p), [Generation, Vfm, ImagePoints, Fusion]);
 
-        // The FPFH voxel: the geometric branch, the lift of its keypoints, the point
-        // features and the tail; the depth video and the generation stay.
+        // The FPFH voxel: the geometric branch, the lift of its keypoints, the views
+        // described at the lifted pixels, the point features and the tail; the depth video
+        // and the generation stay.
         let mut p = old.clone();
         p.voxel = 0.04;
-        assert_eq!(inv(&p), [Geo, Lift, ImagePoints, Fusion]);
+        assert_eq!(inv(&p), [Geo, Lift, Vfm, ImagePoints, Fusion]);
 
         // The lift radius: the lift onward.
         let mut p = old.clone();
         p.image.as_mut().unwrap().lift_radius *= 2.0;
-        assert_eq!(inv(&p), [Lift, ImagePoints, Fusion]);
+        assert_eq!(inv(&p), [Lift, Vfm, ImagePoints, Fusion]);
 
         // Without a cache the generation's input is not known before the depth video runs.
         let none = invalidated(&pair, &old, &old, None, &memo).unwrap();
         assert_eq!(
             none,
-            [Generation, ViewSelect, Vfm, Lift, ImagePoints, Fusion]
+            [Generation, ViewSelect, Lift, Vfm, ImagePoints, Fusion]
         );
     }
 
@@ -575,8 +580,8 @@ mod tests {
                 DepthVideo,
                 Generation,
                 ViewSelect,
-                Vfm,
                 Lift,
+                Vfm,
                 ImagePoints,
                 Fusion
             ]

@@ -1,6 +1,9 @@
-//! Stage `vfm-view`: the dense descriptor grid of one selected generated view from a
-//! per-image VFM (XFeat). Key: the generation's key; parameters: the frame index and the
-//! model id (name + content hash of the model file). Also the one place models are loaded
+//! Stage `vfm-view`: one selected generated view described by a per-image VFM (XFeat, DISK,
+//! ALIKE) at the pixels lifting linked to it ([`PerImageModel::describe_at`]: XFeat's H/8
+//! grid sampled bilinearly; a dense model's full-resolution map read at the pixel and dropped
+//! when the call returns, so no map outlives its view). Key: the generation's key and the
+//! side's lift key; parameters: the frame, its view index and the model id (name + content
+//! hash of the model file). Also the one place models are loaded
 //! ([`load_vfm`], [`load_pair_vfm`]): a new VFM is a `VfmSpec` variant and an arm there.
 
 use super::generation::GenOut;
@@ -8,17 +11,17 @@ use super::Ctx;
 use crate::error::{Error, Result};
 use crate::pipeline::cache::{Cache, CacheKey, Entry};
 use crate::pipeline::memo::Memo;
-use crate::pipeline::params::VfmSpec;
-use crate::vfm::{DenseDescriptors, PairModel, PerImageModel};
+use crate::pipeline::params::{ImageBranchParams, VfmSpec};
+use crate::vfm::lift::PixelLink;
+use crate::vfm::{PairModel, PerImageModel, PointDescriptors};
 use image::RgbImage;
-use serde::{Deserialize, Serialize};
 use serde_json::json;
 use std::path::Path;
 use std::sync::Arc;
 use std::time::Instant;
 
 pub const STAGE: &str = "vfm-view";
-pub const VERSION: u32 = 1;
+pub const VERSION: u32 = 2;
 
 /// Whether `spec` describes views jointly (pair-conditioned: the `pair_vfm` stage) rather
 /// than one at a time (this stage).
@@ -114,93 +117,149 @@ pub fn vfm_id(memo: &Memo, spec: &VfmSpec) -> Result<String> {
     Ok(format!("{}@{}", spec.name(), &memo.hash_file(model)?[..16]))
 }
 
-#[derive(Serialize, Deserialize)]
-struct GridMeta {
-    width: u32,
-    height: u32,
-    dim: usize,
-    stride_x: f32,
-    stride_y: f32,
+/// One view's descriptors at the pixels lifting linked to it: sorted distinct `(u, v)` and
+/// one unit descriptor per pixel (zero where the model's descriptor had norm < 1e-12).
+#[derive(Clone, Debug, PartialEq)]
+pub(crate) struct ViewPoints {
+    pub(crate) pixels: Vec<(u32, u32)>,
+    pub(crate) desc: PointDescriptors,
 }
 
-pub fn key(gen_key: &CacheKey, frame: usize, vfm_id: &str) -> Result<CacheKey> {
-    CacheKey::new(
-        STAGE,
-        VERSION,
-        &[&gen_key.hash],
-        &json!({ "frame": frame, "vfm": vfm_id }),
-    )
+impl ViewPoints {
+    /// The descriptor at pixel `(u, v)`, if it is one of this view's.
+    pub(crate) fn get(&self, u: u32, v: u32) -> Option<&[f32]> {
+        let i = self.pixels.binary_search(&(u, v)).ok()?;
+        self.desc
+            .data
+            .get(i * self.desc.dim..(i + 1) * self.desc.dim)
+    }
 }
 
-fn load(e: &Entry) -> Result<DenseDescriptors> {
-    let m: GridMeta = e.read_json("grid.json")?;
-    let (_, _, d) = e.read_f32_matrix("desc.npy")?;
-    DenseDescriptors::new(m.width, m.height, m.dim, d, m.stride_x, m.stride_y)
+/// The distinct pixels of `links` in view `view`, sorted.
+pub(crate) fn view_pixels(links: &[Option<PixelLink>], view: usize) -> Vec<(u32, u32)> {
+    let mut px: Vec<(u32, u32)> = links
+        .iter()
+        .flatten()
+        .filter(|l| l.view as usize == view)
+        .map(|l| (l.u, l.v))
+        .collect();
+    px.sort_unstable();
+    px.dedup();
+    px
 }
 
-fn store(g: &DenseDescriptors, frame: usize, vfm_id: &str, c: &Cache, k: &CacheKey) -> Result<()> {
+/// Key of view `view` (generated frame `frame`) of a side whose lift has key `lift_key`: the
+/// lift fixes the pixels the view is described at.
+/// `cell`: the dense-model cell size ([`cell_of`]; None for models with their own grid).
+pub fn key(
+    gen_key: &CacheKey,
+    lift_key: &CacheKey,
+    (frame, view): (usize, usize),
+    vfm_id: &str,
+    cell: Option<u32>,
+) -> Result<CacheKey> {
+    let mut p =
+        json!({ "frame": frame, "view": view, "vfm": vfm_id, "sample": "at-lifted-pixels" });
+    if let Some(c) = cell {
+        p["cell"] = json!(c);
+    }
+    CacheKey::new(STAGE, VERSION, &[&gen_key.hash, &lift_key.hash], &p)
+}
+
+/// The cell size a VFM is read through: `dense_stride` for dense per-pixel models, None for
+/// the others (it does not change what they give).
+pub fn cell_of(ib: &ImageBranchParams) -> Option<u32> {
+    ib.vfm.is_dense().then_some(ib.dense_stride)
+}
+
+fn load(e: &Entry, pixels: &[(u32, u32)]) -> Result<ViewPoints> {
+    let (n, two, px) = e.read_f32_matrix("pixels.npy")?;
+    let (m, dim, data) = e.read_f32_matrix("desc.npy")?;
+    let stored: Vec<(u32, u32)> = px.chunks(2).map(|c| (c[0] as u32, c[1] as u32)).collect();
+    if two != 2 || n != m || stored.as_slice() != pixels {
+        return Err(Error::Cache(format!(
+            "{}: the stored pixels are not the {} pixels the lift links to this view",
+            e.dir.display(),
+            pixels.len()
+        )));
+    }
+    Ok(ViewPoints {
+        pixels: stored,
+        desc: PointDescriptors { dim, data },
+    })
+}
+
+fn store(p: &ViewPoints, frame: usize, vfm_id: &str, c: &Cache, k: &CacheKey) -> Result<()> {
     let mut ne = c.put(k, json!({ "vfm": vfm_id, "frame": frame }))?;
-    ne.add_json(
-        "grid.json",
-        &GridMeta {
-            width: g.width,
-            height: g.height,
-            dim: g.dim,
-            stride_x: g.stride_x,
-            stride_y: g.stride_y,
-        },
-    )?;
-    ne.add_f32_matrix("desc.npy", (g.width * g.height) as usize, g.dim, &g.data)?;
+    // pixel coordinates are below 2^24, exact in f32
+    let px: Vec<f32> = p
+        .pixels
+        .iter()
+        .flat_map(|&(u, v)| [u as f32, v as f32])
+        .collect();
+    ne.add_f32_matrix("pixels.npy", p.pixels.len(), 2, &px)?;
+    ne.add_f32_matrix("desc.npy", p.pixels.len(), p.desc.dim, &p.desc.data)?;
     ne.commit()?;
     Ok(())
 }
 
-/// One side's selected views: descriptor grids, the images, and the stages' key hashes.
+/// One side's selected views: descriptors at the linked pixels, the images, and the stages'
+/// key hashes.
 pub(crate) struct SideViews {
-    pub(crate) grids: Vec<DenseDescriptors>,
+    pub(crate) points: Vec<ViewPoints>,
     pub(crate) images: Vec<RgbImage>,
     pub(crate) keys: Vec<String>,
 }
 
-/// The descriptor grids of the generated frames `idx`, timed together as `name` (a hit
-/// when every view was). `model` is loaded on the first miss and kept for the other side.
-// The key parts (generation, frames, model) plus the context and the loaded model.
+/// Describes the generated frames `idx` at the pixels `links` links to each (one model run
+/// per view: a dense model's full-resolution map lives only inside that call), timed together
+/// as `name` (a hit when every view was). `model` is loaded on the first miss and kept for the
+/// other side.
+// The key parts (generation, frames, lift, model) plus the context and the loaded model.
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn run_side(
     ctx: &mut Ctx,
     name: &str,
-    gen: &GenOut,
-    gen_key: &CacheKey,
+    (gen, gen_key): (&GenOut, &CacheKey),
     idx: &[usize],
-    spec: &VfmSpec,
+    (links, lift_key): (&[Option<PixelLink>], &CacheKey),
+    ib: &ImageBranchParams,
     vfm_id: &str,
     model: &mut Option<Arc<dyn PerImageModel>>,
 ) -> Result<SideViews> {
+    let (spec, cell) = (&ib.vfm, cell_of(ib));
     let t = Instant::now();
     let memo = ctx.memo;
     let mut all_hit = true;
     let mut out = SideViews {
-        grids: Vec::new(),
+        points: Vec::new(),
         images: Vec::new(),
         keys: Vec::new(),
     };
-    for &gi in idx {
+    for (view, &gi) in idx.iter().enumerate() {
         let img = gen.frame(gi)?;
-        let key = key(gen_key, gi, vfm_id)?;
-        let (g, hit) = ctx.cached(
+        let key = key(gen_key, lift_key, (gi, view), vfm_id, cell)?;
+        let pixels = view_pixels(links, view);
+        let (p, hit) = ctx.cached(
             &key,
-            load,
+            |e| load(e, &pixels),
             || {
                 let m = match model {
                     Some(m) => m.clone(),
                     None => model.insert(load_vfm(memo, spec, vfm_id)?).clone(),
                 };
-                m.describe(&img)
+                let at: Vec<(f32, f32)> =
+                    pixels.iter().map(|&(u, v)| (u as f32, v as f32)).collect();
+                let desc = m.describe_at_cells(&img, &at, cell.unwrap_or(1))?;
+                Ok(ViewPoints {
+                    pixels: pixels.clone(),
+                    desc,
+                })
             },
-            |g, c, k| store(g, gi, vfm_id, c, k),
+            |p, c, k| store(p, gi, vfm_id, c, k),
         )?;
         all_hit &= hit;
-        out.grids.push(g);
+        out.points.push(p);
         out.images.push(img);
         out.keys.push(key.hash);
     }
