@@ -5,6 +5,7 @@
 # One `cgenreg bench ... --json` per row, then `cgenreg table`.
 #
 #   bash scripts/devset_sweep.sh [OUT_DIR] [VFM]     # VFM: xfeat (default) | alike | disk
+#   (alike / disk: the --dense-stride rows, STRIDES="1 4" by default)
 #
 # Env: CGENREG_BIN (default target/debug/cgenreg), CGENREG_CACHE (stage cache; default
 # ~/.cache/cgenreg-devset), CGENREG_DATA. Rows already in OUT_DIR are kept (bench resumes a
@@ -28,6 +29,19 @@ run() { # name, then bench options
 if [ "$VFM" = xfeat ]; then
     run fpfh-nn --selection nn
     run fpfh-mutual --selection mutual
+fi
+# Dense per-pixel VFMs (alike, disk): the cell size they are read through at a lifted pixel
+# (--dense-stride: 1 = the pixel of the full-resolution map, 4 = bilinear between 4-px cell
+# centres, the pre-session-11 path), at the values frozen with XFeat (Noisy-AND, mutual NN,
+# tau 0.1 / 0.1), oracle frames. FPFH-NN of the same binary as the reference row.
+if [ "$VFM" != xfeat ]; then
+    run fpfh-nn --selection nn
+    for s in ${STRIDES:-1 4}; do
+        run "$VFM-oracle-noisy-and-mutual-tau0.1-stride$s" --wfm oracle --vfm "$VFM" \
+            --fusion noisy-and --selection mutual --tau-img 0.1 --dense-stride "$s"
+    done
+    "$BIN" table "$OUT"/fpfh-nn.json "$OUT/$VFM"-*.json | tee "$OUT/table-$VFM.md"
+    exit 0
 fi
 # Selection x image temperature, Noisy-AND, oracle frames. The rows run for docs/ablation.md
 # (2026-12-02, debug build, 2-core machine shared with five other jobs): NN at tau-img 0.05

@@ -14,7 +14,10 @@
 # (cov/ft: libFuzzer's edge coverage and feature counts at the end of the run).
 # Exits 1 if any target crashed. Extra libFuzzer flags: FUZZ_FLAGS="-max_len=65536 ...";
 # FUZZ_RUNS=N stops a target after N executions (or SECONDS, whichever comes first);
-# FUZZ_BUILD=0 skips the build.
+# FUZZ_BUILD=0 skips the build; FUZZ_TIMEOUT=S (default 10) is libFuzzer's per-input timeout: a
+# run stopped with SIGSTOP counts the stop against the input being run, so a long background run
+# that other work pauses needs a timeout above the longest pause (session 11: two spurious
+# "timeouts" of 41 s, each input re-run in 1-20 ms).
 # Needs a C++ compiler for libFuzzer (scripts/setup.sh installs g++ when it is missing).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -44,7 +47,7 @@ if [ "$ENGINE" = libfuzzer ]; then
     "$BIN/seeds" "$t" "fuzz/corpus/$t" >/dev/null
     log="fuzz/artifacts/$t/last.log"
     set +e
-    "$BIN/$t" -max_total_time="$SECS" -timeout=10 -rss_limit_mb=2048 -max_len=1048576 \
+    "$BIN/$t" -max_total_time="$SECS" -timeout="${FUZZ_TIMEOUT:-10}" -rss_limit_mb=2048 -max_len=1048576 \
       -print_final_stats=1 -artifact_prefix="fuzz/artifacts/$t/" ${FUZZ_RUNS:+-runs=$FUZZ_RUNS} \
       ${FUZZ_FLAGS:-} "fuzz/corpus/$t" >"$log" 2>&1
     rc=$?

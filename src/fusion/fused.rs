@@ -63,8 +63,17 @@ struct Ctx<'a> {
     /// `(1 - pi) / pi`: posterior odds = key * c.
     c: f64,
     want_cols: bool,
-    /// The row loops run as `super::avx2`'s intrinsics (same bits; vectorised in every build).
-    avx2: bool,
+    /// Which intrinsics run the row loops (`super::avx2`, `super::avx512`: same bits as the
+    /// scalar code; vectorised in every build).
+    lanes: Lanes,
+}
+
+/// The row kernels' instruction set.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Lanes {
+    Scalar,
+    Avx2,
+    Avx512,
 }
 
 /// `out = exp((src + bias - max) * it)`; returns `1 / sum` (the sum as `sum_lanes` forms it),
@@ -77,14 +86,25 @@ fn softmax_unnormalised(
     bias: &[f32],
     it: f32,
     valid: bool,
-    avx2: bool,
+    lanes: Lanes,
 ) -> Option<f32> {
     if !valid {
         return None;
     }
     #[cfg(target_arch = "x86_64")]
-    if avx2 {
-        // SAFETY: `avx2` is set only when the CPU has AVX2 (`row_softmax_noisy_and`).
+    if lanes == Lanes::Avx512 {
+        // SAFETY: `Avx512` is chosen only when the CPU has AVX-512 F/BW/VL/DQ and AVX2
+        // (`row_softmax_noisy_and`).
+        let mx = unsafe { super::avx512::add_max(out, src, bias) };
+        if mx == f32::NEG_INFINITY {
+            return None;
+        }
+        // SAFETY: as above.
+        return Some(1.0 / unsafe { super::avx512::exp_sum(out, mx, it) });
+    }
+    #[cfg(target_arch = "x86_64")]
+    if lanes == Lanes::Avx2 {
+        // SAFETY: `Avx2` is chosen only when the CPU has AVX2 (`row_softmax_noisy_and`).
         let mx = unsafe { super::avx2::add_max(out, src, bias) };
         if mx == f32::NEG_INFINITY {
             return None;
@@ -92,7 +112,7 @@ fn softmax_unnormalised(
         // SAFETY: as above.
         return Some(1.0 / unsafe { super::avx2::exp_sum(out, mx, it) });
     }
-    let _ = avx2;
+    let _ = lanes;
     for ((o, s), b) in out.iter_mut().zip(src).zip(bias) {
         *o = s + b;
     }
@@ -139,7 +159,7 @@ fn row_step(
         x.bias_a,
         1.0 / x.a.tau,
         ok(x.a.row_valid),
-        x.avx2,
+        x.lanes,
     );
     let ib = softmax_unnormalised(
         rb,
@@ -147,7 +167,7 @@ fn row_step(
         x.bias_b,
         1.0 / x.b.tau,
         ok(x.b.row_valid),
-        x.avx2,
+        x.lanes,
     );
     let store = rf.is_some();
     let (ia, ib) = match (ia, ib) {
@@ -172,9 +192,15 @@ fn row_step(
         for ((k, &p), &q) in keys.iter_mut().zip(&*ra).zip(&*rb) {
             *k = noisy_and_rank_key(p, q);
         }
-    } else if cfg!(target_arch = "x86_64") && x.avx2 {
+    } else if cfg!(target_arch = "x86_64") && x.lanes == Lanes::Avx512 {
         #[cfg(target_arch = "x86_64")]
-        // SAFETY: `avx2` is set only when the CPU has AVX2.
+        // SAFETY: `Avx512` is chosen only when the CPU has AVX-512.
+        unsafe {
+            super::avx512::rank_keys(keys, ra, rb, ia, ib)
+        };
+    } else if cfg!(target_arch = "x86_64") && x.lanes == Lanes::Avx2 {
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: `Avx2` is chosen only when the CPU has AVX2.
         unsafe {
             super::avx2::rank_keys(keys, ra, rb, ia, ib)
         };
@@ -184,7 +210,22 @@ fn row_step(
         }
     }
     #[cfg(target_arch = "x86_64")]
-    if x.avx2 {
+    if x.lanes == Lanes::Avx512 {
+        if x.want_cols {
+            // SAFETY: as above.
+            unsafe { super::avx512::col_max(keys, cb, ci, i as u32) };
+        }
+        // SAFETY: as above.
+        let best = unsafe { super::avx512::max_first_positive(keys) };
+        if let Some(rf) = rf {
+            for (f, &key) in rf.iter_mut().zip(&*keys) {
+                *f = posterior(key, x.c);
+            }
+        }
+        return best;
+    }
+    #[cfg(target_arch = "x86_64")]
+    if x.lanes == Lanes::Avx2 {
         if x.want_cols {
             // SAFETY: as above.
             unsafe { super::avx2::col_max(keys, cb, ci, i as u32) };
@@ -357,7 +398,11 @@ pub(crate) fn row_softmax_noisy_and(
         bias_b: &bias_b,
         c,
         want_cols,
-        avx2: crate::simd::features().avx2,
+        lanes: match crate::simd::features().float_isa() {
+            Isa::Avx512 if crate::simd::features().avx2 => Lanes::Avx512,
+            _ if crate::simd::features().avx2 => Lanes::Avx2,
+            _ => Lanes::Scalar,
+        },
     };
     let isa = crate::simd::features().float_isa();
     let mut best: Vec<Option<(usize, f32)>> = vec![None; rows];

@@ -38,10 +38,28 @@ pub struct Features {
     pub avx512vpopcntdq: bool,
 }
 
-/// This CPU's features (detected on the first call).
+/// This CPU's features (detected on the first call), capped by `CGENREG_SIMD` when set:
+/// `avx2` hides AVX-512, `scalar` hides every vector extension (to run or time the narrower
+/// kernels on a wider CPU; every kernel gives the same bits).
 pub fn features() -> Features {
     static F: OnceLock<Features> = OnceLock::new();
-    *F.get_or_init(detect)
+    *F.get_or_init(|| cap(detect(), std::env::var("CGENREG_SIMD").ok().as_deref()))
+}
+
+fn cap(f: Features, limit: Option<&str>) -> Features {
+    let no512 = Features {
+        avx512f: false,
+        avx512bw: false,
+        avx512vl: false,
+        avx512dq: false,
+        avx512vpopcntdq: false,
+        ..f
+    };
+    match limit {
+        Some("avx2") => no512,
+        Some("scalar") => Features::default(),
+        _ => f,
+    }
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -161,6 +179,26 @@ pub fn compat_row(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn cgenreg_simd_caps_the_detected_features() {
+        let all = Features {
+            avx2: true,
+            fma: true,
+            popcnt: true,
+            avx512f: true,
+            avx512bw: true,
+            avx512vl: true,
+            avx512dq: true,
+            avx512vpopcntdq: true,
+        };
+        assert_eq!(cap(all, None), all);
+        assert_eq!(cap(all, Some("avx512")), all);
+        assert_eq!(cap(all, Some("avx2")).float_isa(), Isa::Avx2);
+        assert_eq!(cap(all, Some("avx2")).bitset_isa(), Isa::Avx2);
+        assert_eq!(cap(all, Some("scalar")).float_isa(), Isa::Scalar);
+        assert_eq!(cap(all, Some("scalar")).bitset_isa(), Isa::Scalar);
+    }
 
     #[test]
     fn rules_fall_back_in_order() {

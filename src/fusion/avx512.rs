@@ -1,0 +1,341 @@
+//! AVX-512 forms of [`super::avx2`]'s row kernels for the one-pass Noisy-AND
+//! (`super::fused`): 16 lanes, the same operations per lane in the same order, and sums kept
+//! in the scalar code's 8 accumulators (each 16-lane step adds its low half, then its high
+//! half, to one 8-lane accumulator), so every output is bit for bit the scalar one (tested
+//! against it). Maxima are folded over 16 lanes: the same value, except that a row whose
+//! maximum is zero may report it as +0 or -0, which changes no output (it is only
+//! subtracted, and `max_first_positive` needs it > 0).
+//!
+//! Callers check `crate::simd::features().float_isa() == Isa::Avx512` first.
+
+// The scalar remainders index several slices with one position, as the scalar code does.
+#![allow(clippy::needless_range_loop)]
+
+use std::arch::x86_64::*;
+
+use super::calibrate::fast_exp;
+
+/// `calibrate::fast_exp` on 16 lanes (`avx2::fast_exp8`'s operations).
+///
+/// # Safety
+/// The CPU must support AVX-512F.
+#[inline]
+#[target_feature(enable = "avx512f")]
+unsafe fn fast_exp16(x: __m512) -> __m512 {
+    let lo = _mm512_set1_ps(-87.336_54);
+    let hi = _mm512_set1_ps(88.0);
+    let magic = _mm512_set1_ps(12_582_912.0);
+    let below = _mm512_cmp_ps_mask::<_CMP_LT_OQ>(x, lo);
+    let xc = _mm512_mask_blend_ps(below, x, lo);
+    let xc = _mm512_mask_blend_ps(_mm512_cmp_ps_mask::<_CMP_GT_OQ>(xc, hi), xc, hi);
+    let t = _mm512_add_ps(
+        _mm512_mul_ps(xc, _mm512_set1_ps(std::f32::consts::LOG2_E)),
+        magic,
+    );
+    let n = _mm512_sub_ps(t, magic);
+    let r = _mm512_add_ps(
+        _mm512_sub_ps(xc, _mm512_mul_ps(n, _mm512_set1_ps(0.693_359_4))),
+        _mm512_mul_ps(n, _mm512_set1_ps(2.121_944_4e-4)),
+    );
+    let mut p = _mm512_add_ps(
+        _mm512_mul_ps(_mm512_set1_ps(1.987_569_1e-4), r),
+        _mm512_set1_ps(1.398_199_9e-3),
+    );
+    p = _mm512_add_ps(_mm512_mul_ps(p, r), _mm512_set1_ps(8.333_452e-3));
+    p = _mm512_add_ps(_mm512_mul_ps(p, r), _mm512_set1_ps(4.166_579_6e-2));
+    p = _mm512_add_ps(_mm512_mul_ps(p, r), _mm512_set1_ps(1.666_666_5e-1));
+    p = _mm512_add_ps(_mm512_mul_ps(p, r), _mm512_set1_ps(0.5));
+    let y = _mm512_add_ps(
+        _mm512_add_ps(_mm512_mul_ps(p, _mm512_mul_ps(r, r)), r),
+        _mm512_set1_ps(1.0),
+    );
+    let ni = _mm512_sub_epi32(
+        _mm512_castps_si512(t),
+        _mm512_set1_epi32(12_582_912.0f32.to_bits() as i32),
+    );
+    let scale = _mm512_castsi512_ps(_mm512_slli_epi32::<23>(_mm512_add_epi32(
+        ni,
+        _mm512_set1_epi32(127),
+    )));
+    // 0 where below the range, as `avx2::fast_exp8`'s andnot
+    _mm512_maskz_mov_ps(!below, _mm512_mul_ps(y, scale))
+}
+
+fn lanes16(v: __m512) -> [f32; 16] {
+    // SAFETY: __m512 and [f32; 16] have the same size; any bits are a valid f32.
+    unsafe { std::mem::transmute::<__m512, [f32; 16]>(v) }
+}
+
+fn lanes8(v: __m256) -> [f32; 8] {
+    // SAFETY: as above.
+    unsafe { std::mem::transmute::<__m256, [f32; 8]>(v) }
+}
+
+/// The 16 accumulators, then the remainder, first to last (`max_lanes`' comparison).
+fn max_fold(acc: __m512, rem: &[f32]) -> f32 {
+    let mut m = f32::NEG_INFINITY;
+    for &v in lanes16(acc).iter().chain(rem) {
+        m = if v > m { v } else { m };
+    }
+    m
+}
+
+/// `out = src + bias`, then their maximum (`avx2::add_max`).
+///
+/// # Safety
+/// The CPU must support AVX-512F.
+#[target_feature(enable = "avx512f")]
+pub(crate) unsafe fn add_max(out: &mut [f32], src: &[f32], bias: &[f32]) -> f32 {
+    let n = out.len().min(src.len()).min(bias.len());
+    let (out, src, bias) = (&mut out[..n], &src[..n], &bias[..n]);
+    let full = n - n % 16;
+    let mut acc = _mm512_set1_ps(f32::NEG_INFINITY);
+    for k in (0..full).step_by(16) {
+        // SAFETY: k + 16 <= full <= n for all three slices (unaligned loads and store).
+        let v = _mm512_add_ps(
+            _mm512_loadu_ps(src.as_ptr().add(k)),
+            _mm512_loadu_ps(bias.as_ptr().add(k)),
+        );
+        _mm512_storeu_ps(out.as_mut_ptr().add(k), v);
+        // NaN in v keeps acc, as `v > m` fails for NaN
+        acc = _mm512_max_ps(v, acc);
+    }
+    for k in full..n {
+        out[k] = src[k] + bias[k];
+    }
+    max_fold(acc, &out[full..])
+}
+
+/// `x = fast_exp((x - mx) * it)` in place, then `sum_lanes(x)` (`avx2::exp_sum`).
+///
+/// # Safety
+/// The CPU must support AVX-512F, AVX-512DQ and AVX2.
+#[target_feature(enable = "avx512f,avx512dq,avx2")]
+pub(crate) unsafe fn exp_sum(x: &mut [f32], mx: f32, it: f32) -> f32 {
+    let n = x.len();
+    let full16 = n - n % 16;
+    let (vmx, vit) = (_mm512_set1_ps(mx), _mm512_set1_ps(it));
+    // the scalar code's 8 accumulators: element k goes to lane k % 8, in order
+    let mut acc = _mm256_setzero_ps();
+    for k in (0..full16).step_by(16) {
+        // SAFETY: k + 16 <= n.
+        let p = x.as_mut_ptr().add(k);
+        let e = fast_exp16(_mm512_mul_ps(_mm512_sub_ps(_mm512_loadu_ps(p), vmx), vit));
+        _mm512_storeu_ps(p, e);
+        acc = _mm256_add_ps(acc, _mm512_castps512_ps256(e));
+        acc = _mm256_add_ps(acc, _mm512_extractf32x8_ps::<1>(e));
+    }
+    let mut k = full16;
+    if n - k >= 8 {
+        // SAFETY: k + 8 <= n; AVX2 is enabled here.
+        let p = x.as_mut_ptr().add(k);
+        let e = super::avx2::fast_exp8(_mm256_mul_ps(
+            _mm256_sub_ps(_mm256_loadu_ps(p), _mm256_set1_ps(mx)),
+            _mm256_set1_ps(it),
+        ));
+        _mm256_storeu_ps(p, e);
+        acc = _mm256_add_ps(acc, e);
+        k += 8;
+    }
+    for v in &mut x[k..] {
+        *v = fast_exp((*v - mx) * it);
+    }
+    lanes8(acc).iter().sum::<f32>() + x[k..].iter().sum::<f32>()
+}
+
+/// `if p > 1 { 1 } else { p }` per lane.
+#[inline]
+#[target_feature(enable = "avx512f")]
+unsafe fn cap(p: __m512) -> __m512 {
+    let one = _mm512_set1_ps(1.0);
+    _mm512_mask_blend_ps(_mm512_cmp_ps_mask::<_CMP_GT_OQ>(p, one), p, one)
+}
+
+/// The Noisy-AND rank keys of one row, `keys_j = odds_product(a_j * ia, b_j * ib)`
+/// (`avx2::rank_keys`).
+///
+/// # Safety
+/// The CPU must support AVX-512F.
+#[target_feature(enable = "avx512f")]
+pub(crate) unsafe fn rank_keys(keys: &mut [f32], a: &[f32], b: &[f32], ia: f32, ib: f32) {
+    let n = keys.len().min(a.len()).min(b.len());
+    let full = n - n % 16;
+    let (via, vib) = (_mm512_set1_ps(ia), _mm512_set1_ps(ib));
+    let (one, zero) = (_mm512_set1_ps(1.0), _mm512_setzero_ps());
+    for k in (0..full).step_by(16) {
+        // SAFETY: k + 16 <= n for all three slices.
+        let x = cap(_mm512_mul_ps(_mm512_loadu_ps(a.as_ptr().add(k)), via));
+        let y = cap(_mm512_mul_ps(_mm512_loadu_ps(b.as_ptr().add(k)), vib));
+        let p = _mm512_mul_ps(x, y);
+        let q = _mm512_div_ps(
+            p,
+            _mm512_mul_ps(_mm512_sub_ps(one, x), _mm512_sub_ps(one, y)),
+        );
+        // if p > 0 { q } else { 0 } (NaN fails p > 0)
+        let v = _mm512_maskz_mov_ps(_mm512_cmp_ps_mask::<_CMP_GT_OQ>(p, zero), q);
+        _mm512_storeu_ps(keys.as_mut_ptr().add(k), v);
+    }
+    for k in full..n {
+        keys[k] = super::fuse::noisy_and_rank_key(a[k] * ia, b[k] * ib);
+    }
+}
+
+/// Where `keys_j > best_j`: `best_j = keys_j` and `row_j = i` (`avx2::col_max`).
+///
+/// # Safety
+/// The CPU must support AVX-512F.
+#[target_feature(enable = "avx512f")]
+pub(crate) unsafe fn col_max(keys: &[f32], best: &mut [f32], row: &mut [u32], i: u32) {
+    let n = keys.len().min(best.len()).min(row.len());
+    let full = n - n % 16;
+    let vi = _mm512_set1_epi32(i as i32);
+    for k in (0..full).step_by(16) {
+        // SAFETY: k + 16 <= n for all three slices.
+        let v = _mm512_loadu_ps(keys.as_ptr().add(k));
+        let pb = best.as_mut_ptr().add(k);
+        let pr = row.as_mut_ptr().add(k) as *mut i32;
+        let better = _mm512_cmp_ps_mask::<_CMP_GT_OQ>(v, _mm512_loadu_ps(pb));
+        _mm512_mask_storeu_ps(pb, better, v);
+        _mm512_mask_storeu_epi32(pr, better, vi);
+    }
+    for k in full..n {
+        let better = keys[k] > best[k];
+        best[k] = if better { keys[k] } else { best[k] };
+        row[k] = if better { i } else { row[k] };
+    }
+}
+
+/// The maximum of `x` and, when it is > 0, the first position holding it
+/// (`avx2::max_first_positive`).
+///
+/// # Safety
+/// The CPU must support AVX-512F.
+#[target_feature(enable = "avx512f")]
+pub(crate) unsafe fn max_first_positive(x: &[f32]) -> Option<(usize, f32)> {
+    let n = x.len();
+    let full = n - n % 16;
+    let mut acc = _mm512_set1_ps(f32::NEG_INFINITY);
+    for k in (0..full).step_by(16) {
+        // SAFETY: k + 16 <= n.
+        acc = _mm512_max_ps(_mm512_loadu_ps(x.as_ptr().add(k)), acc);
+    }
+    let mx = max_fold(acc, &x[full..]);
+    // NaN is not > 0
+    if !(mx > 0.0) {
+        return None;
+    }
+    let vm = _mm512_set1_ps(mx);
+    for k in (0..full).step_by(16) {
+        // SAFETY: k + 16 <= n.
+        let bits = _mm512_cmp_ps_mask::<_CMP_EQ_OQ>(_mm512_loadu_ps(x.as_ptr().add(k)), vm);
+        if bits != 0 {
+            return Some((k + bits.trailing_zeros() as usize, mx));
+        }
+    }
+    x[full..]
+        .iter()
+        .position(|&v| v == mx)
+        .map(|j| (full + j, mx))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::fusion::calibrate::{max_lanes, sum_lanes};
+
+    fn rows(seed: u64) -> Vec<Vec<f32>> {
+        let mut s = seed;
+        let mut next = move || {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            ((s >> 40) as f32) / (1u64 << 24) as f32
+        };
+        let mut out = Vec::new();
+        for len in [0usize, 1, 7, 8, 9, 15, 16, 17, 24, 31, 64, 1001, 7133] {
+            let mut r: Vec<f32> = (0..len).map(|_| next() * 2.0 - 1.0).collect();
+            if len > 20 {
+                r[2] = f32::NEG_INFINITY;
+                r[4] = f32::NAN;
+                r[6] = 1.0;
+                r[9] = 1.5;
+                r[11] = -1e30;
+                r[13] = 0.0;
+                r[17] = -200.0;
+                r[len - 1] = f32::INFINITY;
+            }
+            out.push(r);
+        }
+        out
+    }
+
+    fn same(a: f32, b: f32) -> bool {
+        a.to_bits() == b.to_bits() || a.is_nan() && b.is_nan()
+    }
+
+    fn have() -> bool {
+        crate::simd::features().float_isa() == crate::simd::Isa::Avx512
+    }
+
+    #[test]
+    fn every_kernel_gives_the_scalar_bits() {
+        if !have() {
+            eprintln!("no AVX-512 on this CPU: the 16-lane kernels are not exercised");
+            return;
+        }
+        for (ri, row) in rows(7).into_iter().enumerate() {
+            let n = row.len();
+            let bias: Vec<f32> = (0..n)
+                .map(|j| if j % 5 == 3 { f32::NEG_INFINITY } else { 0.0 })
+                .collect();
+            let mut out = vec![0.0; n];
+            let m = unsafe { add_max(&mut out, &row, &bias) };
+            let want: Vec<f32> = row.iter().zip(&bias).map(|(a, b)| a + b).collect();
+            assert!(out.iter().zip(&want).all(|(a, b)| same(*a, *b)), "row {ri}");
+            assert!(
+                same(m, max_lanes(&want)),
+                "row {ri}: {m} vs {}",
+                max_lanes(&want)
+            );
+            for (mx, it) in [(0.9f32, 10.0f32), (1.5, 1.0 / 0.12), (0.0, 100.0)] {
+                let mut x = row.clone();
+                let s = unsafe { exp_sum(&mut x, mx, it) };
+                let e: Vec<f32> = row.iter().map(|&v| fast_exp((v - mx) * it)).collect();
+                assert!(x.iter().zip(&e).all(|(a, b)| same(*a, *b)), "row {ri}");
+                assert!(same(s, sum_lanes(&e)), "row {ri}: {s} vs {}", sum_lanes(&e));
+            }
+            let b: Vec<f32> = row.iter().rev().map(|v| v.abs()).collect();
+            let a: Vec<f32> = row.iter().map(|v| v.abs() * 1.2).collect();
+            for (ia, ib) in [(1.0f32, 1.0f32), (0.7, 3.0), (f32::INFINITY, 0.5)] {
+                let mut keys = vec![0.0; n];
+                unsafe { rank_keys(&mut keys, &a, &b, ia, ib) };
+                for j in 0..n {
+                    let w = crate::fusion::fuse::noisy_and_rank_key(a[j] * ia, b[j] * ib);
+                    assert!(same(keys[j], w), "row {ri} col {j}: {} vs {w}", keys[j]);
+                }
+            }
+            let (mut best, mut at) = (vec![0.25f32; n], vec![u32::MAX; n]);
+            let (mut best2, mut at2) = (best.clone(), at.clone());
+            for (i, keys) in [&a, &b, &row, &a].into_iter().enumerate() {
+                unsafe { col_max(keys, &mut best, &mut at, i as u32) };
+                for j in 0..n {
+                    if keys[j] > best2[j] {
+                        best2[j] = keys[j];
+                        at2[j] = i as u32;
+                    }
+                }
+            }
+            assert!(best.iter().zip(&best2).all(|(x, y)| same(*x, *y)));
+            assert_eq!(at, at2);
+            for x in [&a, &b, &row] {
+                let mx = max_lanes(x);
+                let want = if mx > 0.0 {
+                    x.iter().position(|&v| v == mx).map(|j| (j, mx))
+                } else {
+                    None
+                };
+                assert_eq!(unsafe { max_first_positive(x) }, want, "row {ri}");
+            }
+        }
+    }
+}
