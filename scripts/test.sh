@@ -4,4 +4,12 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
 export CGENREG_DATA="${CGENREG_DATA:-$(cd .. && pwd)/shared/data}"
-cargo test --no-fail-fast 2>&1
+status=0
+cargo test --no-fail-fast 2>&1 || status=$?
+# The narrower kernels on a wider CPU (same binary; CGENREG_SIMD caps the detected features):
+# the fusion and SC2-PCR kernels must give the same bits at every width.
+for isa in avx2 scalar; do
+  echo "== CGENREG_SIMD=$isa: fusion, estimate and simd unit tests"
+  CGENREG_SIMD=$isa cargo test --lib --no-fail-fast -- fusion:: estimate:: simd:: 2>&1 || status=$?
+done
+exit $status

@@ -409,7 +409,7 @@ fn image_branch_controls(
     });
 }
 
-/// K, the safeguard margin, the VFM and its model file.
+/// K, the safeguard margin, the VFM, its model file and (dense VFMs) the read cell.
 fn view_controls(ui: &mut egui::Ui, ib: &mut ImageBranchParams) {
     ui.add(egui::Slider::new(&mut ib.k, 1..=8).text("K views"));
     ui.add(egui::Slider::new(&mut ib.margin, 0..=10).text("Safeguard margin (frames)"));
@@ -426,6 +426,16 @@ fn view_controls(ui: &mut egui::Ui, ib: &mut ImageBranchParams) {
         VfmSpec::label,
     );
     path_field(ui, "VFM model (ONNX)", ib.vfm.model_mut());
+    if ib.vfm.is_dense() {
+        ui.add(
+            egui::Slider::new(&mut ib.dense_stride, 1..=16)
+                .text("Dense read cell (px; 1 = per pixel)"),
+        )
+        .on_hover_text(
+            "1 reads the dense map at the lifted pixel; s > 1 interpolates between the centres \
+             of s x s cells",
+        );
+    }
 }
 
 /// Each branch's calibration and temperature, the fusion mode, the selection (with top-k)

@@ -59,8 +59,18 @@ fn row_label(path: &Path, params: &Value) -> Result<(String, String, String)> {
                 Some("mast3r") => "MASt3R (user's ONNX export)",
                 _ => "?",
             };
+            // dense models: how they were read (JSON written before the field: 4-px cells)
+            let read = match field(path, ib, "/vfm/kind")?.as_str() {
+                Some("disk" | "alike") => {
+                    match ib.get("dense_stride").and_then(Value::as_u64).unwrap_or(4) {
+                        1 => " (per pixel)".to_string(),
+                        c => format!(" ({c}-px cells)"),
+                    }
+                }
+                _ => String::new(),
+            };
             let k = ib.get("k").and_then(Value::as_u64).unwrap_or(0);
-            let label = format!("{vfm} on {wfm}, K={k}");
+            let label = format!("{vfm}{read} on {wfm}, K={k}");
             match mode.as_str() {
                 "ImageOnly" => (label, "—".into(), "—".into()),
                 "GeometryOnly" => ("—".into(), geo, "—".into()),
@@ -236,6 +246,21 @@ mod tests {
             )
         );
         assert_eq!(selection_name(&v), "top-8000");
+        let mut d = r.clone();
+        d.image.as_mut().unwrap().vfm = crate::pipeline::params::VfmSpec::Alike {
+            model: "models/alike-t.onnx".into(),
+        };
+        let mut v2 = serde_json::to_value(&d).unwrap();
+        assert_eq!(
+            row_label(p, &v2).unwrap().0,
+            "ALIKE (per pixel) on oracle RGB, K=4"
+        );
+        // written before the field existed: those rows read 4-px cells
+        v2["image"].as_object_mut().unwrap().remove("dense_stride");
+        assert_eq!(
+            row_label(p, &v2).unwrap().0,
+            "ALIKE (4-px cells) on oracle RGB, K=4"
+        );
         assert_eq!(calibration_name(&v), "row τ 0.1/0.1");
         r.fusion.calibration_img = crate::fusion::Calibration::RowSoftmax { tau: 0.05 };
         r.fusion.prior = Some(1e-6);
