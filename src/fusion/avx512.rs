@@ -221,7 +221,8 @@ pub(crate) unsafe fn max_first_positive(x: &[f32]) -> Option<(usize, f32)> {
     }
     let mx = max_fold(acc, &x[full..]);
     // NaN is not > 0
-    if !(mx > 0.0) {
+    let positive = mx > 0.0;
+    if !positive {
         return None;
     }
     let vm = _mm512_set1_ps(mx);
