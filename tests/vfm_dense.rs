@@ -241,6 +241,16 @@ fn grid_and_points_agree_and_bad_models_are_typed_errors() {
         let n: f32 = c.iter().map(|v| v * v).sum();
         assert!((n - 1.0).abs() < 1e-4);
     }
+    // Read through 4-px cells at arbitrary pixels: exactly the stride-4 grid sampled there
+    // (the pipeline's `--dense-stride 4`); through 1-px cells: describe_at itself.
+    let odd: Vec<(f32, f32)> = vec![(3.0, 5.0), (599.0, 449.0), (0.0, 448.0), (301.0, 17.0)];
+    let cells = m.describe_at_cells(&img, &odd, 4).unwrap();
+    assert_eq!(cells, g.sample_points(&odd));
+    assert_eq!(
+        m.describe_at_cells(&img, &odd, 1).unwrap(),
+        m.describe_at(&img, &odd).unwrap()
+    );
+    assert_ne!(cells, m.describe_at(&img, &odd).unwrap());
     // A file that is not a model, and the XFeat model given as DISK (no `descriptors` output).
     let dir = tempfile::tempdir().unwrap();
     let junk = dir.path().join("junk.onnx");

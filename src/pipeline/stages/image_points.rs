@@ -99,3 +99,60 @@ pub(crate) fn run(
         store,
     )
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::pipeline::stages::vfm::view_pixels;
+    use crate::vfm::PointDescriptors;
+
+    /// Each keypoint gets its own view's descriptor at its own pixel; repeated pixels are
+    /// described once; unlinked keypoints and zero descriptors are invalid.
+    #[test]
+    fn each_keypoint_gets_the_descriptor_at_its_pixel() {
+        let l = |view, u, v| Some(PixelLink { view, u, v });
+        let links = vec![
+            l(0, 5, 3),
+            None,
+            l(1, 5, 3),
+            l(0, 2, 9),
+            l(0, 5, 3),
+            l(1, 7, 7),
+        ];
+        let views: Vec<ViewPoints> = (0..2)
+            .map(|view| {
+                let pixels = view_pixels(&links, view);
+                // descriptor = (view, u, v, 0) normalised; pixel (7, 7) of view 1 is zero
+                let data = pixels
+                    .iter()
+                    .flat_map(|&(u, v)| {
+                        let d = [view as f32 + 1.0, u as f32, v as f32, 0.0];
+                        let n = d.iter().map(|x| x * x).sum::<f32>().sqrt();
+                        let zero = view == 1 && (u, v) == (7, 7);
+                        d.map(|x| if zero { 0.0 } else { x / n })
+                    })
+                    .collect();
+                ViewPoints {
+                    pixels,
+                    desc: PointDescriptors { dim: 4, data },
+                }
+            })
+            .collect();
+        assert_eq!(views[0].pixels, vec![(2, 9), (5, 3)]);
+        assert_eq!(views[1].pixels, vec![(5, 3), (7, 7)]);
+        let (f, valid) = point_descriptors(&links, &views);
+        assert_eq!(valid, vec![true, false, true, true, true, false]);
+        let row = |i: usize| &f.data[i * 4..i * 4 + 4];
+        for (i, want) in [
+            (0, views[0].get(5, 3)),
+            (2, views[1].get(5, 3)),
+            (3, views[0].get(2, 9)),
+        ] {
+            assert_eq!(row(i), want.unwrap(), "keypoint {i}");
+        }
+        assert_eq!(row(0), row(4));
+        assert_ne!(row(0), row(2));
+        assert_eq!(row(1), &[0.0; 4]);
+        assert_eq!(row(5), &[0.0; 4]);
+    }
+}
