@@ -245,11 +245,12 @@ pub(crate) unsafe fn max_first_positive(x: &[f32]) -> Option<(usize, f32)> {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::fusion::calibrate::{max_lanes, sum_lanes};
 
-    fn rows(seed: u64) -> Vec<Vec<f32>> {
+    /// Rows of every remainder length for 8 and 16 lanes, with the special values placed.
+    pub(crate) fn rows(seed: u64) -> Vec<Vec<f32>> {
         let mut s = seed;
         let mut next = move || {
             s = s
@@ -258,7 +259,7 @@ mod tests {
             ((s >> 40) as f32) / (1u64 << 24) as f32
         };
         let mut out = Vec::new();
-        for len in [0usize, 1, 7, 8, 9, 31, 64, 1001] {
+        for len in [0usize, 1, 7, 8, 9, 15, 16, 17, 24, 31, 64, 1001, 7133] {
             let mut r: Vec<f32> = (0..len).map(|_| next() * 2.0 - 1.0).collect();
             if len > 20 {
                 r[2] = f32::NEG_INFINITY;
@@ -267,6 +268,7 @@ mod tests {
                 r[9] = 1.5;
                 r[11] = -1e30;
                 r[13] = 0.0;
+                r[17] = -200.0;
                 r[len - 1] = f32::INFINITY;
             }
             out.push(r);
@@ -274,7 +276,7 @@ mod tests {
         out
     }
 
-    fn same(a: f32, b: f32) -> bool {
+    pub(crate) fn same(a: f32, b: f32) -> bool {
         a.to_bits() == b.to_bits() || a.is_nan() && b.is_nan()
     }
 

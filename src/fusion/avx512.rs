@@ -242,37 +242,8 @@ pub(crate) unsafe fn max_first_positive(x: &[f32]) -> Option<(usize, f32)> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::fusion::avx2::tests::{rows, same};
     use crate::fusion::calibrate::{max_lanes, sum_lanes};
-
-    fn rows(seed: u64) -> Vec<Vec<f32>> {
-        let mut s = seed;
-        let mut next = move || {
-            s = s
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            ((s >> 40) as f32) / (1u64 << 24) as f32
-        };
-        let mut out = Vec::new();
-        for len in [0usize, 1, 7, 8, 9, 15, 16, 17, 24, 31, 64, 1001, 7133] {
-            let mut r: Vec<f32> = (0..len).map(|_| next() * 2.0 - 1.0).collect();
-            if len > 20 {
-                r[2] = f32::NEG_INFINITY;
-                r[4] = f32::NAN;
-                r[6] = 1.0;
-                r[9] = 1.5;
-                r[11] = -1e30;
-                r[13] = 0.0;
-                r[17] = -200.0;
-                r[len - 1] = f32::INFINITY;
-            }
-            out.push(r);
-        }
-        out
-    }
-
-    fn same(a: f32, b: f32) -> bool {
-        a.to_bits() == b.to_bits() || a.is_nan() && b.is_nan()
-    }
 
     fn have() -> bool {
         crate::simd::features().float_isa() == crate::simd::Isa::Avx512
