@@ -52,7 +52,8 @@ fn row_label(path: &Path, params: &Value) -> Result<(String, String, String)> {
                 Some("cosmos") => "Cosmos (run)".to_string(),
                 other => format!("{other:?}"),
             };
-            let vfm = match field(path, ib, "/vfm/kind")?.as_str() {
+            let kind = field(path, ib, "/vfm/kind")?.as_str();
+            let vfm = match kind {
                 Some("xfeat") => "XFeat",
                 Some("disk") => "DISK",
                 Some("alike") => "ALIKE",
@@ -60,7 +61,7 @@ fn row_label(path: &Path, params: &Value) -> Result<(String, String, String)> {
                 _ => "?",
             };
             // dense models: how they were read (JSON written before the field: 4-px cells)
-            let read = match field(path, ib, "/vfm/kind")?.as_str() {
+            let read = match kind {
                 Some("disk" | "alike") => {
                     match ib.get("dense_stride").and_then(Value::as_u64).unwrap_or(4) {
                         1 => " (per pixel)".to_string(),

@@ -92,25 +92,26 @@ fn softmax_unnormalised(
         return None;
     }
     #[cfg(target_arch = "x86_64")]
-    if lanes == Lanes::Avx512 {
-        // SAFETY: `Avx512` is chosen only when the CPU has AVX-512 F/BW/VL/DQ and AVX2
-        // (`row_softmax_noisy_and`).
-        let mx = unsafe { super::avx512::add_max(out, src, bias) };
+    if lanes != Lanes::Scalar {
+        // SAFETY: each width is chosen only when the CPU has it (`row_softmax_noisy_and`:
+        // `Avx512` needs AVX-512 F/BW/VL/DQ and AVX2).
+        let mx = unsafe {
+            match lanes {
+                Lanes::Avx512 => super::avx512::add_max(out, src, bias),
+                _ => super::avx2::add_max(out, src, bias),
+            }
+        };
         if mx == f32::NEG_INFINITY {
             return None;
         }
         // SAFETY: as above.
-        return Some(1.0 / unsafe { super::avx512::exp_sum(out, mx, it) });
-    }
-    #[cfg(target_arch = "x86_64")]
-    if lanes == Lanes::Avx2 {
-        // SAFETY: `Avx2` is chosen only when the CPU has AVX2 (`row_softmax_noisy_and`).
-        let mx = unsafe { super::avx2::add_max(out, src, bias) };
-        if mx == f32::NEG_INFINITY {
-            return None;
-        }
-        // SAFETY: as above.
-        return Some(1.0 / unsafe { super::avx2::exp_sum(out, mx, it) });
+        let sum = unsafe {
+            match lanes {
+                Lanes::Avx512 => super::avx512::exp_sum(out, mx, it),
+                _ => super::avx2::exp_sum(out, mx, it),
+            }
+        };
+        return Some(1.0 / sum);
     }
     let _ = lanes;
     for ((o, s), b) in out.iter_mut().zip(src).zip(bias) {
@@ -209,38 +210,45 @@ fn row_step(
             *k = noisy_and_rank_key(a * ia, b * ib);
         }
     }
-    #[cfg(target_arch = "x86_64")]
-    if x.lanes == Lanes::Avx512 {
-        if x.want_cols {
-            // SAFETY: as above.
-            unsafe { super::avx512::col_max(keys, cb, ci, i as u32) };
+    let best = col_max_and_best(x, i, keys, cb, ci);
+    if let Some(rf) = rf {
+        for (f, &key) in rf.iter_mut().zip(&*keys) {
+            *f = posterior(key, x.c);
         }
-        // SAFETY: as above.
-        let best = unsafe { super::avx512::max_first_positive(keys) };
-        if let Some(rf) = rf {
-            for (f, &key) in rf.iter_mut().zip(&*keys) {
-                *f = posterior(key, x.c);
-            }
-        }
-        return best;
     }
+    best
+}
+
+/// The column maxima updated with row `i`'s keys (when mutual NN needs them), and the row's
+/// first maximum key if it is > 0, with the kernels of `x.lanes`.
+#[inline(always)]
+fn col_max_and_best(
+    x: &Ctx<'_>,
+    i: usize,
+    keys: &[f32],
+    cb: &mut [f32],
+    ci: &mut [u32],
+) -> Option<(usize, f32)> {
+    let iu = i as u32;
     #[cfg(target_arch = "x86_64")]
-    if x.lanes == Lanes::Avx2 {
-        if x.want_cols {
-            // SAFETY: as above.
-            unsafe { super::avx2::col_max(keys, cb, ci, i as u32) };
-        }
-        // SAFETY: as above.
-        let best = unsafe { super::avx2::max_first_positive(keys) };
-        if let Some(rf) = rf {
-            for (f, &key) in rf.iter_mut().zip(&*keys) {
-                *f = posterior(key, x.c);
+    match x.lanes {
+        // SAFETY: each width is chosen only when the CPU has it (`row_softmax_noisy_and`).
+        Lanes::Avx512 => unsafe {
+            if x.want_cols {
+                super::avx512::col_max(keys, cb, ci, iu);
             }
-        }
-        return best;
+            return super::avx512::max_first_positive(keys);
+        },
+        // SAFETY: as above.
+        Lanes::Avx2 => unsafe {
+            if x.want_cols {
+                super::avx2::col_max(keys, cb, ci, iu);
+            }
+            return super::avx2::max_first_positive(keys);
+        },
+        Lanes::Scalar => {}
     }
     if x.want_cols {
-        let iu = i as u32;
         for ((v, b), c) in keys.iter().zip(cb.iter_mut()).zip(ci.iter_mut()) {
             let better = *v > *b;
             *b = if better { *v } else { *b };
@@ -248,17 +256,11 @@ fn row_step(
         }
     }
     let mx = max_lanes(keys);
-    let best = if mx > 0.0 {
+    if mx > 0.0 {
         first_eq(keys, mx).map(|j| (j, mx))
     } else {
         None
-    };
-    if let Some(rf) = rf {
-        for (f, &key) in rf.iter_mut().zip(&*keys) {
-            *f = posterior(key, x.c);
-        }
     }
-    best
 }
 
 /// Noisy-AND posterior from a rank key, as `rank_keys_to_posteriors` computes it.

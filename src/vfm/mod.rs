@@ -98,7 +98,6 @@ impl DenseDescriptors {
         out
     }
 
-    /// [`sample`](Self::sample) into a caller buffer of length `dim` (no allocation).
     /// Unit descriptors at `pixels` (bilinear as [`Self::sample_into`], then L2-normalised; a
     /// descriptor of norm < 1e-12 stays as sampled).
     pub fn sample_points(&self, pixels: &[(f32, f32)]) -> PointDescriptors {
@@ -113,6 +112,7 @@ impl DenseDescriptors {
         }
     }
 
+    /// [`sample`](Self::sample) into a caller buffer of length `dim` (no allocation).
     pub fn sample_into(&self, u: f32, v: f32, out: &mut [f32]) {
         let (x0, x1, fx) = axis(u, self.stride_x, self.width);
         let (y0, y1, fy) = axis(v, self.stride_y, self.height);
