@@ -6,8 +6,8 @@
   pixels of frame a with valid depth, the dense nearest neighbour (cosine) over every pixel of frame
   b, and the distance from the ground-truth reprojection. Two query sets: the model's own keypoints
   (when it has a detector; what shared/models/MANIFEST.md reports) and a regular grid (what
-  tests/vfm_dense.rs measures in Rust, no detector needed).
-- `write_fixture`: descriptors of frame 0 at a few pixels, for tests/vfm_dense.rs.
+  tests/it/vfm_dense.rs measures in Rust, no detector needed).
+- `write_fixture`: descriptors of frame 0 at a few pixels, for tests/it/vfm_dense.rs.
 
 Data conventions (shared/data/7scenes-redkitchen-rgbd/MANIFEST.md): depth PNG in mm, 0 (and
 65535) invalid; pose files are world_from_camera; K is fx = fy = 585, cx = 320, cy = 240. Colour
@@ -126,7 +126,7 @@ def reproject(a, b, pts):
 
 
 def grid_queries(step=16, offset=8):
-    """The query pixels of tests/vfm_dense.rs: every `step` px from `offset`, row-major."""
+    """The query pixels of tests/it/vfm_dense.rs: every `step` px from `offset`, row-major."""
     us, vs = np.meshgrid(np.arange(offset, 640, step), np.arange(offset, 480, step))
     return np.stack([us.ravel(), vs.ravel()], 1)
 

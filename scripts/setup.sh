@@ -2,7 +2,7 @@
 # Installs what cgenreg's tests and GUI need at run time on a fresh Debian machine:
 # ffmpeg (test fixtures: libx264 / mpeg4 mp4s), Mesa's software EGL/GL (headless screenshots
 # and GUI snapshot tests), g++ (libFuzzer, for scripts/fuzz.sh), Slurm and munge
-# (tests/slurm.rs starts a single-node Slurm with scripts/slurm-local.sh), and the native
+# (tests/it/slurm.rs starts a single-node Slurm with scripts/slurm-local.sh), and the native
 # ONNX Runtime from PyPI (faster VFM; the pure-Rust backend is used when it is absent).
 # Safe to run twice.
 set -euo pipefail

@@ -3,7 +3,7 @@
 //!
 //! The same targets run under libFuzzer (`fuzz/`, coverage-guided, see `scripts/fuzz.sh`)
 //! and under the small in-process mutation fuzzer here ([`fuzz`]), which needs no nightly
-//! toolchain and no C++ compiler and gives the CI smoke run (`tests/fuzz_smoke.rs`). It is
+//! toolchain and no C++ compiler and gives the CI smoke run (`tests/it/fuzz_smoke.rs`). It is
 //! *not* coverage-guided: it mutates seeds (bit flips, interesting bytes, chunk copies and
 //! deletions, number tokens replaced by extreme values, splices) at random.
 //!

@@ -6,7 +6,7 @@
 //! within [`OVERLAP_RADIUS_M`] (3.75 cm, 1.5 voxels). These are the voxel and radius the
 //! Predator / RegTR tooling uses for 3DMatch overlaps; they are not claimed to reproduce the
 //! official split bit for bit (the official fragments are TSDF meshes, ours are rebuilt from
-//! raw frames), so the measure is checked against the official split in `tests/dataset_real.rs`.
+//! raw frames), so the measure is checked against the official split in `tests/it/dataset_real.rs`.
 
 use crate::geometry::knn::KdIndex;
 use crate::geometry::voxel::voxel_downsample;

@@ -8,7 +8,7 @@
 //! When Slurm cannot start (packages missing, not root), the test fails under CI=true with the
 //! reason and is skipped with the reason elsewhere.
 
-mod common;
+use crate::common;
 
 use serde_json::Value;
 use std::path::{Path, PathBuf};

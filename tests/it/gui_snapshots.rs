@@ -1,6 +1,6 @@
 //! Snapshot tests of the inspector's panels (3D included) with egui_kittest and a glow
 //! renderer on a surfaceless EGL context (wgpu would skip the 3D paint callback).
-//! Update the images with `UPDATE_SNAPSHOTS=1 cargo test --test gui_snapshots`.
+//! Update the images with `UPDATE_SNAPSHOTS=1 cargo test --test it gui_snapshots::`.
 #![cfg(feature = "gui")]
 
 use std::sync::{Arc, Mutex};

@@ -33,7 +33,8 @@ fn screenshot_without_egl_is_a_clear_error() {
     let o = Command::new(exe)
         .args([
             "--exact",
-            "screenshot_without_egl_is_a_clear_error",
+            crate::common::test_name(module_path!(), "screenshot_without_egl_is_a_clear_error")
+                .as_str(),
             "--nocapture",
             "--test-threads=1",
         ])

@@ -2,8 +2,8 @@
 //! `register_pair`, converted into the model, checked against brute force, and rendered.
 #![cfg(feature = "gui")]
 
-mod common;
-use common::demo_manifest;
+use crate::common;
+use crate::common::demo_manifest;
 
 use std::path::Path;
 use std::time::{Duration, Instant};

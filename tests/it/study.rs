@@ -2,7 +2,7 @@
 //! the built-in generator (NOT a WFM) + XFeat, through a temporary stage cache.
 #![cfg(feature = "onnx")]
 
-mod common;
+use crate::common;
 
 use cgenreg::dataset::Dataset;
 use cgenreg::pipeline::cache::Cache;

@@ -93,7 +93,8 @@ fn tract_fallback_runs_both_models() {
     }
     let out = std::process::Command::new(std::env::current_exe().unwrap())
         .args([
-            "descriptors_equal_the_python_export",
+            crate::common::test_name(module_path!(), "descriptors_equal_the_python_export")
+                .as_str(),
             "--exact",
             "--nocapture",
         ])

@@ -105,7 +105,7 @@ fn last_model(seen: &[WorkerEvent]) -> InspectorModel {
 #[test]
 fn run_all_fills_every_row_as_running_the_pair_alone_and_keeps_the_current_pair() {
     let Some(data) = data_root() else { return };
-    std::env::set_var("CGENREG_DATA", &data);
+    crate::common::export_data_env(&data);
     let dir = tempfile::tempdir().unwrap();
     let w = worker(dir.path());
     let ids = w.pair_ids();
@@ -220,7 +220,7 @@ fn run_all_fills_every_row_as_running_the_pair_alone_and_keeps_the_current_pair(
 #[test]
 fn cancel_stops_run_all_between_pairs() {
     let Some(data) = data_root() else { return };
-    std::env::set_var("CGENREG_DATA", &data);
+    crate::common::export_data_env(&data);
     let dir = tempfile::tempdir().unwrap();
     let w = worker(dir.path());
     let n = w.pair_ids().len();

@@ -9,7 +9,7 @@
 //! `docs/reliability.md`; `CGENREG_CAMPAIGN_TABLE=FILE` also writes it to FILE.
 #![cfg(feature = "onnx")]
 
-mod common;
+use crate::common;
 
 use cgenreg::dataset::fragment_cache::FragmentCacheStatus;
 use cgenreg::dataset::Dataset;

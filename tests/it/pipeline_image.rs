@@ -3,7 +3,7 @@
 //! corrupted cache entry reported and recomputed, never used.
 #![cfg(feature = "onnx")]
 
-mod common;
+use crate::common;
 
 use cgenreg::dataset::Dataset;
 use cgenreg::fusion::Calibration;

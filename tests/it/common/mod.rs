@@ -121,3 +121,24 @@ done < "$batch"
     }
     p
 }
+
+/// The libtest name of test `name` in the module at `module_path` (`module_path!()`), for a
+/// child process that re-runs one test of this binary with `--exact`: the path without the
+/// crate's own name (`it::vfm_dense` -> `vfm_dense::name`).
+pub fn test_name(module_path: &str, name: &str) -> String {
+    match module_path.split_once("::") {
+        Some((_, m)) => format!("{m}::{name}"),
+        None => name.to_string(),
+    }
+}
+
+/// Makes `$CGENREG_DATA` (which the bundled manifests expand) name `data`. The tests of this
+/// binary run on parallel threads and `setenv` races with their `getenv`, so it is set at
+/// most once, and not at all when it already names `data` (scripts/test.sh exports it).
+pub fn export_data_env(data: &std::path::Path) {
+    static ONCE: std::sync::Once = std::sync::Once::new();
+    if std::env::var_os("CGENREG_DATA").as_deref() == Some(data.as_os_str()) {
+        return;
+    }
+    ONCE.call_once(|| std::env::set_var("CGENREG_DATA", data));
+}

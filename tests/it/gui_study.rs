@@ -2,8 +2,8 @@
 //! bundled demo with the built-in generator (NOT a WFM) + XFeat and a temporary stage cache.
 #![cfg(all(feature = "gui", feature = "onnx"))]
 
-mod common;
-use common::demo_manifest;
+use crate::common;
+use crate::common::demo_manifest;
 
 use std::path::Path;
 use std::time::{Duration, Instant};

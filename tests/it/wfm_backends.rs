@@ -15,8 +15,8 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::{Duration, Instant};
 
-mod common;
-use common::fake_cosmos_batch;
+use crate::common;
+use crate::common::fake_cosmos_batch;
 
 fn ffmpeg_available() -> bool {
     let ok = Command::new("ffmpeg")

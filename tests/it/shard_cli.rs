@@ -4,7 +4,7 @@
 //! its reason and the run goes on; eight processes filling one cache at once leave it clean and
 //! equal to a single writer's.
 
-mod common;
+use crate::common;
 
 use serde_json::Value;
 use std::path::{Path, PathBuf};

@@ -1,0 +1,35 @@
+//! cgenreg's integration tests, one module per former test file, in one test binary.
+//!
+//! One binary links the library and its GUI / ONNX dependencies once instead of once per file:
+//! on CI's 2-core machine that was most of the debug build (see docs/architecture.md, "Tests").
+//! Run one file's tests with `cargo test --test it <module>::`, e.g.
+//! `cargo test --test it gui_snapshots::`. `tests/gui_monkey.rs` stays a binary of its own
+//! because it changes the process's working directory.
+
+mod common;
+
+mod cache_safety;
+mod corruption_campaign;
+mod dataset_real;
+mod export_corr;
+mod fuzz_smoke;
+mod gui_compare;
+mod gui_pipeline;
+mod gui_run_all;
+mod gui_snapshots;
+mod gui_study;
+mod headless_no_egl;
+mod hypotheses;
+mod io_limits;
+mod io_malformed;
+mod mast3r_export;
+mod pandaset_lidar;
+mod pipeline_image;
+mod properties;
+mod shard_cli;
+mod slurm;
+mod study;
+mod vfm_dense;
+mod vfm_onnx;
+mod wfm_backends;
+mod wfm_video;
