@@ -6,6 +6,7 @@
 use super::args::{ImageArgs, PipelineArgs};
 use crate::dataset::fragment_cache::pair_summary;
 use crate::dataset::manifest::{Dataset, PairSpec};
+use crate::dataset::repose::repose_motion;
 use crate::error::{Error, Result};
 use crate::metrics::{PairMetrics, Summary};
 use crate::pipeline::shard::{
@@ -27,6 +28,11 @@ pub struct BenchArgs {
     /// Write per-pair results and a summary as JSON, rewritten after every pair.
     #[arg(long)]
     pub json: Option<PathBuf>,
+    /// Turn every pair's source by a seeded random rotation about its origin first (uniform on
+    /// SO(3); its frames and the GT turn with it; the origin, its viewpoint, stays): the same
+    /// problems in other coordinate frames, to see how much of a result is the frame.
+    #[arg(long)]
+    pub repose_seed: Option<u64>,
     #[command(flatten)]
     pub run: RunArgs,
     #[command(flatten)]
@@ -250,8 +256,12 @@ pub fn run(a: BenchArgs) -> Result<()> {
     let specs = a.pairs.select(&ds)?;
     let (params, cache) = a.image.params_and_cache(&a.pipeline)?;
     let shard = a.run.shard();
-    let params_json = serde_json::to_value(&params)
+    let mut params_json = serde_json::to_value(&params)
         .map_err(|e| Error::Invalid(format!("serialising parameters: {e}")))?;
+    // part of the run's identity: a resumed run never mixes two frames
+    if let (Some(seed), Some(o)) = (a.repose_seed, params_json.as_object_mut()) {
+        o.insert("repose_seed".into(), seed.into());
+    }
     let identity = RunIdentity::new(
         "bench",
         &a.pairs.manifest,
@@ -283,6 +293,13 @@ pub fn run(a: BenchArgs) -> Result<()> {
         bar.set_message(id.to_string());
         let t = std::time::Instant::now();
         let res = ds.load_pair_status(&spec.id).and_then(|(pair, st)| {
+            let pair = match a.repose_seed {
+                Some(seed) => pair.with_source_moved(
+                    &repose_motion(seed, &spec.id),
+                    params.image.is_some(),
+                )?,
+                None => pair,
+            };
             let load_ms = t.elapsed().as_secs_f64() * 1e3;
             let (hit, rebuilt) = pair_summary(&st);
             for why in rebuilt {

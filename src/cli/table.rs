@@ -174,7 +174,10 @@ pub fn run(a: TableArgs) -> Result<()> {
         })?;
         let params = field(path, &v, "/params")?;
         let (vfm, geo, fusion) = row_label(path, params)?;
-        let selection = selection_name(params);
+        let mut selection = selection_name(params);
+        if let Some(seed) = params.get("repose_seed").and_then(Value::as_u64) {
+            selection.push_str(&format!(", source re-posed (seed {seed})"));
+        }
         let calibration = calibration_name(params);
         let summaries = field(path, &v, "/summary")?.as_array().ok_or_else(|| {
             Error::format(

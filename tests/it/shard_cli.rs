@@ -477,3 +477,48 @@ fn status_projects_gpu_hours_from_the_measured_generation_time() {
     );
     eprintln!("{line}");
 }
+
+/// `bench --repose-seed`: the staged 3DMatch pairs moved into other coordinate frames still
+/// register (FPFH and SC2-PCR see the frame only through the voxel grid), the seed is part of
+/// the run's identity (resuming the file with another seed is refused, naming it), and the
+/// table says the sources were re-posed.
+#[test]
+fn reposed_sources_still_register_and_the_seed_is_part_of_the_run() {
+    let Some(data) = cgenreg::test_data_root() else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let json = dir.path().join("r.json");
+    let cache = dir.path().join("cache");
+    let run = |seed: &str| {
+        let mut c = bin();
+        c.env("CGENREG_DATA", &data)
+            .arg("bench")
+            .arg(staged())
+            .args(["--split", "3DMatch", "--limit", "2", "--repose-seed", seed])
+            .arg("--cache-dir")
+            .arg(&cache)
+            .arg("--json")
+            .arg(&json);
+        c
+    };
+    run_ok(&mut run("7"));
+    let v = read(&json);
+    assert_eq!(v["params"]["repose_seed"], 7);
+    let records = v["records"].as_array().unwrap();
+    assert_eq!(records.len(), 2);
+    for r in records {
+        assert_eq!(r["status"], "done", "{r}");
+        let (rre, rte) = (
+            r["result"]["rre_deg"].as_f64().unwrap(),
+            r["result"]["rte_m"].as_f64().unwrap(),
+        );
+        assert!(rre < 5.0 && rte < 0.1, "re-posed {}: RRE {rre}, RTE {rte}", r["id"]);
+    }
+    let o = run("8").output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains("repose_seed"), "{err}");
+    let t = run_ok(bin().arg("table").arg(&json));
+    let table = String::from_utf8_lossy(&t.stdout);
+    assert!(table.contains("source re-posed (seed 7)"), "{table}");
+}
