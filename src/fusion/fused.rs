@@ -476,7 +476,8 @@ fn one_pass(
         });
     }
     let prior = prior.unwrap_or_else(|| default_prior(rows, cols));
-    if !only_a && !(prior > 0.0 && prior < 1.0) {
+    let prior_ok = prior > 0.0 && prior < 1.0;
+    if !only_a && !prior_ok {
         return Err(Error::Invalid(format!(
             "fusion prior must lie strictly between 0 and 1, found {prior}"
         )));
