@@ -313,6 +313,13 @@ pub fn lidar_front_camera_from_scan(yaw: f64) -> Isometry3<f64> {
     Isometry3::from_parts(nalgebra::Translation3::identity(), rot).inverse()
 }
 
+/// [`lidar_front_camera_from_scan`] with the camera at `origin` (scan frame) instead of the
+/// scan's origin: `scan_from_camera` = translation(origin) * the yawed rotation.
+pub fn lidar_camera_from_scan_at(yaw: f64, origin: &Point3<f64>) -> Isometry3<f64> {
+    let rotation = lidar_front_camera_from_scan(yaw).rotation.inverse();
+    Isometry3::from_parts(nalgebra::Translation3::from(origin.coords), rotation).inverse()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -3,6 +3,7 @@
 
 pub mod ftheta;
 pub mod render;
+pub mod sensor_origin;
 pub mod trajectory;
 
 use serde::{Deserialize, Serialize};

@@ -10,7 +10,8 @@ use crate::fusion::fuse::FusionMode;
 use crate::fusion::select::Selection;
 use crate::pipeline::cache::Cache;
 use crate::pipeline::params::{
-    GeoFeatureSource, ImageBranchParams, RegisterParams, VfmSpec, VirtualCamera, WfmSpec,
+    GeoFeatureSource, ImageBranchParams, LidarOrigin, RegisterParams, VfmSpec, VirtualCamera,
+    WfmSpec,
 };
 use crate::wfm::{Prompt, PromptPreset};
 use clap::Args;
@@ -195,6 +196,11 @@ pub struct ImageArgs {
     /// camera; 2 or more cover a 360° scan).
     #[arg(long, default_value_t = 1)]
     pub lidar_cameras: usize,
+    /// Where the f-theta cameras of a LiDAR scan stand: scan-origin (the origin of the scan's
+    /// frame: right for a scan in its sensor frame) or estimated (the sensor position found
+    /// from the scan's own ground rings; for scans in a world frame).
+    #[arg(long, value_enum, default_value = "scan-origin")]
+    pub lidar_origin: LidarOrigin,
     /// Cell size (pixels) at which DISK / ALIKE are read at a lifted pixel: 1 = the pixel of the
     /// full-resolution map; s > 1 = bilinear between the centres of s x s cells.
     #[arg(long, default_value_t = crate::pipeline::params::DEFAULT_DENSE_STRIDE,
@@ -270,6 +276,7 @@ impl ImageArgs {
             lift_radius: self.lift_radius,
             virtual_camera: self.virtual_camera,
             lidar_cameras: self.lidar_cameras,
+            lidar_origin: self.lidar_origin,
             dense_stride: self.dense_stride,
         }))
     }

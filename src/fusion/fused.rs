@@ -16,9 +16,32 @@ use crate::simd::Isa;
 use crate::{Error, Result};
 use rayon::prelude::*;
 
+/// Where a branch's similarity rows come from.
+#[derive(Clone, Copy)]
+pub(crate) enum Sim<'a> {
+    /// A kept N x M matrix.
+    Dense(&'a DenseMatrix),
+    /// Unit-normalised source and target features (`similarity::normalize_rows`): each band's
+    /// rows are formed with `similarity::dot_band` when the band is processed, as
+    /// `cosine_similarity` forms them, so no N x M matrix is held.
+    Features {
+        src: &'a crate::features::Features,
+        tgt: &'a crate::features::Features,
+    },
+}
+
+impl Sim<'_> {
+    fn shape(&self) -> (usize, usize) {
+        match self {
+            Sim::Dense(m) => m.shape(),
+            Sim::Features { src, tgt } => (src.len(), tgt.len()),
+        }
+    }
+}
+
 /// Row-softmax inputs for one branch: similarity, row validity, column validity.
 pub(crate) struct Branch<'a> {
-    pub sim: &'a DenseMatrix,
+    pub sim: Sim<'a>,
     pub row_valid: Option<&'a [bool]>,
     pub col_valid: Option<&'a [bool]>,
     pub tau: f32,
@@ -63,6 +86,9 @@ struct Ctx<'a> {
     /// `(1 - pi) / pi`: posterior odds = key * c.
     c: f64,
     want_cols: bool,
+    /// Image only: the keys are the first branch's row-softmax posteriors (the second branch
+    /// is not read).
+    only_a: bool,
     /// Which intrinsics run the row loops (`super::avx2`, `super::avx512`: same bits as the
     /// scalar code; vectorised in every build).
     lanes: Lanes,
@@ -144,9 +170,11 @@ fn first_eq(x: &[f32], m: f32) -> Option<usize> {
 /// into `rf` if given; returns the row's best target (first maximum of the keys, if > 0) with
 /// its key.
 #[inline(always)]
+#[allow(clippy::too_many_arguments)]
 fn row_step(
     x: &Ctx<'_>,
     i: usize,
+    (sa, sb): (&[f32], &[f32]),
     ra: &mut [f32],
     rb: &mut [f32],
     rf: Option<&mut [f32]>,
@@ -154,22 +182,17 @@ fn row_step(
     (cb, ci): &mut ColBest,
 ) -> Option<(usize, f32)> {
     let ok = |v: Option<&[bool]>| v.is_none_or(|r| r[i]);
-    let ia = softmax_unnormalised(
-        ra,
-        x.a.sim.row(i),
-        x.bias_a,
-        1.0 / x.a.tau,
-        ok(x.a.row_valid),
-        x.lanes,
-    );
-    let ib = softmax_unnormalised(
-        rb,
-        x.b.sim.row(i),
-        x.bias_b,
-        1.0 / x.b.tau,
-        ok(x.b.row_valid),
-        x.lanes,
-    );
+    if x.only_a {
+        // `calibrate`'s row softmax, bit for bit (`out * inv`); an all-0 row selects nothing
+        // and cannot beat the column maxima's initial 0.
+        let ia = softmax_unnormalised(ra, sa, x.bias_a, 1.0 / x.a.tau, ok(x.a.row_valid), x.lanes)?;
+        for (k, &p) in keys.iter_mut().zip(&*ra) {
+            *k = p * ia;
+        }
+        return col_max_and_best(x, i, keys, cb, ci);
+    }
+    let ia = softmax_unnormalised(ra, sa, x.bias_a, 1.0 / x.a.tau, ok(x.a.row_valid), x.lanes);
+    let ib = softmax_unnormalised(rb, sb, x.bias_b, 1.0 / x.b.tau, ok(x.b.row_valid), x.lanes);
     let store = rf.is_some();
     let (ia, ib) = match (ia, ib) {
         (Some(ia), Some(ib)) => (ia, ib),
@@ -286,19 +309,61 @@ fn band_kernel(
     cbi: &mut ColBest,
 ) {
     let cols = x.cols;
-    let Tmp { a, b, keys } = tmp;
+    let Tmp {
+        a,
+        b,
+        keys,
+        band_a,
+        band_b,
+    } = tmp;
+    let r0 = t * x.band;
+    let n = best.len();
+    band_rows(x.a.sim, r0, n, band_a);
+    if !x.only_a {
+        band_rows(x.b.sim, r0, n, band_b);
+    }
     match out {
         Some((pa, pb, pf)) => {
             let rows = pa.chunks_mut(cols).zip(pb.chunks_mut(cols));
             for (k, ((ra, rb), rf)) in rows.zip(pf.chunks_mut(cols)).enumerate() {
-                best[k] = row_step(x, t * x.band + k, ra, rb, Some(rf), keys, cbi);
+                let s = (
+                    sim_row(x.a.sim, band_a, r0, k, cols),
+                    sim_row(x.b.sim, band_b, r0, k, cols),
+                );
+                best[k] = row_step(x, r0 + k, s, ra, rb, Some(rf), keys, cbi);
             }
         }
         None => {
             for (k, bt) in best.iter_mut().enumerate() {
-                *bt = row_step(x, t * x.band + k, a, b, None, keys, cbi);
+                let sb = if x.only_a {
+                    &[][..]
+                } else {
+                    sim_row(x.b.sim, band_b, r0, k, cols)
+                };
+                let s = (sim_row(x.a.sim, band_a, r0, k, cols), sb);
+                *bt = row_step(x, r0 + k, s, a, b, None, keys, cbi);
             }
         }
+    }
+}
+
+/// Rows `r0 .. r0 + n` of a feature-backed similarity into `buf` (n x cols; nothing for a
+/// dense one, whose rows are read in place).
+#[inline(always)]
+fn band_rows(sim: Sim<'_>, r0: usize, n: usize, buf: &mut Vec<f32>) {
+    if let Sim::Features { src, tgt } = sim {
+        let (d, cols) = (src.dim, tgt.len());
+        buf.resize(n * cols, 0.0);
+        super::similarity::dot_band(&src.data[r0 * d..(r0 + n) * d], &tgt.data, d, buf);
+    }
+}
+
+/// Row `r0 + k` of `sim`: in place for a dense matrix, from the band buffer otherwise.
+#[inline(always)]
+fn sim_row<'s>(sim: Sim<'s>, buf: &'s [f32], r0: usize, k: usize, cols: usize) -> &'s [f32] {
+    match sim {
+        Sim::Dense(m) => m.row(r0 + k),
+        Sim::Features { .. } => &buf[k * cols..(k + 1) * cols],
     }
 }
 
@@ -310,6 +375,9 @@ struct Tmp {
     a: Vec<f32>,
     b: Vec<f32>,
     keys: Vec<f32>,
+    /// One band of similarity rows per feature-backed branch (empty for a dense one).
+    band_a: Vec<f32>,
+    band_b: Vec<f32>,
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -349,6 +417,30 @@ pub(crate) fn row_softmax_noisy_and(
     selection: Selection,
     materialise: bool,
 ) -> Result<FusedOut> {
+    one_pass(a, Some(b), prior, selection, materialise)
+}
+
+/// The image branch alone (row softmax, then `selection`), in the same pass as
+/// [`row_softmax_noisy_and`]: the correspondences `select` gives on `calibrate`'s row-softmax
+/// posteriors of `a` (same order and scores); no N x M matrix.
+pub(crate) fn row_softmax_image_only(a: &Branch<'_>, selection: Selection) -> Result<FusedOut> {
+    one_pass(a, None, None, selection, false)
+}
+
+fn one_pass(
+    a: &Branch<'_>,
+    b: Option<&Branch<'_>>,
+    prior: Option<f64>,
+    selection: Selection,
+    materialise: bool,
+) -> Result<FusedOut> {
+    let only_a = b.is_none();
+    if only_a && materialise {
+        return Err(Error::Invalid(
+            "fused row softmax: the image-only pass forms no posterior matrices".into(),
+        ));
+    }
+    let b = b.unwrap_or(a);
     let want_cols = match selection {
         Selection::MutualNn => true,
         Selection::RowNn => false,
@@ -364,7 +456,8 @@ pub(crate) fn row_softmax_noisy_and(
     if b.sim.shape() != (rows, cols) {
         return Err(Error::Invalid(format!(
             "fusion: image similarity is {rows} x {cols}, geometric similarity is {} x {}",
-            b.sim.rows, b.sim.cols
+            b.sim.shape().0,
+            b.sim.shape().1
         )));
     }
     let mut mats = if materialise {
@@ -383,13 +476,31 @@ pub(crate) fn row_softmax_noisy_and(
         });
     }
     let prior = prior.unwrap_or_else(|| default_prior(rows, cols));
-    if !(prior > 0.0 && prior < 1.0) {
+    let prior_ok = prior > 0.0 && prior < 1.0;
+    if !only_a && !prior_ok {
         return Err(Error::Invalid(format!(
             "fusion prior must lie strictly between 0 and 1, found {prior}"
         )));
     }
     let (bias_a, bias_b) = (bias(cols, a.col_valid), bias(cols, b.col_valid));
-    let band = rows_per_task(rows, cols, 1 << 16);
+    let streamed = |s: Sim<'_>| matches!(s, Sim::Features { .. });
+    for (what, br) in [("image", a), ("geometric", b)] {
+        if let Sim::Features { src, tgt } = br.sim {
+            if src.dim != tgt.dim || src.dim == 0 {
+                return Err(Error::Invalid(format!(
+                    "fusion: {what} features are {}-D (source) and {}-D (target)",
+                    src.dim, tgt.dim
+                )));
+            }
+        }
+    }
+    // Feature-backed rows are formed a band at a time with one sgemm: 64+ rows keep its
+    // packing of the target features amortised (as `cosine_similarity`'s bands).
+    let band = if streamed(a.sim) || (!only_a && streamed(b.sim)) {
+        rows_per_task(rows, cols, 1 << 18).max(64).min(rows)
+    } else {
+        rows_per_task(rows, cols, 1 << 16)
+    };
     let c = (1.0 - prior) / prior;
     let x = Ctx {
         cols,
@@ -400,6 +511,7 @@ pub(crate) fn row_softmax_noisy_and(
         bias_b: &bias_b,
         c,
         want_cols,
+        only_a,
         lanes: match crate::simd::features().float_isa() {
             Isa::Avx512 if crate::simd::features().avx2 => Lanes::Avx512,
             _ if crate::simd::features().avx2 => Lanes::Avx2,
@@ -414,6 +526,8 @@ pub(crate) fn row_softmax_noisy_and(
             a: vec![0.0f32; if materialise { 0 } else { cols }],
             b: vec![0.0f32; if materialise { 0 } else { cols }],
             keys: vec![0.0f32; cols],
+            band_a: Vec::new(),
+            band_b: Vec::new(),
         };
         ((vec![0.0f32; col_len], vec![u32::MAX; col_len]), tmp)
     };
@@ -481,7 +595,9 @@ pub(crate) fn row_softmax_noisy_and(
         .collect();
     keyed.sort_unstable_by(order);
     for k in &mut keyed {
-        k.score = posterior(k.score, c);
+        if !only_a {
+            k.score = posterior(k.score, c);
+        }
     }
     Ok(FusedOut {
         mats,

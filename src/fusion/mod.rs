@@ -252,13 +252,13 @@ fn one_pass_branches<'a>(
             Selection::MutualNn | Selection::RowNn,
         ) => Some((
             fused::Branch {
-                sim: si,
+                sim: fused::Sim::Dense(si),
                 row_valid: rv,
                 col_valid: cv,
                 tau: ta,
             },
             fused::Branch {
-                sim: sg,
+                sim: fused::Sim::Dense(sg),
                 row_valid: None,
                 col_valid: None,
                 tau: tg,
@@ -294,6 +294,108 @@ pub fn match_then_fuse_select(
         }
         None => Ok(match_then_fuse(sim_img, sim_geo, params)?.correspondences),
     }
+}
+
+/// Whether [`match_then_fuse_select_features`] handles `params` without N x M matrices: the
+/// configurations of [`fused`]: row softmax, mutual or row nearest neighbours, and stable
+/// Noisy-AND (row softmax for the geometric branch too) or the image branch alone.
+pub fn streams_from_features(params: &FusionParams) -> bool {
+    let nn = matches!(params.selection, Selection::MutualNn | Selection::RowNn);
+    let img = matches!(params.calibration_img, Calibration::RowSoftmax { .. });
+    let geo = matches!(params.calibration_geo, Calibration::RowSoftmax { .. });
+    nn && img
+        && !params.exact_reference
+        && match params.mode {
+            FusionMode::NoisyAnd => geo,
+            FusionMode::ImageOnly => true,
+            _ => false,
+        }
+}
+
+/// Per-point image descriptors with their validity: (source, valid, target, valid).
+pub type ImageFeatures<'a> = (
+    &'a crate::features::Features,
+    &'a [bool],
+    &'a crate::features::Features,
+    &'a [bool],
+);
+
+/// [`match_then_fuse_select`] on the features instead of the similarity matrices: the same
+/// correspondences (same order and scores: each band of similarity rows is formed as
+/// [`cosine_similarity`] forms it), and no N x M matrix is ever held (memory O(N + M) per
+/// task plus one band of rows per branch). `None` when `params` is not the configuration it
+/// handles ([`streams_from_features`]): the caller forms the matrices.
+pub fn match_then_fuse_select_features(
+    image: ImageFeatures<'_>,
+    geo: (&crate::features::Features, &crate::features::Features),
+    params: &FusionParams,
+) -> Result<Option<Vec<Correspondence>>> {
+    if !streams_from_features(params) {
+        return Ok(None);
+    }
+    let tau = |c: Calibration| match c {
+        Calibration::RowSoftmax { tau } => tau,
+        _ => f32::NAN,
+    };
+    let (fs, vs, ft, vt) = image;
+    let (n, m) = (fs.len(), ft.len());
+    if geo.0.len() != n || geo.1.len() != m {
+        return Err(Error::Invalid(format!(
+            "fusion: image features for {n} x {m} points, geometric features for {} x {}",
+            geo.0.len(),
+            geo.1.len()
+        )));
+    }
+    for (what, f) in [
+        ("source image", fs),
+        ("target image", ft),
+        ("source geometric", geo.0),
+        ("target geometric", geo.1),
+    ] {
+        if f.dim > 0 && f.data.len() % f.dim != 0 {
+            return Err(Error::Invalid(format!(
+                "fusion: {what} features hold {} values, not a multiple of {}",
+                f.data.len(),
+                f.dim
+            )));
+        }
+    }
+    matrix::check_masks("match-then-fuse image validity", n, m, Some(vs), Some(vt))?;
+    if n == 0 || m == 0 {
+        return Ok(Some(Vec::new()));
+    }
+    // n, m > 0: every side has dim > 0 (`Features::len` is 0 otherwise)
+    let (is, it) = (
+        similarity::normalize_rows(fs),
+        similarity::normalize_rows(ft),
+    );
+    let (gs, gt) = (
+        similarity::normalize_rows(geo.0),
+        similarity::normalize_rows(geo.1),
+    );
+    let img_sim = fused::Sim::Features { src: &is, tgt: &it };
+    let geo_sim = fused::Sim::Features { src: &gs, tgt: &gt };
+    let a = fused::Branch {
+        sim: img_sim,
+        row_valid: Some(vs),
+        col_valid: Some(vt),
+        tau: tau(params.calibration_img),
+    };
+    if params.mode == FusionMode::ImageOnly {
+        return Ok(Some(
+            fused::row_softmax_image_only(&a, params.selection)?.correspondences,
+        ));
+    }
+    let b = fused::Branch {
+        sim: geo_sim,
+        row_valid: None,
+        col_valid: None,
+        tau: tau(params.calibration_geo),
+    };
+    Ok(Some(
+        fused::row_softmax_noisy_and(&a, &b, params.prior, params.selection, false)?
+            .correspondences,
+    ))
 }
 
 fn missing() -> Error {

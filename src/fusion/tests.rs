@@ -210,3 +210,60 @@ fn one_pass_default_equals_general_path() {
         }
     }
 }
+
+/// The feature-backed one-pass path (Noisy-AND and image only) gives exactly the correspondences (same order, same
+/// scores, bit for bit) of the matrices `cosine_similarity` forms, for both selections and
+/// with invalid rows and columns, also when the bands do not divide the rows.
+#[test]
+fn select_from_features_matches_the_matrices() {
+    use crate::features::Features;
+    let mut rng = Rng(7);
+    let (n, m) = (517, 389);
+    let mut feats = |rows: usize, dim: usize| {
+        Features::new(dim, (0..rows * dim).map(|_| rng.normal()).collect())
+    };
+    let (fs, ft) = (feats(n, 64), feats(m, 64));
+    let (gs, gt) = (feats(n, 33), feats(m, 33));
+    let vs: Vec<bool> = (0..n).map(|i| i % 7 != 3).collect();
+    let vt: Vec<bool> = (0..m).map(|j| j % 5 != 1).collect();
+    let s_img = cosine_similarity(&fs, &ft).unwrap();
+    let s_geo = cosine_similarity(&gs, &gt).unwrap();
+    let modes = [FusionMode::NoisyAnd, FusionMode::ImageOnly];
+    for (mode, selection) in modes
+        .into_iter()
+        .flat_map(|m| [(m, Selection::MutualNn), (m, Selection::RowNn)])
+    {
+        let p = FusionParams {
+            mode,
+            selection,
+            ..FusionParams::default()
+        };
+        assert!(streams_from_features(&p));
+        let dense =
+            match_then_fuse_select(Some((&s_img, Some(&vs), Some(&vt))), Some(&s_geo), &p).unwrap();
+        let streamed = match_then_fuse_select_features((&fs, &vs, &ft, &vt), (&gs, &gt), &p)
+            .unwrap()
+            .unwrap();
+        assert!(!dense.is_empty());
+        assert_eq!(dense.len(), streamed.len(), "{mode:?} {selection:?}");
+        for (a, b) in dense.iter().zip(&streamed) {
+            assert_eq!(
+                (a.src, a.tgt, a.score.to_bits()),
+                (b.src, b.tgt, b.score.to_bits())
+            );
+        }
+    }
+    // other configurations are left to the matrices
+    let p = FusionParams {
+        mode: FusionMode::NoisyOr,
+        ..FusionParams::default()
+    };
+    assert!(
+        match_then_fuse_select_features((&fs, &vs, &ft, &vt), (&gs, &gt), &p)
+            .unwrap()
+            .is_none()
+    );
+    // mismatched sizes are an error
+    let d = FusionParams::default();
+    assert!(match_then_fuse_select_features((&fs, &vs, &ft, &vt), (&gt, &gt), &d).is_err());
+}

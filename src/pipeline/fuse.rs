@@ -240,6 +240,14 @@ impl EstimateMemo {
     }
 }
 
+/// Above this many source x target entries, a registration without kept similarities
+/// ([`fuse_and_finish`] with `sims` None) under the configuration the fused kernel handles
+/// ([`crate::fusion::streams_from_features`]) forms the similarity rows band by band from the
+/// features instead of holding the two N x M matrices (same correspondences): 2^27 entries is
+/// 512 MiB per f32 matrix. An outdoor LiDAR pair at a 0.3 m voxel has about 45k x 45k
+/// keypoints, 8 GB per matrix.
+pub const STREAM_ENTRIES: usize = 1 << 27;
+
 /// Both similarity matrices of `inputs`.
 pub fn similarities(inputs: &FusionInputs) -> Result<Similarities> {
     let geo = cosine_similarity(&inputs.source_geo.features, &inputs.target_geo.features)?;
@@ -277,8 +285,26 @@ pub fn fuse_and_finish_memo(
 ) -> Result<RegistrationResult> {
     let mut timer = Timer::new();
     let (src, tgt) = (&inputs.source_geo, &inputs.target_geo);
-    let corr = match &inputs.image {
-        Some(image) => {
+    let streamed = match (&inputs.image, sims) {
+        (Some(ImageInputs::PerImage(fs, vs, ft, vt)), None)
+            if src.features.len().saturating_mul(tgt.features.len()) > STREAM_ENTRIES =>
+        {
+            let t = Instant::now();
+            let c = crate::fusion::match_then_fuse_select_features(
+                (fs, vs, ft, vt),
+                (&src.features, &tgt.features),
+                &params.fusion,
+            )?;
+            if c.is_some() {
+                timer.record("similarity+fusion", t.elapsed(), false);
+            }
+            c
+        }
+        _ => None,
+    };
+    let corr = match (&inputs.image, streamed) {
+        (Some(_), Some(c)) => c,
+        (Some(image), None) => {
             let t = Instant::now();
             let computed;
             let (s_img, v_src, v_tgt, s_geo) = match sims {
@@ -310,7 +336,7 @@ pub fn fuse_and_finish_memo(
             timer.record("fusion", t.elapsed(), false);
             corr
         }
-        None => {
+        (None, _) => {
             let mut fusion = params.fusion;
             fusion.mode = FusionMode::GeometryOnly;
             let t = Instant::now();

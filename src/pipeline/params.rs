@@ -248,6 +248,12 @@ pub struct ImageBranchParams {
     /// them one after the other, L / n frames each.
     #[serde(default = "one")]
     pub lidar_cameras: usize,
+    /// Where the f-theta camera rig of a LiDAR scan stands: at the scan frame's origin, or at
+    /// the sensor position estimated from the scan's ground rings (for clouds given in a frame
+    /// other than their sensor's, e.g. PandaSet's world frame). The camera's pose is part of
+    /// the `virtual-frames` key, so the cache keeps the two apart.
+    #[serde(default)]
+    pub lidar_origin: LidarOrigin,
     /// Cell size (pixels) through which a dense per-pixel VFM (DISK, ALIKE) is read at a lifted
     /// pixel: 1 reads its full-resolution map at the pixel; s > 1 samples the map at the
     /// centres of s x s cells (each unit) and interpolates between them bilinearly. Chosen on
@@ -282,6 +288,31 @@ pub enum VirtualCamera {
     Ftheta,
 }
 
+/// Where the virtual f-theta camera rig of a LiDAR scan stands (its axes are always the scan
+/// frame's: the yaw is not estimated).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "kebab-case")]
+pub enum LidarOrigin {
+    /// At the origin of the scan's coordinate frame: right for a scan in its sensor frame.
+    #[default]
+    ScanOrigin,
+    /// At the sensor position estimated from the scan itself: the centre of its innermost
+    /// ground rings in x, y, the frame's z = 0 ([`crate::camera::sensor_origin`]). No pose or
+    /// ground truth is read.
+    Estimated,
+}
+
+impl LidarOrigin {
+    pub const ALL: [LidarOrigin; 2] = [LidarOrigin::ScanOrigin, LidarOrigin::Estimated];
+
+    pub fn label(self) -> &'static str {
+        match self {
+            LidarOrigin::ScanOrigin => "scan frame's origin",
+            LidarOrigin::Estimated => "estimated from the ground rings",
+        }
+    }
+}
+
 impl VirtualCamera {
     /// The camera this choice gives for `cloud`.
     pub fn resolve(self, cloud: &crate::geometry::PointCloud) -> VirtualCamera {
@@ -306,6 +337,7 @@ impl Default for ImageBranchParams {
             lift_radius: 0.05,
             virtual_camera: VirtualCamera::Auto,
             lidar_cameras: 1,
+            lidar_origin: LidarOrigin::ScanOrigin,
             dense_stride: DEFAULT_DENSE_STRIDE,
         }
     }

@@ -291,6 +291,7 @@ fn image_keys(
                 ib.frames_per_fragment,
                 cam,
                 ib.lidar_cameras,
+                ib.lidar_origin,
             )?);
         }
         k.set(

@@ -16,13 +16,15 @@
 //! and a pose that went through decimal text would give a second run other keys.
 
 use super::{cloud_hash, load_or_discard};
-use crate::camera::ftheta::{lidar_front_camera_from_scan, FThetaCamera};
+use crate::camera::ftheta::{
+    lidar_camera_from_scan_at, lidar_front_camera_from_scan, FThetaCamera,
+};
 use crate::camera::CameraModel;
 use crate::dataset::{FrameSet, RgbdFrame, Scan};
 use crate::error::{Error, Result};
 use crate::io::limits::ScratchDir;
 use crate::pipeline::cache::{Cache, CacheKey, Entry};
-use crate::pipeline::params::{ImageBranchParams, VirtualCamera};
+use crate::pipeline::params::{ImageBranchParams, LidarOrigin, VirtualCamera};
 use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -42,8 +44,8 @@ const FTHETA_RING_GAP_PX: u32 = 24;
 
 /// Said with every result whose depth frames come from the virtual f-theta camera.
 pub const VIRTUAL_FTHETA_NOTE: &str = "depth frames rendered from a virtual f-theta camera \
-(LiDAR, appendix B.3): 1280x640, equidistant, 180° horizontal field of view, at the scan's \
-origin looking along +x (the sensor is assumed at the origin); range in the depth frames, \
+(LiDAR, appendix B.3): 1280x640, equidistant, 180° horizontal field of view, looking along \
+the scan frame's +x; range in the depth frames, \
 no 4 m clip; gaps of up to 24 px between LiDAR rings on one surface filled by interpolation";
 
 /// Frames rendered and encoded at once: bounds the memory of a long trajectory.
@@ -209,6 +211,7 @@ pub fn virtual_frames(
     l: usize,
     camera: VirtualCamera,
     cameras: usize,
+    origin: LidarOrigin,
 ) -> Result<FrameSet> {
     if camera.resolve(&scan.cloud) != VirtualCamera::Ftheta {
         return pinhole_frames(store, scan, l);
@@ -221,9 +224,7 @@ pub fn virtual_frames(
     let cam = FThetaCamera::default();
     let mut paths = Vec::with_capacity(cameras);
     let mut poses = Vec::with_capacity(cameras);
-    for c in 0..cameras {
-        let yaw = std::f64::consts::TAU * c as f64 / cameras as f64;
-        let camera_from_scan = lidar_front_camera_from_scan(yaw);
+    for camera_from_scan in ftheta_poses(scan, cameras, origin)? {
         // With one camera an empty image means the scan is not in its sensor frame; with
         // several, a camera facing away from a partial scan may see nothing.
         let e = ftheta_range_image(store, scan, &cam, &camera_from_scan, cameras == 1)?;
@@ -247,6 +248,34 @@ pub fn virtual_frames(
 }
 
 const RANGE_IMAGE: &str = "range.depth.png";
+
+/// `camera_from_scan` of each of the `cameras` f-theta cameras of `scan`, evenly spaced in yaw
+/// from the scan frame's +x, standing at the scan frame's origin (bit for bit the poses used
+/// before [`LidarOrigin`] existed, so their cache entries keep their keys) or at the sensor
+/// position estimated from the scan ([`crate::camera::sensor_origin`]).
+pub fn ftheta_poses(
+    scan: &Scan,
+    cameras: usize,
+    origin: LidarOrigin,
+) -> Result<Vec<Isometry3<f64>>> {
+    let at = match origin {
+        LidarOrigin::ScanOrigin => None,
+        LidarOrigin::Estimated => Some(
+            crate::camera::sensor_origin::estimate_sensor_origin(&scan.cloud.points)
+                .map_err(|e| Error::Invalid(format!("{}: {e}", scan.name)))?
+                .origin,
+        ),
+    };
+    Ok((0..cameras)
+        .map(|c| {
+            let yaw = std::f64::consts::TAU * c as f64 / cameras as f64;
+            match &at {
+                None => lidar_front_camera_from_scan(yaw),
+                Some(o) => lidar_camera_from_scan_at(yaw, o),
+            }
+        })
+        .collect())
+}
 
 /// The key of one f-theta range image: the cloud, the camera model, the ring-gap fill and the
 /// pose.
@@ -292,16 +321,20 @@ fn pinhole_options() -> crate::camera::trajectory::TrajectoryOptions {
 
 /// The keys of the entries [`virtual_frames`] reads or writes for `scan` (one for pinhole
 /// frames, one per camera for f-theta frames), without rendering anything.
-pub fn keys(scan: &Scan, l: usize, camera: VirtualCamera, cameras: usize) -> Result<Vec<CacheKey>> {
+pub fn keys(
+    scan: &Scan,
+    l: usize,
+    camera: VirtualCamera,
+    cameras: usize,
+    origin: LidarOrigin,
+) -> Result<Vec<CacheKey>> {
     if camera.resolve(&scan.cloud) != VirtualCamera::Ftheta {
         return Ok(vec![pinhole_key(scan, l, &pinhole_options())?]);
     }
     let cam = FThetaCamera::default();
-    (0..cameras)
-        .map(|c| {
-            let yaw = std::f64::consts::TAU * c as f64 / cameras as f64;
-            ftheta_key(scan, &cam, &lidar_front_camera_from_scan(yaw))
-        })
+    ftheta_poses(scan, cameras, origin)?
+        .iter()
+        .map(|p| ftheta_key(scan, &cam, p))
         .collect()
 }
 
@@ -324,9 +357,13 @@ fn ftheta_range_image(
         crate::camera::ftheta::fill_ring_gaps(&mut d, FTHETA_RING_GAP_PX, 0.1);
         if empty_is_error && d.data.iter().all(|&v| v == 0) {
             return Err(Error::Invalid(format!(
-                "{}: no point is in view of the virtual f-theta camera (at the origin, looking \
-                 along +x); is this a LiDAR scan in its sensor frame?",
-                scan.name
+                "{}: no point is in view of the virtual f-theta camera (at ({:.2}, {:.2}, {:.2}) \
+                 in the scan frame, looking along +x); is this a LiDAR scan in its sensor frame \
+                 (else try --lidar-origin estimated)?",
+                scan.name,
+                camera_from_scan.inverse().translation.x,
+                camera_from_scan.inverse().translation.y,
+                camera_from_scan.inverse().translation.z
             )));
         }
         crate::io::depth_png::encode_depth_png(Path::new(RANGE_IMAGE), &d)
@@ -454,8 +491,9 @@ pub fn with_virtual_frames(
             ib.frames_per_fragment,
             cam,
             ib.lidar_cameras,
+            ib.lidar_origin,
         )?);
-        let note = match cam {
+        let mut note = match cam {
             VirtualCamera::Ftheta if ib.lidar_cameras > 1 => format!(
                 "{VIRTUAL_FTHETA_NOTE}; {} such cameras, {:.0}° apart in yaw, shown one \
                  after the other in the depth video",
@@ -465,6 +503,24 @@ pub fn with_virtual_frames(
             VirtualCamera::Ftheta => VIRTUAL_FTHETA_NOTE.to_string(),
             _ => VIRTUAL_FRAMES_NOTE.to_string(),
         };
+        if cam == VirtualCamera::Ftheta {
+            let at = scan
+                .frames
+                .as_ref()
+                .and_then(|f| f.frames.first())
+                .map(|f| f.scan_from_camera.translation.vector)
+                .unwrap_or_else(nalgebra::Vector3::zeros);
+            note.push_str(&match ib.lidar_origin {
+                LidarOrigin::ScanOrigin => {
+                    "; cameras at the scan frame's origin (the sensor is assumed there)".to_string()
+                }
+                LidarOrigin::Estimated => format!(
+                    "; {}: cameras at the sensor position estimated from the scan's ground \
+                     rings, ({:.2}, {:.2}, {:.2}) m in the scan frame (no pose or GT read)",
+                    scan.name, at.x, at.y, at.z
+                ),
+            });
+        }
         if !notes.contains(&note) {
             notes.push(note);
         }
@@ -540,5 +596,42 @@ mod tests {
         let mut r = pose_record(&p);
         r.bits.truncate(100);
         assert!(pose_from(&r, Path::new("poses.json")).is_err());
+    }
+
+    /// The rig's position is part of the `virtual-frames` key: the estimated origin gives other
+    /// keys than the scan's origin, whose keys are those of the poses used before the choice
+    /// existed; the estimated cameras stand at the synthetic sensor.
+    #[test]
+    fn the_estimated_rig_position_is_in_the_key() {
+        let sensor = nalgebra::Point3::new(-17.5, 9.25, 0.0);
+        let points = crate::camera::sensor_origin::synthetic_ring_scan(
+            sensor,
+            -1.8,
+            32,
+            1800,
+            (Some(2.0), None),
+        );
+        let n = points.len();
+        let mut cloud = crate::geometry::PointCloud::from_points(points);
+        cloud.intensity = Some(vec![10.0; n]);
+        let scan = Scan {
+            name: "ring".into(),
+            cloud,
+            frames: None,
+        };
+        let at_origin = keys(&scan, 50, VirtualCamera::Auto, 2, LidarOrigin::ScanOrigin).unwrap();
+        let estimated = keys(&scan, 50, VirtualCamera::Auto, 2, LidarOrigin::Estimated).unwrap();
+        let cam = FThetaCamera::default();
+        let old: Vec<CacheKey> = [0.0, std::f64::consts::PI]
+            .iter()
+            .map(|&y| ftheta_key(&scan, &cam, &lidar_front_camera_from_scan(y)).unwrap())
+            .collect();
+        assert_eq!(at_origin, old);
+        assert_eq!(estimated.len(), 2);
+        assert!(estimated.iter().all(|k| !at_origin.contains(k)));
+        for p in ftheta_poses(&scan, 2, LidarOrigin::Estimated).unwrap() {
+            let t = p.inverse().translation.vector;
+            assert!((t - sensor.coords).norm() < 0.05, "{t:?}");
+        }
     }
 }
