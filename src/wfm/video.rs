@@ -385,6 +385,14 @@ fn check_boxes(bytes: &[u8]) -> std::result::Result<(), String> {
                     ));
                 }
                 walk(&b.body[off..], b.at + off, depth + 1, &b.kind, file_len)?;
+            } else if &b.kind == b"emsg" && depth == 0 && !emsg_fits(b.body) {
+                // The demuxer reads top-level `emsg` boxes and subtracts the size of their
+                // fields from the box size unchecked (libFuzzer's mp4 crash of session 12).
+                return Err(format!(
+                    "emsg at byte {} ({} bytes) is shorter than its fields",
+                    b.at,
+                    b.body.len()
+                ));
             } else if &b.kind == b"stsz" && b.body.len() >= 12 {
                 // version/flags (4), sample_size (4), sample_count (4), then sizes if 0.
                 let size = u32::from_be_bytes([b.body[4], b.body[5], b.body[6], b.body[7]]);
@@ -403,6 +411,27 @@ fn check_boxes(bytes: &[u8]) -> std::result::Result<(), String> {
         Ok(())
     }
     walk(bytes, 0, 0, b"\0\0\0\0", bytes.len())
+}
+
+/// Whether an `emsg` payload holds its version's fields: version and flags, then (version 0)
+/// two NUL-terminated strings and four 32-bit fields, or (version 1) 20 bytes of fields and
+/// two NUL-terminated strings. The `mp4` crate reads the strings up to their NUL, past the
+/// box's end if need be, and computes the message size as the box size minus the fields
+/// (an overflow when they do not fit). Other versions are the crate's own error.
+fn emsg_fits(body: &[u8]) -> bool {
+    fn two_strings(s: &[u8]) -> Option<usize> {
+        let a = s.iter().position(|&c| c == 0)? + 1;
+        let b = s[a..].iter().position(|&c| c == 0)? + 1;
+        Some(a + b)
+    }
+    let Some(rest) = body.get(4..) else {
+        return false;
+    };
+    match body[0] {
+        0 => two_strings(rest).is_some_and(|n| rest.len() >= n + 16),
+        1 => rest.get(20..).and_then(two_strings).is_some(),
+        _ => true,
+    }
 }
 
 /// The sample-entry codes of the video ('vide' handler) tracks with their file offsets,

@@ -547,3 +547,49 @@ fn mp4_fuzz_crash_stts_sample_count_overflow() {
     let e = decode_no_panic(b).unwrap_err().to_string();
     assert!(e.contains("v.mp4"), "{e}");
 }
+
+/// libFuzzer's mp4 crash of session 12 (`crash-8453caff...`, 38 bytes, after 575 k
+/// executions from the x264 seeds): a top-level `emsg` box (version 0) of 32 bytes whose
+/// strings and fields need 34; the `mp4` crate subtracted the fields' size from the box size
+/// with overflow in `EmsgBox::read_box` (a panic, caught by the reader).
+#[test]
+fn mp4_fuzz_crash_emsg_fields_past_box_end() {
+    let b = std::fs::read(
+        Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("tests/fixtures/fuzz/mp4-emsg-crash-8453caff.mp4"),
+    )
+    .unwrap();
+    assert_eq!(b.len(), 38);
+    let e = decode_no_panic(b).unwrap_err().to_string();
+    assert!(e.contains("v.mp4") && e.contains("emsg"), "{e}");
+    // emsg boxes after a valid file: version 0 and 1 that fit still decode; cut short (into
+    // their fields or strings) they are errors, not panics.
+    let (_, good) = test_mp4(3);
+    let emsg = |version: u8, cut: usize| {
+        let mut body = vec![version, 0, 0, 0];
+        let strings = b"urn:x\0v\0";
+        if version == 0 {
+            body.extend_from_slice(strings);
+            body.extend_from_slice(&[0; 16]);
+        } else {
+            body.extend_from_slice(&[0; 20]);
+            body.extend_from_slice(strings);
+        }
+        body.extend_from_slice(b"msg");
+        let keep = body.len() - cut;
+        let mut b = good.clone();
+        b.extend_from_slice(&((keep + 8) as u32).to_be_bytes());
+        b.extend_from_slice(b"emsg");
+        b.extend_from_slice(&body[..keep]);
+        b
+    };
+    for version in [0, 1] {
+        assert_eq!(decode_no_panic(emsg(version, 0)).unwrap().len(), 3);
+        // Without the message (3 bytes) the fields still fit; one byte less, they do not.
+        assert_eq!(decode_no_panic(emsg(version, 3)).unwrap().len(), 3);
+        for cut in [4, 6, 12] {
+            let e = decode_no_panic(emsg(version, cut)).unwrap_err().to_string();
+            assert!(e.contains("emsg"), "version {version}, cut {cut}: {e}");
+        }
+    }
+}

@@ -27,7 +27,17 @@ fn write_seeds() {
             std::process::exit(1);
         }
     }
-    println!("{target}: {} seeds in {dir}", seeds.len());
+    // How many the reader accepts (a seed it refuses still gives the fuzzer a start).
+    let refused: Vec<&str> = seeds
+        .iter()
+        .filter(|(_, b)| !cgenreg::io::fuzz_targets::run(target, b))
+        .map(|(n, _)| n.as_str())
+        .collect();
+    println!(
+        "{target}: {} seeds in {dir} ({} accepted; refused: {refused:?})",
+        seeds.len(),
+        seeds.len() - refused.len()
+    );
     std::process::exit(0)
 }
 
