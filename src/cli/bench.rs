@@ -294,10 +294,9 @@ pub fn run(a: BenchArgs) -> Result<()> {
         let t = std::time::Instant::now();
         let res = ds.load_pair_status(&spec.id).and_then(|(pair, st)| {
             let pair = match a.repose_seed {
-                Some(seed) => pair.with_source_moved(
-                    &repose_motion(seed, &spec.id),
-                    params.image.is_some(),
-                )?,
+                Some(seed) => {
+                    pair.with_source_moved(&repose_motion(seed, &spec.id), params.image.is_some())?
+                }
                 None => pair,
             };
             let load_ms = t.elapsed().as_secs_f64() * 1e3;

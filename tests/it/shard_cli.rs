@@ -513,7 +513,11 @@ fn reposed_sources_still_register_and_the_seed_is_part_of_the_run() {
             r["result"]["rre_deg"].as_f64().unwrap(),
             r["result"]["rte_m"].as_f64().unwrap(),
         );
-        assert!(rre < 5.0 && rte < 0.1, "re-posed {}: RRE {rre}, RTE {rte}", r["id"]);
+        assert!(
+            rre < 5.0 && rte < 0.1,
+            "re-posed {}: RRE {rre}, RTE {rte}",
+            r["id"]
+        );
     }
     let o = run("8").output().unwrap();
     let err = String::from_utf8_lossy(&o.stderr);
