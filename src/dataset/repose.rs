@@ -75,14 +75,9 @@ mod tests {
             .map(|i| Point3::new(i as f32 * 0.1, (i % 7) as f32 * 0.2, (i % 3) as f32 * 0.3))
             .collect();
         let frame_set = frames.then(|| FrameSet {
-            camera: crate::camera::CameraModel::Pinhole(crate::camera::Intrinsics {
-                fx: 585.0,
-                fy: 585.0,
-                cx: 320.0,
-                cy: 240.0,
-                width: 640,
-                height: 480,
-            }),
+            camera: crate::camera::CameraModel::Pinhole(
+                crate::camera::trajectory::TrajectoryOptions::default().intrinsics,
+            ),
             frames: vec![RgbdFrame {
                 index: 0,
                 depth_path: "d.png".into(),
