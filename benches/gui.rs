@@ -77,6 +77,7 @@ fn run(
             }
         };
     }
+    r.app.view3d_prefs_mut().rasterizer = rasterizer()?;
     let cue = r.app.view3d_prefs_mut().depth_cue.label();
     for _ in 0..5 {
         r.app.orbit_3d(3.0, 0.0);
@@ -110,13 +111,27 @@ fn run(
         None => "; NOT complete".to_string(),
     };
     println!(
-        "{label:<44} {}x{}  median {med:6.1} ms  mean {mean:6.1} ms  p90 {p90:6.1} ms  max {max:6.1} ms  cpu {cpu:6.1} ms/frame  first [{}] ms{complete}  (depth cue: {cue}; {})",
+        "{label:<44} {}x{}  median {med:6.1} ms  mean {mean:6.1} ms  p90 {p90:6.1} ms  max {max:6.1} ms  cpu {cpu:6.1} ms/frame  first [{}] ms{complete}  (depth cue: {cue}; points: {}; {})",
         size.0,
         size.1,
         first.join(", "),
+        r.app.view3d_prefs_mut().rasterizer.label(),
         r.gl.renderer
     );
     Ok(())
+}
+
+/// GUI_BENCH_RASTERIZER=auto|gl|cpu (default auto: CPU splatting under llvmpipe).
+fn rasterizer() -> Result<cgenreg::app::render3d::Rasterizer, String> {
+    use cgenreg::app::render3d::Rasterizer;
+    match std::env::var("GUI_BENCH_RASTERIZER").as_deref() {
+        Err(_) | Ok("auto") => Ok(Rasterizer::Auto),
+        Ok("gl") => Ok(Rasterizer::Gl),
+        Ok("cpu") => Ok(Rasterizer::Cpu),
+        Ok(s) => Err(format!(
+            "GUI_BENCH_RASTERIZER={s}: expected auto, gl or cpu"
+        )),
+    }
 }
 
 /// Temperature change -> updated model, through the worker thread as the UI sees it, then one
@@ -148,6 +163,7 @@ fn latency(
     let mut settings = worker.params().clone();
     let mut r = HeadlessRenderer::new(m, (1280, 800))?;
     r.app.ui_state.tab = Panel::View3d;
+    r.app.view3d_prefs_mut().rasterizer = rasterizer()?;
     // as the inspector draws: a still view refined over frames (its first frame is partial
     // when a cloud has more than view3d::REFINE_POINTS_PER_FRAME points)
     r.app.set_complete_3d_frames(false);

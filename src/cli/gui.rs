@@ -85,6 +85,10 @@ pub struct ScreenshotArgs {
     /// Depth cue of the 3D view's points: eye-dome lighting, normal shading or none.
     #[arg(long, value_enum, default_value = "edl")]
     pub depth_cue: crate::app::render3d::DepthCue,
+    /// Who draws the 3D view's points: auto (CPU splatting under a software GL such as the
+    /// headless llvmpipe, GL points on a GPU), gl or cpu.
+    #[arg(long, value_enum, default_value = "auto")]
+    pub rasterizer: crate::app::render3d::Rasterizer,
     /// Run every pair of the manifest through the worker first, as the pair browser's "Run
     /// all" does (fills the browser and the RRE/RTE plot; a pair that cannot be registered is
     /// an error row), then show --pair.
@@ -378,6 +382,7 @@ pub fn run_screenshot(a: ScreenshotArgs) -> Result<()> {
     let (mode, count, only, align) = (a.match_colors, a.matches, a.only_survivors, a.alignment);
     let (cloud_mode, depth_frames) = (a.cloud_colors, a.depth_frames);
     let (view_pair, depth_cue, sort) = (a.view_pair, a.depth_cue, a.sort);
+    let rasterizer = a.rasterizer;
     if let Some((i, j)) = view_pair {
         let (ks, kt) = (model.source_views.len(), model.target_views.len());
         if i >= ks || j >= kt {
@@ -404,6 +409,7 @@ pub fn run_screenshot(a: ScreenshotArgs) -> Result<()> {
             p.show_initial = matches!(align, Alignment::Initial | Alignment::All);
             (p.source_mode, p.target_mode) = (cloud_mode, cloud_mode);
             p.depth_cue = depth_cue;
+            p.rasterizer = rasterizer;
             app.show_depth_frames(depth_frames);
             app.show_view_pair(view_pair);
             if let Some(s) = sort {

@@ -8,6 +8,7 @@ use std::sync::{Arc, Mutex};
 use cgenreg::app::colormap::{SOURCE_RGB, TARGET_RGB};
 use cgenreg::app::controls::{spawn_worker, Command, EventSink, Worker};
 use cgenreg::app::headless::{render_screenshot, HeadlessGl};
+use cgenreg::app::render3d::{DepthCue, Rasterizer};
 use cgenreg::app::{App, InspectorModel, Panel};
 use cgenreg::wfm::PromptPreset;
 use eframe::egui;
@@ -443,8 +444,8 @@ fn the_built_in_browser_opens_a_typed_manifest_and_the_dataset_loads() {
     }
 }
 
-/// A still 3D view of 300k points per cloud refined over frames (the interactive default)
-/// ends in the image one complete frame draws; the frames before are partial, and once
+/// GL points: a still 3D view of 300k points per cloud refined over frames (the interactive
+/// default under the GL) ends in the image one complete frame draws; the frames before are partial, and once
 /// complete, further frames (which only composite the kept target) do not change it.
 #[test]
 fn progressive_3d_refinement_ends_in_the_complete_image() {
@@ -456,10 +457,12 @@ fn progressive_3d_refinement_ends_in_the_complete_image() {
     let size = (640, 400);
     let mut one = HeadlessRenderer::new(model.clone(), size).unwrap();
     one.app.ui_state.tab = Panel::View3d;
+    one.app.view3d_prefs_mut().rasterizer = Rasterizer::Gl;
     let complete = one.settled_frame().unwrap();
     drop(one);
     let mut prog = HeadlessRenderer::new(model, size).unwrap();
     prog.app.ui_state.tab = Panel::View3d;
+    prog.app.view3d_prefs_mut().rasterizer = Rasterizer::Gl;
     prog.app.set_complete_3d_frames(false);
     let mut frames = Vec::new();
     while frames.len() < 12 {
@@ -495,7 +498,7 @@ fn progressive_3d_refinement_ends_in_the_complete_image() {
     assert_eq!(differ(&again, last), 0, "a kept still view changed");
 }
 
-/// A new model with the same clouds (a re-fusion) keeps the camera where the user left it and
+/// GL points: a new model with the same clouds (a re-fusion) keeps the camera where the user left it and
 /// the drawn still view (no re-upload, no refinement from scratch); new clouds start afresh.
 #[test]
 fn a_refusion_keeps_the_camera_and_the_drawn_view() {
@@ -506,6 +509,7 @@ fn a_refusion_keeps_the_camera_and_the_drawn_view() {
     let model = InspectorModel::demo_sized(300_000);
     let mut r = HeadlessRenderer::new(model, (640, 400)).unwrap();
     r.app.ui_state.tab = Panel::View3d;
+    r.app.view3d_prefs_mut().rasterizer = Rasterizer::Gl;
     r.app.set_complete_3d_frames(false);
     // until the final frame: past the settle time after a motion, every point drawn
     let settle = |r: &mut HeadlessRenderer| {
@@ -563,7 +567,7 @@ fn a_refusion_keeps_the_camera_and_the_drawn_view() {
     );
 }
 
-/// A re-fusion that moves the pose on a still view: the first frame previews the new
+/// GL points: a re-fusion that moves the pose on a still view: the first frame previews the new
 /// alignment at the moving budget (straight to the screen, fast), the following frames refine
 /// it into the complete image of the new pose. 100k points fit in one still frame
 /// (`REFINE_POINTS_PER_FRAME`), so without the preview the first frame would be final.
@@ -580,11 +584,13 @@ fn a_moved_pose_is_previewed_then_refined_to_the_complete_view() {
     moved.estimated = Some(nalgebra::Isometry3::translation(0.05, 0.0, 0.0) * est);
     let mut fresh = HeadlessRenderer::new(moved.clone(), size).unwrap();
     fresh.app.ui_state.tab = Panel::View3d;
+    fresh.app.view3d_prefs_mut().rasterizer = Rasterizer::Gl;
     let complete = fresh.settled_frame().unwrap();
     drop(fresh);
 
     let mut r = HeadlessRenderer::new(model, size).unwrap();
     r.app.ui_state.tab = Panel::View3d;
+    r.app.view3d_prefs_mut().rasterizer = Rasterizer::Gl;
     r.app.set_complete_3d_frames(false);
     let t = std::time::Instant::now();
     while r.app.view3d_refining() || t.elapsed().as_millis() < 10 {
@@ -620,5 +626,91 @@ fn a_moved_pose_is_previewed_then_refined_to_the_complete_view() {
     assert!(
         p > d,
         "the preview ({p} pixels off) was not a subsample of the complete view ({d})"
+    );
+}
+
+/// CPU splatting draws what GL points draw: the demo at 100k points per cloud, every depth
+/// cue, the same settled frame through llvmpipe's `GL_POINTS` and through `render3d::splat`
+/// (composited by the same GL pass). Pixels may differ where llvmpipe snaps vertex positions
+/// to its sub-pixel grid (a point's square shifts by a pixel) or where equal depths resolve
+/// the other way; anything systematic (rows flipped, a wrong projection, depth or colour
+/// convention) changes most of the drawn pixels.
+#[test]
+fn cpu_splatting_draws_what_gl_points_draw() {
+    use cgenreg::app::headless::HeadlessRenderer;
+    if renderer().is_none() {
+        return;
+    }
+    let model = InspectorModel::demo_sized(100_000);
+    let size = (640, 400);
+    let bg = [18u8, 18, 23];
+    for cue in DepthCue::ALL {
+        let shot = |r: Rasterizer| {
+            let mut h = HeadlessRenderer::new(model.clone(), size).unwrap();
+            h.app.ui_state.tab = Panel::View3d;
+            let p = h.app.view3d_prefs_mut();
+            (p.rasterizer, p.depth_cue, p.show_lines, p.show_frusta) = (r, cue, false, false);
+            h.app.orbit_3d(25.0, 10.0);
+            h.settled_frame().unwrap()
+        };
+        let (gl, cpu) = (shot(Rasterizer::Gl), shot(Rasterizer::Cpu));
+        let drawn = gl
+            .pixels()
+            .filter(|p| (0..3).any(|k| (p.0[k] as i32 - bg[k] as i32).abs() > 3))
+            .count();
+        let differ = gl
+            .pixels()
+            .zip(cpu.pixels())
+            .filter(|(p, q)| (0..3).any(|k| (p.0[k] as i32 - q.0[k] as i32).abs() > 8))
+            .count();
+        eprintln!("{}: {differ} of {drawn} drawn pixels differ", cue.label());
+        assert!(drawn > 20_000, "{}: only {drawn} pixels drawn", cue.label());
+        assert!(
+            differ * 100 <= drawn,
+            "{}: CPU splatting differs from GL points in {differ} of {drawn} drawn pixels",
+            cue.label()
+        );
+    }
+}
+
+/// CPU splatting: a still 300k-point view is complete in its first frame, and a re-fusion
+/// that moves the pose draws the new pose complete at once (no preview frame).
+#[test]
+fn cpu_splatting_draws_a_still_view_complete_at_once() {
+    use cgenreg::app::headless::HeadlessRenderer;
+    if renderer().is_none() {
+        return;
+    }
+    let model = InspectorModel::demo_sized(300_000);
+    let size = (640, 400);
+    let mut moved = model.clone();
+    let est = moved.estimated.expect("the demo has an estimate");
+    moved.estimated = Some(nalgebra::Isometry3::translation(0.05, 0.0, 0.0) * est);
+    let mut fresh = HeadlessRenderer::new(moved.clone(), size).unwrap();
+    fresh.app.ui_state.tab = Panel::View3d;
+    fresh.app.view3d_prefs_mut().rasterizer = Rasterizer::Cpu;
+    let complete = fresh.settled_frame().unwrap();
+    drop(fresh);
+
+    let mut r = HeadlessRenderer::new(model, size).unwrap();
+    r.app.ui_state.tab = Panel::View3d;
+    r.app.view3d_prefs_mut().rasterizer = Rasterizer::Cpu;
+    r.app.set_complete_3d_frames(false);
+    let t = std::time::Instant::now();
+    // past the settle time of the first framing
+    while r.app.view3d_refining() || t.elapsed() <= cgenreg::app::view3d::SETTLE {
+        r.frame(false).unwrap();
+        assert!(t.elapsed().as_secs() < 10, "still refining after 10 s");
+    }
+    r.app.set_model(moved);
+    let first = r.frame(true).unwrap().unwrap();
+    assert!(
+        !r.app.view3d_refining(),
+        "a still CPU-splatted view needed more than one frame"
+    );
+    assert_eq!(
+        first.as_raw(),
+        complete.as_raw(),
+        "the first frame of the moved pose is not its complete view"
     );
 }

@@ -18,6 +18,14 @@
 //! Depth cues ([`DepthCue`]): shading by the point normals against the view direction, or
 //! eye-dome lighting (the composite darkens each pixel by how much nearer its neighbours
 //! are, in log depth).
+//!
+//! Under a software GL (llvmpipe) the points can be splatted on the CPU instead
+//! ([`Rasterizer`], `splat.rs`): the same pixels at a small part of llvmpipe's per-point
+//! cost; the image is uploaded and composited as the GL target is, lines stay GL draws.
+
+mod splat;
+
+pub use splat::{SplatCloud, SplatImage};
 
 use std::cell::RefCell;
 use std::sync::Arc;
@@ -54,6 +62,57 @@ impl DepthCue {
             Self::Edl => "eye-dome lighting",
         }
     }
+}
+
+/// Who draws the points.
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize, clap::ValueEnum,
+)]
+pub enum Rasterizer {
+    /// CPU splatting when the GL is a software renderer (llvmpipe, softpipe, SwiftShader),
+    /// GL points otherwise.
+    #[default]
+    Auto,
+    /// `GL_POINTS` through the GL (a GPU draws them in parallel; llvmpipe at ~0.4 µs a point).
+    Gl,
+    /// Splatted on the CPU into an image that the GL composites.
+    Cpu,
+}
+
+impl Rasterizer {
+    pub const ALL: [Rasterizer; 3] = [Self::Auto, Self::Gl, Self::Cpu];
+    pub fn label(self) -> &'static str {
+        match self {
+            Self::Auto => "auto",
+            Self::Gl => "GL points",
+            Self::Cpu => "CPU splatting",
+        }
+    }
+}
+
+/// Whether this thread's last 3D frame splatted its points on the CPU (the UI then draws a
+/// still view complete in one frame instead of refining it over several). Per thread: the UI
+/// and its GL paint share one thread, and headless renderers on other threads do not mix in.
+pub fn cpu_splatting() -> bool {
+    CPU_SPLATTING.with(|c| c.get())
+}
+
+thread_local! {
+    static CPU_SPLATTING: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+}
+
+/// A GL renderer string of a software rasteriser.
+pub fn is_software_renderer(renderer: &str) -> bool {
+    let r = renderer.to_ascii_lowercase();
+    [
+        "llvmpipe",
+        "softpipe",
+        "swiftshader",
+        "software rasterizer",
+        "swrast",
+    ]
+    .iter()
+    .any(|s| r.contains(s))
 }
 
 /// Geometry and colours of one cloud; `id` changes whenever the contents change.
@@ -115,6 +174,7 @@ pub struct SceneFrame {
     pub depth_cue: DepthCue,
     /// Eye-dome lighting strength (about 1: moderate).
     pub edl_strength: f32,
+    pub rasterizer: Rasterizer,
 }
 
 impl SceneFrame {
@@ -139,6 +199,7 @@ impl SceneFrame {
             self.source_instances.len(),
             self.show_target,
             self.depth_cue,
+            self.rasterizer,
         )
             .hash(&mut h);
         bits(&self.view_proj, &mut h);
@@ -291,13 +352,10 @@ impl GpuCloud {
         let normals = normals.filter(|v| v.len() >= n);
         if !self.lines {
             let order: Vec<usize> = scatter_order(n).collect();
-            self.positions
-                .fill(&order.iter().map(|&i| pos[i]).collect::<Vec<_>>());
-            self.colors
-                .fill(&order.iter().map(|&i| colors[i]).collect::<Vec<_>>());
-            self.normals = normals.map(|nv| {
-                VertexBuffer::new_with_data(ctx, &order.iter().map(|&i| nv[i]).collect::<Vec<_>>())
-            });
+            self.positions.fill(&scattered(&order, pos));
+            self.colors.fill(&scattered(&order, colors));
+            self.normals =
+                normals.map(|nv| VertexBuffer::new_with_data(ctx, &scattered(&order, nv)));
         } else {
             self.positions.fill(&pos[..n]);
             self.colors.fill(&colors[..n]);
@@ -305,6 +363,125 @@ impl GpuCloud {
         }
         self.count = n as u32;
         self.id = Some(id);
+    }
+}
+
+/// `v` in the order `order`.
+fn scattered<T: Copy>(order: &[usize], v: &[T]) -> Vec<T> {
+    order.iter().map(|&i| v[i]).collect()
+}
+
+/// A cloud's scattered copy in memory, for CPU splatting (the same order as the GL buffers,
+/// so a draw range means the same points either way).
+#[derive(Default)]
+struct CpuCloud {
+    id: Option<u64>,
+    positions: Vec<[f32; 3]>,
+    colors: Vec<[u8; 4]>,
+    normals: Option<Vec<[f32; 3]>>,
+}
+
+impl CpuCloud {
+    fn sync(&mut self, cloud: &CloudData) {
+        if self.id == Some(cloud.id) {
+            return;
+        }
+        let n = cloud.positions.len().min(cloud.colors.len());
+        let order: Vec<usize> = scatter_order(n).collect();
+        self.positions = scattered(&order, &cloud.positions);
+        self.colors = scattered(&order, &cloud.colors);
+        self.normals = cloud
+            .normals
+            .as_deref()
+            .filter(|v| v.len() >= n)
+            .map(|v| scattered(&order, v));
+        self.id = Some(cloud.id);
+    }
+}
+
+/// The CPU-splatted points: the image, kept across frames as the GL target is, and the two
+/// textures it is uploaded into (RGBA8 colour, R32F window depth).
+struct CpuTarget {
+    image: SplatImage,
+    color: glow::Texture,
+    depth: glow::Texture,
+    /// (points key, end): the image holds points [0, end) of that key's frame.
+    holds: Option<(u64, u32)>,
+}
+
+impl CpuTarget {
+    fn new(gl: &glow::Context, (w, h): (u32, u32)) -> Result<Self, String> {
+        let make = |internal: u32| -> Result<glow::Texture, String> {
+            unsafe {
+                let t = gl.create_texture()?;
+                gl.bind_texture(glow::TEXTURE_2D, Some(t));
+                gl.tex_storage_2d(glow::TEXTURE_2D, 1, internal, w as i32, h as i32);
+                for (k, v) in [
+                    (glow::TEXTURE_MIN_FILTER, glow::NEAREST),
+                    (glow::TEXTURE_MAG_FILTER, glow::NEAREST),
+                    (glow::TEXTURE_WRAP_S, glow::CLAMP_TO_EDGE),
+                    (glow::TEXTURE_WRAP_T, glow::CLAMP_TO_EDGE),
+                ] {
+                    gl.tex_parameter_i32(glow::TEXTURE_2D, k, v as i32);
+                }
+                Ok(t)
+            }
+        };
+        Ok(Self {
+            image: SplatImage::new(w, h),
+            color: make(glow::RGBA8)?,
+            depth: make(glow::R32F)?,
+            holds: None,
+        })
+    }
+
+    fn size(&self) -> (u32, u32) {
+        (self.image.width, self.image.height)
+    }
+
+    /// Uploads the image (rows from the bottom, as GL's textures: no flip, no copy).
+    fn upload(&self, gl: &glow::Context) {
+        let (w, h) = (self.image.width as i32, self.image.height as i32);
+        fn bytes(v: &[u8]) -> glow::PixelUnpackData<'_> {
+            glow::PixelUnpackData::Slice(Some(v))
+        }
+        unsafe {
+            gl.pixel_store_i32(glow::UNPACK_ALIGNMENT, 4);
+            gl.bind_texture(glow::TEXTURE_2D, Some(self.color));
+            let c: &[u8] = bytemuck::cast_slice(&self.image.color);
+            gl.tex_sub_image_2d(
+                glow::TEXTURE_2D,
+                0,
+                0,
+                0,
+                w,
+                h,
+                glow::RGBA,
+                glow::UNSIGNED_BYTE,
+                bytes(c),
+            );
+            gl.bind_texture(glow::TEXTURE_2D, Some(self.depth));
+            let d: &[u8] = bytemuck::cast_slice(&self.image.depth);
+            gl.tex_sub_image_2d(
+                glow::TEXTURE_2D,
+                0,
+                0,
+                0,
+                w,
+                h,
+                glow::RED,
+                glow::FLOAT,
+                bytes(d),
+            );
+            gl.bind_texture(glow::TEXTURE_2D, None);
+        }
+    }
+
+    fn delete(&self, gl: &glow::Context) {
+        unsafe {
+            gl.delete_texture(self.color);
+            gl.delete_texture(self.depth);
+        }
     }
 }
 
@@ -349,6 +526,21 @@ struct Gpu {
     target: GpuCloud,
     overlay: GpuCloud,
     scene_lines: GpuCloud,
+    /// The GL is a software rasteriser ([`Rasterizer::Auto`] splats on the CPU).
+    software: bool,
+    cpu: Option<CpuTarget>,
+    cpu_source: CpuCloud,
+    cpu_target: CpuCloud,
+}
+
+impl Drop for Gpu {
+    // Only reached through `release_gl` (with this context current): the raw textures are
+    // not three-d's, so they are freed here.
+    fn drop(&mut self) {
+        if let Some(c) = self.cpu.take() {
+            c.delete(&self.gl);
+        }
+    }
 }
 
 thread_local! {
@@ -381,7 +573,12 @@ fn gpu_for(gl: &Arc<glow::Context>) -> Result<(), String> {
             .map_err(|e| format!("3D composite shader: {e}"))?;
         // one triangle covering the viewport
         let quad = VertexBuffer::new_with_data(&ctx, &[[-1.0f32, -1.0], [3.0, -1.0], [-1.0, 3.0]]);
+        let software = is_software_renderer(&unsafe { gl.get_parameter_string(glow::RENDERER) });
         *g = Some(Gpu {
+            software,
+            cpu: None,
+            cpu_source: CpuCloud::default(),
+            cpu_target: CpuCloud::default(),
             gl: gl.clone(),
             source: GpuCloud::new(&ctx, false),
             target: GpuCloud::new(&ctx, false),
@@ -475,7 +672,31 @@ pub fn paint(
             gl.depth_mask(true);
             gl.clear(glow::COLOR_BUFFER_BIT | glow::DEPTH_BUFFER_BIT);
         }
-        sync_buffers(gpu, &ctx, frame);
+        let cpu = match frame.rasterizer {
+            Rasterizer::Auto => gpu.software,
+            Rasterizer::Gl => false,
+            Rasterizer::Cpu => true,
+        };
+        CPU_SPLATTING.with(|c| c.set(cpu));
+        sync_buffers(gpu, &ctx, frame, !cpu);
+        if cpu {
+            let size = (panel_vp.width, panel_vp.height);
+            splat_points(gpu, gl, frame, size)?;
+            let gpu = &*gpu;
+            let Some(t) = gpu.cpu.as_ref() else {
+                return Err("no CPU target".to_string());
+            };
+            composite(gl, gpu, Composited::Cpu(t), frame, panel_vp);
+            let d = Draw {
+                prog: &gpu.points,
+                gl,
+                frame,
+            };
+            d.lines(&gpu.scene_lines, depth_tested(), panel_vp);
+            d.overlay(&gpu.overlay, panel_vp);
+            unsafe { gl.use_program(None) };
+            return Ok(());
+        }
         if !frame.keep && frame.depth_cue != DepthCue::Edl {
             if let Some(t) = gpu.scene_target.as_mut() {
                 t.holds = None;
@@ -533,7 +754,7 @@ pub fn paint(
         let Some(t) = gpu.scene_target.as_ref() else {
             return Err("no offscreen target".to_string());
         };
-        composite(gl, gpu, t, frame, panel_vp);
+        composite(gl, gpu, Composited::Gl(t), frame, panel_vp);
         let d = Draw {
             prog: &gpu.points,
             gl,
@@ -569,12 +790,75 @@ fn panel_viewport(info: &egui::PaintCallbackInfo) -> Option<(Viewport, [i32; 4])
     Some((panel_vp, [x0, y0, x1 - x0, y1 - y0]))
 }
 
-/// Uploads the clouds and line sets whose generation changed.
-fn sync_buffers(gpu: &mut Gpu, ctx: &Context, frame: &SceneFrame) {
-    for (buf, cloud) in [
+/// Splats the frame's points on the CPU into the kept image (continued when it holds
+/// exactly `[0, start)` of this frame's points, as the GL target is), and uploads it when it
+/// changed.
+fn splat_points(
+    gpu: &mut Gpu,
+    gl: &glow::Context,
+    frame: &SceneFrame,
+    size: (u32, u32),
+) -> Result<(), String> {
+    if gpu.cpu.as_ref().is_none_or(|t| t.size() != size) {
+        if let Some(old) = gpu.cpu.take() {
+            old.delete(gl);
+        }
+        gpu.cpu = Some(CpuTarget::new(gl, size)?);
+    }
+    gpu.cpu_source.sync(&frame.source);
+    gpu.cpu_target.sync(&frame.target);
+    let Some(t) = gpu.cpu.as_mut() else {
+        return Err("no CPU target".to_string());
+    };
+    let key = frame.points_key();
+    let (start, end) = frame.draw_range;
+    let from = match t.holds {
+        Some((k, held)) if k == key && held == start => start,
+        _ => 0,
+    };
+    if from == 0 {
+        t.image.clear(frame.background);
+    }
+    let threads = std::thread::available_parallelism().map_or(1, |n| n.get().min(8));
+    let vp = mat4(&frame.view_proj);
+    let normals = frame.depth_cue == DepthCue::Normals;
+    let mut draw = |cloud: &CpuCloud, model: &[f32; 16], tint: [f32; 4]| {
+        let mvp: [[f32; 4]; 4] = (vp * mat4(model)).into();
+        let s = SplatCloud {
+            positions: &cloud.positions,
+            colors: &cloud.colors,
+            normals: cloud.normals.as_deref().filter(|_| normals),
+            mvp: bytemuck::cast(mvp),
+            model: *model,
+            tint,
+            eye: frame.eye,
+            point_size: frame.point_size,
+        };
+        t.image.splat(&s, (from as usize, end as usize), threads);
+    };
+    if end > from {
+        if frame.show_target {
+            draw(&gpu.cpu_target, &IDENTITY, [1.0; 4]);
+        }
+        for inst in &frame.source_instances {
+            draw(&gpu.cpu_source, &inst.model, inst.tint);
+        }
+    }
+    if from == 0 || end > from {
+        t.upload(gl);
+    }
+    t.holds = Some((key, end.max(from)));
+    Ok(())
+}
+
+/// Uploads the clouds (when `clouds`: the GL draws the points) and line sets whose
+/// generation changed.
+fn sync_buffers(gpu: &mut Gpu, ctx: &Context, frame: &SceneFrame, clouds: bool) {
+    let cloud_bufs = [
         (&mut gpu.source, &frame.source),
         (&mut gpu.target, &frame.target),
-    ] {
+    ];
+    for (buf, cloud) in cloud_bufs.into_iter().filter(|_| clouds) {
         buf.sync(
             ctx,
             cloud.id,
@@ -625,7 +909,7 @@ fn ensure_scene_target(target: &mut Option<SceneTarget>, ctx: &Context, size: (u
 fn composite(
     gl: &glow::Context,
     gpu: &Gpu,
-    t: &SceneTarget,
+    points: Composited<'_>,
     frame: &SceneFrame,
     panel_vp: Viewport,
 ) {
@@ -635,11 +919,26 @@ fn composite(
     } else {
         &gpu.copy
     };
-    e.use_texture("color_tex", &t.color);
-    e.use_depth_texture("depth_tex", &t.depth);
+    let size = match points {
+        Composited::Gl(t) => {
+            e.use_texture("color_tex", &t.color);
+            e.use_depth_texture("depth_tex", &t.depth);
+            t.size
+        }
+        Composited::Cpu(t) => {
+            // raw GL textures: uploaded from the splatted image without three-d's
+            // per-fill copy and row flip
+            #[allow(deprecated)]
+            {
+                e.use_raw_texture("color_tex", glow::TEXTURE_2D, t.color);
+                e.use_raw_texture("depth_tex", glow::TEXTURE_2D, t.depth);
+            }
+            t.size()
+        }
+    };
     e.use_uniform_if_required(
         "texel",
-        three_d::vec2(1.0 / t.size.0 as f32, 1.0 / t.size.1 as f32),
+        three_d::vec2(1.0 / size.0 as f32, 1.0 / size.1 as f32),
     );
     e.use_uniform_if_required("near", frame.near);
     e.use_uniform_if_required("far", frame.far);
@@ -655,6 +954,14 @@ fn composite(
         panel_vp,
         || unsafe { gl.draw_arrays(glow::TRIANGLES, 0, 3) },
     );
+}
+
+/// Where the points to composite are.
+enum Composited<'a> {
+    /// Drawn by the GL into its offscreen target.
+    Gl(&'a SceneTarget),
+    /// Splatted on the CPU and uploaded.
+    Cpu(&'a CpuTarget),
 }
 
 /// Points and scene lines: depth-tested, writing colour and depth.

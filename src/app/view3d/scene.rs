@@ -68,6 +68,7 @@ pub fn scene_ui(
         near: state.camera.camera.z_near(),
         far: state.camera.camera.z_far(),
         depth_cue: prefs.depth_cue,
+        rasterizer: prefs.rasterizer,
         edl_strength: prefs.edl_strength,
         draw_range: (0, 0),
         keep: true,
@@ -109,17 +110,15 @@ fn draw_range(state: &mut View3dState, frame: &SceneFrame, moving: bool) -> ((u3
     if moving {
         return preview(state);
     }
+    // CPU splatting draws a whole still view in about the time of a moving frame
+    let whole = state.complete_frames || render3d::cpu_splatting();
     let key = frame.points_key();
     let start = match state.refined {
         Some((k, end)) if k == key => end,
-        Some(_) if !state.complete_frames && n > state.moving_budget() => return preview(state),
+        Some(_) if !whole && n > state.moving_budget() => return preview(state),
         _ => 0,
     };
-    let step = if state.complete_frames {
-        n
-    } else {
-        REFINE_POINTS_PER_FRAME
-    };
+    let step = if whole { n } else { REFINE_POINTS_PER_FRAME };
     let range = (start, start.saturating_add(step).min(n));
     state.refined = Some((key, range.1));
     (range, false)
