@@ -90,15 +90,16 @@ impl Rasterizer {
     }
 }
 
-/// Whether this thread's last 3D frame splatted its points on the CPU (the UI then draws a
-/// still view complete in one frame instead of refining it over several). Per thread: the UI
-/// and its GL paint share one thread, and headless renderers on other threads do not mix in.
-pub fn cpu_splatting() -> bool {
+/// Whether this thread's last painted 3D frame splatted its points on the CPU (the UI then
+/// draws a still view complete in one frame instead of refining it over several); None
+/// before the first paint. Per thread: the UI and its GL paint share one thread, and
+/// headless renderers on other threads do not mix in.
+pub fn cpu_splatting() -> Option<bool> {
     CPU_SPLATTING.with(|c| c.get())
 }
 
 thread_local! {
-    static CPU_SPLATTING: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+    static CPU_SPLATTING: std::cell::Cell<Option<bool>> = const { std::cell::Cell::new(None) };
 }
 
 /// A GL renderer string of a software rasteriser.
@@ -677,7 +678,7 @@ pub fn paint(
             Rasterizer::Gl => false,
             Rasterizer::Cpu => true,
         };
-        CPU_SPLATTING.with(|c| c.set(cpu));
+        CPU_SPLATTING.with(|c| c.set(Some(cpu)));
         sync_buffers(gpu, &ctx, frame, !cpu);
         if cpu {
             let size = (panel_vp.width, panel_vp.height);

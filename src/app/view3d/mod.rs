@@ -18,7 +18,7 @@ use nalgebra::{Isometry3, Matrix4, Point3};
 use serde::{Deserialize, Serialize};
 
 use super::model::InspectorModel;
-use super::render3d::{CloudData, DepthCue, LineData, Rasterizer};
+use super::render3d::{self, CloudData, DepthCue, LineData, Rasterizer};
 use super::Shared;
 
 pub use camera::{project, SceneCamera};
@@ -272,8 +272,14 @@ pub fn view3d_options(ui: &mut egui::Ui, state: &mut View3dState) {
         if p.depth_cue == DepthCue::Edl {
             ui.add(egui::Slider::new(&mut p.edl_strength, 0.1..=4.0).text("EDL strength"));
         }
+        // auto says what it resolved to in the last painted frame, once there is one
+        let shown = match (p.rasterizer, render3d::cpu_splatting()) {
+            (Rasterizer::Auto, Some(true)) => "auto: CPU splatting",
+            (Rasterizer::Auto, Some(false)) => "auto: GL points",
+            (r, _) => r.label(),
+        };
         egui::ComboBox::from_label("Points drawn by")
-            .selected_text(p.rasterizer.label())
+            .selected_text(shown)
             .show_ui(ui, |ui| {
                 for r in Rasterizer::ALL {
                     ui.selectable_value(&mut p.rasterizer, r, r.label());

@@ -111,7 +111,7 @@ fn draw_range(state: &mut View3dState, frame: &SceneFrame, moving: bool) -> ((u3
         return preview(state);
     }
     // CPU splatting draws a whole still view in about the time of a moving frame
-    let whole = state.complete_frames || render3d::cpu_splatting();
+    let whole = state.complete_frames || render3d::cpu_splatting() == Some(true);
     let key = frame.points_key();
     let start = match state.refined {
         Some((k, end)) if k == key => end,
