@@ -285,6 +285,53 @@ fn latency_part(reps: usize) {
     }
 }
 
+/// The CPU splatting kernel alone (`render3d::SplatImage`): both clouds of the 300k demo
+/// into a 1000 x 700 image (about the 3D panel in a 1280 x 800 window) seen from its framing
+/// camera, on 1 thread and on every core; no GL.
+fn splat_kernel() {
+    use cgenreg::app::render3d::{SplatCloud, SplatImage};
+    use cgenreg::app::view3d::SceneCamera;
+    let model = InspectorModel::demo_sized(300_000);
+    let Some((lo, hi)) = model.bounds() else {
+        return;
+    };
+    let mut cam = SceneCamera::framing(lo, hi);
+    let vp = cam.view_projection(1000.0, 700.0);
+    let mvp: [f32; 16] = vp.as_slice().try_into().expect("4x4");
+    let identity: [f32; 16] = nalgebra::Matrix4::<f32>::identity()
+        .as_slice()
+        .try_into()
+        .expect("4x4");
+    let colors = vec![[200u8, 180, 40, 255]; 300_000];
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    for threads in [1, cores] {
+        let mut img = SplatImage::new(1000, 700);
+        let mut times = Vec::new();
+        for _ in 0..30 {
+            let t = Instant::now();
+            img.clear([0.0, 0.0, 0.0, 1.0]);
+            for cloud in [&model.source, &model.target] {
+                let c = SplatCloud {
+                    positions: cloud,
+                    colors: &colors,
+                    normals: None,
+                    mvp,
+                    model: identity,
+                    tint: [1.0; 4],
+                    eye: [0.0; 3],
+                    point_size: 2.0,
+                };
+                img.splat(&c, (0, cloud.len()), threads);
+            }
+            times.push(t.elapsed().as_secs_f64() * 1e3);
+        }
+        let (med, mean, p90) = stats(times);
+        println!(
+            "CPU splat kernel, 2 x 300k points, 1000x700, {threads} thread(s): median {med:.1} ms  mean {mean:.1} ms  p90 {p90:.1} ms (clear included)"
+        );
+    }
+}
+
 fn main() {
     let only = std::env::var("GUI_BENCH_ONLY").unwrap_or_default();
     if only != "frames" {
@@ -297,6 +344,7 @@ fn main() {
     if only == "latency" {
         return;
     }
+    splat_kernel();
     let size = (1280, 800);
     let frames = std::env::var("GUI_BENCH_FRAMES")
         .ok()
