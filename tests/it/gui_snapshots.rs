@@ -567,36 +567,51 @@ fn a_refusion_keeps_the_camera_and_the_drawn_view() {
     );
 }
 
+/// The demo at `n` points per cloud and a copy whose estimate moved by 5 cm; a renderer of
+/// the original whose points `rasterizer` draws, refining as the inspector does, past its
+/// settle time and complete; and the moved pose's complete still view.
+fn moved_pose(
+    n: usize,
+    size: (u32, u32),
+    rasterizer: Rasterizer,
+) -> (
+    cgenreg::app::headless::HeadlessRenderer,
+    InspectorModel,
+    image::RgbaImage,
+) {
+    use cgenreg::app::headless::HeadlessRenderer;
+    let model = InspectorModel::demo_sized(n);
+    let mut moved = model.clone();
+    let est = moved.estimated.expect("the demo has an estimate");
+    moved.estimated = Some(nalgebra::Isometry3::translation(0.05, 0.0, 0.0) * est);
+    let mut fresh = HeadlessRenderer::new(moved.clone(), size).unwrap();
+    fresh.app.ui_state.tab = Panel::View3d;
+    fresh.app.view3d_prefs_mut().rasterizer = rasterizer;
+    let complete = fresh.settled_frame().unwrap();
+    drop(fresh);
+    let mut r = HeadlessRenderer::new(model, size).unwrap();
+    r.app.ui_state.tab = Panel::View3d;
+    r.app.view3d_prefs_mut().rasterizer = rasterizer;
+    r.app.set_complete_3d_frames(false);
+    let t = std::time::Instant::now();
+    while r.app.view3d_refining() || t.elapsed() <= cgenreg::app::view3d::SETTLE {
+        r.frame(false).unwrap();
+        assert!(t.elapsed().as_secs() < 10, "still refining after 10 s");
+    }
+    (r, moved, complete)
+}
+
 /// GL points: a re-fusion that moves the pose on a still view: the first frame previews the new
 /// alignment at the moving budget (straight to the screen, fast), the following frames refine
 /// it into the complete image of the new pose. 100k points fit in one still frame
 /// (`REFINE_POINTS_PER_FRAME`), so without the preview the first frame would be final.
 #[test]
 fn a_moved_pose_is_previewed_then_refined_to_the_complete_view() {
-    use cgenreg::app::headless::HeadlessRenderer;
     if renderer().is_none() {
         return;
     }
-    let model = InspectorModel::demo_sized(100_000);
     let size = (640, 400);
-    let mut moved = model.clone();
-    let est = moved.estimated.expect("the demo has an estimate");
-    moved.estimated = Some(nalgebra::Isometry3::translation(0.05, 0.0, 0.0) * est);
-    let mut fresh = HeadlessRenderer::new(moved.clone(), size).unwrap();
-    fresh.app.ui_state.tab = Panel::View3d;
-    fresh.app.view3d_prefs_mut().rasterizer = Rasterizer::Gl;
-    let complete = fresh.settled_frame().unwrap();
-    drop(fresh);
-
-    let mut r = HeadlessRenderer::new(model, size).unwrap();
-    r.app.ui_state.tab = Panel::View3d;
-    r.app.view3d_prefs_mut().rasterizer = Rasterizer::Gl;
-    r.app.set_complete_3d_frames(false);
-    let t = std::time::Instant::now();
-    while r.app.view3d_refining() || t.elapsed().as_millis() < 10 {
-        r.frame(false).unwrap();
-        assert!(t.elapsed().as_secs() < 10, "still refining after 10 s");
-    }
+    let (mut r, moved, complete) = moved_pose(100_000, size, Rasterizer::Gl);
     r.app.set_model(moved);
     let preview = r.frame(true).unwrap().unwrap();
     assert!(
@@ -677,31 +692,10 @@ fn cpu_splatting_draws_what_gl_points_draw() {
 /// that moves the pose draws the new pose complete at once (no preview frame).
 #[test]
 fn cpu_splatting_draws_a_still_view_complete_at_once() {
-    use cgenreg::app::headless::HeadlessRenderer;
     if renderer().is_none() {
         return;
     }
-    let model = InspectorModel::demo_sized(300_000);
-    let size = (640, 400);
-    let mut moved = model.clone();
-    let est = moved.estimated.expect("the demo has an estimate");
-    moved.estimated = Some(nalgebra::Isometry3::translation(0.05, 0.0, 0.0) * est);
-    let mut fresh = HeadlessRenderer::new(moved.clone(), size).unwrap();
-    fresh.app.ui_state.tab = Panel::View3d;
-    fresh.app.view3d_prefs_mut().rasterizer = Rasterizer::Cpu;
-    let complete = fresh.settled_frame().unwrap();
-    drop(fresh);
-
-    let mut r = HeadlessRenderer::new(model, size).unwrap();
-    r.app.ui_state.tab = Panel::View3d;
-    r.app.view3d_prefs_mut().rasterizer = Rasterizer::Cpu;
-    r.app.set_complete_3d_frames(false);
-    let t = std::time::Instant::now();
-    // past the settle time of the first framing
-    while r.app.view3d_refining() || t.elapsed() <= cgenreg::app::view3d::SETTLE {
-        r.frame(false).unwrap();
-        assert!(t.elapsed().as_secs() < 10, "still refining after 10 s");
-    }
+    let (mut r, moved, complete) = moved_pose(300_000, (640, 400), Rasterizer::Cpu);
     r.app.set_model(moved);
     let first = r.frame(true).unwrap().unwrap();
     assert!(

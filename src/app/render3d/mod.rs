@@ -687,15 +687,7 @@ pub fn paint(
             let Some(t) = gpu.cpu.as_ref() else {
                 return Err("no CPU target".to_string());
             };
-            composite(gl, gpu, Composited::Cpu(t), frame, panel_vp);
-            let d = Draw {
-                prog: &gpu.points,
-                gl,
-                frame,
-            };
-            d.lines(&gpu.scene_lines, depth_tested(), panel_vp);
-            d.overlay(&gpu.overlay, panel_vp);
-            unsafe { gl.use_program(None) };
+            composite_and_lines(gl, gpu, Composited::Cpu(t), frame, panel_vp);
             return Ok(());
         }
         if !frame.keep && frame.depth_cue != DepthCue::Edl {
@@ -755,17 +747,7 @@ pub fn paint(
         let Some(t) = gpu.scene_target.as_ref() else {
             return Err("no offscreen target".to_string());
         };
-        composite(gl, gpu, Composited::Gl(t), frame, panel_vp);
-        let d = Draw {
-            prog: &gpu.points,
-            gl,
-            frame,
-        };
-        d.lines(&gpu.scene_lines, depth_tested(), panel_vp);
-        d.overlay(&gpu.overlay, panel_vp);
-        unsafe {
-            gl.use_program(None);
-        }
+        composite_and_lines(gl, gpu, Composited::Gl(t), frame, panel_vp);
         Ok(())
     })
 }
@@ -955,6 +937,26 @@ fn composite(
         panel_vp,
         || unsafe { gl.draw_arrays(glow::TRIANGLES, 0, 3) },
     );
+}
+
+/// The points composited into egui's (bound) framebuffer, then the scene lines depth-tested
+/// against them and the overlay lines on top.
+fn composite_and_lines(
+    gl: &glow::Context,
+    gpu: &Gpu,
+    points: Composited<'_>,
+    frame: &SceneFrame,
+    panel_vp: Viewport,
+) {
+    composite(gl, gpu, points, frame, panel_vp);
+    let d = Draw {
+        prog: &gpu.points,
+        gl,
+        frame,
+    };
+    d.lines(&gpu.scene_lines, depth_tested(), panel_vp);
+    d.overlay(&gpu.overlay, panel_vp);
+    unsafe { gl.use_program(None) };
 }
 
 /// Where the points to composite are.
