@@ -147,7 +147,8 @@ impl<'a> Kernel<'a> {
             let cw = m[3] * x + m[7] * y + m[11] * z + m[15];
             let cz = m[2] * x + m[6] * y + m[10] * z + m[14];
             // outside the near / far planes (or behind the eye): clipped, as GL clips the vertex
-            if !(cw > 0.0) || cz < -cw || cz > cw {
+            let inside = cw > 0.0 && cz >= -cw && cz <= cw; // false for NaN too
+            if !inside {
                 continue;
             }
             let cy = m[1] * x + m[5] * y + m[9] * z + m[13];
@@ -256,7 +257,8 @@ mod tests {
             let m = &cloud.mvp;
             let clip =
                 [0, 1, 2, 3].map(|r| m[r] * p[0] + m[4 + r] * p[1] + m[8 + r] * p[2] + m[12 + r]);
-            if !(clip[3] > 0.0) || clip[2].abs() > clip[3] {
+            let inside = clip[3] > 0.0 && clip[2].abs() <= clip[3];
+            if !inside {
                 continue;
             }
             let inv = 1.0 / clip[3];
