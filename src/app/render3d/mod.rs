@@ -412,11 +412,24 @@ struct CpuTarget {
 
 impl CpuTarget {
     fn new(gl: &glow::Context, (w, h): (u32, u32)) -> Result<Self, String> {
-        let make = |internal: u32| -> Result<glow::Texture, String> {
+        // glTexImage2D rather than glTexStorage2D: GL 3.0 / ES 3.0 have it (storage is 4.2)
+        let make = |internal: u32, format: u32, ty: u32| -> Result<glow::Texture, String> {
             unsafe {
                 let t = gl.create_texture()?;
                 gl.bind_texture(glow::TEXTURE_2D, Some(t));
-                gl.tex_storage_2d(glow::TEXTURE_2D, 1, internal, w as i32, h as i32);
+                let none = glow::PixelUnpackData::Slice(None);
+                let (w, h) = (w as i32, h as i32);
+                gl.tex_image_2d(
+                    glow::TEXTURE_2D,
+                    0,
+                    internal as i32,
+                    w,
+                    h,
+                    0,
+                    format,
+                    ty,
+                    none,
+                );
                 for (k, v) in [
                     (glow::TEXTURE_MIN_FILTER, glow::NEAREST),
                     (glow::TEXTURE_MAG_FILTER, glow::NEAREST),
@@ -430,8 +443,8 @@ impl CpuTarget {
         };
         Ok(Self {
             image: SplatImage::new(w, h),
-            color: make(glow::RGBA8)?,
-            depth: make(glow::R32F)?,
+            color: make(glow::RGBA8, glow::RGBA, glow::UNSIGNED_BYTE)?,
+            depth: make(glow::R32F, glow::RED, glow::FLOAT)?,
             holds: None,
         })
     }
@@ -440,14 +453,14 @@ impl CpuTarget {
         (self.image.width, self.image.height)
     }
 
-    /// Uploads the image (rows from the bottom, as GL's textures: no flip, no copy).
+    /// Uploads the image (rows from the bottom, as GL's textures: no flip, no copy). Rows of
+    /// 4-byte texels need no padding under any `UNPACK_ALIGNMENT`, so egui's setting stays.
     fn upload(&self, gl: &glow::Context) {
         let (w, h) = (self.image.width as i32, self.image.height as i32);
         fn bytes(v: &[u8]) -> glow::PixelUnpackData<'_> {
             glow::PixelUnpackData::Slice(Some(v))
         }
         unsafe {
-            gl.pixel_store_i32(glow::UNPACK_ALIGNMENT, 4);
             gl.bind_texture(glow::TEXTURE_2D, Some(self.color));
             let c: &[u8] = bytemuck::cast_slice(&self.image.color);
             gl.tex_sub_image_2d(
