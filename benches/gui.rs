@@ -5,7 +5,8 @@
 //! redkitchen pairs whose stages are cached (needs `$CGENREG_DATA`).
 //!
 //! Run: `cargo bench --bench gui`. Prints median / mean / p90 per configuration.
-//! `GUI_BENCH_ONLY=latency` (or `frames`) runs one part.
+//! `GUI_BENCH_ONLY=latency` (or `frames`, or `splat`: the CPU splatting kernel alone) runs one
+//! part.
 
 use std::time::Instant;
 
@@ -345,6 +346,9 @@ fn main() {
         return;
     }
     splat_kernel();
+    if only == "splat" {
+        return;
+    }
     let size = (1280, 800);
     let frames = std::env::var("GUI_BENCH_FRAMES")
         .ok()

@@ -372,8 +372,9 @@ fn scattered<T: Copy>(order: &[usize], v: &[T]) -> Vec<T> {
     order.iter().map(|&i| v[i]).collect()
 }
 
-/// A cloud's scattered copy in memory, for CPU splatting (the same order as the GL buffers,
-/// so a draw range means the same points either way).
+/// A cloud's scattered copy in memory, for CPU splatting of part of a cloud (the same order
+/// as the GL buffers, so a draw range means the same points either way); made when first
+/// needed.
 #[derive(Default)]
 struct CpuCloud {
     id: Option<u64>,
@@ -801,8 +802,6 @@ fn splat_points(
         }
         gpu.cpu = Some(CpuTarget::new(gl, size)?);
     }
-    gpu.cpu_source.sync(&frame.source);
-    gpu.cpu_target.sync(&frame.target);
     let Some(t) = gpu.cpu.as_mut() else {
         return Err("no CPU target".to_string());
     };
@@ -818,12 +817,26 @@ fn splat_points(
     let threads = std::thread::available_parallelism().map_or(1, |n| n.get().min(8));
     let vp = mat4(&frame.view_proj);
     let normals = frame.depth_cue == DepthCue::Normals;
-    let mut draw = |cloud: &CpuCloud, model: &[f32; 16], tint: [f32; 4]| {
+    // A whole cloud is drawn in its own order, which for scans is spatially coherent (the
+    // image's cache lines are reused from point to point); a part of it (the moving budget,
+    // or the rest after one) in the scattered order of the GL buffers, so that any prefix is
+    // a uniform subsample. Either way the set of points is the same.
+    let mut draw = |scattered: &mut CpuCloud, data: &CloudData, model: &[f32; 16], tint| {
+        let n = data.positions.len().min(data.colors.len());
+        let whole = from == 0 && end as usize >= n;
+        let (positions, colors, nv): (&[[f32; 3]], &[[u8; 4]], _) = if whole {
+            let nv = data.normals.as_deref().map(|v| v.as_slice());
+            (&data.positions[..n], &data.colors[..n], nv)
+        } else {
+            scattered.sync(data);
+            let c = &*scattered;
+            (&c.positions, &c.colors, c.normals.as_deref())
+        };
         let mvp: [[f32; 4]; 4] = (vp * mat4(model)).into();
         let s = SplatCloud {
-            positions: &cloud.positions,
-            colors: &cloud.colors,
-            normals: cloud.normals.as_deref().filter(|_| normals),
+            positions,
+            colors,
+            normals: nv.filter(|_| normals),
             mvp: bytemuck::cast(mvp),
             model: *model,
             tint,
@@ -834,10 +847,10 @@ fn splat_points(
     };
     if end > from {
         if frame.show_target {
-            draw(&gpu.cpu_target, &IDENTITY, [1.0; 4]);
+            draw(&mut gpu.cpu_target, &frame.target, &IDENTITY, [1.0; 4]);
         }
         for inst in &frame.source_instances {
-            draw(&gpu.cpu_source, &inst.model, inst.tint);
+            draw(&mut gpu.cpu_source, &frame.source, &inst.model, inst.tint);
         }
     }
     if from == 0 || end > from {
