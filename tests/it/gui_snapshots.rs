@@ -352,6 +352,14 @@ fn count_near(img: &image::RgbaImage, c: [u8; 3], tol: i32) -> usize {
         .count()
 }
 
+/// Pixels of `a` and `b` (same size) whose R, G or B differ by more than `tol`.
+fn differing_pixels(a: &image::RgbaImage, b: &image::RgbaImage, tol: i32) -> usize {
+    a.pixels()
+        .zip(b.pixels())
+        .filter(|(p, q)| (0..3).any(|k| (p.0[k] as i32 - q.0[k] as i32).abs() > tol))
+        .count()
+}
+
 #[test]
 fn headless_3d_screenshot_shows_source_and_target_points() {
     if renderer().is_none() {
@@ -445,8 +453,9 @@ fn the_built_in_browser_opens_a_typed_manifest_and_the_dataset_loads() {
 }
 
 /// GL points: a still 3D view of 300k points per cloud refined over frames (the interactive
-/// default under the GL) ends in the image one complete frame draws; the frames before are partial, and once
-/// complete, further frames (which only composite the kept target) do not change it.
+/// default under the GL) ends in the image one complete frame draws; the frames before are
+/// partial, and once complete, further frames (which only composite the kept target) do not
+/// change it.
 #[test]
 fn progressive_3d_refinement_ends_in_the_complete_image() {
     use cgenreg::app::headless::HeadlessRenderer;
@@ -475,12 +484,7 @@ fn progressive_3d_refinement_ends_in_the_complete_image() {
         !prog.app.view3d_refining(),
         "still refining after 12 frames"
     );
-    let differ = |a: &image::RgbaImage, b: &image::RgbaImage| {
-        a.pixels()
-            .zip(b.pixels())
-            .filter(|(p, q)| (0..3).any(|k| (p.0[k] as i32 - q.0[k] as i32).abs() > 2))
-            .count()
-    };
+    let differ = |a: &image::RgbaImage, b: &image::RgbaImage| differing_pixels(a, b, 2);
     let last = frames.last().unwrap();
     let total = (size.0 * size.1) as usize;
     // equal depths of different points may resolve the other way when drawn in another order
@@ -625,12 +629,7 @@ fn a_moved_pose_is_previewed_then_refined_to_the_complete_view() {
         frames += 1;
     }
     assert!(!r.app.view3d_refining(), "still refining after 12 frames");
-    let differ = |a: &image::RgbaImage, b: &image::RgbaImage| {
-        a.pixels()
-            .zip(b.pixels())
-            .filter(|(p, q)| (0..3).any(|k| (p.0[k] as i32 - q.0[k] as i32).abs() > 2))
-            .count()
-    };
+    let differ = |a: &image::RgbaImage, b: &image::RgbaImage| differing_pixels(a, b, 2);
     let total = (size.0 * size.1) as usize;
     let d = differ(&last, &complete);
     assert!(
@@ -673,11 +672,7 @@ fn cpu_splatting_draws_what_gl_points_draw() {
             .pixels()
             .filter(|p| (0..3).any(|k| (p.0[k] as i32 - bg[k] as i32).abs() > 3))
             .count();
-        let differ = gl
-            .pixels()
-            .zip(cpu.pixels())
-            .filter(|(p, q)| (0..3).any(|k| (p.0[k] as i32 - q.0[k] as i32).abs() > 8))
-            .count();
+        let differ = differing_pixels(&gl, &cpu, 8);
         eprintln!("{}: {differ} of {drawn} drawn pixels differ", cue.label());
         assert!(drawn > 20_000, "{}: only {drawn} pixels drawn", cue.label());
         assert!(

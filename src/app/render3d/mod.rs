@@ -458,38 +458,28 @@ impl CpuTarget {
     /// 4-byte texels need no padding under any `UNPACK_ALIGNMENT`, so egui's setting stays.
     fn upload(&self, gl: &glow::Context) {
         let (w, h) = (self.image.width as i32, self.image.height as i32);
-        fn bytes(v: &[u8]) -> glow::PixelUnpackData<'_> {
-            glow::PixelUnpackData::Slice(Some(v))
-        }
-        unsafe {
-            gl.bind_texture(glow::TEXTURE_2D, Some(self.color));
-            let c: &[u8] = bytemuck::cast_slice(&self.image.color);
-            gl.tex_sub_image_2d(
-                glow::TEXTURE_2D,
-                0,
-                0,
-                0,
-                w,
-                h,
+        let planes: [(glow::Texture, u32, u32, &[u8]); 2] = [
+            (
+                self.color,
                 glow::RGBA,
                 glow::UNSIGNED_BYTE,
-                bytes(c),
-            );
-            gl.bind_texture(glow::TEXTURE_2D, Some(self.depth));
-            let d: &[u8] = bytemuck::cast_slice(&self.image.depth);
-            gl.tex_sub_image_2d(
-                glow::TEXTURE_2D,
-                0,
-                0,
-                0,
-                w,
-                h,
+                bytemuck::cast_slice(&self.image.color),
+            ),
+            (
+                self.depth,
                 glow::RED,
                 glow::FLOAT,
-                bytes(d),
-            );
-            gl.bind_texture(glow::TEXTURE_2D, None);
+                bytemuck::cast_slice(&self.image.depth),
+            ),
+        ];
+        for (tex, format, ty, data) in planes {
+            let data = glow::PixelUnpackData::Slice(Some(data));
+            unsafe {
+                gl.bind_texture(glow::TEXTURE_2D, Some(tex));
+                gl.tex_sub_image_2d(glow::TEXTURE_2D, 0, 0, 0, w, h, format, ty, data);
+            }
         }
+        unsafe { gl.bind_texture(glow::TEXTURE_2D, None) };
     }
 
     fn delete(&self, gl: &glow::Context) {
@@ -543,6 +533,9 @@ struct Gpu {
     scene_lines: GpuCloud,
     /// The GL is a software rasteriser ([`Rasterizer::Auto`] splats on the CPU).
     software: bool,
+    /// Threads (bands of rows) for CPU splatting: found once, as
+    /// `available_parallelism` reads the cgroup's CPU quota from files on every call.
+    splat_threads: usize,
     cpu: Option<CpuTarget>,
     cpu_source: CpuCloud,
     cpu_target: CpuCloud,
@@ -589,8 +582,10 @@ fn gpu_for(gl: &Arc<glow::Context>) -> Result<(), String> {
         // one triangle covering the viewport
         let quad = VertexBuffer::new_with_data(&ctx, &[[-1.0f32, -1.0], [3.0, -1.0], [-1.0, 3.0]]);
         let software = is_software_renderer(&unsafe { gl.get_parameter_string(glow::RENDERER) });
+        let splat_threads = std::thread::available_parallelism().map_or(1, |n| n.get().min(8));
         *g = Some(Gpu {
             software,
+            splat_threads,
             cpu: None,
             cpu_source: CpuCloud::default(),
             cpu_target: CpuCloud::default(),
@@ -814,7 +809,7 @@ fn splat_points(
     if from == 0 {
         t.image.clear(frame.background);
     }
-    let threads = std::thread::available_parallelism().map_or(1, |n| n.get().min(8));
+    let threads = gpu.splat_threads;
     let vp = mat4(&frame.view_proj);
     let normals = frame.depth_cue == DepthCue::Normals;
     // A whole cloud is drawn in its own order, which for scans is spatially coherent (the
