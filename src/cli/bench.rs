@@ -80,11 +80,24 @@ pub struct RunArgs {
     /// Ignore an existing --json output and run every pair.
     #[arg(long)]
     pub no_resume: bool,
+    /// Replace an existing --json file even when it is not a cgenreg run file.
+    #[arg(long)]
+    pub force: bool,
 }
 
 impl RunArgs {
     pub fn shard(&self) -> Shard {
         self.shard.unwrap_or(Shard::ALL)
+    }
+    /// Checks the --json output before any work: a new path or a regular file that is a run
+    /// file (or anything regular with --force); never a link, device, FIFO or folder.
+    pub fn check_output(&self, json: Option<&std::path::Path>) -> Result<()> {
+        match json {
+            Some(p) => {
+                crate::io::output::prepare(p, crate::io::output::OutputKind::RunJson, self.force)
+            }
+            None => Ok(()),
+        }
     }
     pub fn mode(&self) -> ResumeMode {
         if self.no_resume {
@@ -175,13 +188,13 @@ pub fn summarise(rows: &[PairRow]) -> Vec<SplitSummary> {
 
 /// The paper-style table of `summaries`.
 pub fn print_table(summaries: &[SplitSummary]) {
-    println!(
+    outln!(
         "| split | pairs | RR % | RA@5° | RA@10° | RA@45° | RRE mean° | RRE med° | TA@5cm | TA@10cm | TA@25cm | RTE mean cm | RTE med cm | s/pair |"
     );
-    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
+    outln!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
     for x in summaries {
         let s = &x.summary;
-        println!(
+        outln!(
             "| {} | {} | {:.1} | {:.1} | {:.1} | {:.1} | {:.2} | {:.2} | {:.1} | {:.1} | {:.1} | {:.2} | {:.2} | {:.3} |",
             x.split,
             s.n,
@@ -203,10 +216,10 @@ pub fn print_table(summaries: &[SplitSummary]) {
 
 /// The stage table: total seconds per stage, pairs cached / computed.
 pub fn print_stage_table<'a>(records: impl IntoIterator<Item = &'a PairRecord>) {
-    println!("| stage | total s | cached | computed |");
-    println!("|---|---|---|---|");
+    outln!("| stage | total s | cached | computed |");
+    outln!("|---|---|---|---|");
     for (name, ms, computed, cached) in stage_totals(records) {
-        println!("| {name} | {:.2} | {cached} | {computed} |", ms / 1e3);
+        outln!("| {name} | {:.2} | {cached} | {computed} |", ms / 1e3);
     }
 }
 
@@ -249,10 +262,11 @@ pub fn run(a: BenchArgs) -> Result<()> {
     let ds = a.pairs.dataset(&a.image)?;
     if a.list {
         for p in ds.select_pairs(a.pairs.split.as_deref(), a.pairs.limit) {
-            println!("{}\t{}", p.id, p.split);
+            outln!("{}\t{}", p.id, p.split);
         }
         return Ok(());
     }
+    a.run.check_output(a.json.as_deref())?;
     let specs = a.pairs.select(&ds)?;
     let (params, cache) = a.image.params_and_cache(&a.pipeline)?;
     let shard = a.run.shard();
@@ -385,12 +399,12 @@ pub fn run(a: BenchArgs) -> Result<()> {
     let file = progress.run_file();
     let rows = rows_of(&file)?;
     print_table(&summarise(&rows));
-    println!();
+    outln!();
     print_stage_table(&file.records);
     let (n_cached, n_computed) = stage_totals(&file.records)
         .iter()
         .fold((0, 0), |(c, n), s| (c + s.3, n + s.2));
-    println!(
+    outln!(
         "cache ({}): {n_cached} stage results were cache hits, {n_computed} were computed{}",
         cache
             .as_ref()

@@ -95,12 +95,12 @@ pub fn run(a: CacheArgs) -> Result<()> {
         CacheAction::Init => {
             let n = cache.list()?.len();
             if cache.init()? {
-                println!(
+                outln!(
                     "marked {} as a cgenreg cache ({n} entries)",
                     cache.root().display()
                 );
             } else {
-                println!(
+                outln!(
                     "{} is a cgenreg cache already ({n} entries)",
                     cache.root().display()
                 );
@@ -111,7 +111,7 @@ pub fn run(a: CacheArgs) -> Result<()> {
             let entries = cache.list()?;
             let mut total = 0u64;
             let mut n = 0usize;
-            println!("cache {}", cache.root().display());
+            outln!("cache {}", cache.root().display());
             for e in entries
                 .iter()
                 .filter(|e| stage.as_ref().is_none_or(|s| &e.stage == s))
@@ -120,17 +120,17 @@ pub fn run(a: CacheArgs) -> Result<()> {
                 total += e.total_bytes;
                 let id = format!("{}/{}", e.stage, &e.hash[..12.min(e.hash.len())]);
                 match (&e.manifest, &e.problem) {
-                    (Some(m), None) => println!(
+                    (Some(m), None) => outln!(
                         "{id:<28} {:>10}  created {}  {}",
                         human_bytes(e.total_bytes),
                         m.created_unix,
                         provenance_summary(&m.provenance)
                     ),
-                    (_, Some(p)) => println!("{id:<28} PROBLEM: {p}"),
-                    (None, None) => println!("{id:<28} (no manifest)"),
+                    (_, Some(p)) => outln!("{id:<28} PROBLEM: {p}"),
+                    (None, None) => outln!("{id:<28} (no manifest)"),
                 }
             }
-            println!("{n} entries, {}", human_bytes(total));
+            outln!("{n} entries, {}", human_bytes(total));
             Ok(())
         }
         CacheAction::Verify { remove_bad } => {
@@ -146,24 +146,24 @@ pub fn run(a: CacheArgs) -> Result<()> {
             for r in &reports {
                 if let Err(e) = &r.result {
                     bad += 1;
-                    println!(
+                    outln!(
                         "CORRUPT {}/{}: {e}",
                         r.stage,
                         &r.hash[..12.min(r.hash.len())]
                     );
                     if *remove_bad {
                         match cache.remove_entry(&r.stage, &r.hash) {
-                            Ok(_) => println!("  removed"),
+                            Ok(_) => outln!("  removed"),
                             Err(e @ Error::NotACache { .. }) => return Err(e),
                             Err(e) => {
                                 kept += 1;
-                                println!("  not removed: {e}");
+                                outln!("  not removed: {e}");
                             }
                         }
                     }
                 }
             }
-            println!(
+            outln!(
                 "{} entries verified, {bad} corrupt or partial",
                 reports.len()
             );
@@ -184,7 +184,7 @@ pub fn run(a: CacheArgs) -> Result<()> {
         }
         CacheAction::Rm { targets, all } => {
             if *all {
-                println!("removed {} entries", cache.remove_all()?);
+                outln!("removed {} entries", cache.remove_all()?);
                 return Ok(());
             }
             if targets.is_empty() {
@@ -196,12 +196,30 @@ pub fn run(a: CacheArgs) -> Result<()> {
                 match t.split_once('/') {
                     Some((stage, hash)) => {
                         if cache.remove_entry(stage, hash)? {
-                            println!("removed {t}");
+                            outln!("removed {t}");
                         } else {
                             return Err(Error::Invalid(format!("no cache entry {t}")));
                         }
                     }
-                    None => println!("removed {} entries of stage {t}", cache.remove_stage(t)?),
+                    None => {
+                        // A typo in a stage name is an error, not "removed 0 entries".
+                        if !cache.root().join(t).is_dir() {
+                            let mut stages: Vec<String> =
+                                cache.list()?.into_iter().map(|e| e.stage).collect();
+                            stages.dedup();
+                            return Err(Error::Invalid(format!(
+                                "cgenreg cache rm {t:?}: no stage of that name in {} (stages \
+                                 there: {})",
+                                cache.root().display(),
+                                if stages.is_empty() {
+                                    "none".to_string()
+                                } else {
+                                    stages.join(", ")
+                                }
+                            )));
+                        }
+                        outln!("removed {} entries of stage {t}", cache.remove_stage(t)?)
+                    }
                 }
             }
             Ok(())

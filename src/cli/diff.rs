@@ -22,9 +22,9 @@ pub fn run(a: DiffArgs) -> Result<()> {
     if a.json {
         let s = serde_json::to_string_pretty(&c)
             .map_err(|e| Error::Invalid(format!("serialising the comparison: {e}")))?;
-        println!("{s}");
+        outln!("{s}");
     } else {
-        print!("{}", table(&c));
+        out!("{}", table(&c));
     }
     Ok(())
 }

@@ -63,6 +63,7 @@ pub fn run(a: GenerateArgs) -> Result<()> {
             "generate writes into the stage cache: --no-cache makes no sense here".into(),
         ));
     }
+    a.run.check_output(a.json.as_deref())?;
     let ds = a.pairs.dataset(&a.image)?;
     let specs = a.pairs.select(&ds)?;
     let (params, cache) = a.image.params_and_cache(&a.pipeline)?;

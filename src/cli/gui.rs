@@ -52,9 +52,12 @@ pub struct ScreenshotArgs {
     /// pairs first).
     #[arg(long, requires = "compare")]
     pub compare_pair: Option<String>,
-    /// Output PNG.
+    /// Output PNG: a new file in an existing folder, or a PNG to replace.
     #[arg(long)]
     pub out: PathBuf,
+    /// Replace an existing --out file even when it is not a PNG.
+    #[arg(long)]
+    pub force: bool,
     #[arg(long, default_value_t = 1600)]
     pub width: u32,
     #[arg(long, default_value_t = 1000)]
@@ -255,6 +258,7 @@ fn run_compare_screenshot(a: &ScreenshotArgs, runs: &[PathBuf], panel: Panel) ->
     eprint!("{}", crate::metrics::compare::table(c));
     // the controls show what the worker would run (nothing runs for this screenshot)
     let params = worker.params().clone();
+    crate::io::output::prepare(&a.out, crate::io::output::OutputKind::Png, a.force)?;
     crate::app::headless::render_screenshot_with(
         &model,
         panel,
@@ -272,6 +276,8 @@ fn run_compare_screenshot(a: &ScreenshotArgs, runs: &[PathBuf], panel: Panel) ->
 }
 
 pub fn run_screenshot(a: ScreenshotArgs) -> Result<()> {
+    // before the work, and again right before the write below
+    crate::io::output::prepare(&a.out, crate::io::output::OutputKind::Png, a.force)?;
     let panel = Panel::from_name(&a.panel).ok_or_else(|| {
         Error::Invalid(format!(
             "--panel {:?}: expected pairs, views, 3d, posterior, plots, stages, compare or hypotheses",
@@ -391,6 +397,7 @@ pub fn run_screenshot(a: ScreenshotArgs) -> Result<()> {
             )));
         }
     }
+    crate::io::output::prepare(&a.out, crate::io::output::OutputKind::Png, a.force)?;
     crate::app::headless::render_screenshot_with(
         &model,
         panel,

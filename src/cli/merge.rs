@@ -2,6 +2,7 @@
 //! missing per shard, time per stage, projected cost of a full run).
 
 use crate::error::{Error, Result};
+use crate::io::output::OutputKind;
 use crate::pipeline::shard::{merge, read_run_file, stage_totals, PairRecord, RunFile, FAILED};
 use clap::Args;
 use std::path::{Path, PathBuf};
@@ -15,6 +16,9 @@ pub struct MergeArgs {
     /// Write the merged output here.
     #[arg(long)]
     pub json: Option<PathBuf>,
+    /// Replace an existing --json file even when it is not a cgenreg run file.
+    #[arg(long)]
+    pub force: bool,
     /// Exit 0 even when pairs are missing (the merged output then says complete: false).
     #[arg(long)]
     pub allow_missing: bool,
@@ -51,13 +55,31 @@ fn print_tables(f: &RunFile) -> Result<()> {
         c if c.starts_with("study") => super::study::print_study(f)?,
         _ => {}
     }
-    println!();
+    outln!();
     super::bench::print_stage_table(&f.records);
     Ok(())
 }
 
 pub fn run_merge(a: MergeArgs) -> Result<()> {
-    let inputs: Vec<(String, RunFile)> = collect(&a.inputs)?
+    if let Some(path) = &a.json {
+        crate::io::output::prepare(path, OutputKind::RunJson, a.force)?;
+    }
+    let (good, corrupt) = collect(&a.inputs)?;
+    if !corrupt.is_empty() {
+        for (p, why) in &corrupt {
+            eprintln!("corrupt: {}: {why}", p.display());
+        }
+        return Err(Error::Invalid(format!(
+            "{} run file(s) cannot be read (listed above): {}; nothing was merged. Remove \
+             them, then run their shards again (a shard without output starts over)",
+            corrupt.len(),
+            names(&corrupt)
+        )));
+    }
+    if good.is_empty() {
+        return Err(no_outputs(&a.inputs));
+    }
+    let inputs: Vec<(String, RunFile)> = good
         .into_iter()
         .map(|(p, f)| (p.display().to_string(), f))
         .collect();
@@ -100,7 +122,7 @@ pub fn run_merge(a: MergeArgs) -> Result<()> {
         eprintln!("missing: {id}");
     }
     if let Some(path) = &a.json {
-        crate::error::write_atomic(path, &serialise(&m.file)?)?;
+        crate::io::output::write(path, OutputKind::RunJson, a.force, &serialise(&m.file)?)?;
         eprintln!("wrote {}", path.display());
     }
     if !m.missing.is_empty() && !a.allow_missing {
@@ -114,12 +136,37 @@ pub fn run_merge(a: MergeArgs) -> Result<()> {
     Ok(())
 }
 
-/// The run files under `paths` (folders: `*.json` in them and in their `shards/`).
-fn collect(paths: &[PathBuf]) -> Result<Vec<(PathBuf, RunFile)>> {
-    let mut files: Vec<PathBuf> = Vec::new();
+/// The paths of `files`, comma-separated.
+fn names(files: &[(PathBuf, String)]) -> String {
+    files
+        .iter()
+        .map(|(p, _)| p.display().to_string())
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+fn no_outputs(paths: &[PathBuf]) -> Error {
+    Error::Invalid(format!(
+        "no shard outputs found in {}",
+        paths
+            .iter()
+            .map(|p| p.display().to_string())
+            .collect::<Vec<_>>()
+            .join(", ")
+    ))
+}
+
+/// The shard outputs under `paths` (folders: `*.json` in them and in their `shards/`), and
+/// the files that should be shard outputs but cannot be read, with why. A file given by name
+/// and every file in a `shards/` folder must be a run file; other JSON at a run folder's top
+/// (the plan, a merged output) is skipped.
+#[allow(clippy::type_complexity)]
+fn collect(paths: &[PathBuf]) -> Result<(Vec<(PathBuf, RunFile)>, Vec<(PathBuf, String)>)> {
+    // (path, whether it must be a shard output)
+    let mut files: Vec<(PathBuf, bool)> = Vec::new();
     for p in paths {
         if p.is_dir() {
-            for d in [p.clone(), p.join("shards")] {
+            for (d, strict) in [(p.clone(), false), (p.join("shards"), true)] {
                 let Ok(rd) = std::fs::read_dir(&d) else {
                     continue;
                 };
@@ -134,33 +181,69 @@ fn collect(paths: &[PathBuf]) -> Result<Vec<(PathBuf, RunFile)>> {
                     })
                     .collect();
                 v.sort();
-                files.extend(v);
+                files.extend(v.into_iter().map(|q| (q, strict)));
             }
+        } else if std::fs::symlink_metadata(p).is_err() {
+            return Err(Error::Invalid(format!(
+                "{}: no such file or folder",
+                p.display()
+            )));
         } else {
-            files.push(p.clone());
+            files.push((p.clone(), true));
         }
     }
     let mut out = Vec::new();
-    for f in files {
-        // Other JSON in a run folder (merged output, the plan) is not a shard: skip it.
+    let mut corrupt = Vec::new();
+    for (f, strict) in files {
         match read_run_file(&f) {
             Ok(r) if r.run.merged_from.is_empty() => out.push((f, r)),
+            // a merged output given by name is refused (merging it again would count twice)
+            Ok(_) if strict => corrupt.push((
+                f,
+                "a merged output, not a shard output (merge the shard files)".to_string(),
+            )),
             Ok(_) => {}
-            Err(e) if paths.contains(&f) => return Err(e),
-            Err(_) => {}
+            Err(e) => {
+                // Other JSON at a run folder's top (the plan) is not a shard output.
+                let other_json = !strict
+                    && matches!(
+                        crate::io::output::read_json::<serde_json::Value>(&f, "JSON"),
+                        Ok(serde_json::Value::Object(m)) if !m.contains_key("run")
+                    );
+                if !other_json {
+                    corrupt.push((f, e.to_string()));
+                }
+            }
         }
     }
-    if out.is_empty() {
-        return Err(Error::Invalid(format!(
-            "no shard outputs found in {}",
-            paths
-                .iter()
-                .map(|p| p.display().to_string())
-                .collect::<Vec<_>>()
-                .join(", ")
-        )));
+    Ok((out, corrupt))
+}
+
+/// The shard index a `cgenreg slurm` shard file name gives (`shard-I.json`).
+fn index_from_name(p: &Path) -> Option<usize> {
+    p.file_name()?
+        .to_str()?
+        .strip_prefix("shard-")?
+        .strip_suffix(".json")?
+        .parse()
+        .ok()
+}
+
+/// A task's recorded exit status (`logs/task-I.rc`): a few bytes of a regular file, never
+/// more (a link to a device reads as unknown).
+fn read_rc(p: &Path) -> Option<String> {
+    use std::io::Read;
+    if !std::fs::metadata(p).ok()?.is_file() {
+        return None;
     }
-    Ok(out)
+    let mut s = String::new();
+    std::fs::File::open(p)
+        .ok()?
+        .take(32)
+        .read_to_string(&mut s)
+        .ok()?;
+    let s = s.trim();
+    (!s.is_empty() && s.chars().all(|c| c.is_ascii_digit() || c == '-')).then(|| s.to_string())
 }
 
 fn ago(unix: u64) -> String {
@@ -179,31 +262,65 @@ fn ago(unix: u64) -> String {
 }
 
 pub fn run_status(a: StatusArgs) -> Result<()> {
-    let files = collect(&a.paths)?;
+    let (files, corrupt) = collect(&a.paths)?;
+    let corrupt_error = || {
+        Error::Invalid(format!(
+            "{} run file(s) cannot be read: {}. Remove them, then run their shards again (a \
+             shard without output starts over)",
+            corrupt.len(),
+            names(&corrupt)
+        ))
+    };
+    if files.is_empty() {
+        for (p, why) in &corrupt {
+            outln!("corrupt: {}: {why}", p.display());
+        }
+        return Err(if corrupt.is_empty() {
+            no_outputs(&a.paths)
+        } else {
+            corrupt_error()
+        });
+    }
     let first = &files[0].1.run.identity;
     let count = first.shard_count;
     let n_sel = first.selected.len();
-    println!(
+    outln!(
         "{} of {} ({} pairs selected, {count} shards, {})",
-        first.command, first.manifest, n_sel, first.code_version
+        first.command,
+        first.manifest,
+        n_sel,
+        first.code_version
     );
     // A `cgenreg slurm` run folder also has each task's exit status.
     let rc_of = |i: usize| -> String {
         a.paths
             .iter()
             .filter(|p| p.is_dir())
-            .find_map(|p| std::fs::read_to_string(p.join("logs").join(format!("task-{i}.rc"))).ok())
-            .map(|s| s.trim().to_string())
+            .find_map(|p| read_rc(&p.join("logs").join(format!("task-{i}.rc"))))
             .unwrap_or_else(|| "-".into())
     };
-    println!("| shard | file | pairs | done | failed | missing | in flight | updated | exit |");
-    println!("|---|---|---|---|---|---|---|---|---|");
+    outln!("| shard | file | pairs | done | failed | missing | in flight | updated | exit |");
+    outln!("|---|---|---|---|---|---|---|---|---|");
     let mut seen = vec![false; count];
+    for (path, why) in &corrupt {
+        let shard = match index_from_name(path).filter(|&i| i < count) {
+            Some(i) => {
+                seen[i] = true;
+                format!("{i}/{count}")
+            }
+            None => "?".into(),
+        };
+        outln!(
+            "| {shard} | {} | CORRUPT: {} | | | | | | |",
+            path.display(),
+            why.replace('|', "/").replace('\n', " ")
+        );
+    }
     let mut all: Vec<&PairRecord> = Vec::new();
     for (path, f) in &files {
         let d = f.run.identity.differences(first);
         if !d.is_empty() {
-            println!(
+            outln!(
                 "| - | {} | another run: {} | | | | | | |",
                 path.display(),
                 d.join("; ")
@@ -217,10 +334,10 @@ pub fn run_status(a: StatusArgs) -> Result<()> {
         let n = s.positions(n_sel).len();
         let failed = f.records.iter().filter(|r| r.status == FAILED).count();
         let done = f.records.len() - failed;
-        println!(
+        outln!(
             "| {s} | {} | {n} | {done} | {failed} | {} | {} | {} | {} |",
             path.display(),
-            n - f.records.len(),
+            n.saturating_sub(f.records.len()),
             f.run.in_flight.as_deref().unwrap_or("-"),
             ago(f.run.updated_unix),
             rc_of(s.index)
@@ -232,22 +349,25 @@ pub fn run_status(a: StatusArgs) -> Result<()> {
             let n = crate::pipeline::shard::Shard { index: i, count }
                 .positions(n_sel)
                 .len();
-            println!(
+            outln!(
                 "| {i}/{count} | (no output yet) | {n} | 0 | 0 | {n} | - | - | {} |",
                 rc_of(i)
             );
         }
     }
     let failed = all.iter().filter(|r| r.status == FAILED).count();
-    println!(
+    outln!(
         "\nin all: {} done, {failed} failed, {} missing of {n_sel}",
         all.len() - failed,
         n_sel.saturating_sub(all.len())
     );
     for r in all.iter().filter(|r| r.status == FAILED) {
-        println!("failed: {}: {}", r.id, r.error.as_deref().unwrap_or(""));
+        outln!("failed: {}: {}", r.id, r.error.as_deref().unwrap_or(""));
     }
     print_cost(&all, a.project_pairs, backend_kind(&first.params));
+    if !corrupt.is_empty() {
+        return Err(corrupt_error());
+    }
     Ok(())
 }
 
@@ -275,8 +395,8 @@ fn print_cost(records: &[&PairRecord], project: usize, backend: Option<String>) 
     if done.is_empty() {
         return;
     }
-    println!("\n| stage | pairs computed | mean s computed | pairs cached | mean s cached |");
-    println!("|---|---|---|---|---|");
+    outln!("\n| stage | pairs computed | mean s computed | pairs cached | mean s cached |");
+    outln!("|---|---|---|---|---|");
     let mut computed_ms = vec![];
     for (stage, _, _, _) in stage_totals(done.iter().copied()) {
         let (mut c, mut cs, mut h, mut hs) = (0usize, 0.0, 0usize, 0.0);
@@ -298,7 +418,7 @@ fn print_cost(records: &[&PairRecord], project: usize, backend: Option<String>) 
                 format!("{:.3}", t / 1e3 / n as f64)
             }
         };
-        println!(
+        outln!(
             "| {stage} | {c} | {} | {h} | {} |",
             mean(cs, c),
             mean(hs, h)
@@ -308,7 +428,7 @@ fn print_cost(records: &[&PairRecord], project: usize, backend: Option<String>) 
         }
     }
     let per_pair = done.iter().map(|r| r.time_s).sum::<f64>() / done.len() as f64;
-    println!(
+    outln!(
         "\nmeasured: {:.2} s per pair over {} pairs; {project} pairs at that rate: {:.2} h on one \
          worker",
         per_pair,
@@ -327,7 +447,7 @@ fn print_cost(records: &[&PairRecord], project: usize, backend: Option<String>) 
                  Cosmos-Transfer1 is about 507 s per pair on an RTX A6000 in the paper)"
             )
         };
-        println!(
+        outln!(
             "generation (computed, not cached, {backend}): {:.2} s per pair, so {project} pairs \
              need {:.2} {unit}",
             gen_ms / 1e3,

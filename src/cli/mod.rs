@@ -1,4 +1,26 @@
 //! The `cgenreg` command line: the same pipeline as the GUI, for scripts, benchmarks and CI.
+//!
+//! Everything the commands print on stdout goes through [`outln!`] / [`out!`]: a closed pipe
+//! (`cgenreg cache list | head -1`) or a full disk never panics. The first write error is
+//! kept, later output is dropped, and the program ends with exit status 0 for a closed pipe
+//! (what `head` users expect) or a clear error otherwise.
+
+/// `println!` for the CLI: never panics on a stdout error (see the module docs).
+macro_rules! outln {
+    () => {
+        $crate::cli::write_stdout(format_args!(""), true)
+    };
+    ($($t:tt)*) => {
+        $crate::cli::write_stdout(format_args!($($t)*), true)
+    };
+}
+
+/// `print!` for the CLI: never panics on a stdout error.
+macro_rules! out {
+    ($($t:tt)*) => {
+        $crate::cli::write_stdout(format_args!($($t)*), false)
+    };
+}
 
 mod args;
 mod bench;
@@ -85,6 +107,37 @@ pub fn run_command(c: Command) -> crate::Result<()> {
     }
 }
 
+/// The first error writing to stdout (later output is dropped).
+static STDOUT_ERROR: std::sync::Mutex<Option<std::io::Error>> = std::sync::Mutex::new(None);
+
+/// Writes to stdout, keeping the first error instead of panicking.
+pub(crate) fn write_stdout(args: std::fmt::Arguments, newline: bool) {
+    use std::io::Write;
+    let mut err = STDOUT_ERROR.lock().unwrap_or_else(|p| p.into_inner());
+    if err.is_some() {
+        return;
+    }
+    let mut o = std::io::stdout().lock();
+    let r = o
+        .write_fmt(args)
+        .and_then(|()| if newline { o.write_all(b"\n") } else { Ok(()) });
+    if let Err(e) = r {
+        *err = Some(e);
+    }
+}
+
+/// Flushes stdout and takes the first write error, if any.
+fn stdout_error() -> Option<std::io::Error> {
+    use std::io::Write;
+    let mut err = STDOUT_ERROR.lock().unwrap_or_else(|p| p.into_inner());
+    if err.is_none() {
+        if let Err(e) = std::io::stdout().lock().flush() {
+            *err = Some(e);
+        }
+    }
+    err.take()
+}
+
 pub fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
@@ -96,11 +149,18 @@ pub fn main() -> ExitCode {
             "built without the GUI: use a subcommand (see --help)".into(),
         )),
     };
-    match result {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
+    let out_err = stdout_error();
+    match (result, out_err) {
+        (Err(e), _) => {
             eprintln!("cgenreg: error: {e}");
             ExitCode::FAILURE
         }
+        // The reader went away (`| head`): the output it wanted was written.
+        (Ok(()), Some(e)) if e.kind() == std::io::ErrorKind::BrokenPipe => ExitCode::SUCCESS,
+        (Ok(()), Some(e)) => {
+            eprintln!("cgenreg: error: writing to stdout: {e}");
+            ExitCode::FAILURE
+        }
+        (Ok(()), None) => ExitCode::SUCCESS,
     }
 }

@@ -31,6 +31,9 @@ pub struct RegisterArgs {
     /// inlier flags under the estimate and the ground truth) to this .npz file.
     #[arg(long, value_name = "FILE.npz")]
     pub export_corr: Option<PathBuf>,
+    /// Replace an existing --export-corr file even when it is not an .npz archive.
+    #[arg(long, requires = "export_corr")]
+    pub force: bool,
     #[command(flatten)]
     pub pipeline: PipelineArgs,
     #[command(flatten)]
@@ -60,6 +63,10 @@ pub(crate) fn load_pair(a: &RegisterArgs) -> Result<(ScanPair, Option<bool>)> {
 }
 
 pub fn run(a: RegisterArgs) -> Result<()> {
+    if let Some(path) = &a.export_corr {
+        // before the work: a bad output path fails at once
+        crate::io::output::prepare(path, crate::io::output::OutputKind::Npz, a.force)?;
+    }
     let t0 = std::time::Instant::now();
     let (pair, load_hit) = load_pair(&a)?;
     let load_ms = t0.elapsed().as_secs_f64() * 1e3;
@@ -79,6 +86,7 @@ pub fn run(a: RegisterArgs) -> Result<()> {
     );
     res.total_ms += load_ms;
     if let Some(path) = &a.export_corr {
+        crate::io::output::prepare(path, crate::io::output::OutputKind::Npz, a.force)?;
         let t = crate::pipeline::export::export_correspondences(
             path, &pair, &params, &inputs, None, &res,
         )?;
@@ -88,7 +96,7 @@ pub fn run(a: RegisterArgs) -> Result<()> {
     if a.json {
         let s = serde_json::to_string_pretty(&res)
             .map_err(|e| Error::Invalid(format!("serialising the result: {e}")))?;
-        println!("{s}");
+        outln!("{s}");
     } else {
         print_human(&res);
     }
@@ -96,28 +104,37 @@ pub fn run(a: RegisterArgs) -> Result<()> {
 }
 
 pub fn print_human(r: &RegistrationResult) {
-    println!(
+    outln!(
         "pair {}: source {} -> target {}",
-        r.pair_id, r.source_name, r.target_name
+        r.pair_id,
+        r.source_name,
+        r.target_name
     );
-    println!(
+    outln!(
         "geometric features: {}; image branch: {}",
         r.geo_features,
         r.image_branch.as_deref().unwrap_or("off")
     );
-    println!(
+    outln!(
         "keypoints: {} source, {} target; {} correspondences, {} inliers ({})",
-        r.n_source_keypoints, r.n_target_keypoints, r.n_correspondences, r.n_inliers, r.estimator
+        r.n_source_keypoints,
+        r.n_target_keypoints,
+        r.n_correspondences,
+        r.n_inliers,
+        r.estimator
     );
-    println!("estimated target_from_source (p_target = T * p_source):");
+    outln!("estimated target_from_source (p_target = T * p_source):");
     for row in &r.target_from_source {
-        println!(
+        outln!(
             "  {:>12.8} {:>12.8} {:>12.8} {:>12.8}",
-            row[0], row[1], row[2], row[3]
+            row[0],
+            row[1],
+            row[2],
+            row[3]
         );
     }
     match &r.metrics {
-        Some(m) => println!(
+        Some(m) => outln!(
             "vs ground truth: RRE {:.3} deg, RTE {:.3} m, inlier ratio {:.1} %, {}",
             m.rre_deg,
             m.rte_m,
@@ -128,12 +145,12 @@ pub fn print_human(r: &RegistrationResult) {
                 "FAILURE"
             }
         ),
-        None => println!("no ground truth: metrics not computed"),
+        None => outln!("no ground truth: metrics not computed"),
     }
     if let Some(c) = &r.convention {
         match &c.warning {
-            Some(w) => println!("WARNING: {w}"),
-            None => println!(
+            Some(w) => outln!("WARNING: {w}"),
+            None => outln!(
                 "ground truth convention: consistent ({:.0} % of source keypoints within {:.0} cm \
                  under the GT, {:.0} % under its inverse)",
                 100.0 * c.overlap_gt,
@@ -143,13 +160,15 @@ pub fn print_human(r: &RegistrationResult) {
         }
     }
     if let Some(img) = &r.image {
-        println!(
+        outln!(
             "image branch: frames from {} ({}); VFM {}",
-            img.provenance.backend, img.provenance.model, img.vfm
+            img.provenance.backend,
+            img.provenance.model,
+            img.vfm
         );
         let linked =
             |l: &[Option<crate::vfm::lift::PixelLink>]| l.iter().filter(|x| x.is_some()).count();
-        println!(
+        outln!(
             "  views: source {:?}, target {:?}; keypoints with a pixel: {}/{} source, {}/{} target",
             img.source_views
                 .iter()
@@ -167,11 +186,11 @@ pub fn print_human(r: &RegistrationResult) {
     }
     let shown = r.convention.as_ref().and_then(|c| c.warning.as_ref());
     for w in r.warnings.iter().filter(|w| Some(*w) != shown) {
-        println!("warning: {w}");
+        outln!("warning: {w}");
     }
-    println!("stage timings:");
+    outln!("stage timings:");
     for t in &r.timings {
-        println!("  {:<28} {:>9.1} ms  {}", t.stage, t.ms, t.status);
+        outln!("  {:<28} {:>9.1} ms  {}", t.stage, t.ms, t.status);
     }
-    println!("  {:<28} {:>9.1} ms", "total", r.total_ms);
+    outln!("  {:<28} {:>9.1} ms", "total", r.total_ms);
 }

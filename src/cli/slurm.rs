@@ -129,6 +129,25 @@ fn plain_value(what: &str, v: &str) -> Result<String> {
     }
 }
 
+/// A path that goes into a script (a comment or a quoted argument) must not end a line:
+/// newlines, carriage returns, NUL and the other control characters are refused.
+fn no_control_chars(what: &str, p: &Path) -> Result<String> {
+    let s = p.to_string_lossy().into_owned();
+    if let Some(c) = s.chars().find(|c| c.is_control()) {
+        return Err(Error::Invalid(format!(
+            "{what} {s:?}: contains the control character {c:?}; paths that go into the job \
+             scripts cannot hold newlines, carriage returns or other control characters \
+             (rename the folder)"
+        )));
+    }
+    Ok(s)
+}
+
+/// `s` as one shell word: single-quoted, with each `'` written as `'\''`.
+fn sh_quote(s: &str) -> String {
+    format!("'{}'", s.replace('\'', "'\\''"))
+}
+
 fn absolute(p: &Path) -> Result<PathBuf> {
     if p.is_absolute() {
         Ok(p.to_path_buf())
@@ -157,6 +176,7 @@ pub fn run(a: SlurmArgs) -> Result<()> {
     let out = absolute(&a.out)?;
     let out_s = plain_path("--out", &out)?;
     let manifest = absolute(&a.manifest)?;
+    let manifest_s = no_control_chars("the manifest path", &manifest)?;
     if !manifest.is_file() {
         return Err(Error::Invalid(format!(
             "{}: no such manifest",
@@ -185,11 +205,8 @@ pub fn run(a: SlurmArgs) -> Result<()> {
         std::fs::create_dir_all(&p).map_err(|e| Error::io(&p, e))?;
     }
     let plan_path = out.join(PLAN);
-    if plan_path.exists() {
-        let old: Plan = serde_json::from_slice(
-            &std::fs::read(&plan_path).map_err(|e| Error::io(&plan_path, e))?,
-        )
-        .map_err(|e| Error::format(&plan_path, "plan", "a cgenreg slurm plan", e.to_string()))?;
+    if std::fs::symlink_metadata(&plan_path).is_ok() {
+        let old: Plan = crate::io::output::read_json(&plan_path, "cgenreg slurm plan")?;
         if old != plan {
             return Err(Error::Invalid(format!(
                 "{} holds another plan (old: {} {} --array {} -- {:?}); use another --out, \
@@ -242,14 +259,18 @@ pub fn run(a: SlurmArgs) -> Result<()> {
     for (k, v) in &opts {
         sbatch.push_str(&format!("#SBATCH --{k}={v}\n"));
     }
+    // Every value below is a validated path without control characters, and shell-quoted:
+    // nothing can end the comment line or run as a command.
     sbatch.push_str(&format!(
-        "# Task i runs shard i/{n} of: cgenreg {cmd} {m} --shard i/{n} --json {out_s}/shards/shard-i.json \
+        "# Task i runs shard i/{n} of: cgenreg {cmd} {m} --shard i/{n} --json {sh_out}/shards/shard-i.json \
          (+ the options in plan.json).\n\
          # The options travel in plan.json, never through this script.\n\
-         exec '{bin_s}' slurm-task '{out_s}'\n",
+         exec {sh_bin} slurm-task {sh_out}\n",
         n = a.array,
         cmd = plan.command.argv().join(" "),
-        m = manifest.display(),
+        m = sh_quote(&manifest_s),
+        sh_out = sh_quote(&out_s),
+        sh_bin = sh_quote(&bin_s),
     ));
     let array_path = out.join("array.sbatch");
     crate::error::write_atomic(&array_path, sbatch.as_bytes())?;
@@ -258,39 +279,44 @@ pub fn run(a: SlurmArgs) -> Result<()> {
     merge.push_str("#SBATCH --job-name=cgenreg-merge\n");
     merge.push_str(&format!("#SBATCH --output={out_s}/logs/merge.log\n"));
     merge.push_str("#SBATCH --open-mode=append\n");
-    if let Some(p) = &a.partition {
-        merge.push_str(&format!("#SBATCH --partition={p}\n"));
-    }
-    if let Some(acc) = &a.account {
-        merge.push_str(&format!("#SBATCH --account={acc}\n"));
+    for (k, v) in opts
+        .iter()
+        .filter(|(k, _)| matches!(*k, "partition" | "account"))
+    {
+        merge.push_str(&format!("#SBATCH --{k}={v}\n"));
     }
     merge.push_str(&format!(
-        "exec '{bin_s}' merge '{out_s}/shards' --json '{out_s}/merged.json'\n"
+        "exec {} merge {} --json {}\n",
+        sh_quote(&bin_s),
+        sh_quote(&format!("{out_s}/shards")),
+        sh_quote(&format!("{out_s}/merged.json"))
     ));
     let merge_path = out.join("merge.sbatch");
     crate::error::write_atomic(&merge_path, merge.as_bytes())?;
-    println!("wrote {} ({} tasks)", array_path.display(), a.array);
-    println!("wrote {}", merge_path.display());
+    outln!("wrote {} ({} tasks)", array_path.display(), a.array);
+    outln!("wrote {}", merge_path.display());
 
     if !a.submit {
-        println!("submit with:");
-        println!("  jid=$(sbatch --parsable {})", array_path.display());
-        println!(
+        outln!("submit with:");
+        outln!("  jid=$(sbatch --parsable {})", array_path.display());
+        outln!(
             "  sbatch --dependency=afterok:$jid {}",
             merge_path.display()
         );
-        println!("follow with: cgenreg status {}", out.display());
+        outln!("follow with: cgenreg status {}", out.display());
         return Ok(());
     }
     let jid = sbatch_submit(&[array_path.display().to_string()])?;
-    println!("submitted array job {jid} ({} tasks)", a.array);
+    outln!("submitted array job {jid} ({} tasks)", a.array);
     let mid = sbatch_submit(&[
         format!("--dependency=afterok:{jid}"),
         merge_path.display().to_string(),
     ])?;
-    println!("submitted merge job {mid} (after the array succeeds)");
-    std::fs::write(out.join("jobs.txt"), format!("array {jid}\nmerge {mid}\n"))
-        .map_err(|e| Error::io(out.join("jobs.txt"), e))?;
+    outln!("submitted merge job {mid} (after the array succeeds)");
+    crate::error::write_atomic(
+        &out.join("jobs.txt"),
+        format!("array {jid}\nmerge {mid}\n").as_bytes(),
+    )?;
     Ok(())
 }
 
@@ -339,9 +365,7 @@ pub struct SlurmTaskArgs {
 /// `DIR/logs/task-i.rc`.
 pub fn run_task(a: SlurmTaskArgs) -> Result<()> {
     let plan_path = a.dir.join(PLAN);
-    let plan: Plan =
-        serde_json::from_slice(&std::fs::read(&plan_path).map_err(|e| Error::io(&plan_path, e))?)
-            .map_err(|e| Error::format(&plan_path, "plan", "a cgenreg slurm plan", e.to_string()))?;
+    let plan: Plan = crate::io::output::read_json(&plan_path, "cgenreg slurm plan")?;
     let index = match a.index {
         Some(i) => i,
         None => std::env::var("SLURM_ARRAY_TASK_ID")
@@ -401,6 +425,23 @@ mod tests {
         for bad in ["/a b", "/a'b", "/a\nb", "/a%b", "/a$b"] {
             assert!(plain_path("x", Path::new(bad)).is_err(), "{bad:?}");
         }
+    }
+
+    #[test]
+    fn script_values_are_quoted_and_control_characters_refused() {
+        assert_eq!(sh_quote("/a b/it's"), "'/a b/it'\\''s'");
+        for bad in [
+            "/d/x\ntouch /tmp/pwn\n/m.toml",
+            "/d/x\r\n/m",
+            "/d/\u{1b}x",
+            "/d/\u{7f}",
+        ] {
+            let e = no_control_chars("the manifest path", Path::new(bad))
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains("control character"), "{e}");
+        }
+        assert!(no_control_chars("m", Path::new("/d/a b/$(x)/m.toml")).is_ok());
     }
 
     #[test]

@@ -168,7 +168,7 @@ pub fn study_json(f: &RunFile) -> Result<Vec<u8>> {
 /// The study table of a run file, and its skipped / failed pairs.
 pub fn print_study(f: &RunFile) -> Result<()> {
     let rep = report_of(f)?;
-    println!("{}", markdown_table(&rep));
+    outln!("{}", markdown_table(&rep));
     for r in &rep.rows {
         for s in &r.skipped {
             eprintln!("{} · {}: skipped: {}", r.setting, s.pair_id, s.reason);
@@ -186,6 +186,7 @@ fn run_common(a: &CommonArgs, settings: Vec<StudySetting>, command: &str) -> Res
             "a study needs the image branch: pass --wfm oracle, builtin, cached or cosmos".into(),
         ));
     }
+    a.run.check_output(a.json.as_deref())?;
     let ds = a.pairs.dataset(&a.image)?;
     let specs = a.pairs.select(&ds)?;
     let (params, cache) = a.image.params_and_cache(&a.pipeline)?;

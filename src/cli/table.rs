@@ -157,21 +157,10 @@ fn num(v: &Value, k: &str, scale: f64) -> String {
 }
 
 pub fn run(a: TableArgs) -> Result<()> {
-    println!("| VFM (frames) | Geo. features | Fusion | selection | calibration τ (img/geo) | split | pairs | RR % | RA@5° | RA@10° | RA@45° | RRE mean° | RRE med.° | TA@5cm | TA@10cm | TA@25cm | RTE mean cm | RTE med. cm | s/pair |");
-    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
+    outln!("| VFM (frames) | Geo. features | Fusion | selection | calibration τ (img/geo) | split | pairs | RR % | RA@5° | RA@10° | RA@45° | RRE mean° | RRE med.° | TA@5cm | TA@10cm | TA@25cm | RTE mean cm | RTE med. cm | s/pair |");
+    outln!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
     for path in &a.files {
-        let text = std::fs::read_to_string(path).map_err(|e| Error::Io {
-            path: path.clone(),
-            source: e,
-        })?;
-        let v: Value = serde_json::from_str(&text).map_err(|e| {
-            Error::format(
-                path,
-                "(file)",
-                "JSON written by `cgenreg bench --json`",
-                e.to_string(),
-            )
-        })?;
+        let v: Value = crate::io::output::read_json(path, "`cgenreg bench --json` output")?;
         let params = field(path, &v, "/params")?;
         let (vfm, geo, fusion) = row_label(path, params)?;
         let mut selection = selection_name(params);
@@ -195,7 +184,7 @@ pub fn run(a: TableArgs) -> Result<()> {
             {
                 continue;
             }
-            println!(
+            outln!(
                 "| {vfm} | {geo} | {fusion} | {selection} | {calibration} | {split} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {:.2} |",
                 s.get("n").and_then(Value::as_u64).unwrap_or(0),
                 pct(s, "recall"),

@@ -4,6 +4,8 @@
 //! name = "redkitchen"            # dataset name, the prefix of pair ids
 //! root = "$CGENREG_DATA"         # paths below are relative to this; "." (the default) is the
 //!                                # manifest's folder; $VAR / ${VAR} are expanded
+//! # allow_outside_root = true    # paths must stay inside root (symlinks resolved) unless
+//!                                # this is set: a shared manifest cannot read other files
 //!
 //! [fragment_options]             # optional defaults for fragments built from RGB-D frames
 //! voxel = 0.01                   # merge voxel (m)
@@ -61,6 +63,8 @@ use std::path::{Path, PathBuf};
 struct RawManifest {
     name: String,
     root: Option<String>,
+    /// Paths may lead outside `root` (`..`, absolute paths, symlinks).
+    allow_outside_root: Option<bool>,
     fragment_options: Option<RawOptions>,
     #[serde(default)]
     fragments: Vec<RawFragment>,
@@ -415,20 +419,45 @@ impl Dataset {
             &raw.fragment_options.clone().unwrap_or_default(),
         )?;
 
+        let allow_outside = raw.allow_outside_root.unwrap_or(false);
+        // Resolved once: every path is checked against the real root (symlinks resolved).
+        let real_root = root.canonicalize().map_err(|e| Error::io(&root, e))?;
         let resolve = |field: &str, rel: &str, dir: bool| -> Result<PathBuf> {
             let p = root.join(expand_env(path, rel)?);
-            let ok = if dir { p.is_dir() } else { p.is_file() };
-            if !ok {
+            let want = if dir { "folder" } else { "file" };
+            let expected = || format!("an existing {want} (relative to root {})", root.display());
+            let found = match std::fs::metadata(&p) {
+                Err(e) if e.kind() == std::io::ErrorKind::NotFound => Some("not found"),
+                Err(_) => Some("not readable"),
+                Ok(m) if dir && !m.is_dir() => Some("not a folder"),
+                Ok(m) if !dir && m.is_dir() => Some("a folder"),
+                Ok(m) if !dir && !m.is_file() => {
+                    Some("not a regular file (a FIFO, device or socket)")
+                }
+                Ok(_) => None,
+            };
+            if let Some(why) = found {
                 return Err(bad(
                     path,
                     field,
-                    format!(
-                        "an existing {} (relative to root {})",
-                        if dir { "folder" } else { "file" },
-                        root.display()
-                    ),
-                    format!("{} (not found)", p.display()),
+                    expected(),
+                    format!("{} ({why})", p.display()),
                 ));
+            }
+            if !allow_outside {
+                let real = p.canonicalize().map_err(|e| Error::io(&p, e))?;
+                if !real.starts_with(&real_root) {
+                    return Err(bad(
+                        path,
+                        field,
+                        format!(
+                            "a path inside root {} (symlinks resolved; put \
+                             `allow_outside_root = true` in the manifest to allow others)",
+                            root.display()
+                        ),
+                        format!("{} (outside the root)", p.display()),
+                    ));
+                }
             }
             Ok(p)
         };

@@ -24,7 +24,7 @@ pub fn parse_numbers(path: &Path, text: &str) -> Result<Vec<f64>> {
                     path,
                     format!("line {}", ln + 1),
                     "a number",
-                    format!("{tok:?}"),
+                    crate::io::output::unquoted(tok),
                 )
             })?;
             if !v.is_finite() {

@@ -89,7 +89,7 @@ fn parse_blocks(path: &Path, text: &str, rows: usize, cols: usize) -> Result<Vec
                             path,
                             format!("line {}", lr + 1),
                             "a finite number",
-                            format!("{t:?}"),
+                            crate::io::output::unquoted(t),
                         )
                     })?;
                 values.push(v);

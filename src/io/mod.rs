@@ -9,6 +9,7 @@ pub mod gtlog;
 pub mod kitti;
 pub mod limits;
 pub mod npy;
+pub mod output;
 pub mod pcd;
 pub mod pickle;
 pub mod ply;

@@ -124,7 +124,12 @@ fn parse_header(path: &Path, bytes: &[u8]) -> Result<Header> {
                     .iter()
                     .map(|t| match t.as_bytes() {
                         [c @ (b'F' | b'U' | b'I')] => Ok(*c),
-                        _ => Err(Error::format(path, "TYPE", "F, U or I", format!("{t:?}"))),
+                        _ => Err(Error::format(
+                            path,
+                            "TYPE",
+                            "F, U or I",
+                            crate::io::output::unquoted(t),
+                        )),
                     })
                     .collect::<Result<_>>()?
             }
@@ -142,7 +147,7 @@ fn parse_header(path: &Path, bytes: &[u8]) -> Result<Header> {
                             path,
                             "DATA",
                             "ascii, binary or binary_compressed",
-                            format!("{:?}", other.unwrap_or("")),
+                            crate::io::output::unquoted(other.unwrap_or("")),
                         ))
                     }
                 })
@@ -152,7 +157,7 @@ fn parse_header(path: &Path, bytes: &[u8]) -> Result<Header> {
                     path,
                     format!("header line {line_no}"),
                     "a PCD v0.7 header key",
-                    format!("{line:?}"),
+                    crate::io::output::unquoted(&line),
                 ))
             }
         }
@@ -536,7 +541,7 @@ pub fn parse_pcd(path: &Path, bytes: &[u8]) -> Result<PointCloud> {
                                 path,
                                 format!("point {i} field {}", h.fields[fi].name),
                                 "a number",
-                                format!("{t:?}"),
+                                crate::io::output::unquoted(t),
                             )
                         })?
                     };
@@ -547,7 +552,7 @@ pub fn parse_pcd(path: &Path, bytes: &[u8]) -> Result<PointCloud> {
                         path,
                         format!("point {i}"),
                         format!("{ncols} values"),
-                        format!("{:?}", line),
+                        crate::io::output::unquoted(&line),
                     ));
                 }
                 let v = |f: usize| vals[cols[f]];

@@ -131,12 +131,14 @@ struct Header {
 fn parse_header(path: &Path, data: &[u8]) -> Result<Header> {
     let magic_ok = data.starts_with(b"ply\n") || data.starts_with(b"ply\r\n");
     if !magic_ok {
-        let found = String::from_utf8_lossy(&data[..data.len().min(8)]).into_owned();
         return Err(Error::format(
             path,
             "magic",
             "a file starting with \"ply\"",
-            format!("{found:?}"),
+            format!(
+                "another kind of file ({} bytes; content not shown)",
+                data.len()
+            ),
         ));
     }
     let mut pos = 0usize;
@@ -170,7 +172,7 @@ fn parse_header(path: &Path, data: &[u8]) -> Result<Header> {
                             path,
                             field(),
                             "format ascii | binary_little_endian | binary_big_endian",
-                            format!("{:?}", other.unwrap_or("")),
+                            crate::io::output::unquoted(other.unwrap_or("")),
                         ))
                     }
                 });
@@ -188,7 +190,7 @@ fn parse_header(path: &Path, data: &[u8]) -> Result<Header> {
                             path,
                             field(),
                             "element <name> <count>",
-                            format!("{line:?}"),
+                            crate::io::output::unquoted(&line),
                         ))
                     }
                 }
@@ -199,7 +201,7 @@ fn parse_header(path: &Path, data: &[u8]) -> Result<Header> {
                         path,
                         field(),
                         "a property after an element line",
-                        format!("{line:?}"),
+                        crate::io::output::unquoted(&line),
                     ));
                 };
                 let prop = if toks.get(1) == Some(&"list") {
@@ -215,7 +217,7 @@ fn parse_header(path: &Path, data: &[u8]) -> Result<Header> {
                                 path,
                                 field(),
                                 "property list <int type> <type> <name>",
-                                format!("{line:?}"),
+                                crate::io::output::unquoted(&line),
                             ))
                         }
                     }
@@ -230,7 +232,7 @@ fn parse_header(path: &Path, data: &[u8]) -> Result<Header> {
                                 path,
                                 field(),
                                 "property <type> <name> with a known type",
-                                format!("{line:?}"),
+                                crate::io::output::unquoted(&line),
                             ))
                         }
                     }
@@ -590,7 +592,7 @@ fn parse_ascii(path: &Path, h: &Header, body: &[u8]) -> Result<PointCloud> {
                             path,
                             format!("element {} instance {i} property {}", el.name, prop.name),
                             what.to_string(),
-                            format!("{t:?}"),
+                            crate::io::output::unquoted(t),
                         )
                     })
                 };

@@ -42,7 +42,7 @@ pub fn parse_xyz(path: &Path, text: &str) -> Result<PointCloud> {
                     path,
                     format!("line {}", ln + 1),
                     "numbers x y z",
-                    format!("{t:?}"),
+                    crate::io::output::unquoted(t),
                 )
             })?;
             k += 1;
@@ -103,8 +103,11 @@ mod tests {
         let p = Path::new("b.xyz");
         let e = parse_xyz(p, "1 2 3\n1 2\n").unwrap_err().to_string();
         assert!(e.contains("b.xyz") && e.contains("line 2"), "{e}");
-        let e = parse_xyz(p, "1 2 3\n1 x 3\n").unwrap_err().to_string();
-        assert!(e.contains("line 2") && e.contains("\"x\""), "{e}");
+        // the line is named, its content never quoted (the path may be any file)
+        let e = parse_xyz(p, "1 2 3\nsecret:x 2 3\n")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("line 2") && !e.contains("secret"), "{e}");
         let e = parse_xyz(p, "# nothing\n").unwrap_err().to_string();
         assert!(e.contains("empty"), "{e}");
         let e = parse_xyz(p, "1 2 3\nnan 0 0\n").unwrap_err().to_string();

@@ -167,15 +167,8 @@ pub fn settings_summary(p: &RegisterParams) -> String {
 
 /// Reads a `cgenreg bench --json` (or `cgenreg merge`) output.
 pub fn load_bench_run(path: &Path) -> Result<BenchRun> {
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-    let v: Value = serde_json::from_slice(&bytes).map_err(|e| {
-        Error::format(
-            path,
-            "(root)",
-            "a cgenreg bench --json output",
-            e.to_string(),
-        )
-    })?;
+    // bounded, regular files only (a /dev/zero link is refused before any read)
+    let v: Value = crate::io::output::read_json(path, "cgenreg bench --json output")?;
     bench_run_from_json(&path.display().to_string(), &v).map_err(|(field, why)| {
         Error::format(
             path,

@@ -19,6 +19,7 @@ mod gui_run_all;
 mod gui_snapshots;
 mod gui_study;
 mod headless_no_egl;
+mod hostile_outputs;
 mod hypotheses;
 mod io_limits;
 mod io_malformed;

@@ -183,6 +183,8 @@ fn a_pair_that_fails_or_panics_is_recorded_and_the_bench_goes_on() {
         format!(
             r#"name = "t"
 root = "{root}"
+# the clouds are real data outside this folder
+allow_outside_root = true
 [[fragments]]
 id = "0"
 cloud = "{k}/teaser-plusplus/cloud_bin_0.ply"

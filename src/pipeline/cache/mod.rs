@@ -117,7 +117,15 @@ impl Cache {
             .next()
             .is_none();
         if empty {
-            c.init()?;
+            // A read-only or full cache root: every store will fail with a warning (the run
+            // goes on without caching), so the marker is a warning too, not the run's end.
+            if let Err(e) = c.init() {
+                eprintln!(
+                    "warning: cache {}: could not write the marker file: {e} (the run goes on; \
+                     results cannot be stored)",
+                    c.root.display()
+                );
+            }
         }
         Ok(c)
     }

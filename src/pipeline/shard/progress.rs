@@ -48,8 +48,14 @@ impl Progress {
         let mut records: Vec<Option<PairRecord>> = vec![None; n];
         let mut message = None;
         if let (Some(p), ResumeMode::Resume) = (path, mode) {
-            if p.exists() {
-                let old = read_run_file(p)?;
+            if std::fs::symlink_metadata(p).is_ok() {
+                let old = read_run_file(p).map_err(|e| {
+                    Error::Invalid(format!(
+                        "{e}\n{} cannot be resumed: remove it to run this shard from the \
+                         start",
+                        p.display()
+                    ))
+                })?;
                 let diffs = old.run.identity.differences(&identity);
                 if !diffs.is_empty() || old.run.shard != shard {
                     let mut d = diffs;

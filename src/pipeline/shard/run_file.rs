@@ -60,15 +60,97 @@ pub struct RunFile {
 
 /// Reads the `run` and `records` fields of a run file (other fields are the command's).
 pub fn read_run_file(path: &Path) -> Result<RunFile> {
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-    serde_json::from_slice::<RunFile>(&bytes).map_err(|e| {
+    // bounded, regular files only: a /dev/zero link or a FIFO is refused before any read
+    let v: Value = crate::io::output::read_json(path, "run file")?;
+    let f = serde_json::from_value::<RunFile>(v).map_err(|e| {
         Error::format(
             path,
             "run",
             "a cgenreg bench/study/generate output written with run and records fields",
             e.to_string(),
         )
-    })
+    })?;
+    f.check(path)?;
+    Ok(f)
+}
+
+impl RunFile {
+    /// The header and records agree with each other: a shard inside its count, the count of
+    /// the identity, every record a selected pair of this shard, no pair twice. A file that
+    /// fails this is corrupt (or edited), and trusting it would miscount pairs.
+    pub fn check(&self, path: &Path) -> Result<()> {
+        let id = &self.run.identity;
+        let s = self.run.shard;
+        if s.count == 0 || s.index >= s.count {
+            return Err(Error::format(
+                path,
+                "run.shard",
+                "index < count",
+                format!("{}/{}", s.index, s.count),
+            ));
+        }
+        if id.shard_count == 0 {
+            return Err(Error::format(
+                path,
+                "run.identity.shard_count",
+                "at least 1",
+                "0",
+            ));
+        }
+        let merged = !self.run.merged_from.is_empty();
+        if merged && s != Shard::ALL {
+            return Err(Error::format(
+                path,
+                "run.shard",
+                "0/1 in a merged output",
+                s.label(),
+            ));
+        }
+        if !merged && s.count != id.shard_count {
+            return Err(Error::format(
+                path,
+                "run.shard",
+                format!("a shard of the run's {} shards", id.shard_count),
+                s.label(),
+            ));
+        }
+        let mut seen = std::collections::HashSet::new();
+        for (i, r) in self.records.iter().enumerate() {
+            let Some(pos) = id.selected.iter().position(|x| *x == r.id) else {
+                return Err(Error::format(
+                    path,
+                    format!("records[{i}].id"),
+                    "a pair of run.identity.selected",
+                    format!("{:?}", r.id),
+                ));
+            };
+            if !merged && !s.contains(pos) {
+                return Err(Error::format(
+                    path,
+                    format!("records[{i}].id"),
+                    format!("a pair of shard {s}"),
+                    format!("{:?} (position {pos} in the selection)", r.id),
+                ));
+            }
+            if !seen.insert(pos) {
+                return Err(Error::format(
+                    path,
+                    format!("records[{i}].id"),
+                    "each pair once",
+                    format!("{:?} again", r.id),
+                ));
+            }
+            if r.status != DONE && r.status != FAILED {
+                return Err(Error::format(
+                    path,
+                    format!("records[{i}].status"),
+                    "\"done\" or \"failed\"",
+                    format!("{:?}", r.status),
+                ));
+            }
+        }
+        Ok(())
+    }
 }
 
 impl PairRecord {
