@@ -197,11 +197,7 @@ fn collect(paths: &[PathBuf]) -> Result<(Vec<(PathBuf, RunFile)>, Vec<(PathBuf, 
     for (f, strict) in files {
         match read_run_file(&f) {
             Ok(r) if r.run.merged_from.is_empty() => out.push((f, r)),
-            // a merged output given by name is refused (merging it again would count twice)
-            Ok(_) if strict => corrupt.push((
-                f,
-                "a merged output, not a shard output (merge the shard files)".to_string(),
-            )),
+            // a merged output is not a shard output (merging it again would count twice)
             Ok(_) => {}
             Err(e) => {
                 // Other JSON at a run folder's top (the plan) is not a shard output.

@@ -139,7 +139,21 @@ fn stdout_error() -> Option<std::io::Error> {
 }
 
 pub fn main() -> ExitCode {
-    let cli = Cli::parse();
+    let cli = match Cli::try_parse() {
+        Ok(c) => c,
+        // --help / --version go through the same checked stdout as everything else
+        Err(e) if !e.use_stderr() => {
+            out!("{}", e.render());
+            return match stdout_error() {
+                Some(e) if e.kind() != std::io::ErrorKind::BrokenPipe => {
+                    eprintln!("cgenreg: error: writing to stdout: {e}");
+                    ExitCode::FAILURE
+                }
+                _ => ExitCode::SUCCESS,
+            };
+        }
+        Err(e) => e.exit(),
+    };
     let result = match cli.command {
         Some(c) => run_command(c),
         #[cfg(feature = "gui")]
