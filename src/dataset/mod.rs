@@ -157,7 +157,10 @@ mod tests {
         assert_eq!(p.gt_target_from_source.unwrap().translation.vector.x, 0.25);
         std::fs::write(&g, "1 0 0\n").unwrap();
         let e = pair_from_files(&s, &t, Some(&g)).unwrap_err().to_string();
-        assert!(e.contains("gt.txt") && e.contains("16 numbers"), "{e}");
+        assert!(
+            e.contains("gt.txt") && e.contains("4 rows of 4 numbers"),
+            "{e}"
+        );
         let e = pair_from_files(&s, &t, Some(&d.path().join("gt.npy")))
             .unwrap_err()
             .to_string();

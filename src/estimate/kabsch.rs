@@ -85,7 +85,21 @@ pub fn keypoint_problem(points: &[Point3<f32>]) -> Option<String> {
             points.len()
         ));
     }
-    spread_problem(points.len(), |i| (points[i].coords.cast::<f64>(), 1.0))
+    // far outliers (a stray point at 1e30) would dominate the spread: judge the others
+    let (lo, hi, _) = crate::geometry::voxel::robust_bounds(points)?;
+    let inside: Vec<Vector3<f64>> = points
+        .iter()
+        .map(|p| p.coords.cast::<f64>())
+        .filter(|p| (0..3).all(|k| p[k] >= lo[k] && p[k] <= hi[k]))
+        .collect();
+    if inside.len() < MIN_KEYPOINTS {
+        return Some(format!(
+            "has {} keypoint(s) apart from far outliers; at least {MIN_KEYPOINTS} not on one \
+             line are needed",
+            inside.len()
+        ));
+    }
+    spread_problem(inside.len(), |i| (inside[i], 1.0))
         .map(|what| format!("has {} keypoints that are all {what}", points.len()))
 }
 

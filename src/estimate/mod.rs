@@ -94,9 +94,10 @@ fn with_rigidity_check(
     tgt: &[Point3<f32>],
     method: &EstimatorKind,
 ) -> Estimate {
-    if let Some(w) =
-        nonrigid::nonrigid_warning(src, tgt, &e.target_from_source, method.inlier_threshold())
-    {
+    let (pose, thr) = (&e.target_from_source, method.inlier_threshold());
+    let found = nonrigid::nonrigid_warning(src, tgt, pose, thr)
+        .or_else(|| nonrigid::low_consensus_warning(src, tgt, pose, thr));
+    if let Some(w) = found {
         e.warning = Some(match e.warning.take() {
             Some(first) => format!("{first}; {w}"),
             None => w,

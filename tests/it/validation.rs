@@ -118,7 +118,49 @@ fn nan_rows_and_a_far_outlier_are_reported_and_change_nothing() {
         "{w}"
     );
     assert_eq!(b.n_target_keypoints, a.n_target_keypoints + 1);
+    // a real pair that registers gets no estimate warning
+    for r in [&a, &b] {
+        assert!(
+            !r.warnings
+                .iter()
+                .any(|w| w.contains("no rigid") || w.contains("too few")),
+            "{:?}",
+            r.warnings
+        );
+    }
+    // both register (RRE ≤ 15°, RTE ≤ 30 cm), to the same pose within 0.5° / 2 cm
     let (ma, mb) = (a.metrics.unwrap(), b.metrics.unwrap());
-    assert!(ma.rre_deg < 2.0 && ma.rte_m < 0.1, "{ma:?}");
-    assert!(mb.rre_deg < 2.0 && mb.rte_m < 0.1, "{mb:?}");
+    assert!(ma.success && mb.success, "{ma:?} {mb:?}");
+    assert!(
+        (ma.rre_deg - mb.rre_deg).abs() < 0.5 && (ma.rte_m - mb.rte_m).abs() < 0.02,
+        "{ma:?} {mb:?}"
+    );
+}
+
+/// GeoTransformer's demo source against its own mirror image (x negated): the result warns
+/// that no rigid transform explains the correspondences.
+#[test]
+fn a_cloud_against_its_mirror_image_is_flagged() {
+    let Some(root) = cgenreg::testing::test_data_root() else {
+        return;
+    };
+    let src = root.join("3dmatch-redkitchen/geotransformer-demo/src.npy");
+    let c = cgenreg::io::cloud::load_cloud(&src).unwrap();
+    let mirrored: Vec<Point3<f32>> = c
+        .points
+        .iter()
+        .map(|p| Point3::new(-p.x, p.y, p.z))
+        .collect();
+    let dir = tempfile::tempdir().unwrap();
+    let m = dir.path().join("mirror.ply");
+    cgenreg::io::ply::write_ply(&m, &PointCloud::from_points(mirrored)).unwrap();
+    let pair = pair_from_files(&src, &m, None).unwrap();
+    let r = register_pair(&pair, &RegisterParams::default()).unwrap();
+    assert!(
+        r.warnings
+            .iter()
+            .any(|w| w.contains("no rigid transform") && w.contains("mirror")),
+        "{:?}",
+        r.warnings
+    );
 }
