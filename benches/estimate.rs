@@ -2,6 +2,9 @@
 //! indoor-like correspondence sets (a 3 m room, 1 cm noise on true matches).
 //! Run: `cargo bench --no-default-features --bench estimate`. Prints a markdown table.
 
+// Benchmarks, examples and tests: a failed step is reported by the panic that ends them.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+
 use cgenreg::estimate::ransac::{ransac, RansacParams};
 use cgenreg::estimate::sc2pcr::{sc2pcr, Sc2PcrParams};
 use cgenreg::estimate::synthetic::synthetic_correspondences;

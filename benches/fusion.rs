@@ -4,6 +4,9 @@
 //! Prints a markdown table: median wall time over the runs, and the peak heap growth measured
 //! by a counting global allocator (inputs excluded).
 
+// Benchmarks, examples and tests: a failed step is reported by the panic that ends them.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+
 use cgenreg::features::Features;
 use cgenreg::fusion::fuse::noisy_and_rank_keys;
 use cgenreg::fusion::{

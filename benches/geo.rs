@@ -2,6 +2,9 @@
 //! 3DMatch fragment (cloud_bin_0, ~258k points) at voxel 2.5 cm. Plain `Instant` timing,
 //! median of 5 runs. Run: `cargo bench --no-default-features --bench geo`.
 
+// Benchmarks, examples and tests: a failed step is reported by the panic that ends them.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+
 use cgenreg::features::fpfh::{compute_fpfh, FpfhParams};
 use cgenreg::geometry::knn::KdIndex;
 use cgenreg::geometry::normals::{estimate_normals, orient_towards_viewpoint};

@@ -8,6 +8,9 @@
 //! `GUI_BENCH_ONLY=latency` (or `frames`, or `splat`: the CPU splatting kernel alone) runs one
 //! part.
 
+// Benchmarks, examples and tests: a failed step is reported by the panic that ends them.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+
 use std::time::Instant;
 
 use cgenreg::app::headless::HeadlessRenderer;

@@ -6,6 +6,9 @@
 //! Uses the real 7-Scenes redkitchen frames when `CGENREG_DATA` (or ../shared/data) has them,
 //! synthetic frames otherwise.
 
+// Benchmarks, examples and tests: a failed step is reported by the panic that ends them.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+
 use cgenreg::io::depth_png::{read_depth_png, DepthImage};
 use cgenreg::vfm::lift::{lift_views, LiftView};
 use nalgebra::{Isometry3, Point3};

@@ -1,6 +1,9 @@
 //! Timings of the generated-RGB branch up to the generated frames, on the staged redkitchen
 //! data: `cargo bench --no-default-features --bench wfm` (needs CGENREG_DATA or ../shared/data).
 
+// Benchmarks, examples and tests: a failed step is reported by the panic that ends them.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+
 use cgenreg::wfm::backend::WfmBackend;
 use std::time::Instant;
 

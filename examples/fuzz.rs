@@ -13,6 +13,9 @@
 //! crashing input to the crash folder (default `fuzz/artifacts/TARGET`) and exits 1 on a
 //! crash, 2 on a hang (an execution over `--timeout` seconds, default 10).
 
+// Benchmarks, examples and tests: a failed step is reported by the panic that ends them.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+
 use cgenreg::io::fuzz_targets as ft;
 use std::path::{Path, PathBuf};
 

@@ -12,6 +12,9 @@
 //! and prints the rows kept, the backend and the time of the pair. `--e2e` registers one pair of a
 //! manifest with oracle RGB, this model and K = 1, no cache (tests/it/mast3r_export.rs, step 3), with
 //! FRAMES depth frames per fragment (default 50, the pipeline's).
+
+// Benchmarks, examples and tests: a failed step is reported by the panic that ends them.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 use cgenreg::dataset::Dataset;
 use cgenreg::pipeline::{
     register_pair_cached, ImageBranchParams, RegisterParams, VfmSpec, WfmSpec,

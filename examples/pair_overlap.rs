@@ -2,6 +2,9 @@
 //! docs/ablation.md): `cargo run --example pair_overlap -- MANIFEST [CACHE_DIR]`.
 //! Prints one line per pair: id, split, source %, target %, max %, and the split the max falls
 //! in (> 30 %: 3DMatch-like, 10-30 %: 3DLoMatch-like, < 10 %: too low).
+
+// Benchmarks, examples and tests: a failed step is reported by the panic that ends them.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 use cgenreg::dataset::Dataset;
 use cgenreg::metrics::overlap::{pair_overlap, OVERLAP_RADIUS_M, OVERLAP_VOXEL_M};
 

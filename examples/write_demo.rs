@@ -1,4 +1,7 @@
 //! Render the synthetic demo scene: `cargo run --example write_demo -- <dir> [width height frames]`.
+
+// Benchmarks, examples and tests: a failed step is reported by the panic that ends them.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 fn main() -> cgenreg::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let dir = std::path::PathBuf::from(args.first().map(String::as_str).unwrap_or("assets/demo"));

@@ -6,6 +6,10 @@
 //! - Units are metres; camera axes follow OpenCV (x right, y down, z forward).
 //! - Every artefact that leaves a stage carries its provenance (see `pipeline`).
 
+// Outside tests a failure is an `Error`, never a panic (`[lints]` in Cargo.toml denies
+// unwrap/expect/panic); the unit tests may fail by panicking.
+#![cfg_attr(test, allow(clippy::unwrap_used, clippy::expect_used, clippy::panic))]
+
 pub mod camera;
 pub mod cli;
 pub mod dataset;
@@ -40,19 +44,45 @@ pub fn data_root() -> Option<std::path::PathBuf> {
     p.is_dir().then_some(p)
 }
 
-/// For tests on real data: the data root, or None to skip. When `CI=true` the data must be
-/// there, so a missing root panics (the test fails instead of silently skipping).
-pub fn test_data_root() -> Option<std::path::PathBuf> {
-    match data_root() {
-        Some(p) => Some(p),
-        None if std::env::var("CI").map(|v| v == "true").unwrap_or(false) => {
-            panic!(
-                "CI=true but the real test data was not found at $CGENREG_DATA or ../shared/data"
-            )
+/// Support for this crate's own tests (unit and integration); not part of the API.
+#[doc(hidden)]
+pub mod testing {
+    use std::path::{Path, PathBuf};
+
+    fn ci() -> bool {
+        std::env::var("CI").is_ok_and(|v| v == "true")
+    }
+
+    /// For tests on real data: the data root, or None to skip. When `CI=true` the data must be
+    /// there, so a missing root fails the test instead of silently skipping it.
+    #[allow(clippy::panic)] // a test's failure, by design
+    pub fn test_data_root() -> Option<PathBuf> {
+        match super::data_root() {
+            Some(p) => Some(p),
+            None if ci() => {
+                panic!(
+                    "CI=true but the real test data was not found at $CGENREG_DATA or ../shared/data"
+                )
+            }
+            None => {
+                eprintln!("skipping: real data not found (set CGENREG_DATA)");
+                None
+            }
         }
-        None => {
-            eprintln!("skipping: real data not found (set CGENREG_DATA)");
-            None
+    }
+
+    /// `root/rel` when that file exists, else None to skip; under `CI=true` a missing file
+    /// fails the test (a partial data folder must not pass by skipping).
+    #[allow(clippy::panic)] // a test's failure, by design
+    pub fn require_file(root: &Path, rel: &str) -> Option<PathBuf> {
+        let p = root.join(rel);
+        if p.exists() {
+            return Some(p);
         }
+        if ci() {
+            panic!("CI=true but the test data file {} is missing", p.display());
+        }
+        eprintln!("skipping: {} missing", p.display());
+        None
     }
 }

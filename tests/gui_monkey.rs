@@ -5,6 +5,9 @@
 //!
 //! Reproduce a failure with the seed it prints: `CGENREG_MONKEY_SEED=<seed> cargo test --test
 //! gui_monkey`; `CGENREG_MONKEY_EVENTS` sets the number of events (default 5000).
+
+// Tests: a failed step is the test failure.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 #![cfg(feature = "gui")]
 
 use cgenreg::app::controls::spawn_worker;

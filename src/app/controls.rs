@@ -516,8 +516,21 @@ fn switch_image_branch(
     backend: Option<WfmSpec>,
 ) {
     match (image_on, backend) {
-        (true, Some(b)) => params.image.as_mut().expect("image on").backend = b,
-        (true, None) => *image_off = params.image.take().expect("image on"),
+        (true, Some(b)) => match params.image.as_mut() {
+            Some(img) => img.backend = b,
+            // not on yet: switch it on with the kept parameters
+            None => {
+                params.image = Some(ImageBranchParams {
+                    backend: b,
+                    ..image_off.clone()
+                })
+            }
+        },
+        (true, None) => {
+            if let Some(img) = params.image.take() {
+                *image_off = img;
+            }
+        }
         (false, Some(b)) => {
             params.image = Some(ImageBranchParams {
                 backend: b,

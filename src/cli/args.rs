@@ -83,7 +83,8 @@ pub struct PipelineArgs {
     pub topk: usize,
     #[arg(long, value_enum, default_value = "sc2pcr")]
     pub estimator: EstimatorKind,
-    /// Reproduce the authors' code: dual softmax, global top-8000, f32 Noisy-AND as written.
+    /// Reproduce the authors' code: dual softmax, global top-8000, f32 Noisy-AND as written,
+    /// SC2-PCR in score order (the authors' tie-breaking).
     #[arg(long)]
     pub reference: bool,
 }
@@ -132,6 +133,12 @@ impl PipelineArgs {
         p.fusion.exact_reference = self.reference;
         p.fusion.prior = self.prior;
         p.estimator = self.estimator.clone();
+        // --reference: SC2-PCR in the authors' score order (their tie-breaking)
+        if let (true, crate::estimate::EstimatorKind::Sc2Pcr(s)) =
+            (self.reference, &mut p.estimator)
+        {
+            s.score_order = true;
+        }
         p
     }
 }
@@ -312,5 +319,35 @@ impl ImageArgs {
             .clone()
             .unwrap_or_else(crate::pipeline::cache::default_cache_dir);
         Ok(Some(Cache::open(dir)?))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Parser)]
+    struct Cli {
+        #[command(flatten)]
+        p: PipelineArgs,
+    }
+
+    fn sc2(args: &[&str]) -> Option<crate::estimate::Sc2PcrParams> {
+        let cli = Cli::try_parse_from(std::iter::once("x").chain(args.iter().copied())).unwrap();
+        match cli.p.to_params(false).estimator {
+            EstimatorKind::Sc2Pcr(p) => Some(p),
+            _ => None,
+        }
+    }
+
+    /// `--reference` runs SC2-PCR in the authors' score order; by default (and for the other
+    /// estimators) nothing changes.
+    #[test]
+    fn reference_sets_sc2pcr_score_order() {
+        assert!(sc2(&["--reference"]).unwrap().score_order);
+        assert!(!sc2(&[]).unwrap().score_order);
+        assert_eq!(sc2(&[]).unwrap(), crate::estimate::Sc2PcrParams::default());
+        assert!(sc2(&["--reference", "--estimator", "ransac"]).is_none());
     }
 }

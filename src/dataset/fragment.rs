@@ -252,6 +252,7 @@ pub fn build_fragment_with(
         name,
         cloud,
         frames: Some(fs),
+        notes: Vec::new(),
     })
 }
 

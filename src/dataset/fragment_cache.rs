@@ -178,6 +178,7 @@ pub fn build_fragment_cached(
                     name: name.into(),
                     cloud,
                     frames: Some(frames),
+                    notes: Vec::new(),
                 },
                 FragmentCacheStatus::Hit,
             ));

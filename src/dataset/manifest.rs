@@ -296,7 +296,7 @@ fn matrix_field(manifest: &Path, field: &str, rows: &[Vec<f64>]) -> Result<Isome
             manifest,
             field,
             "a finite rigid 4x4 transform (last row 0 0 0 1)",
-            "a non-rigid matrix",
+            crate::geometry::transform::rigidity_problem(&Matrix4::from_row_slice(&flat)),
         )
     })
 }
@@ -891,9 +891,13 @@ impl Dataset {
                 frames,
                 kitti_fields,
             } => {
-                let cloud = match kitti_fields {
-                    Some(k) => crate::io::kitti::read_kitti_bin_fields(path, Some(*k))?,
-                    None => crate::io::cloud::load_cloud(path)?,
+                let (cloud, notes) = match kitti_fields {
+                    Some(k) => {
+                        let c = crate::io::kitti::read_kitti_bin_fields(path, Some(*k))?;
+                        let n = crate::io::cloud::cloud_notes(path, &c, 0);
+                        (c, n)
+                    }
+                    None => crate::io::cloud::load_cloud_noted(path)?,
                 };
                 if cloud.is_empty() {
                     return Err(Error::Invalid(format!(
@@ -914,6 +918,7 @@ impl Dataset {
                         name,
                         cloud,
                         frames,
+                        notes,
                     },
                     None,
                 ))

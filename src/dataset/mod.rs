@@ -42,6 +42,9 @@ pub struct Scan {
     pub name: String,
     pub cloud: PointCloud,
     pub frames: Option<FrameSet>,
+    /// What reading the scan changed or found (dropped NaN rows, far outliers), reported with
+    /// every result of a pair that uses it.
+    pub notes: Vec<String>,
 }
 
 /// A registration problem: register `source` onto `target`.
@@ -80,7 +83,9 @@ pub fn read_gt_matrix(path: &Path) -> Result<Isometry3<f64>> {
                 path,
                 "matrix",
                 "a finite rigid 4x4 transform (last row 0 0 0 1)",
-                "a non-rigid matrix",
+                crate::geometry::transform::rigidity_problem(&nalgebra::Matrix4::from_row_slice(
+                    &v,
+                )),
             )
         })
 }
@@ -89,7 +94,7 @@ pub fn read_gt_matrix(path: &Path) -> Result<Isometry3<f64>> {
 /// The id is `"files/<target stem>-<source stem>"`.
 pub fn pair_from_files(source: &Path, target: &Path, gt: Option<&Path>) -> Result<ScanPair> {
     let load = |p: &Path| -> Result<Scan> {
-        let cloud = crate::io::cloud::load_cloud(p)?;
+        let (cloud, notes) = crate::io::cloud::load_cloud_noted(p)?;
         if cloud.is_empty() {
             return Err(Error::Invalid(format!(
                 "{}: empty point cloud",
@@ -100,6 +105,7 @@ pub fn pair_from_files(source: &Path, target: &Path, gt: Option<&Path>) -> Resul
             name: p.display().to_string(),
             cloud,
             frames: None,
+            notes,
         })
     };
     let (s, t) = rayon::join(|| load(source), || load(target));
@@ -151,7 +157,10 @@ mod tests {
         assert_eq!(p.gt_target_from_source.unwrap().translation.vector.x, 0.25);
         std::fs::write(&g, "1 0 0\n").unwrap();
         let e = pair_from_files(&s, &t, Some(&g)).unwrap_err().to_string();
-        assert!(e.contains("gt.txt") && e.contains("16 numbers"), "{e}");
+        assert!(
+            e.contains("gt.txt") && e.contains("4 rows of 4 numbers"),
+            "{e}"
+        );
         let e = pair_from_files(&s, &t, Some(&d.path().join("gt.npy")))
             .unwrap_err()
             .to_string();

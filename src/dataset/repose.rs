@@ -20,7 +20,8 @@ use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion};
 /// pair's motion does not depend on which other pairs run.
 pub fn repose_motion(seed: u64, pair_id: &str) -> Isometry3<f64> {
     let h = blake3::hash(pair_id.as_bytes());
-    let stream = u64::from_le_bytes(h.as_bytes()[..8].try_into().expect("8 bytes"));
+    let b = h.as_bytes();
+    let stream = u64::from_le_bytes([b[0], b[1], b[2], b[3], b[4], b[5], b[6], b[7]]);
     let mut rng = Pcg32::new(seed, stream);
     let (u1, u2, u3) = (rng.unit_f64(), rng.unit_f64(), rng.unit_f64());
     let (a, b) = ((1.0 - u1).sqrt(), u1.sqrt());
@@ -91,11 +92,13 @@ mod tests {
                 name: "s".into(),
                 cloud: PointCloud::from_points(pts.clone()),
                 frames: frame_set,
+                notes: Vec::new(),
             },
             target: Scan {
                 name: "t".into(),
                 cloud: PointCloud::from_points(pts.iter().map(|p| gt.cast() * p).collect()),
                 frames: None,
+                notes: Vec::new(),
             },
             gt_target_from_source: Some(gt),
         }

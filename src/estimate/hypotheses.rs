@@ -87,7 +87,7 @@ impl<T> TopN<T> {
         if self.n == 0 {
             return;
         }
-        if self.items.len() == self.n && !better(&x, self.items.last().expect("n > 0")) {
+        if self.items.len() == self.n && self.items.last().is_some_and(|l| !better(&x, l)) {
             return;
         }
         let at = self.items.partition_point(|y| better(y, &x));

@@ -76,6 +76,37 @@ pub fn weighted_kabsch(
         .ok_or_else(|| Error::Degenerate("kabsch: SVD of the covariance failed".into()))
 }
 
+/// Why a scan's keypoints cannot give a pose (for an error naming the scan): fewer than
+/// [`MIN_KEYPOINTS`], or all identical or collinear. None when they can.
+pub fn keypoint_problem(points: &[Point3<f32>]) -> Option<String> {
+    if points.len() < MIN_KEYPOINTS {
+        return Some(format!(
+            "has {} keypoint(s); at least {MIN_KEYPOINTS} not on one line are needed",
+            points.len()
+        ));
+    }
+    // far outliers (a stray point at 1e30) would dominate the spread: judge the others
+    let (lo, hi, _) = crate::geometry::voxel::robust_bounds(points)?;
+    let inside: Vec<Vector3<f64>> = points
+        .iter()
+        .map(|p| p.coords.cast::<f64>())
+        .filter(|p| (0..3).all(|k| p[k] >= lo[k] && p[k] <= hi[k]))
+        .collect();
+    if inside.len() < MIN_KEYPOINTS {
+        return Some(format!(
+            "has {} keypoint(s) apart from far outliers; at least {MIN_KEYPOINTS} not on one \
+             line are needed",
+            inside.len()
+        ));
+    }
+    spread_problem(inside.len(), |i| (inside[i], 1.0))
+        .map(|what| format!("has {} keypoints that are all {what}", points.len()))
+}
+
+/// The fewest keypoints a scan may have: SC2-PCR needs 5 correspondences (4 neighbours and a
+/// seed), and fewer scan points than that cannot constrain a pose against outliers.
+pub const MIN_KEYPOINTS: usize = 5;
+
 /// Whether weighted points fail to determine a rotation: Some("identical") when they have no
 /// spread, Some("collinear") when they span a line; None otherwise.
 pub(crate) fn spread_problem<F>(n: usize, get: F) -> Option<&'static str>

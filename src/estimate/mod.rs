@@ -5,6 +5,7 @@
 
 pub mod hypotheses;
 pub mod kabsch;
+pub mod nonrigid;
 pub mod ransac;
 pub(crate) mod rng;
 pub mod sc2pcr;
@@ -74,6 +75,35 @@ impl EstimatorKind {
     pub fn same_kind(&self, other: &EstimatorKind) -> bool {
         std::mem::discriminant(self) == std::mem::discriminant(other)
     }
+
+    /// The distance (m) within which a correspondence agrees with this estimator's pose.
+    pub fn inlier_threshold(&self) -> f64 {
+        match self {
+            EstimatorKind::Sc2Pcr(p) => p.inlier_threshold as f64,
+            EstimatorKind::Ransac(p) => p.distance_threshold as f64,
+            EstimatorKind::WeightedSvd => 0.10,
+        }
+    }
+}
+
+/// `e` with the [`nonrigid::nonrigid_warning`] added when no rigid transform explains the
+/// correspondences.
+fn with_rigidity_check(
+    mut e: Estimate,
+    src: &[Point3<f32>],
+    tgt: &[Point3<f32>],
+    method: &EstimatorKind,
+) -> Estimate {
+    let (pose, thr) = (&e.target_from_source, method.inlier_threshold());
+    let found = nonrigid::nonrigid_warning(src, tgt, pose, thr)
+        .or_else(|| nonrigid::low_consensus_warning(src, tgt, pose, thr));
+    if let Some(w) = found {
+        e.warning = Some(match e.warning.take() {
+            Some(first) => format!("{first}; {w}"),
+            None => w,
+        });
+    }
+    e
 }
 
 /// `--estimator sc2pcr|ransac|svd`, each with its default parameters.
@@ -114,19 +144,20 @@ pub fn estimate_pose(
             weights.len()
         )));
     }
-    match method {
+    let e = match method {
         EstimatorKind::Sc2Pcr(p) => match sc2pcr::sc2pcr(src, tgt, p) {
-            Ok(e) => Ok(e),
+            Ok(e) => e,
             Err(err) => {
                 let mut e = weighted_svd(src, tgt, weights)?;
                 e.method = "weighted-svd (fallback)".into();
                 e.warning = Some(format!("SC2-PCR failed ({err}); weighted SVD used instead"));
-                Ok(e)
+                e
             }
         },
-        EstimatorKind::Ransac(p) => ransac::ransac(src, tgt, p),
-        EstimatorKind::WeightedSvd => weighted_svd(src, tgt, weights),
-    }
+        EstimatorKind::Ransac(p) => ransac::ransac(src, tgt, p)?,
+        EstimatorKind::WeightedSvd => weighted_svd(src, tgt, weights)?,
+    };
+    Ok(with_rigidity_check(e, src, tgt, method))
 }
 
 /// [`estimate_pose`] that also returns the estimator's best `top_n` hypotheses, ranked by its
@@ -143,13 +174,14 @@ pub fn estimate_pose_with_hypotheses(
     match method {
         EstimatorKind::Sc2Pcr(p) if src.len() == tgt.len() && weights.len() == src.len() => {
             match sc2pcr::sc2pcr_with(src, tgt, p, top_n) {
-                Ok(x) => Ok(x),
+                Ok((e, h)) => Ok((with_rigidity_check(e, src, tgt, method), h)),
                 // the fallback, exactly as estimate_pose words it
                 Err(_) => estimate_pose(src, tgt, weights, method).map(|e| (e, None)),
             }
         }
         EstimatorKind::Ransac(p) if src.len() == tgt.len() && weights.len() == src.len() => {
             ransac::ransac_with(src, tgt, p, top_n)
+                .map(|(e, h)| (with_rigidity_check(e, src, tgt, method), h))
         }
         _ => estimate_pose(src, tgt, weights, method).map(|e| (e, None)),
     }

@@ -210,12 +210,11 @@ pub(crate) mod tests {
     }
 
     pub(crate) fn fragment(name: &str) -> Option<Vec<Point3<f32>>> {
-        let root = crate::test_data_root()?;
-        let p = root.join("3dmatch-redkitchen/teaser-plusplus").join(name);
-        if !p.exists() {
-            eprintln!("skipping: {} missing", p.display());
-            return None;
-        }
+        let root = crate::testing::test_data_root()?;
+        let p = crate::testing::require_file(
+            &root,
+            &format!("3dmatch-redkitchen/teaser-plusplus/{name}"),
+        )?;
         Some(read_xyz_ply(&p))
     }
 

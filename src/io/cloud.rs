@@ -76,6 +76,50 @@ pub fn load_cloud(path: &Path) -> Result<PointCloud> {
     }
 }
 
+/// [`load_cloud`] with what reading found, for the results: points dropped for a NaN or
+/// infinite coordinate (PCD clouds with `is_dense` false) and far outliers
+/// ([`crate::geometry::voxel::robust_bounds`]), each with the file named.
+pub fn load_cloud_noted(path: &Path) -> Result<(PointCloud, Vec<String>)> {
+    let (cloud, dropped) = match extension(path).as_str() {
+        "pcd" => super::pcd::read_pcd_counted(path)?,
+        _ => (load_cloud(path)?, 0),
+    };
+    let notes = cloud_notes(path, &cloud, dropped);
+    Ok((cloud, notes))
+}
+
+/// The notes of [`load_cloud_noted`] for a cloud read from `path` with `dropped` non-finite
+/// points left out.
+pub fn cloud_notes(path: &Path, cloud: &PointCloud, dropped: usize) -> Vec<String> {
+    let mut notes = Vec::new();
+    if dropped > 0 {
+        notes.push(format!(
+            "{}: {dropped} of {} points had a NaN or infinite coordinate (no return) and were \
+             dropped",
+            path.display(),
+            dropped + cloud.len()
+        ));
+    }
+    if let Some((lo, hi, far)) = crate::geometry::voxel::robust_bounds(&cloud.points) {
+        if far > 0 {
+            notes.push(format!(
+                "{}: {far} far outlier point(s), more than {}x the cloud's extent outside the \
+                 box ({:.3}, {:.3}, {:.3})-({:.3}, {:.3}, {:.3}) that holds the others; they do \
+                 not shape the voxel grid",
+                path.display(),
+                crate::geometry::voxel::FAR_OUTLIER_FACTOR,
+                lo.x,
+                lo.y,
+                lo.z,
+                hi.x,
+                hi.y,
+                hi.z
+            ));
+        }
+    }
+    notes
+}
+
 /// Write a cloud, choosing the writer by extension: `.ply` (binary, all attributes),
 /// `.npy` ((N,3) float32, points only), `.xyz`/`.txt`/`.pts` (text, points only).
 pub fn save_cloud(path: &Path, cloud: &PointCloud) -> Result<()> {
@@ -171,7 +215,7 @@ mod tests {
 
     #[test]
     fn staged_clouds_load_with_manifest_counts() {
-        let Some(root) = crate::test_data_root() else {
+        let Some(root) = crate::testing::test_data_root() else {
             return;
         };
         for (rel, n) in STAGED {
@@ -185,7 +229,7 @@ mod tests {
     #[test]
     #[ignore]
     fn timing() {
-        let Some(root) = crate::test_data_root() else {
+        let Some(root) = crate::testing::test_data_root() else {
             return;
         };
         for (rel, n) in STAGED {

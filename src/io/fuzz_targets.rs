@@ -42,18 +42,24 @@ pub fn all_targets() -> Vec<&'static str> {
     v
 }
 
-/// Run one target on `data`. Returns whether the reader accepted the input. Panics, hangs
-/// and aborts are the bugs a fuzzer looks for; an `Err` is the expected answer to garbage.
+/// Run one target on `data`. Returns whether the reader accepted the input (false for an
+/// unknown target too: [`try_run`] tells them apart). Panics, hangs and aborts are the bugs a
+/// fuzzer looks for; an `Err` is the expected answer to garbage.
 pub fn run(target: &str, data: &[u8]) -> bool {
+    try_run(target, data).unwrap_or(false)
+}
+
+/// [`run`], with an unknown target an error that lists the known ones.
+pub fn try_run(target: &str, data: &[u8]) -> crate::Result<bool> {
     let p = Path::new("fuzz-input");
     let text = || String::from_utf8_lossy(data);
-    match target {
+    Ok(match target {
         "ply" => super::ply::parse_ply(p, data).is_ok(),
         "pcd" => super::pcd::parse_pcd(p, data).is_ok(),
         "lzf" => {
             // First 4 bytes: declared output length (capped like the PCD reader caps it).
             let Some((len, rest)) = data.split_first_chunk::<4>() else {
-                return false;
+                return Ok(false);
             };
             let n = (u32::from_le_bytes(*len) as usize).min(1 << 24);
             super::pcd::lzf_decompress(rest, n).is_ok()
@@ -77,8 +83,13 @@ pub fn run(target: &str, data: &[u8]) -> bool {
         "cosmos_jsonl" => crate::wfm::prompt::parse_reference_jsonl(p, &text()).is_ok(),
         "mp4" => crate::wfm::video::decode_mp4_frames(p, data.to_vec()).is_ok(),
         "h264" => crate::wfm::video::decode_annexb(p, data).is_ok(),
-        other => panic!("unknown fuzz target {other:?}; known: {:?}", all_targets()),
-    }
+        other => {
+            return Err(crate::Error::Invalid(format!(
+                "unknown fuzz target {other:?}; known: {:?}",
+                all_targets()
+            )))
+        }
+    })
 }
 
 /// The manifest reader resolves files next to the manifest: parse the bytes in memory as a
@@ -821,7 +832,7 @@ mod tests {
     /// the mp4 and Annex B readers: every one of them, to as many frames as were encoded.
     #[test]
     fn x264_seeds_decode_through_the_readers() {
-        let Some(data) = crate::test_data_root() else {
+        let Some(data) = crate::testing::test_data_root() else {
             return;
         };
         let mp4 = x264_seeds("mp4", &data);

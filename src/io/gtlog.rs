@@ -104,27 +104,43 @@ fn parse_blocks(path: &Path, text: &str, rows: usize, cols: usize) -> Result<Vec
     Ok(out)
 }
 
+/// gt.log entries. A pair `i j` listed twice is refused unless both matrices agree (every
+/// entry within 1e-9): which one a reader would take is otherwise arbitrary.
 pub fn parse_gt_log(path: &Path, text: &str) -> Result<Vec<GtEntry>> {
-    parse_blocks(path, text, 4, 4)?
-        .into_iter()
-        .map(|b| {
-            let m = Matrix4::from_row_slice(&b.values);
-            let t = isometry_from_matrix(&m).ok_or_else(|| {
-                Error::format(
+    let mut seen: std::collections::HashMap<(usize, usize), (usize, Matrix4<f64>)> =
+        Default::default();
+    let mut out = Vec::new();
+    for b in parse_blocks(path, text, 4, 4)? {
+        let m = Matrix4::from_row_slice(&b.values);
+        let t = isometry_from_matrix(&m).ok_or_else(|| {
+            Error::format(
+                path,
+                format!("block at line {}", b.line),
+                "a rigid 4x4 transform (rotation to 5e-4, last row 0 0 0 1)",
+                crate::geometry::transform::rigidity_problem(&m),
+            )
+        })?;
+        let key = (b.header[0], b.header[1]);
+        if let Some((line, first)) = seen.get(&key) {
+            if (first - m).amax() > 1e-9 {
+                return Err(Error::format(
                     path,
-                    format!("block at line {}", b.line),
-                    "a rigid 4x4 transform",
-                    "a non-rigid matrix",
-                )
-            })?;
-            Ok(GtEntry {
-                target: b.header[0],
-                source: b.header[1],
-                n_fragments: b.header[2],
-                target_from_source: t,
-            })
-        })
-        .collect()
+                    format!("block at line {} (pair {} {})", b.line, key.0, key.1),
+                    format!("no second, different matrix for a pair (first at line {line})"),
+                    format!("matrices differing by {:.3e}", (first - m).amax()),
+                ));
+            }
+            continue;
+        }
+        seen.insert(key, (b.line, m));
+        out.push(GtEntry {
+            target: b.header[0],
+            source: b.header[1],
+            n_fragments: b.header[2],
+            target_from_source: t,
+        });
+    }
+    Ok(out)
 }
 
 pub fn read_gt_log(path: &Path) -> Result<Vec<GtEntry>> {
@@ -205,5 +221,30 @@ mod tests {
         assert!(e.contains("gt.log") && e.contains("line 4"), "{e}");
         let short = "0 1 60\n1 0 0 0\n0 1 0 0\n";
         assert!(parse_gt_log(Path::new("gt.log"), short).is_err());
+        // a ragged row
+        let ragged = "0 1 60\n1 0 0 0 0\n0 1 0\n0 0 1 0\n0 0 0 1\n";
+        let e = parse_gt_log(Path::new("gt.log"), ragged)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("line 2") && e.contains("4 numbers"), "{e}");
+    }
+
+    /// One pair listed twice: refused when the matrices differ (naming both blocks), one
+    /// entry when they agree; a 0.1 % scale is not rigid.
+    #[test]
+    fn duplicate_and_scaled_entries() {
+        let id = "0 1 60\n1 0 0 0\n0 1 0 0\n0 0 1 0\n0 0 0 1\n";
+        let moved = "0 1 60\n1 0 0 0.5\n0 1 0 0\n0 0 1 0\n0 0 0 1\n";
+        let e = parse_gt_log(Path::new("gt.log"), &format!("{id}{moved}"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("line 6") && e.contains("first at line 1"), "{e}");
+        let both = parse_gt_log(Path::new("gt.log"), &format!("{id}{id}")).unwrap();
+        assert_eq!(both.len(), 1);
+        let scaled = "0 1 60\n1.002 0 0 0\n0 1.002 0 0\n0 0 1.002 0\n0 0 0 1\n";
+        let e = parse_gt_log(Path::new("gt.log"), scaled)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("singular value"), "{e}");
     }
 }

@@ -597,7 +597,7 @@ pub fn read_npy_matrix4(path: &Path) -> Result<Isometry3<f64>> {
             path,
             "matrix",
             "a rigid transform (rotation block, bottom row 0 0 0 1)",
-            format!("{m}"),
+            crate::geometry::transform::rigidity_problem(&m),
         )
     })
 }
@@ -783,7 +783,7 @@ mod tests {
 
     #[test]
     fn staged_geotransformer_demo() {
-        let Some(root) = crate::test_data_root() else {
+        let Some(root) = crate::testing::test_data_root() else {
             return;
         };
         let d = root.join("3dmatch-redkitchen/geotransformer-demo");

@@ -5,8 +5,12 @@
 //! uint), `intensity` and `normal_x normal_y normal_z` are read when present; the rest
 //! (including `_` padding and COUNT > 1 fields) is skipped. `binary` stores one point after
 //! another; `binary_compressed` stores two u32 sizes and then LZF-compressed data laid out
-//! field by field (all x, then all y, ...). POINTS must equal WIDTH*HEIGHT and match the
-//! data. VIEWPOINT is not applied: coordinates are returned as stored.
+//! field by field (all x, then all y, ...). VERSION (0.7), WIDTH and HEIGHT are required;
+//! POINTS must equal WIDTH*HEIGHT and match the data. VIEWPOINT, when given, must be 7 finite
+//! numbers (a translation and a unit quaternion); it is not applied: coordinates are returned
+//! as stored. Points whose x, y or z is NaN or infinite (PCL's "no return" in a cloud with
+//! `is_dense` false, as organised clouds and ROS conversions write them) are dropped and
+//! counted ([`parse_pcd_counted`]).
 
 use super::cloud::validate_cloud;
 use crate::error::{Error, Result};
@@ -72,6 +76,7 @@ fn parse_header(path: &Path, bytes: &[u8]) -> Result<Header> {
     let mut counts: Option<Vec<usize>> = None;
     let (mut width, mut height, mut points) = (None, None, None);
     let mut data = None;
+    let mut version = None;
     let mut line_no = 0;
     while data.is_none() {
         let Some(nl) = bytes[pos..].iter().position(|&c| c == b'\n') else {
@@ -116,7 +121,34 @@ fn parse_header(path: &Path, bytes: &[u8]) -> Result<Header> {
             }
         };
         match key.to_ascii_uppercase().as_str() {
-            "VERSION" | "VIEWPOINT" => {}
+            "VERSION" => {
+                version = Some(match rest[..] {
+                    ["0.7"] | [".7"] => (),
+                    _ => {
+                        return Err(Error::format(
+                            path,
+                            "VERSION",
+                            "0.7 (or .7)",
+                            format!("{:?}", rest.join(" ")),
+                        ))
+                    }
+                })
+            }
+            "VIEWPOINT" => {
+                let v: Option<Vec<f64>> = rest
+                    .iter()
+                    .map(|t| t.parse::<f64>().ok().filter(|v| v.is_finite()))
+                    .collect();
+                let unit = |q: &[f64]| (q.iter().map(|x| x * x).sum::<f64>() - 1.0).abs() < 1e-3;
+                if !v.as_ref().is_some_and(|v| v.len() == 7 && unit(&v[3..])) {
+                    return Err(Error::format(
+                        path,
+                        "VIEWPOINT",
+                        "7 finite numbers: tx ty tz qw qx qy qz with a unit quaternion",
+                        format!("{:?}", rest.join(" ")),
+                    ));
+                }
+            }
             "FIELDS" | "COLUMNS" => fields = rest.iter().map(|s| s.to_string()).collect(),
             "SIZE" => sizes = nums("SIZE")?,
             "TYPE" => {
@@ -161,6 +193,9 @@ fn parse_header(path: &Path, bytes: &[u8]) -> Result<Header> {
                 ))
             }
         }
+    }
+    if version.is_none() {
+        return Err(Error::format(path, "VERSION", "a VERSION 0.7 line", "none"));
     }
     let n = fields.len();
     let counts = counts.unwrap_or_else(|| vec![1; n]);
@@ -208,7 +243,14 @@ fn parse_header(path: &Path, bytes: &[u8]) -> Result<Header> {
     }
     let wh = match (width, height) {
         (Some(w), Some(h)) => Some(w.saturating_mul(h)),
-        _ => None,
+        (w, _) => {
+            return Err(Error::format(
+                path,
+                if w.is_none() { "WIDTH" } else { "HEIGHT" },
+                "a WIDTH and a HEIGHT line (HEIGHT 1 for an unorganised cloud)",
+                "none",
+            ))
+        }
     };
     let points = match (points, wh) {
         (Some(p), Some(wh)) if p != wh => {
@@ -342,12 +384,22 @@ pub fn lzf_compress(input: &[u8]) -> Vec<u8> {
 }
 
 pub fn read_pcd(path: &Path) -> Result<PointCloud> {
+    read_pcd_counted(path).map(|(c, _)| c)
+}
+
+/// [`read_pcd`] with the number of points dropped for a non-finite coordinate.
+pub fn read_pcd_counted(path: &Path) -> Result<(PointCloud, usize)> {
     let bytes = crate::io::limits::read_file(path)?;
-    parse_pcd(path, &bytes)
+    parse_pcd_counted(path, &bytes)
 }
 
 /// Parse PCD bytes; `path` is used only in error messages.
 pub fn parse_pcd(path: &Path, bytes: &[u8]) -> Result<PointCloud> {
+    parse_pcd_counted(path, bytes).map(|(c, _)| c)
+}
+
+/// [`parse_pcd`] with the number of points dropped for a non-finite x, y or z.
+pub fn parse_pcd_counted(path: &Path, bytes: &[u8]) -> Result<(PointCloud, usize)> {
     let h = parse_header(path, bytes)?;
     let find = |n: &str| h.fields.iter().position(|f| f.name == n);
     let xyz = [find("x"), find("y"), find("z")];
@@ -575,8 +627,44 @@ pub fn parse_pcd(path: &Path, bytes: &[u8]) -> Result<PointCloud> {
             }
         }
     }
+    let dropped = drop_non_finite(&mut cloud);
+    if cloud.is_empty() && dropped > 0 {
+        return Err(Error::format(
+            path,
+            "points",
+            "at least one point with finite x, y, z",
+            format!("{dropped} points, all with a NaN or infinite coordinate"),
+        ));
+    }
     validate_cloud(path, &cloud)?;
-    Ok(cloud)
+    Ok((cloud, dropped))
+}
+
+/// Remove the points with a non-finite coordinate (and their attributes); how many.
+fn drop_non_finite(cloud: &mut PointCloud) -> usize {
+    let keep: Vec<bool> = cloud
+        .points
+        .iter()
+        .map(|p| p.x.is_finite() && p.y.is_finite() && p.z.is_finite())
+        .collect();
+    let dropped = keep.iter().filter(|k| !**k).count();
+    if dropped > 0 {
+        fn filter<T: Copy>(v: &mut Vec<T>, keep: &[bool]) {
+            let mut k = keep.iter();
+            v.retain(|_| k.next().copied().unwrap_or(false));
+        }
+        filter(&mut cloud.points, &keep);
+        if let Some(c) = cloud.colors.as_mut() {
+            filter(c, &keep);
+        }
+        if let Some(c) = cloud.normals.as_mut() {
+            filter(c, &keep);
+        }
+        if let Some(c) = cloud.intensity.as_mut() {
+            filter(c, &keep);
+        }
+    }
+    dropped
 }
 
 /// Encode a cloud as PCD v0.7 with x y z (+ rgb, normals, intensity); used by tests and for
@@ -756,16 +844,98 @@ mod tests {
         assert!(e.contains("WIDTH x HEIGHT"), "{e}");
         let e = parse_pcd(
             p,
-            b"VERSION .7\nFIELDS a b\nSIZE 4 4\nTYPE F F\nPOINTS 0\nDATA ascii\n",
+            b"VERSION .7\nFIELDS a b\nSIZE 4 4\nTYPE F F\nWIDTH 0\nHEIGHT 1\nPOINTS 0\nDATA ascii\n",
         )
         .unwrap_err()
         .to_string();
         assert!(e.contains("x, y and z"), "{e}");
     }
 
+    /// Lenient headers are refused with the key named: a missing or other VERSION, no WIDTH,
+    /// no HEIGHT, a VIEWPOINT that is not 7 numbers with a unit quaternion.
+    #[test]
+    fn lenient_headers_are_refused() {
+        let good = String::from_utf8(encode_pcd(&sample(4), "ascii")).unwrap();
+        let p = Path::new("lenient.pcd");
+        assert!(parse_pcd(p, good.as_bytes()).is_ok());
+        for (from, to, key) in [
+            ("VERSION 0.7\n", "", "VERSION"),
+            ("VERSION 0.7", "VERSION 2.0", "VERSION"),
+            ("VERSION 0.7", "VERSION", "VERSION"),
+            ("WIDTH 4\n", "", "WIDTH"),
+            ("HEIGHT 1\n", "", "HEIGHT"),
+            ("VIEWPOINT 0 0 0 1 0 0 0", "VIEWPOINT garbage", "VIEWPOINT"),
+            (
+                "VIEWPOINT 0 0 0 1 0 0 0",
+                "VIEWPOINT 0 0 0 1 0 0",
+                "VIEWPOINT",
+            ),
+            (
+                "VIEWPOINT 0 0 0 1 0 0 0",
+                "VIEWPOINT 0 0 0 5 0 0 0",
+                "VIEWPOINT",
+            ),
+            (
+                "VIEWPOINT 0 0 0 1 0 0 0",
+                "VIEWPOINT 0 0 nan 1 0 0 0",
+                "VIEWPOINT",
+            ),
+        ] {
+            let bad = good.replacen(from, to, 1);
+            assert_ne!(bad, good);
+            let e = parse_pcd(p, bad.as_bytes()).unwrap_err().to_string();
+            assert!(e.contains("lenient.pcd") && e.contains(key), "{to:?}: {e}");
+        }
+    }
+
+    /// A PCL/ROS organised cloud with `is_dense` false: the NaN rows (no return) are dropped
+    /// and counted, in ascii, binary and binary_compressed; all-NaN is an error.
+    #[test]
+    fn nan_rows_are_dropped_and_counted() {
+        let mut c = sample(12);
+        for i in [0, 5, 6, 11] {
+            c.points[i] = Point3::new(f32::NAN, f32::NAN, f32::NAN);
+        }
+        c.points[7].z = f32::INFINITY;
+        for data in ["ascii", "binary", "binary_compressed"] {
+            let bytes = String::from_utf8_lossy(&encode_pcd(&c, data))
+                .replacen("WIDTH 12\nHEIGHT 1", "WIDTH 4\nHEIGHT 3", 1)
+                .into_bytes();
+            let bytes = if data == "ascii" {
+                bytes
+            } else {
+                // the binary body must stay byte for byte: rebuild it from the header length
+                let raw = encode_pcd(&c, data);
+                let head = raw.windows(5).position(|w| w == b"DATA ").unwrap();
+                let mut b = String::from_utf8_lossy(&raw[..head])
+                    .replacen("WIDTH 12\nHEIGHT 1", "WIDTH 4\nHEIGHT 3", 1)
+                    .into_bytes();
+                b.extend_from_slice(&raw[head..]);
+                b
+            };
+            let (r, dropped) = parse_pcd_counted(Path::new(data), &bytes).unwrap();
+            assert_eq!(dropped, 5, "{data}");
+            assert_eq!(r.len(), 7, "{data}");
+            let kept = [1, 2, 3, 4, 8, 9, 10];
+            for (k, &i) in kept.iter().enumerate() {
+                assert_eq!(r.points[k], c.points[i], "{data}");
+                assert_eq!(r.colors.as_ref().unwrap()[k], c.colors.as_ref().unwrap()[i]);
+                assert_eq!(
+                    r.intensity.as_ref().unwrap()[k],
+                    c.intensity.as_ref().unwrap()[i]
+                );
+            }
+        }
+        let all = PointCloud::from_points(vec![Point3::new(f32::NAN, 0.0, 0.0); 3]);
+        let e = parse_pcd(Path::new("nan.pcd"), &encode_pcd(&all, "binary"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("nan.pcd") && e.contains("3 points"), "{e}");
+    }
+
     #[test]
     fn staged_mac_pcd() {
-        let Some(root) = crate::test_data_root() else {
+        let Some(root) = crate::testing::test_data_root() else {
             return;
         };
         let c = read_pcd(&root.join("3dmatch-redkitchen/mac/src.pcd")).unwrap();

@@ -1214,7 +1214,7 @@ pub(crate) mod tests {
 
     #[test]
     fn staged_pth_files() {
-        let Some(root) = crate::test_data_root() else {
+        let Some(root) = crate::testing::test_data_root() else {
             return;
         };
         let m = root.join("3dmatch-redkitchen");

@@ -163,6 +163,14 @@ fn parse_header(path: &Path, data: &[u8]) -> Result<Header> {
         match toks.first().copied() {
             None | Some("ply") | Some("comment") | Some("obj_info") => {}
             Some("format") => {
+                if toks.len() != 3 || toks[2] != "1.0" {
+                    return Err(Error::format(
+                        path,
+                        field(),
+                        "format <ascii | binary_little_endian | binary_big_endian> 1.0",
+                        format!("{line:?}"),
+                    ));
+                }
                 format = Some(match toks.get(1).copied() {
                     Some("ascii") => Format::Ascii,
                     Some("binary_little_endian") => Format::BinaryLe,
@@ -417,12 +425,18 @@ fn parse_binary(path: &Path, h: &Header, body: &[u8], big: bool) -> Result<Point
         if el.name == "vertex" {
             let r = roles(path, el)?;
             let Some(stride) = el.fixed_stride() else {
-                return Err(Error::format(
-                    path,
-                    "element vertex",
-                    "scalar properties only",
-                    "a list property",
-                ));
+                // a list property (e.g. a scanner's per-vertex index list): walk each vertex
+                let mut sink = Sink::new(el.count.min(rest.len()), el, &r);
+                let mut vals = Vec::with_capacity(el.props.len());
+                let mut p = 0usize;
+                for i in 0..el.count {
+                    vals.clear();
+                    p = walk_binary_instance(path, el, i, rest, p, big, &mut vals)?;
+                    sink.push(|k| vals[k], &r);
+                }
+                out = Some(sink.cloud);
+                pos += p;
+                continue;
             };
             let need = stride.saturating_mul(el.count);
             if rest.len() < need {
@@ -439,8 +453,10 @@ fn parse_binary(path: &Path, h: &Header, body: &[u8], big: bool) -> Result<Point
             let mut offs = Vec::with_capacity(el.props.len());
             let mut o = 0;
             for p in &el.props {
-                let Kind::Scalar(s) = p.kind else {
-                    unreachable!("fixed_stride excludes lists")
+                // fixed_stride excludes lists
+                let s = match p.kind {
+                    Kind::Scalar(s) => s,
+                    Kind::List { count, .. } => count,
                 };
                 offs.push((o, s));
                 o += s.size();
@@ -494,53 +510,81 @@ fn parse_binary(path: &Path, h: &Header, body: &[u8], big: bool) -> Result<Point
         } else {
             // Lists: walk instance by instance.
             let mut p = 0usize;
+            let mut vals = Vec::new();
             for i in 0..el.count {
-                for prop in &el.props {
-                    match prop.kind {
-                        Kind::Scalar(s) => p += s.size(),
-                        Kind::List { count, item } => {
-                            if rest.len() < p + count.size() {
-                                return Err(truncated(
-                                    path,
-                                    el,
-                                    i,
-                                    "a list length".into(),
-                                    rest.len().saturating_sub(p),
-                                ));
-                            }
-                            let n = count.read(&rest[p..], big);
-                            if n < 0.0 {
-                                return Err(Error::format(
-                                    path,
-                                    format!("element {} instance {i} list {}", el.name, prop.name),
-                                    "a non-negative length",
-                                    format!("{n}"),
-                                ));
-                            }
-                            p = (n as usize)
-                                .checked_mul(item.size())
-                                .and_then(|b| b.checked_add(p + count.size()))
-                                .filter(|&e| e <= rest.len())
-                                .ok_or_else(|| {
-                                    truncated(
-                                        path,
-                                        el,
-                                        i,
-                                        format!("a list of {n} items"),
-                                        rest.len().saturating_sub(p),
-                                    )
-                                })?;
-                        }
-                    }
-                }
-                if p > rest.len() {
-                    return Err(truncated(path, el, i, format!("{p} bytes"), rest.len()));
-                }
+                vals.clear();
+                p = walk_binary_instance(path, el, i, rest, p, big, &mut vals)?;
             }
             pos += p;
         }
     }
     out.ok_or_else(|| Error::format(path, "element vertex", "vertex data", "none"))
+}
+
+/// Read instance `i` of `el` starting at byte `p` of `rest`: each scalar property's value is
+/// pushed to `vals` (NaN for a list, which is skipped by its length). Returns the byte after
+/// the instance.
+fn walk_binary_instance(
+    path: &Path,
+    el: &Element,
+    i: usize,
+    rest: &[u8],
+    mut p: usize,
+    big: bool,
+    vals: &mut Vec<f64>,
+) -> Result<usize> {
+    for prop in &el.props {
+        match prop.kind {
+            Kind::Scalar(s) => {
+                let b = rest.get(p..p + s.size()).ok_or_else(|| {
+                    truncated(
+                        path,
+                        el,
+                        i,
+                        format!("{} bytes of property {}", s.size(), prop.name),
+                        rest.len().saturating_sub(p),
+                    )
+                })?;
+                vals.push(s.read(b, big));
+                p += s.size();
+            }
+            Kind::List { count, item } => {
+                if rest.len() < p + count.size() {
+                    return Err(truncated(
+                        path,
+                        el,
+                        i,
+                        "a list length".into(),
+                        rest.len().saturating_sub(p),
+                    ));
+                }
+                let n = count.read(&rest[p..], big);
+                if n < 0.0 {
+                    return Err(Error::format(
+                        path,
+                        format!("element {} instance {i} list {}", el.name, prop.name),
+                        "a non-negative length",
+                        format!("{n}"),
+                    ));
+                }
+                p = (n as usize)
+                    .checked_mul(item.size())
+                    .and_then(|b| b.checked_add(p + count.size()))
+                    .filter(|&e| e <= rest.len())
+                    .ok_or_else(|| {
+                        truncated(
+                            path,
+                            el,
+                            i,
+                            format!("a list of {n} items"),
+                            rest.len().saturating_sub(p),
+                        )
+                    })?;
+                vals.push(f64::NAN);
+            }
+        }
+    }
+    Ok(p)
 }
 
 fn parse_ascii(path: &Path, h: &Header, body: &[u8]) -> Result<PointCloud> {
@@ -802,6 +846,101 @@ mod tests {
         }
     }
 
+    /// A vertex element with list properties (as several scanners' tools write: a per-vertex
+    /// index list before y, a float list at the end) reads in ascii, little and big endian;
+    /// the lists are skipped by their lengths, and a truncated list is an error.
+    #[test]
+    fn vertex_list_properties_are_skipped() {
+        let pts = [[1.5f32, -2.0, 0.25], [0.0, 1e-3, 7.0], [-3.0, 4.0, 5.5]];
+        let lists: [&[i32]; 3] = [&[4, 5], &[], &[1, 2, 3, 4, 5]];
+        let head = |fmt: &str| {
+            format!(
+                "ply\nformat {fmt} 1.0\nelement vertex 3\nproperty float x\n\
+                 property list uchar int view_ids\nproperty float y\nproperty float z\n\
+                 property uchar red\nproperty uchar green\nproperty uchar blue\n\
+                 property list ushort float weights\nend_header\n"
+            )
+        };
+        let mut ascii = head("ascii");
+        for (i, p) in pts.iter().enumerate() {
+            let l: Vec<String> = lists[i].iter().map(|v| v.to_string()).collect();
+            ascii += &format!(
+                "{} {} {} {} {} {i} 2 3 1 0.5\n",
+                p[0],
+                lists[i].len(),
+                l.join(" "),
+                p[1],
+                p[2]
+            );
+        }
+        let bin = |big: bool| {
+            let mut b = head(if big {
+                "binary_big_endian"
+            } else {
+                "binary_little_endian"
+            })
+            .into_bytes();
+            macro_rules! put {
+                ($v:expr) => {
+                    if big {
+                        b.extend_from_slice(&$v.to_be_bytes())
+                    } else {
+                        b.extend_from_slice(&$v.to_le_bytes())
+                    }
+                };
+            }
+            for (i, p) in pts.iter().enumerate() {
+                put!(p[0]);
+                b.push(lists[i].len() as u8);
+                for v in lists[i] {
+                    put!(*v);
+                }
+                put!(p[1]);
+                put!(p[2]);
+                b.extend_from_slice(&[i as u8, 2, 3]);
+                put!(1u16);
+                put!(0.5f32);
+            }
+            b
+        };
+        for (name, bytes) in [
+            ("ascii", ascii.into_bytes()),
+            ("le", bin(false)),
+            ("be", bin(true)),
+        ] {
+            let c = parse_ply(Path::new(name), &bytes).unwrap();
+            assert_eq!(c.len(), 3, "{name}");
+            for (a, p) in c.points.iter().zip(&pts) {
+                assert_eq!([a.x, a.y, a.z], *p, "{name}");
+            }
+            assert_eq!(c.colors.as_ref().unwrap()[2], [2, 2, 3], "{name}");
+            if name != "ascii" {
+                let e = parse_ply(Path::new("cut.ply"), &bytes[..bytes.len() - 5])
+                    .unwrap_err()
+                    .to_string();
+                assert!(e.contains("cut.ply") && e.contains("instance 2"), "{e}");
+            }
+        }
+    }
+
+    /// The format line must name the version 1.0.
+    #[test]
+    fn format_version_is_required() {
+        for line in ["format ascii 2.0", "format ascii", "format ascii 1.0 extra"] {
+            let text = format!(
+                "ply\n{line}\nelement vertex 1\nproperty float x\nproperty float y\n\
+                 property float z\nend_header\n1 2 3\n"
+            );
+            let e = parse_ply(Path::new("v.ply"), text.as_bytes())
+                .unwrap_err()
+                .to_string();
+            assert!(
+                e.contains("v.ply") && e.contains("header line 2") && e.contains("1.0"),
+                "{e}"
+            );
+        }
+    }
+
     #[test]
     fn header_errors() {
         let p = Path::new("h.ply");
@@ -836,7 +975,7 @@ mod tests {
 
     #[test]
     fn staged_plys_have_manifest_point_counts() {
-        let Some(root) = crate::test_data_root() else {
+        let Some(root) = crate::testing::test_data_root() else {
             return;
         };
         let m = root.join("3dmatch-redkitchen");

@@ -1,7 +1,10 @@
 //! Plain XYZ text (`.xyz`, `.txt`, `.pts`): one point per line, at least 3 whitespace- or
 //! comma-separated numbers `x y z`; further columns are ignored. Blank lines and lines
 //! starting with `#` or `//` are skipped. A first line holding a single integer (the point
-//! count, as in some `.pts` files) is skipped. Coordinates are taken as stored.
+//! count, as in some `.pts` files) is skipped. Lines end with LF, CR LF or a lone CR (old Mac
+//! tools). A file whose only data line holds more than 3 columns is refused: that is points
+//! run together on one line far more often than a one-point cloud with attributes, and reading
+//! it as one point would be silently wrong. Coordinates are taken as stored.
 
 use super::cloud::validate_cloud;
 use crate::error::{write_atomic, Error, Result};
@@ -26,6 +29,9 @@ pub fn read_xyz(path: &Path) -> Result<PointCloud> {
 pub fn parse_xyz(path: &Path, text: &str) -> Result<PointCloud> {
     let mut points = Vec::new();
     let mut first = true;
+    // (line number, columns) of the first data line
+    let mut first_data: Option<(usize, usize)> = None;
+    let text = text.replace("\r\n", "\n").replace('\r', "\n");
     for (ln, line) in text.lines().enumerate() {
         let l = line.trim();
         if l.is_empty() || l.starts_with('#') || l.starts_with("//") {
@@ -60,7 +66,18 @@ pub fn parse_xyz(path: &Path, text: &str) -> Result<PointCloud> {
             ));
         }
         first = false;
+        first_data.get_or_insert((ln, 3 + toks.count()));
         points.push(Point3::new(xyz[0], xyz[1], xyz[2]));
+    }
+    if let (1, Some((ln, cols))) = (points.len(), first_data) {
+        if cols > 3 {
+            return Err(Error::format(
+                path,
+                format!("line {}", ln + 1),
+                "one point per line (x y z, further columns per point)",
+                format!("the only data line, with {cols} columns"),
+            ));
+        }
     }
     let cloud = PointCloud::from_points(points);
     validate_cloud(path, &cloud)?;
@@ -112,5 +129,27 @@ mod tests {
         assert!(e.contains("empty"), "{e}");
         let e = parse_xyz(p, "1 2 3\nnan 0 0\n").unwrap_err().to_string();
         assert!(e.contains("point 1"), "{e}");
+    }
+
+    /// CR-only line ends are line ends (not one line of 9 numbers read as one point); a single
+    /// data line with more than 3 columns is refused; a single x y z line is one point.
+    #[test]
+    fn one_line_files() {
+        let p = Path::new("one.xyz");
+        let c = parse_xyz(p, "1 2 3\r4 5 6\r7 8 9\r").unwrap();
+        assert_eq!(c.len(), 3);
+        assert_eq!(c.points[2], Point3::new(7.0, 8.0, 9.0));
+        let c = parse_xyz(p, "1 2 3\r\n4 5 6\r\n").unwrap();
+        assert_eq!(c.len(), 2);
+        let e = parse_xyz(p, "1 2 3 4 5 6 7 8 9").unwrap_err().to_string();
+        assert!(
+            e.contains("one.xyz") && e.contains("line 1") && e.contains("9 columns"),
+            "{e}"
+        );
+        let e = parse_xyz(p, "# c\n5\n1 2 3 255 0 0\n")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("line 3"), "{e}");
+        assert_eq!(parse_xyz(p, "1 2 3\n").unwrap().len(), 1);
     }
 }

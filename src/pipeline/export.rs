@@ -193,10 +193,10 @@ pub fn correspondence_table(
                 )))
             }
         };
-        if row_cache.as_ref().is_none_or(|(r, _)| *r != i) {
-            row_cache = Some((i, rows.row(i)?));
-        }
-        let row = &row_cache.as_ref().expect("set above").1;
+        let row = match &row_cache {
+            Some((r, row)) if *r == i => row,
+            _ => &row_cache.insert((i, rows.row(i)?)).1,
+        };
         let img_valid =
             row_ok.get(i).copied().unwrap_or(false) && col_ok.get(j).copied().unwrap_or(false);
         let p_img = match &row.image {

@@ -175,9 +175,9 @@ impl EstimateMemo {
             [a.x, a.y, a.z, b.x, b.y, b.z].map(f32::to_bits)
         };
         let bits = |w: &[f32]| w.iter().map(|x| x.to_bits()).collect::<Vec<u32>>();
-        // SC2-PCR reads the first max_points, as a set
+        // SC2-PCR reads the first max_points, as a set (in score order: as a sequence)
         let order = match method {
-            crate::estimate::EstimatorKind::Sc2Pcr(p) => {
+            crate::estimate::EstimatorKind::Sc2Pcr(p) if !p.score_order => {
                 let m = n.min(p.max_points);
                 Some(crate::estimate::sc2pcr::canonical_order(&sp[..m], &tp[..m]))
             }
@@ -388,6 +388,17 @@ fn finish(
     image_branch: Option<String>,
     memo: Option<&EstimateMemo>,
 ) -> Result<RegistrationResult> {
+    for (side, scan, kp) in [
+        ("source", &pair.source, &src.keypoints),
+        ("target", &pair.target, &tgt.keypoints),
+    ] {
+        if let Some(why) = crate::estimate::kabsch::keypoint_problem(&kp.points) {
+            return Err(Error::Degenerate(format!(
+                "pair {}: the {side} {} {why}; no pose can be estimated from it",
+                pair.id, scan.name
+            )));
+        }
+    }
     let sp: Vec<Point3<f32>> = corr
         .iter()
         .map(|c| src.keypoints.points[c.src as usize])
@@ -426,7 +437,9 @@ fn finish(
             params.inlier_threshold,
         )
     });
-    let mut warnings: Vec<String> = est.warning.iter().cloned().collect();
+    let mut warnings: Vec<String> = pair.source.notes.clone();
+    warnings.extend(pair.target.notes.iter().cloned());
+    warnings.extend(est.warning.iter().cloned());
     warnings.extend(convention.as_ref().and_then(|c| c.warning.clone()));
     let total_ms = timer.t0.elapsed().as_secs_f64() * 1e3;
     Ok(RegistrationResult {

@@ -435,7 +435,12 @@ impl WfmBackend for CosmosBackend {
 
     fn generate(&self, req: &GenerateRequest) -> Result<Generation> {
         let mut out = self.run_batch(&req.pair_id, std::slice::from_ref(req))?;
-        out.pop().expect("one result per request")
+        out.pop().unwrap_or_else(|| {
+            Err(Error::Invalid(format!(
+                "cosmos: no result for pair {} in its batch",
+                req.pair_id
+            )))
+        })
     }
 
     /// One job folder and one run of the command for every request of the same seed (the
@@ -469,7 +474,13 @@ impl WfmBackend for CosmosBackend {
             }
         }
         out.into_iter()
-            .map(|r| r.expect("every request is in one seed group"))
+            .map(|r| {
+                r.unwrap_or_else(|| {
+                    Err(Error::Invalid(
+                        "cosmos: a request was in no seed group".into(),
+                    ))
+                })
+            })
             .collect()
     }
 }

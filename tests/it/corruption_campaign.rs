@@ -319,7 +319,7 @@ fn campaign(
 
 #[test]
 fn every_damaged_stage_entry_is_reported_unused_and_recomputed() {
-    let Some(root) = cgenreg::test_data_root() else {
+    let Some(root) = cgenreg::testing::test_data_root() else {
         return;
     };
     let dir = tempfile::tempdir().unwrap();

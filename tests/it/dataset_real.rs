@@ -55,7 +55,7 @@ fn manifest(name: &str) -> PathBuf {
 
 #[test]
 fn rebuilt_fragments_agree_with_staged_3dmatch() {
-    let Some(root) = cgenreg::test_data_root() else {
+    let Some(root) = cgenreg::testing::test_data_root() else {
         return;
     };
     let seq = RgbdSequence::open(&root.join("7scenes-redkitchen-rgbd")).unwrap();
@@ -106,7 +106,7 @@ fn rebuilt_fragments_agree_with_staged_3dmatch() {
 
 #[test]
 fn shipped_manifests_pairs_and_gt() {
-    let Some(root) = cgenreg::test_data_root() else {
+    let Some(root) = cgenreg::testing::test_data_root() else {
         return;
     };
     let staged = Dataset::load(&manifest("redkitchen-staged.toml")).unwrap();
@@ -173,7 +173,7 @@ fn shipped_manifests_pairs_and_gt() {
 
 #[test]
 fn staged_pair_loads_with_frames_and_gt_aligns() {
-    let Some(_root) = cgenreg::test_data_root() else {
+    let Some(_root) = cgenreg::testing::test_data_root() else {
         return;
     };
     let ds = Dataset::load(&manifest("redkitchen-staged.toml")).unwrap();
@@ -202,7 +202,7 @@ fn staged_pair_loads_with_frames_and_gt_aligns() {
 
 #[test]
 fn rgbd_manifest_fragment_is_cropped_and_has_frames() {
-    let Some(_root) = cgenreg::test_data_root() else {
+    let Some(_root) = cgenreg::testing::test_data_root() else {
         return;
     };
     let ds = Dataset::load(&manifest("redkitchen-rgbd.toml")).unwrap();
@@ -218,7 +218,7 @@ fn rgbd_manifest_fragment_is_cropped_and_has_frames() {
 
 #[test]
 fn lidar_pair_from_files() {
-    let Some(root) = cgenreg::test_data_root() else {
+    let Some(root) = cgenreg::testing::test_data_root() else {
         return;
     };
     let d = root.join("small-gicp-lidar-pair");
@@ -254,7 +254,7 @@ fn lidar_pair_from_files() {
 fn dev_manifest_is_disjoint_from_the_evaluated_pairs() {
     use cgenreg::dataset::manifest::FragmentSource;
     use cgenreg::metrics::overlap::pair_overlap;
-    let Some(_root) = cgenreg::test_data_root() else {
+    let Some(_root) = cgenreg::testing::test_data_root() else {
         return;
     };
     let dev = Dataset::load(&manifest("redkitchen-dev.toml")).unwrap();

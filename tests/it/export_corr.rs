@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 fn demo_dir() -> Option<PathBuf> {
-    Some(cgenreg::test_data_root()?.join("3dmatch-redkitchen/geotransformer-demo"))
+    Some(cgenreg::testing::test_data_root()?.join("3dmatch-redkitchen/geotransformer-demo"))
 }
 
 fn register(d: &Path, gt: &Path, export: Option<&Path>) -> Value {

@@ -11,7 +11,7 @@ fn every_reader_survives_random_mutations() {
         .ok()
         .and_then(|v| v.parse().ok())
         .unwrap_or(1.5);
-    let data = cgenreg::test_data_root();
+    let data = cgenreg::testing::test_data_root();
     let seed = 0x5eed_u64;
     let mut failures = Vec::new();
     for target in ft::all_targets() {

@@ -58,7 +58,7 @@ fn successes(path: &Path) -> std::collections::HashMap<String, bool> {
 
 #[test]
 fn compare_two_real_runs_and_open_a_pair_with_run_b() {
-    if cgenreg::test_data_root().is_none() {
+    if cgenreg::testing::test_data_root().is_none() {
         return;
     }
     // A: FPFH NN; B: FPFH, mutual NN (both geometry only, so opening a pair is a quick
@@ -255,7 +255,7 @@ fn settings_b(a: &RegisterParams) -> RegisterParams {
 /// settings gives, and the worker's settings and pair rows are left as they were.
 #[test]
 fn compare_two_settings_over_the_open_dataset() {
-    if cgenreg::test_data_root().is_none() {
+    if cgenreg::testing::test_data_root().is_none() {
         return;
     }
     let cache = tempfile::tempdir().unwrap();
@@ -366,7 +366,7 @@ fn compare_two_settings_over_the_open_dataset() {
 /// pairs done under both settings, and the worker's settings are restored.
 #[test]
 fn a_cancelled_settings_comparison_keeps_the_pairs_run_under_both() {
-    if cgenreg::test_data_root().is_none() {
+    if cgenreg::testing::test_data_root().is_none() {
         return;
     }
     let cache = tempfile::tempdir().unwrap();

@@ -540,7 +540,7 @@ fn a_bad_open_is_logged_and_keeps_the_previous_dataset() {
 /// a 3DMatch-style folder is assembled from links (no copies) to fragments 0 and 5 and gt.log.
 #[test]
 fn open_a_threedmatch_folder() {
-    let Some(root) = cgenreg::test_data_root() else {
+    let Some(root) = cgenreg::testing::test_data_root() else {
         return;
     };
     let m3 = root.join("3dmatch-redkitchen");
@@ -591,7 +591,7 @@ fn open_a_threedmatch_folder() {
 /// poses (equal to 3DMatch's gt.log `0 1`, as the data's INDEX.md states).
 #[test]
 fn open_an_rgbd_sequence() {
-    let Some(root) = cgenreg::test_data_root() else {
+    let Some(root) = cgenreg::testing::test_data_root() else {
         return;
     };
     let seq = root.join("7scenes-redkitchen-rgbd");

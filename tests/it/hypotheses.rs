@@ -9,7 +9,7 @@ use cgenreg::pipeline::hypotheses::estimator_hypotheses;
 use cgenreg::pipeline::{register_pair, RegisterParams};
 
 fn check(estimator: EstimatorKind, seeds: bool) {
-    let Some(root) = cgenreg::test_data_root() else {
+    let Some(root) = cgenreg::testing::test_data_root() else {
         return;
     };
     let d = root.join("3dmatch-redkitchen/geotransformer-demo");

@@ -351,7 +351,7 @@ fn pickle_and_pth() {
     );
 
     // Staged .pth files cut anywhere must fail cleanly.
-    if let Some(root) = cgenreg::test_data_root() {
+    if let Some(root) = cgenreg::testing::test_data_root() {
         let real = std::fs::read(root.join("3dmatch-redkitchen/regtr/cloud_bin_0.pth")).unwrap();
         for cut in [10, 200, 400, real.len() / 2, real.len() - 3] {
             let name = format!("cut{cut}.pth");

@@ -6,6 +6,9 @@
 //! `cargo test --test it gui_snapshots::`. `tests/gui_monkey.rs` stays a binary of its own
 //! because it changes the process's working directory.
 
+// Tests: a failed step is the test failure.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+
 mod common;
 
 mod cache_safety;
@@ -19,6 +22,7 @@ mod gui_run_all;
 mod gui_snapshots;
 mod gui_study;
 mod headless_no_egl;
+mod headline;
 mod hostile_outputs;
 mod hypotheses;
 mod io_limits;
@@ -30,6 +34,7 @@ mod properties;
 mod shard_cli;
 mod slurm;
 mod study;
+mod validation;
 mod vfm_dense;
 mod vfm_onnx;
 mod wfm_backends;

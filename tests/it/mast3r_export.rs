@@ -142,7 +142,7 @@ fn real_mast3r_export_runs_in_cgenreg() {
         Ok(p) => p,
         Err(why) => return skip(&why),
     };
-    let Some(data) = cgenreg::test_data_root() else {
+    let Some(data) = cgenreg::testing::test_data_root() else {
         return;
     };
     let here = Path::new(env!("CARGO_MANIFEST_DIR"));

@@ -34,7 +34,7 @@ fn overlap(query: &[Point3<f32>], reference: &[Point3<f32>], t: &Isometry3<f64>,
 
 #[test]
 fn pandaset_manifest_loads_with_the_right_ground_truth() {
-    let Some(_root) = cgenreg::test_data_root() else {
+    let Some(_root) = cgenreg::testing::test_data_root() else {
         return;
     };
     let ds = Dataset::load(&manifest()).unwrap();
@@ -106,7 +106,7 @@ fn pandaset_manifest_loads_with_the_right_ground_truth() {
 #[test]
 fn pandaset_sensor_origin_is_recovered_from_the_scan() {
     use cgenreg::camera::sensor_origin::estimate_sensor_origin;
-    let Some(_root) = cgenreg::test_data_root() else {
+    let Some(_root) = cgenreg::testing::test_data_root() else {
         return;
     };
     let ds = Dataset::load(&manifest()).unwrap();

@@ -52,7 +52,7 @@ fn results(v: &Value) -> (Value, Value) {
 
 #[test]
 fn three_shards_merged_equal_one_run_and_a_rerun_resumes() {
-    let Some(data) = cgenreg::test_data_root() else {
+    let Some(data) = cgenreg::testing::test_data_root() else {
         return;
     };
     let dir = tempfile::tempdir().unwrap();
@@ -158,7 +158,7 @@ fn three_shards_merged_equal_one_run_and_a_rerun_resumes() {
 
 #[test]
 fn a_pair_that_fails_or_panics_is_recorded_and_the_bench_goes_on() {
-    let Some(data) = cgenreg::test_data_root() else {
+    let Some(data) = cgenreg::testing::test_data_root() else {
         return;
     };
     let dir = tempfile::tempdir().unwrap();
@@ -343,7 +343,7 @@ fn eight_processes_writing_the_same_cache_entries_leave_it_clean() {
 /// second `generate` finds them all cached and runs nothing.
 #[test]
 fn generate_with_cosmos_runs_one_batch_per_shard_and_then_reads_the_cache() {
-    let Some(data) = cgenreg::test_data_root() else {
+    let Some(data) = cgenreg::testing::test_data_root() else {
         return;
     };
     if Command::new("ffmpeg").arg("-version").output().is_err() {
@@ -486,7 +486,7 @@ fn status_projects_gpu_hours_from_the_measured_generation_time() {
 /// table says the sources were re-posed.
 #[test]
 fn reposed_sources_still_register_and_the_seed_is_part_of_the_run() {
-    let Some(data) = cgenreg::test_data_root() else {
+    let Some(data) = cgenreg::testing::test_data_root() else {
         return;
     };
     let dir = tempfile::tempdir().unwrap();

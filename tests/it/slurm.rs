@@ -141,7 +141,7 @@ fn tail(p: &Path) -> String {
 
 #[test]
 fn a_job_array_on_a_real_slurm_merges_to_the_local_run_and_a_killed_task_resumes() {
-    let Some(data) = cgenreg::test_data_root() else {
+    let Some(data) = cgenreg::testing::test_data_root() else {
         return;
     };
     let tmp = tempfile::tempdir().unwrap();

@@ -18,7 +18,7 @@ use cgenreg::vfm::{default_model_path, PerImageModel};
 use std::path::PathBuf;
 
 fn sequence() -> Option<RgbdSequence> {
-    let root = cgenreg::test_data_root()?;
+    let root = cgenreg::testing::test_data_root()?;
     Some(RgbdSequence::open(&root.join("7scenes-redkitchen-rgbd")).expect("redkitchen frames"))
 }
 

@@ -181,7 +181,7 @@ fn xfeat_dense_descriptors_on_a_synthetic_frame() {
 /// registered pixel to pixel, hence a 12 px tolerance). STACK.md measured ~2,500 matches, 81 %.
 #[test]
 fn xfeat_matches_agree_with_depth_and_poses_on_real_frames() {
-    let Some(root) = cgenreg::test_data_root() else {
+    let Some(root) = cgenreg::testing::test_data_root() else {
         return;
     };
     let dir = root.join("7scenes-redkitchen-rgbd");

@@ -395,7 +395,7 @@ fn oracle_returns_real_frames_labelled() {
 
 #[test]
 fn real_redkitchen_depth_video_builtin_and_oracle() {
-    let Some(root) = cgenreg::test_data_root() else {
+    let Some(root) = cgenreg::testing::test_data_root() else {
         return;
     };
     let seq = root.join("7scenes-redkitchen-rgbd");

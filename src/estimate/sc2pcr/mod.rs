@@ -13,10 +13,13 @@
 //!   stops once nothing left can enter the top-k1; only the top-k1 are kept.
 //!
 //! Ties are broken deterministically by the lower correspondence index (stable sorts); torch's
-//! unstable argsort may order ties differently. The correspondences used (the first
+//! unstable argsort may order ties differently. By default the correspondences used (the first
 //! `max_points`) run in a canonical order ([`canonical_order`]), so the result is a function of
-//! their set: the order by score only decides which are used. The reference runs them in score
-//! order; the two differ only in how ties and summation round-off fall.
+//! their set: the order by score only decides which are used. With
+//! [`Sc2PcrParams::score_order`] (what `--reference` sets) they run in the order given, the
+//! fused-score order, as the reference does: most seeds tie (at zero after NMS) and the tied
+//! seeds, tied top-k entries and the first maximum of the hypothesis scores then resolve by
+//! score rank as in the authors' code instead of by position.
 //!
 //! Files: this one holds the algorithm (`sc2pcr`, the per-seed weights, the post-refinement);
 //! `graph.rs` the compatibility graph (bitsets, SC matvec, leading eigenvector, NMS seeds,
@@ -55,6 +58,10 @@ pub struct Sc2PcrParams {
     pub k1: usize,
     pub k2: usize,
     pub refine_iterations: usize,
+    /// Run the correspondences in the order given (by score, as the reference does) instead
+    /// of the canonical coordinate order: ties then resolve as in the authors' code.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub score_order: bool,
 }
 
 impl Default for Sc2PcrParams {
@@ -69,6 +76,7 @@ impl Default for Sc2PcrParams {
             k1: 30,
             k2: 20,
             refine_iterations: 20,
+            score_order: false,
         }
     }
 }
@@ -128,7 +136,11 @@ pub fn sc2pcr_with(
         )));
     }
     // The first `n` run in the canonical order, so that the result depends on which are used,
-    // not on their order (a temperature change under NN selection reorders the same set).
+    // not on their order (a temperature change under NN selection reorders the same set);
+    // in score order when asked (the reference's tie-breaking).
+    if p.score_order {
+        return run(src, tgt, p, top_n, (k1, k2), num_seeds);
+    }
     let o = canonical_order(src, tgt);
     let (s, t): (Vec<_>, Vec<_>) = o.iter().map(|&i| (src[i], tgt[i])).unzip();
     let (e, hyps) = run(&s, &t, p, top_n, (k1, k2), num_seeds)?;

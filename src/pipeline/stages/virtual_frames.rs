@@ -618,6 +618,7 @@ mod tests {
             name: "ring".into(),
             cloud,
             frames: None,
+            notes: Vec::new(),
         };
         let at_origin = keys(&scan, 50, VirtualCamera::Auto, 2, LidarOrigin::ScanOrigin).unwrap();
         let estimated = keys(&scan, 50, VirtualCamera::Auto, 2, LidarOrigin::Estimated).unwrap();
