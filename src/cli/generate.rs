@@ -65,7 +65,7 @@ pub fn run(a: GenerateArgs) -> Result<()> {
     }
     let ds = a.pairs.dataset(&a.image)?;
     let specs = a.pairs.select(&ds)?;
-    let (params, cache) = a.image.params_and_cache(&a.pipeline)?;
+    let (params, cache) = a.image.params_and_cache_for(&a.pipeline, ds.preset)?;
     let Some(ib) = params.image.clone() else {
         return Err(Error::Invalid("no image branch".into()));
     };

@@ -22,6 +22,7 @@ mod headless_no_egl;
 mod hypotheses;
 mod io_limits;
 mod io_malformed;
+mod kitti07_lidar;
 mod mast3r_export;
 mod pandaset_lidar;
 mod pipeline_image;
