@@ -390,12 +390,39 @@ mod tests {
     }
 
     #[test]
+    fn success_is_judged_and_named_by_its_criteria() {
+        let gt = Isometry3::identity();
+        // 4° and 1 m off: a KITTI success, not at SC2-PCR's 0.6 m nor at 3DMatch's 0.30 m
+        let est = Isometry3::new(Vector3::x(), Vector3::z() * 4f64.to_radians());
+        let outdoor = SuccessCriteria {
+            primary: SuccessCriterion::KITTI,
+            also: Some(SuccessCriterion::SC2PCR_KITTI),
+        };
+        let m = PairMetrics::judged(&est, &gt, 0.5, &outdoor);
+        assert!(m.success);
+        assert_eq!(m.criterion, SuccessCriterion::KITTI);
+        assert!(!m.also.unwrap().success);
+        assert!(!PairMetrics::new(&est, &gt, 0.5).success);
+        assert_eq!(SuccessCriterion::KITTI.label(), "RRE ≤ 5°, RTE ≤ 2 m");
+        let json = serde_json::to_value(m).unwrap();
+        assert_eq!(json["criterion"]["max_rte_m"], serde_json::json!(2.0));
+        // a result written before the criterion was named reads as 3DMatch's
+        let old: PairMetrics = serde_json::from_str(
+            r#"{"rre_deg": 1.0, "rte_m": 0.1, "inlier_ratio": 0.2, "success": true}"#,
+        )
+        .unwrap();
+        assert_eq!(old.criterion, SuccessCriterion::THREEDMATCH);
+    }
+
+    #[test]
     fn summary_by_hand() {
         let p = |rre: f64, rte: f64, ir: f64| PairMetrics {
             rre_deg: rre,
             rte_m: rte,
             inlier_ratio: ir,
             success: rre <= 15.0 && rte <= 0.3,
+            criterion: SuccessCriterion::THREEDMATCH,
+            also: None,
         };
         let pairs = [
             p(1.0, 0.02, 0.5),

@@ -562,9 +562,10 @@ mod tests {
     #[test]
     fn indoor_defaults_key_as_the_old_constants() {
         let p = RegisterParams::default();
+        // the f32 fields as they always were (a JSON value holds them widened to f64)
         let old = serde_json::json!({
-            "Sc2Pcr": {"inlier_threshold": 0.1, "d_thre": 0.1, "num_iterations": 10,
-                       "ratio": 0.2, "nms_radius": 0.1, "max_points": 8000, "k1": 30,
+            "Sc2Pcr": {"inlier_threshold": 0.1f32, "d_thre": 0.1f32, "num_iterations": 10,
+                       "ratio": 0.2f32, "nms_radius": 0.1f32, "max_points": 8000, "k1": 30,
                        "k2": 20, "refine_iterations": 20}
         });
         assert_eq!(serde_json::to_value(p.estimator_resolved()).unwrap(), old);
@@ -580,7 +581,7 @@ mod tests {
         let r = EstimatorKind::Ransac(RansacParams::default()).resolved(0.05);
         assert_eq!(
             serde_json::to_value(r).unwrap()["Ransac"]["distance_threshold"],
-            serde_json::json!(0.075)
+            serde_json::json!(0.075f32)
         );
         // the resolved settings read as the old ones did (numbers, no success field)
         let json = serde_json::to_value(p.resolved()).unwrap();
