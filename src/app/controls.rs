@@ -554,9 +554,19 @@ fn scale_controls(ui: &mut egui::Ui, params: &mut RegisterParams) {
     let c = &mut params.success.primary;
     ui.horizontal(|ui| {
         ui.label("Success: RRE ≤");
-        ui.add(egui::DragValue::new(&mut c.max_rre_deg).speed(0.5).range(0.0..=180.0).suffix("°"));
+        ui.add(
+            egui::DragValue::new(&mut c.max_rre_deg)
+                .speed(0.5)
+                .range(0.0..=180.0)
+                .suffix("°"),
+        );
         ui.label("RTE ≤");
-        ui.add(egui::DragValue::new(&mut c.max_rte_m).speed(0.01).range(0.0..=100.0).suffix(" m"));
+        ui.add(
+            egui::DragValue::new(&mut c.max_rte_m)
+                .speed(0.01)
+                .range(0.0..=100.0)
+                .suffix(" m"),
+        );
     });
     if let Some(a) = params.success.also {
         ui.label(format!("also reported: {}", a.label()));
@@ -588,7 +598,12 @@ fn scaled_field<T: Metres + egui::emath::Numeric>(
         }
         match value {
             Scaled::Set(x) => {
-                ui.add(egui::DragValue::new(x).speed(0.005).range(0.001..=100.0).suffix(" m"));
+                ui.add(
+                    egui::DragValue::new(x)
+                        .speed(0.005)
+                        .range(0.001..=100.0)
+                        .suffix(" m"),
+                );
             }
             Scaled::FollowVoxel => {
                 ui.label(format!("{:.3} m", now.to_m()));

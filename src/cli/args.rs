@@ -4,12 +4,12 @@
 //! Every choice is the pipeline's own type (clap's `ValueEnum` is implemented on them), so
 //! an option means the same thing here, in the inspector and in a run's JSON.
 
+use crate::estimate::scale::Scaled;
 use crate::estimate::EstimatorKind;
 use crate::fusion::calibrate::Calibration;
 use crate::fusion::fuse::FusionMode;
 use crate::fusion::select::Selection;
 use crate::pipeline::cache::Cache;
-use crate::estimate::scale::Scaled;
 use crate::pipeline::params::{
     GeoFeatureSource, ImageBranchParams, LidarOrigin, Preset, RegisterParams, VfmSpec,
     VirtualCamera, WfmSpec,
@@ -170,7 +170,8 @@ impl PipelineArgs {
                 }
             }
             // RANSAC's inlier distance follows the voxel (1.5 v); the GUI sets it
-            crate::estimate::EstimatorKind::Ransac(_) | crate::estimate::EstimatorKind::WeightedSvd => {}
+            crate::estimate::EstimatorKind::Ransac(_)
+            | crate::estimate::EstimatorKind::WeightedSvd => {}
         }
     }
 }

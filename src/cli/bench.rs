@@ -263,7 +263,10 @@ pub fn print_pair_table(rows: &[PairRow]) {
     );
     for r in rows {
         let also_cell = match also {
-            Some(_) => format!(" {} |", mark(r.also.map(|j| j.success).or(r.success.and(Some(false))))),
+            Some(_) => format!(
+                " {} |",
+                mark(r.also.map(|j| j.success).or(r.success.and(Some(false))))
+            ),
             None => String::new(),
         };
         println!(

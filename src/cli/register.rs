@@ -3,9 +3,9 @@ use crate::dataset::fragment_cache::pair_summary;
 use crate::dataset::manifest::Dataset;
 use crate::dataset::ScanPair;
 use crate::error::{Error, Result};
-use crate::pipeline::{register_pair_cached_keep, RegistrationResult};
 use crate::metrics::SuccessCriterion;
 use crate::pipeline::params::Preset;
+use crate::pipeline::{register_pair_cached_keep, RegistrationResult};
 use clap::Args;
 use std::path::PathBuf;
 

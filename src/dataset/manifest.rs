@@ -658,8 +658,7 @@ impl Dataset {
             } else {
                 (None, None)
             };
-            let pair_preset =
-                preset_field(path, &format!("{field}.preset"), p.preset.as_deref())?;
+            let pair_preset = preset_field(path, &format!("{field}.preset"), p.preset.as_deref())?;
             let id = format!("{}/{}-{}", raw.name, p.target, p.source);
             if pair_ids.insert(id.clone(), i).is_some() {
                 return Err(bad(

@@ -532,7 +532,10 @@ mod tests {
         assert_eq!(s.nms_radius, 0.10, "nms_radius does not scale");
         assert_eq!(p.inlier_threshold_m(), 0.6);
         assert_eq!(p.success.primary, SuccessCriterion::KITTI);
-        assert_eq!((p.success.primary.max_rre_deg, p.success.primary.max_rte_m), (5.0, 2.0));
+        assert_eq!(
+            (p.success.primary.max_rre_deg, p.success.primary.max_rte_m),
+            (5.0, 2.0)
+        );
         let also = p.success.also.unwrap();
         assert_eq!((also.max_rre_deg, also.max_rte_m), (5.0, 0.6));
         assert_eq!(Preset::of(&p), Some(Preset::Outdoor));

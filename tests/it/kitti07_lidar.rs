@@ -73,7 +73,11 @@ fn kitti07_manifest_loads_with_the_right_ground_truth_and_preset() {
         ("3", 16_911),
         ("4", 19_872),
     ] {
-        assert_eq!(ds.load_fragment(id).unwrap().cloud.len(), n, "keyframe {id}");
+        assert_eq!(
+            ds.load_fragment(id).unwrap().cloud.len(),
+            n,
+            "keyframe {id}"
+        );
     }
     let gts = gt_pairs(&root);
     assert_eq!(ds.pairs().len(), 10);
@@ -84,7 +88,10 @@ fn kitti07_manifest_loads_with_the_right_ground_truth_and_preset() {
         assert_eq!(ds.preset_of(&id), Some(Preset::Outdoor));
         let m = p.gt_target_from_source.unwrap();
         let d = (m.to_homogeneous() - gt.to_homogeneous()).abs().max();
-        assert!(d < 1e-6, "{id}: manifest GT differs from gt_pairs.txt by {d}");
+        assert!(
+            d < 1e-6,
+            "{id}: manifest GT differs from gt_pairs.txt by {d}"
+        );
     }
     // direction: the nearest pairs overlap under the GT, not under its inverse or identity
     for id in ["kitti07/0-1", "kitti07/3-4"] {
@@ -96,22 +103,36 @@ fn kitti07_manifest_loads_with_the_right_ground_truth_and_preset() {
             overlap(s, t, &gt.inverse(), 0.5),
             overlap(s, t, &Isometry3::identity(), 0.5),
         );
-        println!("{id}: overlap within 0.5 m: GT {o_gt:.2}, inverse {o_inv:.2}, identity {o_id:.2}");
-        assert!(o_gt > 0.5 && o_gt > 2.0 * o_inv && o_gt > 2.0 * o_id, "{id}");
+        println!(
+            "{id}: overlap within 0.5 m: GT {o_gt:.2}, inverse {o_inv:.2}, identity {o_id:.2}"
+        );
+        assert!(
+            o_gt > 0.5 && o_gt > 2.0 * o_inv && o_gt > 2.0 * o_id,
+            "{id}"
+        );
     }
 }
 
 /// The outdoor preset, from the manifest, on the KITTI 07 ladder: at least 9 of the 10 pairs
 /// at 5° / 2 m. The debug test profile registers the five pairs up to 12 m apart (each is a
 /// full registration: FPFH at 0.3 m, nearest neighbours, SC2-PCR); the full ladder runs in
-/// the release check `scripts/outdoor_check.sh` (`cargo test --release ... -- --ignored`).
+/// the release check `scripts/outdoor_check.sh`, and here with `-- --ignored`.
 #[test]
 fn kitti07_near_pairs_register_with_the_outdoor_preset() {
-    ladder(&["kitti07/0-1", "kitti07/1-2", "kitti07/0-2", "kitti07/2-3", "kitti07/3-4"], 5);
+    ladder(
+        &[
+            "kitti07/0-1",
+            "kitti07/1-2",
+            "kitti07/0-2",
+            "kitti07/2-3",
+            "kitti07/3-4",
+        ],
+        5,
+    );
 }
 
 #[test]
-#[ignore = "the full ladder: run in release (scripts/outdoor_check.sh)"]
+#[ignore = "the full ladder (slow in debug): scripts/outdoor_check.sh, or -- --ignored"]
 fn kitti07_pairs_register_with_the_outdoor_preset() {
     let ids: Vec<String> = match cgenreg::test_data_root() {
         Some(_) => Dataset::load(&manifest())
@@ -155,5 +176,9 @@ fn ladder(ids: &[&str], at_least: usize) {
         ids.len(),
         t0.elapsed().as_secs_f64()
     );
-    assert!(ok >= at_least, "{ok}/{} registered, need {at_least}", ids.len());
+    assert!(
+        ok >= at_least,
+        "{ok}/{} registered, need {at_least}",
+        ids.len()
+    );
 }

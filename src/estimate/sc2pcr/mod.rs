@@ -127,7 +127,9 @@ pub fn sc2pcr_with(
     }
     // called without a voxel (outside the pipeline): SC2-PCR's own 3DMatch configuration
     let p = &Resolved {
-        inlier_threshold: params.inlier_threshold.at(REFERENCE_VOXEL, THRESHOLD_PER_VOXEL),
+        inlier_threshold: params
+            .inlier_threshold
+            .at(REFERENCE_VOXEL, THRESHOLD_PER_VOXEL),
         d_thre: params.d_thre.at(REFERENCE_VOXEL, THRESHOLD_PER_VOXEL),
         num_iterations: params.num_iterations,
         ratio: params.ratio,

@@ -113,7 +113,9 @@ fn bitset_graph_matches_dense_transcription() {
     let p = Soa::new(&data.src, &data.tgt);
     let prm = Sc2PcrParams::default();
     // the default follows the voxel: 0.10 m at SC2-PCR's 3DMatch voxel
-    let d_thre = prm.d_thre.at(0.05, crate::estimate::scale::THRESHOLD_PER_VOXEL);
+    let d_thre = prm
+        .d_thre
+        .at(0.05, crate::estimate::scale::THRESHOLD_PER_VOXEL);
     assert_eq!(d_thre, 0.1);
     let g = Graph::build(&p, d_thre, prm.nms_radius);
     let dense = Dense::new(&p);
