@@ -4,14 +4,15 @@
 //! Every choice is the pipeline's own type (clap's `ValueEnum` is implemented on them), so
 //! an option means the same thing here, in the inspector and in a run's JSON.
 
+use crate::estimate::scale::Scaled;
 use crate::estimate::EstimatorKind;
 use crate::fusion::calibrate::Calibration;
 use crate::fusion::fuse::FusionMode;
 use crate::fusion::select::Selection;
 use crate::pipeline::cache::Cache;
 use crate::pipeline::params::{
-    GeoFeatureSource, ImageBranchParams, LidarOrigin, RegisterParams, VfmSpec, VirtualCamera,
-    WfmSpec,
+    GeoFeatureSource, ImageBranchParams, LidarOrigin, Preset, RegisterParams, VfmSpec,
+    VirtualCamera, WfmSpec,
 };
 use crate::wfm::{Prompt, PromptPreset};
 use clap::Args;
@@ -49,9 +50,21 @@ fn frame_count(s: &str) -> Result<usize, String> {
 
 #[derive(Args, Debug, Clone)]
 pub struct PipelineArgs {
-    /// Keypoint voxel size in metres (FPFH radii: normals 2v, features 5v).
-    #[arg(long, default_value_t = 0.05, value_parser = positive_f64, allow_negative_numbers = true)]
-    pub voxel: f64,
+    /// Protocol to start from: indoor (3DMatch: voxel 0.05 m, thresholds 0.10 m, success
+    /// 15°/0.30 m) or outdoor (KITTI: voxel 0.3 m, thresholds 0.6 m, success 5°/2 m with
+    /// SC2-PCR's 5°/0.6 m beside it). Default: the manifest's `preset`, else indoor.
+    #[arg(long, value_enum)]
+    pub preset: Option<Preset>,
+    /// Keypoint voxel size in metres (default: the preset's). FPFH radii follow it (normals
+    /// 2v, features 5v), and so do the thresholds not set below (2v) and the lift radius (1v).
+    #[arg(long, value_parser = positive_f64, allow_negative_numbers = true)]
+    pub voxel: Option<f64>,
+    /// SC2-PCR's inlier threshold and the GT inlier-ratio threshold, metres (default: 2 x voxel).
+    #[arg(long, value_parser = positive_f64, allow_negative_numbers = true)]
+    pub inlier_threshold: Option<f64>,
+    /// SC2-PCR's compatibility threshold d_thre, metres (default: 2 x voxel).
+    #[arg(long, value_parser = positive_f64, allow_negative_numbers = true)]
+    pub d_thre: Option<f64>,
     /// Learned features for the source scan (.npz with points/feats, or .pkl); needs --learned-target.
     #[arg(long, requires = "learned_target")]
     pub learned_source: Option<PathBuf>,
@@ -90,11 +103,10 @@ pub struct PipelineArgs {
 }
 
 impl PipelineArgs {
-    pub fn to_params(&self, image_branch: bool) -> RegisterParams {
-        let mut p = RegisterParams {
-            voxel: self.voxel,
-            ..Default::default()
-        };
+    /// The run's parameters; `manifest_preset` is the data set's own (`preset` in its
+    /// manifest), used when `--preset` is not given.
+    pub fn to_params(&self, image_branch: bool, manifest_preset: Option<Preset>) -> RegisterParams {
+        let mut p = RegisterParams::default();
         p.geo_features = match (
             &self.learned_source,
             &self.learned_target,
@@ -133,6 +145,11 @@ impl PipelineArgs {
         p.fusion.exact_reference = self.reference;
         p.fusion.prior = self.prior;
         p.estimator = self.estimator.clone();
+        self.preset
+            .or(manifest_preset)
+            .unwrap_or_default()
+            .apply(&mut p);
+        self.apply_overrides(&mut p);
         // --reference: SC2-PCR in the authors' score order (their tie-breaking)
         if let (true, crate::estimate::EstimatorKind::Sc2Pcr(s)) =
             (self.reference, &mut p.estimator)
@@ -140,6 +157,29 @@ impl PipelineArgs {
             s.score_order = true;
         }
         p
+    }
+
+    /// The explicit --voxel, --inlier-threshold and --d-thre over `p`.
+    pub fn apply_overrides(&self, p: &mut RegisterParams) {
+        if let Some(v) = self.voxel {
+            p.voxel = v;
+        }
+        if let Some(t) = self.inlier_threshold {
+            p.inlier_threshold = Scaled::Set(t);
+        }
+        match &mut p.estimator {
+            crate::estimate::EstimatorKind::Sc2Pcr(s) => {
+                if let Some(t) = self.inlier_threshold {
+                    s.inlier_threshold = Scaled::Set(t as f32);
+                }
+                if let Some(d) = self.d_thre {
+                    s.d_thre = Scaled::Set(d as f32);
+                }
+            }
+            // RANSAC's inlier distance follows the voxel (1.5 v); the GUI sets it
+            crate::estimate::EstimatorKind::Ransac(_)
+            | crate::estimate::EstimatorKind::WeightedSvd => {}
+        }
     }
 }
 
@@ -192,9 +232,9 @@ pub struct ImageArgs {
     /// allows more.
     #[arg(long, default_value_t = 50, value_parser = frame_count, allow_negative_numbers = true)]
     pub frames: usize,
-    /// Lifting radius in metres.
-    #[arg(long, default_value_t = 0.05, value_parser = positive_f32, allow_negative_numbers = true)]
-    pub lift_radius: f32,
+    /// Lifting radius in metres (default: the keypoint voxel).
+    #[arg(long, value_parser = positive_f32, allow_negative_numbers = true)]
+    pub lift_radius: Option<f32>,
     /// Virtual camera for scans with no depth frames: f-theta for LiDAR-like clouds (they
     /// carry intensity) and a pinhole trajectory otherwise (auto), or force one.
     #[arg(long, value_enum, default_value = "auto")]
@@ -280,7 +320,7 @@ impl ImageArgs {
             k: self.k,
             margin: self.margin,
             frames_per_fragment: self.frames,
-            lift_radius: self.lift_radius,
+            lift_radius: self.lift_radius.map_or(Scaled::FollowVoxel, Scaled::Set),
             virtual_camera: self.virtual_camera,
             lidar_cameras: self.lidar_cameras,
             lidar_origin: self.lidar_origin,
@@ -295,7 +335,16 @@ impl ImageArgs {
         &self,
         pipeline: &PipelineArgs,
     ) -> crate::Result<(crate::pipeline::RegisterParams, Option<Cache>)> {
-        let mut params = pipeline.to_params(self.wfm.is_some());
+        self.params_and_cache_for(pipeline, None)
+    }
+
+    /// [`Self::params_and_cache`] for a data set whose manifest names `manifest_preset`.
+    pub fn params_and_cache_for(
+        &self,
+        pipeline: &PipelineArgs,
+        manifest_preset: Option<Preset>,
+    ) -> crate::Result<(crate::pipeline::RegisterParams, Option<Cache>)> {
+        let mut params = pipeline.to_params(self.wfm.is_some(), manifest_preset);
         params.image = self.to_image_params()?;
         let cache = match params.image {
             Some(_) => self.open_cache()?,

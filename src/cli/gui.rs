@@ -151,11 +151,11 @@ fn open(
     let manifest = manifest
         .map(Path::to_path_buf)
         .unwrap_or_else(demo_manifest);
-    let mut params = pipeline.to_params(image.wfm.is_some());
-    params.image = image.to_image_params()?;
     // fragments rebuilt from raw RGB-D frames are kept in the stage cache, as in `register`
     let dataset = crate::dataset::manifest::Dataset::load(&manifest)?
         .with_fragment_cache(image.fragment_cache()?);
+    let mut params = pipeline.to_params(image.wfm.is_some(), dataset.preset);
+    params.image = image.to_image_params()?;
     let mut worker = PipelineWorker::new(dataset, params);
     worker.set_cache(image.open_cache()?);
     let ids = worker.pair_ids();
@@ -234,7 +234,7 @@ fn run_compare_screenshot(a: &ScreenshotArgs, runs: &[PathBuf], panel: Panel) ->
     let manifest = a.manifest.clone().or_else(|| loaded.a.manifest.clone());
     let worker = PipelineWorker::open_manifest(
         &manifest.unwrap_or_else(demo_manifest),
-        a.pipeline.to_params(false),
+        a.pipeline.to_params(false, None),
     )?;
     let mut model = worker.initial_model(None);
     // nothing runs: no "load + register" stage in progress

@@ -3,6 +3,8 @@ use crate::dataset::fragment_cache::pair_summary;
 use crate::dataset::manifest::Dataset;
 use crate::dataset::ScanPair;
 use crate::error::{Error, Result};
+use crate::metrics::SuccessCriterion;
+use crate::pipeline::params::Preset;
 use crate::pipeline::{register_pair_cached_keep, RegistrationResult};
 use clap::Args;
 use std::path::PathBuf;
@@ -40,21 +42,21 @@ pub struct RegisterArgs {
     pub image: ImageArgs,
 }
 
-/// The pair, and whether its clouds came from the fragment cache (None: no cache involved).
-pub(crate) fn load_pair(a: &RegisterArgs) -> Result<(ScanPair, Option<bool>)> {
+/// The pair, whether its clouds came from the fragment cache (None: no cache involved), and
+/// the preset its manifest names for it.
+pub(crate) fn load_pair(a: &RegisterArgs) -> Result<(ScanPair, Option<bool>, Option<Preset>)> {
     match (&a.source, &a.target, &a.manifest, &a.pair) {
         (Some(s), Some(t), _, _) => {
-            crate::dataset::pair_from_files(s, t, a.gt.as_deref()).map(|p| (p, None))
+            crate::dataset::pair_from_files(s, t, a.gt.as_deref()).map(|p| (p, None, None))
         }
         (_, _, Some(m), Some(id)) => {
-            let (p, st) = Dataset::load(m)?
-                .with_fragment_cache(a.image.fragment_cache()?)
-                .load_pair_status(id)?;
+            let ds = Dataset::load(m)?.with_fragment_cache(a.image.fragment_cache()?);
+            let (p, st) = ds.load_pair_status(id)?;
             let (hit, rebuilt) = pair_summary(&st);
             for why in rebuilt {
                 eprintln!("warning: fragment cache: {why}");
             }
-            Ok((p, hit))
+            Ok((p, hit, ds.preset_of(id)))
         }
         _ => Err(Error::Invalid(
             "give --source and --target, or --manifest and --pair".into(),
@@ -68,9 +70,9 @@ pub fn run(a: RegisterArgs) -> Result<()> {
         crate::io::output::prepare(path, crate::io::output::OutputKind::Npz, a.force)?;
     }
     let t0 = std::time::Instant::now();
-    let (pair, load_hit) = load_pair(&a)?;
+    let (pair, load_hit, preset) = load_pair(&a)?;
     let load_ms = t0.elapsed().as_secs_f64() * 1e3;
-    let (params, cache) = a.image.params_and_cache(&a.pipeline)?;
+    let (params, cache) = a.image.params_and_cache_for(&a.pipeline, preset)?;
     let memo = crate::pipeline::Memo::default();
     let (mut res, inputs) = register_pair_cached_keep(&pair, &params, cache.as_ref(), &memo)?;
     res.timings.insert(
@@ -139,13 +141,12 @@ pub fn print_human(r: &RegistrationResult) {
             m.rre_deg,
             m.rte_m,
             100.0 * m.inlier_ratio,
-            if m.success {
-                "SUCCESS (RRE <= 15 deg, RTE <= 0.30 m)"
-            } else {
-                "FAILURE"
-            }
+            judged(m.success, &m.criterion)
         ),
         None => outln!("no ground truth: metrics not computed"),
+    }
+    if let Some(also) = r.metrics.as_ref().and_then(|m| m.also) {
+        println!("  also: {}", judged(also.success, &also.criterion));
     }
     if let Some(c) = &r.convention {
         match &c.warning {
@@ -193,4 +194,13 @@ pub fn print_human(r: &RegistrationResult) {
         outln!("  {:<28} {:>9.1} ms  {}", t.stage, t.ms, t.status);
     }
     outln!("  {:<28} {:>9.1} ms", "total", r.total_ms);
+}
+
+/// "SUCCESS (RRE ≤ 5°, RTE ≤ 2 m)" or "FAILURE (...)": a verdict with the criterion it used.
+fn judged(success: bool, c: &SuccessCriterion) -> String {
+    format!(
+        "{} ({})",
+        if success { "SUCCESS" } else { "FAILURE" },
+        c.label()
+    )
 }

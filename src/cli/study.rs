@@ -189,7 +189,7 @@ fn run_common(a: &CommonArgs, settings: Vec<StudySetting>, command: &str) -> Res
     a.run.check_output(a.json.as_deref())?;
     let ds = a.pairs.dataset(&a.image)?;
     let specs = a.pairs.select(&ds)?;
-    let (params, cache) = a.image.params_and_cache(&a.pipeline)?;
+    let (params, cache) = a.image.params_and_cache_for(&a.pipeline, ds.preset)?;
     let generate = a.generate
         || !matches!(
             params.image.as_ref().map(|i| &i.backend),

@@ -2,6 +2,9 @@
 //!
 //! ```toml
 //! name = "redkitchen"            # dataset name, the prefix of pair ids
+//! preset = "indoor"              # optional: the protocol its pairs are run and judged by,
+//!                                # "indoor" (3DMatch, the default) or "outdoor" (KITTI); a
+//!                                # pair may name its own. `--preset` overrides both.
 //! root = "$CGENREG_DATA"         # paths below are relative to this; "." (the default) is the
 //!                                # manifest's folder; $VAR / ${VAR} are expanded
 //! # allow_outside_root = true    # paths must stay inside root (symlinks resolved) unless
@@ -40,6 +43,7 @@
 //! #                                T = inv(P_target_first) * P_source_first, poses
 //! #                                camera-to-world, each fragment in its first frame's camera)
 //! # or no gt at all
+//! # preset = "outdoor"           # optional: this pair's protocol (default: the data set's)
 //! ```
 //!
 //! Pair ids are `"<name>/<target>-<source>"`. Ground truth is always `target_from_source`
@@ -53,6 +57,7 @@ use crate::geometry::transform::isometry_from_matrix;
 use crate::io::gtlog::{read_gt_log, GtEntry};
 use crate::io::kitti::KittiFields;
 use crate::io::rgbd_sequence::RgbdSequence;
+use crate::pipeline::params::Preset;
 use nalgebra::{Isometry3, Matrix4};
 use serde::Deserialize;
 use std::collections::HashMap;
@@ -65,6 +70,7 @@ struct RawManifest {
     root: Option<String>,
     /// Paths may lead outside `root` (`..`, absolute paths, symlinks).
     allow_outside_root: Option<bool>,
+    preset: Option<String>,
     fragment_options: Option<RawOptions>,
     #[serde(default)]
     fragments: Vec<RawFragment>,
@@ -109,6 +115,19 @@ struct RawPair {
     gt_matrix: Option<Vec<Vec<f64>>>,
     gt_file: Option<String>,
     gt_poses: Option<bool>,
+    preset: Option<String>,
+}
+
+/// A `preset` field: "indoor" or "outdoor".
+fn preset_field(path: &Path, field: &str, s: Option<&str>) -> Result<Option<Preset>> {
+    match s {
+        None => Ok(None),
+        Some(s) => Preset::ALL
+            .into_iter()
+            .find(|p| p.name() == s)
+            .map(Some)
+            .ok_or_else(|| bad(path, field, "\"indoor\" or \"outdoor\"", format!("{s:?}"))),
+    }
 }
 
 /// The frames a fragment comes from: frames `first .. first+count` of a raw RGB-D sequence.
@@ -153,6 +172,8 @@ pub struct PairSpec {
     pub gt_target_from_source: Option<Isometry3<f64>>,
     /// Where the ground truth came from, e.g. "gt.log entry `0 5`".
     pub gt_origin: Option<String>,
+    /// The protocol this pair names (None: the data set's).
+    pub preset: Option<Preset>,
 }
 
 #[derive(Clone, Debug)]
@@ -162,6 +183,9 @@ pub struct Dataset {
     pub manifest: Option<PathBuf>,
     /// The folder relative paths were resolved against.
     pub root: PathBuf,
+    /// The protocol its pairs are run and judged by (`preset` in the manifest; None: indoor,
+    /// unless a pair or the command line names one).
+    pub preset: Option<Preset>,
     pub(crate) fragments: Vec<FragmentSpec>,
     pub(crate) pairs: Vec<PairSpec>,
     /// The stage cache that keeps fragments built from raw RGB-D frames (stage `fragments`;
@@ -663,6 +687,7 @@ impl Dataset {
             } else {
                 (None, None)
             };
+            let pair_preset = preset_field(path, &format!("{field}.preset"), p.preset.as_deref())?;
             let id = format!("{}/{}-{}", raw.name, p.target, p.source);
             if pair_ids.insert(id.clone(), i).is_some() {
                 return Err(bad(
@@ -679,9 +704,11 @@ impl Dataset {
                 split: p.split.clone().unwrap_or_default(),
                 gt_target_from_source: gt,
                 gt_origin: origin,
+                preset: pair_preset,
             });
         }
         Ok(Dataset {
+            preset: preset_field(path, "preset", raw.preset.as_deref())?,
             name: raw.name,
             manifest: Some(path.to_path_buf()),
             root,
@@ -733,6 +760,7 @@ impl Dataset {
             },
         };
         Ok(Dataset {
+            preset: None,
             name: "files".into(),
             manifest: None,
             root: target
@@ -742,6 +770,7 @@ impl Dataset {
                 .to_path_buf(),
             fragments: vec![frag(&tid, target), frag(&sid, source)],
             pairs: vec![PairSpec {
+                preset: None,
                 id: format!("files/{tid}-{sid}"),
                 target: tid,
                 source: sid,
@@ -811,6 +840,7 @@ impl Dataset {
             let (t, s) = (w[0], w[1]);
             let gt = seq.world_from_camera(t)?.inverse() * seq.world_from_camera(s)?;
             pairs.push(PairSpec {
+                preset: None,
                 id: format!("{name}/{}-{}", id(t), id(s)),
                 target: id(t),
                 source: id(s),
@@ -820,6 +850,7 @@ impl Dataset {
             });
         }
         Ok(Dataset {
+            preset: None,
             name,
             manifest: None,
             root: dir.to_path_buf(),
@@ -827,6 +858,11 @@ impl Dataset {
             pairs,
             fragment_cache: None,
         })
+    }
+
+    /// The protocol of pair `id`: its own `preset`, else the data set's (None: neither names one).
+    pub fn preset_of(&self, id: &str) -> Option<Preset> {
+        self.pair(id).and_then(|p| p.preset).or(self.preset)
     }
 
     pub fn pairs(&self) -> &[PairSpec] {

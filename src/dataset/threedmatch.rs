@@ -95,6 +95,7 @@ pub fn open_folder(dir: &Path) -> Result<Dataset> {
                 continue;
             }
             pairs.push(PairSpec {
+                preset: None,
                 id,
                 target: e.target.to_string(),
                 source: e.source.to_string(),
@@ -110,6 +111,7 @@ pub fn open_folder(dir: &Path) -> Result<Dataset> {
         }
     }
     Ok(Dataset {
+        preset: None,
         fragment_cache: None,
         name: scene,
         manifest: None,

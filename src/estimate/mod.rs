@@ -9,6 +9,7 @@ pub mod nonrigid;
 pub mod ransac;
 pub(crate) mod rng;
 pub mod sc2pcr;
+pub mod scale;
 pub mod synthetic;
 
 use crate::{Error, Result};
@@ -68,6 +69,16 @@ impl EstimatorKind {
             EstimatorKind::Sc2Pcr(_) => "SC2-PCR",
             EstimatorKind::Ransac(_) => "RANSAC",
             EstimatorKind::WeightedSvd => "Weighted SVD",
+        }
+    }
+
+    /// A copy with every distance that follows the keypoint voxel set to its value at `voxel`
+    /// ([`scale`]): what the pipeline runs and keys.
+    pub fn resolved(&self, voxel: f64) -> EstimatorKind {
+        match self {
+            EstimatorKind::Sc2Pcr(p) => EstimatorKind::Sc2Pcr(p.resolved(voxel)),
+            EstimatorKind::Ransac(p) => EstimatorKind::Ransac(p.resolved(voxel)),
+            EstimatorKind::WeightedSvd => EstimatorKind::WeightedSvd,
         }
     }
 

@@ -13,6 +13,7 @@ use super::hypotheses::{Hypotheses, Hypothesis, TopN};
 use super::kabsch;
 use super::rng::Pcg32;
 use super::sc2pcr::{inlier_warning, Soa};
+use super::scale::{Scaled, RANSAC_PER_VOXEL, REFERENCE_VOXEL};
 use super::Estimate;
 use crate::{Error, Result};
 use nalgebra::{Isometry3, Point3};
@@ -21,19 +22,29 @@ use rayon::prelude::*;
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct RansacParams {
     pub max_iterations: usize,
-    /// Inlier distance (m). Default 0.075, the value of Open3D's global-registration example
-    /// (1.5 × its 5 cm voxel; 1.5 × a 2.5 cm voxel would be 0.0375).
-    pub distance_threshold: f32,
+    /// Inlier distance (m). Default: follows the keypoint voxel at 1.5 v, the rule of Open3D's
+    /// global-registration example (0.075 m at a 5 cm voxel); called without a voxel, 0.075 m.
+    pub distance_threshold: Scaled<f32>,
     /// Early-stop confidence in (0, 1]; 1 never stops early (runs `max_iterations`).
     pub confidence: f64,
     pub seed: u64,
+}
+
+impl RansacParams {
+    /// A copy with the inlier distance set to its value at `voxel`.
+    pub fn resolved(&self, voxel: f64) -> RansacParams {
+        RansacParams {
+            distance_threshold: self.distance_threshold.resolved(voxel, RANSAC_PER_VOXEL),
+            ..self.clone()
+        }
+    }
 }
 
 impl Default for RansacParams {
     fn default() -> Self {
         RansacParams {
             max_iterations: 100_000,
-            distance_threshold: 0.075,
+            distance_threshold: Scaled::FollowVoxel,
             confidence: 0.999,
             seed: 0,
         }
@@ -89,8 +100,10 @@ pub fn ransac_with(
             "ransac: need at least 3 correspondences, got {n}"
         )));
     }
-    let valid =
-        params.distance_threshold > 0.0 && params.confidence > 0.0 && params.confidence <= 1.0;
+    let thr = params
+        .distance_threshold
+        .at(REFERENCE_VOXEL, RANSAC_PER_VOXEL);
+    let valid = thr > 0.0 && params.confidence > 0.0 && params.confidence <= 1.0;
     if !valid {
         return Err(Error::Invalid(format!(
             "ransac: invalid parameters {params:?}"
@@ -105,7 +118,6 @@ pub fn ransac_with(
         )));
     }
     let p = Soa::new(src, tgt);
-    let thr = params.distance_threshold;
     let mut best: Option<Hyp> = None;
     let mut limit = params.max_iterations;
     let mut done = 0usize;

@@ -10,7 +10,7 @@ use serde_json::Value;
 use std::path::Path;
 
 /// One pair's row of a bench run (the `pairs` array of `cgenreg bench --json`).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct PairRow {
     pub id: String,
     pub split: String,
@@ -19,10 +19,20 @@ pub struct PairRow {
     pub rre_deg: Option<f64>,
     pub rte_m: Option<f64>,
     pub inlier_ratio: Option<f64>,
-    /// RRE ≤ 15° and RTE ≤ 0.30 m; a pair that failed to run is `Some(false)`.
+    /// Under `criterion`; a pair that failed to run is `Some(false)`.
     pub success: Option<bool>,
     pub time_s: f64,
     pub error: Option<String>,
+    /// The criterion `success` was judged by (None in rows written before it was named, or
+    /// of a pair that failed to run: 3DMatch's 15° / 0.30 m for the former).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub criterion: Option<crate::metrics::SuccessCriterion>,
+    /// The run's second criterion, when it has one (the outdoor preset: SC2-PCR's 5° / 0.6 m).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub also: Option<crate::metrics::Judged>,
+    /// The ground truth's translation norm (m): how far apart the two scans were taken.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub gt_distance_m: Option<f64>,
 }
 
 impl PairRow {
@@ -39,6 +49,7 @@ impl PairRow {
             success: Some(false),
             time_s,
             error: Some(why.to_string()),
+            ..Default::default()
         }
     }
 }
@@ -643,6 +654,7 @@ mod tests {
             },
             time_s: 1.0,
             error: None,
+            ..Default::default()
         }
     }
 

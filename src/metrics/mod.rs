@@ -68,24 +68,107 @@ pub fn inlier_ratio(
     Ok(d.iter().filter(|&&x| x <= thresh).count() as f64 / d.len() as f64)
 }
 
+/// When a registration counts as a success: RRE ≤ `max_rre_deg` and RTE ≤ `max_rte_m`.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SuccessCriterion {
+    pub max_rre_deg: f64,
+    pub max_rte_m: f64,
+}
+
+impl SuccessCriterion {
+    /// 3DMatch registration recall (and the paper's): 15° / 0.30 m.
+    pub const THREEDMATCH: SuccessCriterion = SuccessCriterion {
+        max_rre_deg: RECALL_RRE_DEG,
+        max_rte_m: RECALL_RTE_M,
+    };
+    /// The KITTI odometry benchmark as GeoTransformer and most KITTI tables score it: 5° / 2 m.
+    pub const KITTI: SuccessCriterion = SuccessCriterion {
+        max_rre_deg: 5.0,
+        max_rte_m: 2.0,
+    };
+    /// SC2-PCR's own KITTI criterion (`config_KITTI.json`: re_thre 5, te_thre 60 cm).
+    pub const SC2PCR_KITTI: SuccessCriterion = SuccessCriterion {
+        max_rre_deg: 5.0,
+        max_rte_m: 0.6,
+    };
+
+    pub fn judge(&self, rre_deg: f64, rte_m: f64) -> bool {
+        rre_deg <= self.max_rre_deg && rte_m <= self.max_rte_m
+    }
+
+    /// "RRE ≤ 5°, RTE ≤ 2 m": how tables and results name it.
+    pub fn label(&self) -> String {
+        format!("RRE ≤ {}°, RTE ≤ {} m", self.max_rre_deg, self.max_rte_m)
+    }
+
+    /// "5°/2m": a column header.
+    pub fn short(&self) -> String {
+        format!("{}°/{}m", self.max_rre_deg, self.max_rte_m)
+    }
+}
+
+impl Default for SuccessCriterion {
+    fn default() -> Self {
+        SuccessCriterion::THREEDMATCH
+    }
+}
+
+/// How a run judges success: the headline criterion and, optionally, a second one reported
+/// beside it (the outdoor preset: KITTI's 5° / 2 m, with SC2-PCR's 5° / 0.6 m).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct SuccessCriteria {
+    pub primary: SuccessCriterion,
+    #[serde(default)]
+    pub also: Option<SuccessCriterion>,
+}
+
+/// A pair judged by a criterion.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Judged {
+    pub criterion: SuccessCriterion,
+    pub success: bool,
+}
+
 /// Metrics of one registered pair.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct PairMetrics {
     pub rre_deg: f64,
     pub rte_m: f64,
     pub inlier_ratio: f64,
-    /// RRE ≤ 15° and RTE ≤ 0.30 m.
+    /// Under `criterion`.
     pub success: bool,
+    /// The criterion `success` was judged by (results written before it was named: 3DMatch's).
+    #[serde(default)]
+    pub criterion: SuccessCriterion,
+    /// The second criterion of the run, when it has one.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub also: Option<Judged>,
 }
 
 impl PairMetrics {
+    /// Judged by 3DMatch's 15° / 0.30 m.
     pub fn new(est: &Isometry3<f64>, gt: &Isometry3<f64>, inlier_ratio: f64) -> Self {
+        Self::judged(est, gt, inlier_ratio, &SuccessCriteria::default())
+    }
+
+    /// Judged by `criteria`.
+    pub fn judged(
+        est: &Isometry3<f64>,
+        gt: &Isometry3<f64>,
+        inlier_ratio: f64,
+        criteria: &SuccessCriteria,
+    ) -> Self {
         let (rre, rte) = (rre_deg(est, gt), rte_m(est, gt));
         PairMetrics {
             rre_deg: rre,
             rte_m: rte,
             inlier_ratio,
-            success: rre <= RECALL_RRE_DEG && rte <= RECALL_RTE_M,
+            success: criteria.primary.judge(rre, rte),
+            criterion: criteria.primary,
+            also: criteria.also.map(|c| Judged {
+                criterion: c,
+                success: c.judge(rre, rte),
+            }),
         }
     }
 
@@ -307,12 +390,39 @@ mod tests {
     }
 
     #[test]
+    fn success_is_judged_and_named_by_its_criteria() {
+        let gt = Isometry3::identity();
+        // 4° and 1 m off: a KITTI success, not at SC2-PCR's 0.6 m nor at 3DMatch's 0.30 m
+        let est = Isometry3::new(Vector3::x(), Vector3::z() * 4f64.to_radians());
+        let outdoor = SuccessCriteria {
+            primary: SuccessCriterion::KITTI,
+            also: Some(SuccessCriterion::SC2PCR_KITTI),
+        };
+        let m = PairMetrics::judged(&est, &gt, 0.5, &outdoor);
+        assert!(m.success);
+        assert_eq!(m.criterion, SuccessCriterion::KITTI);
+        assert!(!m.also.unwrap().success);
+        assert!(!PairMetrics::new(&est, &gt, 0.5).success);
+        assert_eq!(SuccessCriterion::KITTI.label(), "RRE ≤ 5°, RTE ≤ 2 m");
+        let json = serde_json::to_value(m).unwrap();
+        assert_eq!(json["criterion"]["max_rte_m"], serde_json::json!(2.0));
+        // a result written before the criterion was named reads as 3DMatch's
+        let old: PairMetrics = serde_json::from_str(
+            r#"{"rre_deg": 1.0, "rte_m": 0.1, "inlier_ratio": 0.2, "success": true}"#,
+        )
+        .unwrap();
+        assert_eq!(old.criterion, SuccessCriterion::THREEDMATCH);
+    }
+
+    #[test]
     fn summary_by_hand() {
         let p = |rre: f64, rte: f64, ir: f64| PairMetrics {
             rre_deg: rre,
             rte_m: rte,
             inlier_ratio: ir,
             success: rre <= 15.0 && rte <= 0.3,
+            criterion: SuccessCriterion::THREEDMATCH,
+            also: None,
         };
         let pairs = [
             p(1.0, 0.02, 0.5),

@@ -108,7 +108,7 @@ fn argmax(v: &[f32]) -> Option<usize> {
 /// The table of `res`'s selected correspondences. `inputs` and `params` must be those `res`
 /// was computed from (the posteriors are recomputed row by row with the same code that
 /// selected the matches: [`PosteriorRows`]); `sims` are the kept similarities, None computes
-/// them. Threshold of both inlier flags: `params.inlier_threshold`.
+/// them. Threshold of both inlier flags: `params.inlier_threshold_m()`.
 pub fn correspondence_table(
     pair: &ScanPair,
     params: &RegisterParams,
@@ -169,7 +169,7 @@ pub fn correspondence_table(
         residual_gt_m: pair.gt_target_from_source.map(|_| Vec::with_capacity(n)),
         inlier_gt: pair.gt_target_from_source.map(|_| Vec::with_capacity(n)),
         kept_by_estimator: vec![false; n],
-        inlier_threshold_m: params.inlier_threshold,
+        inlier_threshold_m: params.inlier_threshold_m(),
         target_from_source: res.estimate,
         gt_target_from_source: pair.gt_target_from_source,
         meta: serde_json::Value::Null,
@@ -220,7 +220,7 @@ pub fn correspondence_table(
         t.p_geo.push(p_geo);
         t.branch.push(ProposedBy::of(by_img, by_geo));
         t.residual_est_m.push(r_est);
-        t.inlier_est.push(r_est < params.inlier_threshold);
+        t.inlier_est.push(r_est < params.inlier_threshold_m());
         if let (Some(gt), Some(rg), Some(ig)) = (
             pair.gt_target_from_source.as_ref(),
             t.residual_gt_m.as_mut(),
@@ -228,7 +228,7 @@ pub fn correspondence_table(
         ) {
             let r = (gt * s64 - t64).norm();
             rg.push(r);
-            ig.push(r < params.inlier_threshold);
+            ig.push(r < params.inlier_threshold_m());
         }
     }
     t.meta = serde_json::json!({
@@ -241,7 +241,7 @@ pub fn correspondence_table(
         "n_source_keypoints": sk.len(),
         "n_target_keypoints": tk.len(),
         "n_correspondences": n,
-        "inlier_threshold_m": params.inlier_threshold,
+        "inlier_threshold_m": params.inlier_threshold_m(),
         "inlier_est": "residual |T_est * src_xyz - tgt_xyz| < inlier_threshold_m",
         "inlier_gt": "residual |T_gt * src_xyz - tgt_xyz| < inlier_threshold_m (NaN: no ground truth)",
         "kept_by_estimator": "in the estimator's own inlier set (its own threshold)",

@@ -31,8 +31,9 @@ pub fn key(params: &RegisterParams, inputs: &[&str]) -> Result<super::cache::Cac
         inputs,
         &serde_json::json!({
             "fusion": params.fusion,
-            "estimator": params.estimator,
-            "inlier_threshold": params.inlier_threshold,
+            // the resolved values: a threshold that follows the voxel keys as the number it is
+            "estimator": params.estimator_resolved(),
+            "inlier_threshold": params.inlier_threshold_m(),
         }),
     )
 }
@@ -411,19 +412,20 @@ fn finish(
     let est: Estimate = match memo {
         Some(m) => {
             let t = Instant::now();
-            let (est, hit) = m.estimate(&sp, &tp, &w, &params.estimator)?;
+            let (est, hit) = m.estimate(&sp, &tp, &w, &params.estimator_resolved())?;
             timer.record("estimate", t.elapsed(), hit);
             est
         }
         None => timer.stage("estimate", || {
-            estimate_pose(&sp, &tp, &w, &params.estimator)
+            estimate_pose(&sp, &tp, &w, &params.estimator_resolved())
         })?,
     };
     let metrics = match pair.gt_target_from_source.as_ref() {
-        Some(gt) => Some(PairMetrics::new(
+        Some(gt) => Some(PairMetrics::judged(
             &est.target_from_source,
             gt,
-            crate::metrics::inlier_ratio(&sp, &tp, gt, params.inlier_threshold)?,
+            crate::metrics::inlier_ratio(&sp, &tp, gt, params.inlier_threshold_m())?,
+            &params.success,
         )),
         None => None,
     };
@@ -434,7 +436,7 @@ fn finish(
             &sp,
             &tp,
             gt,
-            params.inlier_threshold,
+            params.inlier_threshold_m(),
         )
     });
     let mut warnings: Vec<String> = pair.source.notes.clone();

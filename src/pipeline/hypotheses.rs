@@ -49,7 +49,8 @@ pub fn estimator_hypotheses(
         }
     }
     let w: Vec<f32> = res.correspondences.iter().map(|c| c.score).collect();
-    let (est, hyps) = estimate_pose_with_hypotheses(&sp, &tp, &w, &params.estimator, top_n)?;
+    let (est, hyps) =
+        estimate_pose_with_hypotheses(&sp, &tp, &w, &params.estimator_resolved(), top_n)?;
     if est.target_from_source != res.estimate {
         return Err(Error::Invalid(format!(
             "hypotheses: re-running {} gave another pose than the registration's ({}); the \

@@ -173,7 +173,7 @@ fn register_with_frames(
             frames: src_fs,
             depth_idx: &sel.src_depth,
         },
-        ib.lift_radius,
+        ib.lift_radius_at(params.voxel),
         image_size,
     )?;
     let (tgt_links, tgt_lift_key) = lift::run(
@@ -185,7 +185,7 @@ fn register_with_frames(
             frames: tgt_fs,
             depth_idx: &sel.tgt_depth,
         },
-        ib.lift_radius,
+        ib.lift_radius_at(params.voxel),
         image_size,
     )?;
     let lift_keys = (&src_lift_key, &tgt_lift_key);

@@ -1,8 +1,10 @@
 //! Parameters of a registration run. Every field is serialisable so a run can be cached,
 //! reproduced from its JSON, and shown in the GUI and the CLI output.
 
+use crate::estimate::scale::{Scaled, LIFT_RADIUS_PER_VOXEL, THRESHOLD_PER_VOXEL};
 use crate::estimate::EstimatorKind;
 use crate::fusion::FusionParams;
+use crate::metrics::{SuccessCriteria, SuccessCriterion};
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 
@@ -21,16 +23,153 @@ pub enum GeoFeatureSource {
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct RegisterParams {
-    /// Voxel size (m) of the geometric keypoints; FPFH radii follow it (normals 2v, features 5v).
+    /// Voxel size (m) of the geometric keypoints; FPFH radii follow it (normals 2v, features 5v),
+    /// and so do the distances that are [`Scaled::FollowVoxel`] ([`crate::estimate::scale`]).
     pub voxel: f64,
     pub geo_features: GeoFeatureSource,
     pub fusion: FusionParams,
     pub estimator: EstimatorKind,
-    /// Threshold (m) for the inlier ratio of the selected correspondences under ground truth.
-    pub inlier_threshold: f64,
+    /// Threshold (m) for the inlier ratio of the selected correspondences under ground truth
+    /// (follows the voxel: 2 v).
+    #[serde(default)]
+    pub inlier_threshold: Scaled<f64>,
     /// The generated-RGB branch; None runs the geometric branch alone.
     #[serde(default)]
     pub image: Option<ImageBranchParams>,
+    /// When a registration counts as a success (settings written before it existed: 3DMatch's
+    /// 15° / 0.30 m, what they were judged by). Not written when it is that default, so the
+    /// indoor settings serialise as before (run files resume across the change).
+    #[serde(default, skip_serializing_if = "is_default_success")]
+    pub success: SuccessCriteria,
+}
+
+fn is_default_success(s: &SuccessCriteria) -> bool {
+    *s == SuccessCriteria::default()
+}
+
+/// The published protocols a run can start from: the keypoint voxel (every following distance
+/// with it, [`crate::estimate::scale`]) and the success criterion.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "kebab-case")]
+pub enum Preset {
+    /// The 3DMatch protocol (SC2-PCR's `config_3DMatch.json`): voxel 0.05 m, thresholds
+    /// 0.10 m; success RRE ≤ 15°, RTE ≤ 0.30 m.
+    #[default]
+    Indoor,
+    /// The KITTI protocol (SC2-PCR's `config_KITTI.json`): voxel 0.3 m, thresholds 0.6 m,
+    /// 8000 correspondences; success RRE ≤ 5°, RTE ≤ 2 m (KITTI's benchmark), SC2-PCR's
+    /// 5° / 0.6 m beside it.
+    Outdoor,
+}
+
+impl Preset {
+    pub const ALL: [Preset; 2] = [Preset::Indoor, Preset::Outdoor];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Preset::Indoor => "indoor",
+            Preset::Outdoor => "outdoor",
+        }
+    }
+
+    pub fn label(self) -> &'static str {
+        match self {
+            Preset::Indoor => "indoor (3DMatch protocol)",
+            Preset::Outdoor => "outdoor (KITTI protocol)",
+        }
+    }
+
+    /// The keypoint voxel (m).
+    pub fn voxel(self) -> f64 {
+        match self {
+            Preset::Indoor => 0.05,
+            Preset::Outdoor => 0.3,
+        }
+    }
+
+    /// SC2-PCR's `max_points` (`num_node` of the KITTI configuration; the 3DMatch one uses
+    /// MyMatcher's 8000).
+    pub fn max_points(self) -> usize {
+        8000
+    }
+
+    pub fn success(self) -> SuccessCriteria {
+        match self {
+            Preset::Indoor => SuccessCriteria {
+                primary: SuccessCriterion::THREEDMATCH,
+                also: None,
+            },
+            Preset::Outdoor => SuccessCriteria {
+                primary: SuccessCriterion::KITTI,
+                also: Some(SuccessCriterion::SC2PCR_KITTI),
+            },
+        }
+    }
+
+    /// `p` under this preset: its voxel and success criteria, every scale-aware distance
+    /// following the voxel (user-set values are dropped: set them again after this).
+    pub fn apply(self, p: &mut RegisterParams) {
+        p.voxel = self.voxel();
+        p.success = self.success();
+        p.inlier_threshold = Scaled::FollowVoxel;
+        match &mut p.estimator {
+            EstimatorKind::Sc2Pcr(s) => {
+                s.d_thre = Scaled::FollowVoxel;
+                s.inlier_threshold = Scaled::FollowVoxel;
+                s.max_points = self.max_points();
+            }
+            EstimatorKind::Ransac(r) => r.distance_threshold = Scaled::FollowVoxel,
+            EstimatorKind::WeightedSvd => {}
+        }
+        if let Some(ib) = &mut p.image {
+            ib.lift_radius = Scaled::FollowVoxel;
+        }
+    }
+
+    /// The preset `p` matches, if any (voxel, success criteria and every distance following).
+    pub fn of(p: &RegisterParams) -> Option<Preset> {
+        Preset::ALL.into_iter().find(|pr| {
+            let mut q = p.clone();
+            pr.apply(&mut q);
+            q == *p
+        })
+    }
+}
+
+impl RegisterParams {
+    /// The defaults of `preset`.
+    pub fn preset(preset: Preset) -> RegisterParams {
+        let mut p = RegisterParams::default();
+        preset.apply(&mut p);
+        p
+    }
+
+    /// The GT inlier-ratio threshold (m) at this voxel.
+    pub fn inlier_threshold_m(&self) -> f64 {
+        self.inlier_threshold.at(self.voxel, THRESHOLD_PER_VOXEL)
+    }
+
+    /// The image branch's lift radius (m) at this voxel (None: no image branch).
+    pub fn lift_radius_m(&self) -> Option<f32> {
+        self.image.as_ref().map(|ib| ib.lift_radius_at(self.voxel))
+    }
+
+    /// The estimator with its distances at this voxel: what runs and what its key hashes.
+    pub fn estimator_resolved(&self) -> EstimatorKind {
+        self.estimator.resolved(self.voxel)
+    }
+
+    /// A copy with every scale-aware distance set to its value at the voxel: what a run file
+    /// records (the thresholds that were used).
+    pub fn resolved(&self) -> RegisterParams {
+        let mut p = self.clone();
+        p.estimator = self.estimator_resolved();
+        p.inlier_threshold = Scaled::Set(self.inlier_threshold_m());
+        if let (Some(r), Some(ib)) = (self.lift_radius_m(), p.image.as_mut()) {
+            ib.lift_radius = Scaled::Set(r);
+        }
+        p
+    }
 }
 
 impl Default for RegisterParams {
@@ -40,8 +179,9 @@ impl Default for RegisterParams {
             geo_features: GeoFeatureSource::Fpfh,
             fusion: FusionParams::default(),
             estimator: EstimatorKind::default(),
-            inlier_threshold: 0.10,
+            inlier_threshold: Scaled::FollowVoxel,
             image: None,
+            success: SuccessCriteria::default(),
         }
     }
 }
@@ -238,8 +378,9 @@ pub struct ImageBranchParams {
     pub margin: usize,
     /// Frames per fragment in the depth video (L; the reference uses 50).
     pub frames_per_fragment: usize,
-    /// Lifting radius (m): a point with no valid pixel this close gets no image feature.
-    pub lift_radius: f32,
+    /// Lifting radius (m): a point with no valid pixel this close gets no image feature
+    /// (follows the keypoint voxel: 1 v; read it through [`RegisterParams::lift_radius_m`]).
+    pub lift_radius: Scaled<f32>,
     /// The virtual camera that renders depth frames for scans that have none.
     #[serde(default)]
     pub virtual_camera: VirtualCamera,
@@ -324,6 +465,13 @@ impl VirtualCamera {
     }
 }
 
+impl ImageBranchParams {
+    /// The lift radius (m) at keypoint voxel `voxel`.
+    pub fn lift_radius_at(&self, voxel: f64) -> f32 {
+        self.lift_radius.at(voxel, LIFT_RADIUS_PER_VOXEL)
+    }
+}
+
 impl Default for ImageBranchParams {
     fn default() -> Self {
         ImageBranchParams {
@@ -334,7 +482,7 @@ impl Default for ImageBranchParams {
             k: 4,
             margin: 3,
             frames_per_fragment: 50,
-            lift_radius: 0.05,
+            lift_radius: Scaled::FollowVoxel,
             virtual_camera: VirtualCamera::Auto,
             lidar_cameras: 1,
             lidar_origin: LidarOrigin::ScanOrigin,
@@ -358,4 +506,111 @@ pub fn cosmos_output_settings(
         spec,
     };
     Ok(p)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::estimate::{RansacParams, Sc2PcrParams};
+
+    fn sc2(p: &RegisterParams) -> Sc2PcrParams {
+        match p.estimator_resolved() {
+            EstimatorKind::Sc2Pcr(s) => s,
+            e => panic!("not SC2-PCR: {e:?}"),
+        }
+    }
+
+    #[test]
+    fn outdoor_preset_is_sc2pcrs_published_kitti_configuration() {
+        let p = RegisterParams::preset(Preset::Outdoor);
+        let s = sc2(&p);
+        // config_KITTI.json: downsample 0.3, d_thre = inlier_threshold = 0.6, num_node 8000
+        assert_eq!(p.voxel, 0.3);
+        assert_eq!(s.d_thre, Scaled::Set(0.6f32));
+        assert_eq!(s.inlier_threshold, Scaled::Set(0.6f32));
+        assert_eq!(s.max_points, 8000);
+        assert_eq!(s.nms_radius, 0.10, "nms_radius does not scale");
+        assert_eq!(p.inlier_threshold_m(), 0.6);
+        assert_eq!(p.success.primary, SuccessCriterion::KITTI);
+        assert_eq!(
+            (p.success.primary.max_rre_deg, p.success.primary.max_rte_m),
+            (5.0, 2.0)
+        );
+        let also = p.success.also.unwrap();
+        assert_eq!((also.max_rre_deg, also.max_rte_m), (5.0, 0.6));
+        assert_eq!(Preset::of(&p), Some(Preset::Outdoor));
+    }
+
+    #[test]
+    fn indoor_preset_is_the_3dmatch_configuration_and_the_default() {
+        let p = RegisterParams::preset(Preset::Indoor);
+        assert_eq!(p, RegisterParams::default());
+        let s = sc2(&p);
+        assert_eq!(p.voxel, 0.05);
+        assert_eq!(s.d_thre, Scaled::Set(0.10f32));
+        assert_eq!(s.inlier_threshold, Scaled::Set(0.10f32));
+        assert_eq!(s.nms_radius, 0.10);
+        assert_eq!(s.max_points, 8000);
+        assert_eq!(p.inlier_threshold_m(), 0.10);
+        assert_eq!(p.success.primary, SuccessCriterion::THREEDMATCH);
+        assert_eq!(p.success.also, None);
+        let mut q = p.clone();
+        q.image = Some(ImageBranchParams::default());
+        assert_eq!(q.lift_radius_m(), Some(0.05));
+        assert_eq!(Preset::of(&q), Some(Preset::Indoor));
+    }
+
+    /// The indoor defaults, resolved, serialise exactly as the constants they replace did:
+    /// the fusion stage's key (and so every cached result and resumed run) is unchanged.
+    #[test]
+    fn indoor_defaults_key_as_the_old_constants() {
+        let p = RegisterParams::default();
+        // the f32 fields as they always were (a JSON value holds them widened to f64)
+        let old = serde_json::json!({
+            "Sc2Pcr": {"inlier_threshold": 0.1f32, "d_thre": 0.1f32, "num_iterations": 10,
+                       "ratio": 0.2f32, "nms_radius": 0.1f32, "max_points": 8000, "k1": 30,
+                       "k2": 20, "refine_iterations": 20}
+        });
+        assert_eq!(serde_json::to_value(p.estimator_resolved()).unwrap(), old);
+        let key = crate::pipeline::fuse::key(&p, &["a", "b"]).unwrap();
+        let old_key = crate::pipeline::cache::CacheKey::new(
+            crate::pipeline::fuse::STAGE,
+            crate::pipeline::fuse::VERSION,
+            &["a", "b"],
+            &serde_json::json!({"fusion": p.fusion, "estimator": old, "inlier_threshold": 0.1}),
+        )
+        .unwrap();
+        assert_eq!(key.hash, old_key.hash);
+        let r = EstimatorKind::Ransac(RansacParams::default()).resolved(0.05);
+        assert_eq!(
+            serde_json::to_value(r).unwrap()["Ransac"]["distance_threshold"],
+            serde_json::json!(0.075f32)
+        );
+        // the resolved settings read as the old ones did (numbers, no success field)
+        let json = serde_json::to_value(p.resolved()).unwrap();
+        assert_eq!(json["inlier_threshold"], serde_json::json!(0.1));
+        assert!(json.get("success").is_none());
+    }
+
+    #[test]
+    fn old_settings_read_and_a_user_value_stays_set() {
+        let mut p = RegisterParams::preset(Preset::Outdoor);
+        let mut json = serde_json::to_value(&p).unwrap();
+        // an older file: numbers, no success criterion
+        let o = json.as_object_mut().unwrap();
+        o.insert("inlier_threshold".into(), serde_json::json!(0.25));
+        o.remove("success");
+        let q: RegisterParams = serde_json::from_value(json).unwrap();
+        assert_eq!(q.inlier_threshold, Scaled::Set(0.25));
+        assert_eq!(q.success, SuccessCriteria::default());
+        // a value the user set is not moved by the voxel
+        if let EstimatorKind::Sc2Pcr(s) = &mut p.estimator {
+            s.d_thre = Scaled::Set(0.45);
+        }
+        p.voxel = 0.5;
+        let s = sc2(&p);
+        assert_eq!(s.d_thre, Scaled::Set(0.45));
+        assert_eq!(s.inlier_threshold, Scaled::Set(1.0));
+        assert_eq!(Preset::of(&p), None);
+    }
 }

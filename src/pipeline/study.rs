@@ -160,6 +160,8 @@ impl StudyRow {
                 rte_m: p.rte_m,
                 inlier_ratio: p.inlier_ratio,
                 success: p.success,
+                criterion: Default::default(),
+                also: None,
             })
             .collect();
         let s = Summary::from_pairs(&pm);

@@ -27,6 +27,7 @@ mod hostile_outputs;
 mod hypotheses;
 mod io_limits;
 mod io_malformed;
+mod kitti07_lidar;
 mod mast3r_export;
 mod pandaset_lidar;
 mod pipeline_image;

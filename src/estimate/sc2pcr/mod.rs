@@ -33,6 +33,7 @@ mod tests;
 
 use super::hypotheses::{Hypotheses, Hypothesis, TopN};
 use super::kabsch;
+use super::scale::{Scaled, REFERENCE_VOXEL, THRESHOLD_PER_VOXEL};
 use super::Estimate;
 use crate::{Error, Result};
 use graph::Graph;
@@ -40,14 +41,16 @@ use nalgebra::{Isometry3, Point3, Vector3};
 use rayon::prelude::*;
 pub(crate) use soa::Soa;
 
-/// Reference §9.1 (upstream `config_3DMatch.json`).
+/// Reference §9.1 (upstream `config_3DMatch.json`). The two distances follow the keypoint
+/// voxel by default ([`super::scale`]: 2 v, 0.10 m at 3DMatch's 0.05 m, 0.6 m at KITTI's
+/// 0.3 m); the pipeline resolves them ([`Sc2PcrParams::resolved`]) before it runs SC2-PCR.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Sc2PcrParams {
     /// Hypothesis scoring and post-refinement inlier threshold (m). The reference refines with
     /// 0.10 for 3DMatch and 1.2 for KITTI; here refinement uses this value.
-    pub inlier_threshold: f32,
+    pub inlier_threshold: Scaled<f32>,
     /// Compatibility distance d (m): `hard = C < d`, `tight = C < d/2`.
-    pub d_thre: f32,
+    pub d_thre: Scaled<f32>,
     /// Power-iteration steps (global eigenvector and per-seed weights).
     pub num_iterations: usize,
     /// Fraction of correspondences taken as seeds.
@@ -67,8 +70,8 @@ pub struct Sc2PcrParams {
 impl Default for Sc2PcrParams {
     fn default() -> Self {
         Sc2PcrParams {
-            inlier_threshold: 0.10,
-            d_thre: 0.10,
+            inlier_threshold: Scaled::FollowVoxel,
+            d_thre: Scaled::FollowVoxel,
             num_iterations: 10,
             ratio: 0.2,
             nms_radius: 0.10,
@@ -79,6 +82,30 @@ impl Default for Sc2PcrParams {
             score_order: false,
         }
     }
+}
+
+impl Sc2PcrParams {
+    /// A copy with both distances set to their values at `voxel`.
+    pub fn resolved(&self, voxel: f64) -> Sc2PcrParams {
+        Sc2PcrParams {
+            inlier_threshold: self.inlier_threshold.resolved(voxel, THRESHOLD_PER_VOXEL),
+            d_thre: self.d_thre.resolved(voxel, THRESHOLD_PER_VOXEL),
+            ..self.clone()
+        }
+    }
+}
+
+/// The parameters as the algorithm reads them: both distances in metres.
+#[derive(Clone, Debug)]
+struct Resolved {
+    inlier_threshold: f32,
+    d_thre: f32,
+    num_iterations: usize,
+    ratio: f32,
+    nms_radius: f32,
+    k1: usize,
+    k2: usize,
+    refine_iterations: usize,
 }
 
 /// Run SC2-PCR. Errors (which `estimate_pose` turns into the weighted-SVD fallback, as the
@@ -106,15 +133,28 @@ pub fn sc2pcr_with(
             tgt.len()
         )));
     }
-    let p = params;
+    // called without a voxel (outside the pipeline): SC2-PCR's own 3DMatch configuration
+    let p = &Resolved {
+        inlier_threshold: params
+            .inlier_threshold
+            .at(REFERENCE_VOXEL, THRESHOLD_PER_VOXEL),
+        d_thre: params.d_thre.at(REFERENCE_VOXEL, THRESHOLD_PER_VOXEL),
+        num_iterations: params.num_iterations,
+        ratio: params.ratio,
+        nms_radius: params.nms_radius,
+        k1: params.k1,
+        k2: params.k2,
+        refine_iterations: params.refine_iterations,
+    };
+    let max_points = params.max_points;
     if !(p.d_thre > 0.0 && p.inlier_threshold > 0.0 && p.nms_radius >= 0.0 && p.ratio > 0.0)
         || p.k1 == 0
         || p.k2 == 0
-        || p.max_points == 0
+        || max_points == 0
     {
         return Err(Error::Invalid(format!("sc2pcr: invalid parameters {p:?}")));
     }
-    let n = src.len().min(p.max_points);
+    let n = src.len().min(max_points);
     let (src, tgt) = (&src[..n], &tgt[..n]);
     if let Some(i) = (0..n).find(|&i| {
         !(src[i].coords.iter().all(|v| v.is_finite())
@@ -166,7 +206,7 @@ pub fn canonical_order(src: &[Point3<f32>], tgt: &[Point3<f32>]) -> Vec<usize> {
 fn run(
     src: &[Point3<f32>],
     tgt: &[Point3<f32>],
-    p: &Sc2PcrParams,
+    p: &Resolved,
     top_n: usize,
     (k1, k2): (usize, usize),
     num_seeds: usize,

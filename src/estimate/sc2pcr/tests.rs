@@ -112,7 +112,12 @@ fn bitset_graph_matches_dense_transcription() {
     let data = synthetic_correspondences(400, 300, 0.3, 0.01, 11);
     let p = Soa::new(&data.src, &data.tgt);
     let prm = Sc2PcrParams::default();
-    let g = Graph::build(&p, prm.d_thre, prm.nms_radius);
+    // the default follows the voxel: 0.10 m at SC2-PCR's 3DMatch voxel
+    let d_thre = prm
+        .d_thre
+        .at(0.05, crate::estimate::scale::THRESHOLD_PER_VOXEL);
+    assert_eq!(d_thre, 0.1);
+    let g = Graph::build(&p, d_thre, prm.nms_radius);
     let dense = Dense::new(&p);
     let n = p.n;
     for i in 0..n {
@@ -124,7 +129,7 @@ fn bitset_graph_matches_dense_transcription() {
         }
     }
     let conf = g.leading_eigenvector(prm.num_iterations);
-    let conf_d = dense.eig(prm.d_thre, prm.num_iterations);
+    let conf_d = dense.eig(d_thre, prm.num_iterations);
     for i in 0..n {
         assert!(
             (conf[i] - conf_d[i]).abs() <= 1e-5 * conf_d[i].abs().max(1e-3),
@@ -140,7 +145,7 @@ fn bitset_graph_matches_dense_transcription() {
         assert_eq!(knn.len(), prm.k1);
         assert_eq!(
             g.second_stage(&knn, prm.k2),
-            dense.knn(s, prm.d_thre, prm.k1, prm.k2),
+            dense.knn(s, d_thre, prm.k1, prm.k2),
             "seed {s}"
         );
     }

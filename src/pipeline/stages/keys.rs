@@ -224,7 +224,8 @@ fn upstream_params(params: &RegisterParams) -> RegisterParams {
     RegisterParams {
         fusion: Default::default(),
         estimator: Default::default(),
-        inlier_threshold: 0.0,
+        inlier_threshold: crate::estimate::scale::Scaled::Set(0.0),
+        success: Default::default(),
         ..params.clone()
     }
 }
@@ -341,7 +342,12 @@ fn image_keys(
             frames: fs,
             depth_idx,
         };
-        lift::key_for(memo, &inp, ib.lift_radius, (meta.width, meta.height))
+        lift::key_for(
+            memo,
+            &inp,
+            ib.lift_radius_at(params.voxel),
+            (meta.width, meta.height),
+        )
     };
     let src_lift = lift_key(&pair.source, src_fs, &sel.src_depth)?;
     let tgt_lift = lift_key(&pair.target, tgt_fs, &sel.tgt_depth)?;
@@ -459,7 +465,7 @@ mod tests {
         assert_eq!(inv(&p), [Fusion]);
         // The estimator's threshold too.
         let mut p = old.clone();
-        p.inlier_threshold = 0.2;
+        p.inlier_threshold = crate::estimate::scale::Scaled::Set(0.2);
         assert_eq!(inv(&p), [Fusion]);
 
         // K: view selection and everything after it; the depth video and generation stay.
@@ -487,7 +493,7 @@ mod tests {
 
         // The lift radius: the lift onward.
         let mut p = old.clone();
-        p.image.as_mut().unwrap().lift_radius *= 2.0;
+        p.image.as_mut().unwrap().lift_radius = crate::estimate::scale::Scaled::Set(0.1);
         assert_eq!(inv(&p), [Lift, Vfm, ImagePoints, Fusion]);
 
         // Without a cache the generation's input is not known before the depth video runs.
@@ -515,7 +521,7 @@ mod tests {
         changes.push(p);
         let mut p = old.clone();
         p.fusion.mode = crate::fusion::FusionMode::NoisyOr;
-        p.inlier_threshold = 0.2;
+        p.inlier_threshold = crate::estimate::scale::Scaled::Set(0.2);
         changes.push(p);
         let mut p = old.clone();
         p.estimator = crate::estimate::EstimatorKind::WeightedSvd;
