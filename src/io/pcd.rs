@@ -552,7 +552,7 @@ pub fn parse_pcd(path: &Path, bytes: &[u8]) -> Result<PointCloud> {
                         path,
                         format!("point {i}"),
                         format!("{ncols} values"),
-                        crate::io::output::unquoted(&line),
+                        crate::io::output::unquoted(line),
                     ));
                 }
                 let v = |f: usize| vals[cols[f]];
