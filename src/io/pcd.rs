@@ -604,7 +604,7 @@ pub fn parse_pcd_counted(path: &Path, bytes: &[u8]) -> Result<(PointCloud, usize
                         path,
                         format!("point {i}"),
                         format!("{ncols} values"),
-                        crate::io::output::unquoted(&line),
+                        crate::io::output::unquoted(line),
                     ));
                 }
                 let v = |f: usize| vals[cols[f]];
