@@ -384,7 +384,7 @@ mod tests {
 
     fn sc2(args: &[&str]) -> Option<crate::estimate::Sc2PcrParams> {
         let cli = Cli::try_parse_from(std::iter::once("x").chain(args.iter().copied())).unwrap();
-        match cli.p.to_params(false).estimator {
+        match cli.p.to_params(false, None).estimator {
             EstimatorKind::Sc2Pcr(p) => Some(p),
             _ => None,
         }

@@ -61,7 +61,7 @@ fn overlap(query: &[Point3<f32>], reference: &[Point3<f32>], t: &Isometry3<f64>,
 
 #[test]
 fn kitti07_manifest_loads_with_the_right_ground_truth_and_preset() {
-    let Some(root) = cgenreg::test_data_root() else {
+    let Some(root) = cgenreg::testing::test_data_root() else {
         return;
     };
     let ds = Dataset::load(&manifest()).unwrap();
@@ -134,7 +134,7 @@ fn kitti07_near_pairs_register_with_the_outdoor_preset() {
 #[test]
 #[ignore = "the full ladder (slow in debug): scripts/outdoor_check.sh, or -- --ignored"]
 fn kitti07_pairs_register_with_the_outdoor_preset() {
-    let ids: Vec<String> = match cgenreg::test_data_root() {
+    let ids: Vec<String> = match cgenreg::testing::test_data_root() {
         Some(_) => Dataset::load(&manifest())
             .unwrap()
             .pairs()
@@ -148,7 +148,7 @@ fn kitti07_pairs_register_with_the_outdoor_preset() {
 }
 
 fn ladder(ids: &[&str], at_least: usize) {
-    let Some(_root) = cgenreg::test_data_root() else {
+    let Some(_root) = cgenreg::testing::test_data_root() else {
         return;
     };
     let ds = Dataset::load(&manifest()).unwrap();

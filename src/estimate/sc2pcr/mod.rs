@@ -106,6 +106,7 @@ struct Resolved {
     k1: usize,
     k2: usize,
     refine_iterations: usize,
+    score_order: bool,
 }
 
 /// Run SC2-PCR. Errors (which `estimate_pose` turns into the weighted-SVD fallback, as the
@@ -145,6 +146,7 @@ pub fn sc2pcr_with(
         k1: params.k1,
         k2: params.k2,
         refine_iterations: params.refine_iterations,
+        score_order: params.score_order,
     };
     let max_points = params.max_points;
     if !(p.d_thre > 0.0 && p.inlier_threshold > 0.0 && p.nms_radius >= 0.0 && p.ratio > 0.0)
