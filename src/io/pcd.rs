@@ -76,7 +76,7 @@ fn parse_header(path: &Path, bytes: &[u8]) -> Result<Header> {
     let mut counts: Option<Vec<usize>> = None;
     let (mut width, mut height, mut points) = (None, None, None);
     let mut data = None;
-    let mut version = None;
+    let mut version = false;
     let mut line_no = 0;
     while data.is_none() {
         let Some(nl) = bytes[pos..].iter().position(|&c| c == b'\n') else {
@@ -122,17 +122,15 @@ fn parse_header(path: &Path, bytes: &[u8]) -> Result<Header> {
         };
         match key.to_ascii_uppercase().as_str() {
             "VERSION" => {
-                version = Some(match rest[..] {
-                    ["0.7"] | [".7"] => (),
-                    _ => {
-                        return Err(Error::format(
-                            path,
-                            "VERSION",
-                            "0.7 (or .7)",
-                            format!("{:?}", rest.join(" ")),
-                        ))
-                    }
-                })
+                if !matches!(rest[..], ["0.7"] | [".7"]) {
+                    return Err(Error::format(
+                        path,
+                        "VERSION",
+                        "0.7 (or .7)",
+                        format!("{:?}", rest.join(" ")),
+                    ));
+                }
+                version = true;
             }
             "VIEWPOINT" => {
                 let v: Option<Vec<f64>> = rest
@@ -194,7 +192,7 @@ fn parse_header(path: &Path, bytes: &[u8]) -> Result<Header> {
             }
         }
     }
-    if version.is_none() {
+    if !version {
         return Err(Error::format(path, "VERSION", "a VERSION 0.7 line", "none"));
     }
     let n = fields.len();
