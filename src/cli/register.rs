@@ -105,6 +105,9 @@ pub fn print_human(r: &RegistrationResult) {
         r.geo_features,
         r.image_branch.as_deref().unwrap_or("off")
     );
+    if let Some(f) = r.fusion_provenance() {
+        println!("{f}");
+    }
     println!(
         "keypoints: {} source, {} target; {} correspondences, {} inliers ({})",
         r.n_source_keypoints, r.n_target_keypoints, r.n_correspondences, r.n_inliers, r.estimator

@@ -142,6 +142,10 @@ pub fn correspondence_table(
         // as fuse_and_finish: without image descriptors only geometry-only fusion runs
         fusion.mode = FusionMode::GeometryOnly;
     }
+    if let Some(d) = &res.consensus {
+        // the posterior of the candidate whose correspondences the result holds
+        fusion = super::consensus::candidate_params(&fusion, d.chosen);
+    }
     let img = sims
         .image
         .as_ref()

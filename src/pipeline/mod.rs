@@ -9,6 +9,7 @@
 //! (many pairs).
 
 pub mod cache;
+pub mod consensus;
 pub mod export;
 pub mod fuse;
 pub mod geo;

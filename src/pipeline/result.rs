@@ -84,6 +84,17 @@ pub struct RegistrationResult {
     pub inliers: Vec<usize>,
     #[serde(skip)]
     pub image: Option<ImageBranchOutput>,
+    /// The `consensus` fusion's decision: every candidate's pose and fit, which won and why.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub consensus: Option<crate::fusion::consensus::ConsensusDecision>,
+}
+
+impl RegistrationResult {
+    /// The fusion's provenance line ("fusion: consensus (chose geometry, ...)"), for the
+    /// `consensus` mode; None for the other modes (their label says the mode).
+    pub fn fusion_provenance(&self) -> Option<String> {
+        self.consensus.as_ref().map(|d| d.provenance())
+    }
 }
 
 pub fn matrix_rows(t: &Isometry3<f64>) -> [[f64; 4]; 4] {
