@@ -17,11 +17,11 @@
 
 use cgenreg::dataset::manifest::Dataset;
 use cgenreg::estimate::estimate_pose;
-use cgenreg::fusion::consensus::{fit, union, Candidate};
-use cgenreg::fusion::{calibrate, fuse, select, Correspondence, Selection};
+use cgenreg::fusion::union::merge;
+use cgenreg::fusion::{calibrate, fuse, select, Correspondence, FusionMode, Selection};
 use cgenreg::metrics::{rre_deg, rte_m};
-use cgenreg::pipeline::consensus::candidate_sets;
 use cgenreg::pipeline::fuse::{endpoints, similarities, FusionInputs};
+use cgenreg::pipeline::union::{geometry_params, mode_correspondences, noisy_and_params};
 use cgenreg::pipeline::{
     register_pair_cached_keep, ImageBranchParams, Memo, RegisterParams, VfmSpec, WfmSpec,
 };
@@ -117,30 +117,14 @@ fn study_pair(
         .gt_target_from_source
         .ok_or_else(|| cgenreg::Error::Invalid("the study needs ground truth".into()))?;
     let sims = similarities(&inputs)?;
-    let sets = candidate_sets(params, &inputs, Some(&sims), &Candidate::ORDER)?;
-    let get = |c: Candidate| &sets.iter().find(|(x, _)| *x == c).expect("computed").1;
-    let (geo, and, img) = (
-        get(Candidate::Geometry),
-        get(Candidate::NoisyAnd),
-        get(Candidate::Image),
-    );
-    // (b): Noisy-AND's set, then the geometry set's pairs not in it
-    let b: Vec<Correspondence> = {
-        let u = union(&[and, geo]);
-        let score = |s: u32, t: u32| {
-            and.iter()
-                .chain(geo.iter())
-                .find(|c| c.src == s && c.tgt == t)
-                .map_or(0.0, |c| c.score)
-        };
-        u.iter()
-            .map(|&(s, t)| Correspondence {
-                src: s,
-                tgt: t,
-                score: score(s, t),
-            })
-            .collect()
-    };
+    let set = |f| mode_correspondences(params, &inputs, Some(&sims), &f);
+    let mut image = params.fusion;
+    image.mode = FusionMode::ImageOnly;
+    let geo = &set(geometry_params(&params.fusion))?;
+    let and = &set(noisy_and_params(&params.fusion))?;
+    let img = &set(image)?;
+    // (b): Noisy-AND's set, then the geometry set's pairs not in it (the `union` mode's merge)
+    let b: Vec<Correspondence> = merge(and, geo).0;
     let c = neutral_unseen(params, &inputs, &sims)?;
     let theta = params.inlier_threshold;
     let (src, tgt) = (&inputs.source_geo, &inputs.target_geo);
@@ -186,6 +170,42 @@ fn study_pair(
         json!({"n_src": src.keypoints.len(), "n_tgt": tgt.keypoints.len(),
               "u2": u2s.len(), "u3": u3s.len(), "candidates": cands}),
     )
+}
+
+/// A pose's fit on a branch-neutral set: (pairs within `theta`, Σ min(r², θ²) / θ²).
+struct Fit {
+    consensus: usize,
+    msac: f64,
+}
+
+fn fit(
+    t: &nalgebra::Isometry3<f64>,
+    src: &[nalgebra::Point3<f32>],
+    tgt: &[nalgebra::Point3<f32>],
+    theta: f64,
+) -> Fit {
+    let t2 = theta * theta;
+    let (mut consensus, mut msac) = (0usize, 0.0f64);
+    for (s, q) in src.iter().zip(tgt) {
+        let r2 = (t * s.cast::<f64>() - q.cast::<f64>()).norm_squared();
+        if r2 <= t2 {
+            consensus += 1;
+            msac += r2 / t2;
+        } else {
+            msac += 1.0;
+        }
+    }
+    Fit { consensus, msac }
+}
+
+/// The distinct (source, target) pairs of the sets, in first-seen order.
+fn union(sets: &[&[Correspondence]]) -> Vec<(u32, u32)> {
+    let mut seen = std::collections::HashSet::new();
+    sets.iter()
+        .flat_map(|s| s.iter())
+        .filter(|c| seen.insert((c.src, c.tgt)))
+        .map(|c| (c.src, c.tgt))
+        .collect()
 }
 
 /// Candidate (c): Noisy-AND in which an entry whose source or target point has no pixel takes

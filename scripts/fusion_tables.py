@@ -54,10 +54,11 @@ def main():
         for b, label in BRANCHES:
             out.append(f"| {label} | {n_ok[b]}/{n} | {n_ok['consensus']}/{n} | {len(gained[b])} {' '.join(gained[b])} | {len(lost[b])} {' '.join(lost[b])} |")
         out.append("")
-        best = sum(1 for r in rows
-                   if any(x.get("success") for x in r["consensus"]["candidates"] if x["candidate"] in ("geometry", "image")))
+        either = [r for r in rows
+                  if any(x.get("success") for x in r["consensus"]["candidates"] if x["candidate"] in ("geometry", "image"))]
+        below = [r["id"] for r in either if not r.get("success")]
         summary.append(f"| {name} | {n} | " + " | ".join(f"{n_ok[b]}" for b, _ in BRANCHES)
-                       + f" | {best} | {n_ok['consensus']} | {sum(len(lost[b]) for b in ('geometry', 'image'))} |")
+                       + f" | {len(either)} | {n_ok['consensus']} | {len(below)} {' '.join(below)} |")
     print("| run | pairs | geometry alone | image alone | Noisy-AND | either branch | consensus | pairs lost against a branch |")
     print("|---|---|---|---|---|---|---|---|")
     print("\n".join(summary))

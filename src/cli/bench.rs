@@ -201,31 +201,6 @@ pub fn print_table(summaries: &[SplitSummary]) {
     }
 }
 
-/// One line on the `consensus` fusion's choices over `rows` (None when no row has one):
-/// how often each candidate won, how many ties the MSAC score or the fixed order decided.
-pub fn consensus_summary(rows: &[PairRow]) -> Option<String> {
-    use crate::fusion::consensus::{Candidate, Decided};
-    let ds: Vec<_> = rows.iter().filter_map(|r| r.consensus.as_ref()).collect();
-    if ds.is_empty() {
-        return None;
-    }
-    let won: Vec<String> = Candidate::ORDER
-        .iter()
-        .map(|c| {
-            let n = ds.iter().filter(|d| d.chosen == *c).count();
-            format!("{} {n}", c.label())
-        })
-        .collect();
-    let ties = |by| ds.iter().filter(|d| d.decided_by == by).count();
-    Some(format!(
-        "fusion: consensus on {} pairs (chose {}; ties decided by MSAC {}, by the fixed order {})",
-        ds.len(),
-        won.join(", "),
-        ties(Decided::Msac),
-        ties(Decided::Order)
-    ))
-}
-
 /// The stage table: total seconds per stage, pairs cached / computed.
 pub fn print_stage_table<'a>(records: impl IntoIterator<Item = &'a PairRecord>) {
     println!("| stage | total s | cached | computed |");
@@ -375,7 +350,7 @@ pub fn run(a: BenchArgs) -> Result<()> {
                     success: r.metrics.as_ref().map(|m| m.success),
                     time_s,
                     error: None,
-                    consensus: r.consensus.clone(),
+                    fusion: r.fusion_provenance(),
                 };
                 if let Some(f) = r.fusion_provenance() {
                     log_line(&bar, &format!("{}: {f}", spec.id));
@@ -414,9 +389,6 @@ pub fn run(a: BenchArgs) -> Result<()> {
     let file = progress.run_file();
     let rows = rows_of(&file)?;
     print_table(&summarise(&rows));
-    if let Some(line) = consensus_summary(&rows) {
-        println!("\n{line}");
-    }
     println!();
     print_stage_table(&file.records);
     let (n_cached, n_computed) = stage_totals(&file.records)

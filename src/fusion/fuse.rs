@@ -37,20 +37,20 @@ pub enum FusionMode {
     /// Fuse-then-match baseline: concatenate L2-normalised features, then one cosine
     /// similarity calibrated like a single branch (see [`concat_features`]).
     Concat,
-    /// A pose from the geometry-alone, the Noisy-AND and the image-alone correspondences;
-    /// the one with the most inliers on the union of the three sets wins
-    /// ([`super::consensus`]). Its correspondence posterior is Noisy-AND's.
-    Consensus,
+    /// The Noisy-AND correspondences and the geometric branch's own (row NN) ones, estimated
+    /// together ([`super::union`]): a weak image branch cannot veto the geometric matches.
+    /// Its posterior (inspector, export) is Noisy-AND's.
+    Union,
 }
 
 impl FusionMode {
     /// The mode the CLI and the inspector use when the image branch runs and none is chosen
     /// (`FusionParams::default()` stays the paper's Noisy-AND).
-    pub const DEFAULT_WITH_IMAGE: FusionMode = FusionMode::Consensus;
+    pub const DEFAULT_WITH_IMAGE: FusionMode = FusionMode::Union;
 
     /// Every mode, in the order the inspector lists them.
     pub const ALL: [FusionMode; 6] = [
-        FusionMode::Consensus,
+        FusionMode::Union,
         FusionMode::NoisyAnd,
         FusionMode::NoisyOr,
         FusionMode::Concat,
@@ -65,15 +65,15 @@ impl FusionMode {
             FusionMode::Concat => "Concatenation",
             FusionMode::ImageOnly => "Image only",
             FusionMode::GeometryOnly => "Geometry only",
-            FusionMode::Consensus => "Consensus (best of geometry / Noisy-AND / image)",
+            FusionMode::Union => "Union (Noisy-AND + geometry correspondences)",
         }
     }
 
     /// The mode whose posterior matrix this mode shows and selects from: Noisy-AND for
-    /// `Consensus` (a rule over poses, not a matrix), the mode itself otherwise.
+    /// `Union` (a union of two selections, not a matrix), the mode itself otherwise.
     pub fn matrix_mode(self) -> FusionMode {
         match self {
-            FusionMode::Consensus => FusionMode::NoisyAnd,
+            FusionMode::Union => FusionMode::NoisyAnd,
             m => m,
         }
     }
@@ -275,7 +275,7 @@ pub fn fuse(
              concat_similarity, then calibrate that one similarity"
                 .into(),
         )),
-        FusionMode::NoisyAnd | FusionMode::NoisyOr | FusionMode::Consensus => {
+        FusionMode::NoisyAnd | FusionMode::NoisyOr | FusionMode::Union => {
             let (a, b) = (need(p_img, mode, "image")?, need(p_geo, mode, "geometric")?);
             same_shape(a, b)?;
             let mut out = DenseMatrix::zeros(a.rows, a.cols)?;

@@ -11,7 +11,6 @@ mod avx2;
 #[cfg(target_arch = "x86_64")]
 mod avx512;
 pub mod calibrate;
-pub mod consensus;
 pub mod fuse;
 mod fused;
 pub mod matrix;
@@ -19,6 +18,7 @@ pub mod posterior;
 pub mod select;
 pub mod similarity;
 pub mod streaming;
+pub mod union;
 
 pub use calibrate::{calibrate, calibrate_in_place, Calibration};
 pub use fuse::{concat_features, concat_similarity, fuse, noisy_and, noisy_or, FusionMode};

@@ -184,7 +184,7 @@ impl<'a> PosteriorRows<'a> {
     /// Row `i`: as [`posterior_row`] with the same inputs.
     pub fn row(&self, i: usize) -> Result<PosteriorRow> {
         let (rows, cols, params) = (self.rows, self.cols, &self.params);
-        // `new` stored the matrix mode: Consensus shows Noisy-AND's posterior
+        // `new` stored the matrix mode: Union shows Noisy-AND's posterior
         if i >= rows {
             return Err(Error::Invalid(format!(
                 "posterior row: source point {i} out of range (the similarity has {rows} rows)"
@@ -206,7 +206,7 @@ impl<'a> PosteriorRows<'a> {
         let fused = match params.mode {
             FusionMode::ImageOnly => need(&image, "image")?,
             FusionMode::GeometryOnly => need(&geometric, "geometric")?,
-            FusionMode::NoisyAnd | FusionMode::Consensus if !params.exact_reference => {
+            FusionMode::NoisyAnd | FusionMode::Union if !params.exact_reference => {
                 let (a, b) = (
                     as_row(need(&image, "image")?)?,
                     as_row(need(&geometric, "geometric")?)?,
@@ -215,7 +215,7 @@ impl<'a> PosteriorRows<'a> {
                 rank_keys_to_posteriors(&mut keys, Some(prior))?;
                 keys.data
             }
-            mode @ (FusionMode::NoisyAnd | FusionMode::NoisyOr | FusionMode::Consensus) => {
+            mode @ (FusionMode::NoisyAnd | FusionMode::NoisyOr | FusionMode::Union) => {
                 let (a, b) = (
                     as_row(need(&image, "image")?)?,
                     as_row(need(&geometric, "geometric")?)?,

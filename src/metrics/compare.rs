@@ -23,9 +23,9 @@ pub struct PairRow {
     pub success: Option<bool>,
     pub time_s: f64,
     pub error: Option<String>,
-    /// The `consensus` fusion's decision (every candidate's pose and, with GT, its errors).
+    /// The `union` fusion's provenance line (None for the other modes).
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub consensus: Option<crate::fusion::consensus::ConsensusDecision>,
+    pub fusion: Option<String>,
 }
 
 impl PairRow {
@@ -42,7 +42,7 @@ impl PairRow {
             success: Some(false),
             time_s,
             error: Some(why.to_string()),
-            consensus: None,
+            fusion: None,
         }
     }
 }
@@ -654,7 +654,7 @@ mod tests {
             },
             time_s: 1.0,
             error: None,
-            consensus: None,
+            fusion: None,
         }
     }
 

@@ -142,9 +142,9 @@ pub fn correspondence_table(
         // as fuse_and_finish: without image descriptors only geometry-only fusion runs
         fusion.mode = FusionMode::GeometryOnly;
     }
-    if let Some(d) = &res.consensus {
-        // the posterior of the candidate whose correspondences the result holds
-        fusion = super::consensus::candidate_params(&fusion, d.chosen);
+    if fusion.mode == FusionMode::Union && inputs.image.is_some() {
+        // the union's pairs carry Noisy-AND's posterior (those only in the geometric set: 0)
+        fusion.mode = FusionMode::NoisyAnd;
     }
     let img = sims
         .image

@@ -286,8 +286,8 @@ pub fn fuse_and_finish_memo(
 ) -> Result<RegistrationResult> {
     let mut timer = Timer::new();
     let (src, tgt) = (&inputs.source_geo, &inputs.target_geo);
-    if inputs.image.is_some() && params.fusion.mode == FusionMode::Consensus {
-        return super::consensus::register(pair, params, inputs, sims, timer);
+    if inputs.image.is_some() && params.fusion.mode == FusionMode::Union {
+        return super::union::register(pair, params, inputs, sims, timer, memo);
     }
     let corr = match &inputs.image {
         Some(_) => image_correspondences(params, inputs, sims, &params.fusion, &mut timer)?,
@@ -362,7 +362,7 @@ pub(crate) fn image_correspondences(
 }
 
 /// The correspondences of the geometric branch alone (`fusion.mode` GeometryOnly). With image
-/// inputs (the consensus rule's geometry candidate) `sims` may be a fused run's kept matrices.
+/// inputs (the union's geometric set) `sims` may be a fused run's kept matrices.
 pub(crate) fn geometry_correspondences(
     inputs: &FusionInputs,
     sims: Option<&Similarities>,
@@ -422,7 +422,7 @@ pub fn endpoints(
 }
 
 /// Pose estimation from `corr` and evaluation against the pair's ground truth.
-fn finish(
+pub(crate) fn finish(
     pair: &ScanPair,
     params: &RegisterParams,
     mut timer: Timer,
@@ -443,31 +443,6 @@ fn finish(
             estimate_pose(&sp, &tp, &w, &params.estimator)
         })?,
     };
-    finish_with(
-        pair,
-        params,
-        timer,
-        (src, tgt),
-        corr,
-        (sp, tp),
-        est,
-        image_branch,
-    )
-}
-
-/// Evaluation against the pair's ground truth of an estimate from `corr` (`sp`, `tp`: its
-/// endpoints), and the result.
-#[allow(clippy::too_many_arguments)]
-pub(crate) fn finish_with(
-    pair: &ScanPair,
-    params: &RegisterParams,
-    timer: Timer,
-    (src, tgt): (&GeoBranch, &GeoBranch),
-    corr: Vec<Correspondence>,
-    (sp, tp): (Vec<Point3<f32>>, Vec<Point3<f32>>),
-    est: Estimate,
-    image_branch: Option<String>,
-) -> Result<RegistrationResult> {
     let metrics = match pair.gt_target_from_source.as_ref() {
         Some(gt) => Some(PairMetrics::new(
             &est.target_from_source,
@@ -513,7 +488,7 @@ pub(crate) fn finish_with(
         correspondences: corr,
         inliers: est.inliers,
         image: None,
-        consensus: None,
+        union: None,
     })
 }
 

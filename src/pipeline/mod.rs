@@ -9,7 +9,6 @@
 //! (many pairs).
 
 pub mod cache;
-pub mod consensus;
 pub mod export;
 pub mod fuse;
 pub mod geo;
@@ -22,6 +21,7 @@ pub mod result;
 pub mod shard;
 pub mod stages;
 pub mod study;
+pub mod union;
 
 pub use memo::Memo;
 pub use params::{ImageBranchParams, RegisterParams, VfmSpec, WfmSpec};

@@ -84,16 +84,16 @@ pub struct RegistrationResult {
     pub inliers: Vec<usize>,
     #[serde(skip)]
     pub image: Option<ImageBranchOutput>,
-    /// The `consensus` fusion's decision: every candidate's pose and fit, which won and why.
+    /// The `union` fusion's report: the sets it merged and where its inliers came from.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub consensus: Option<crate::fusion::consensus::ConsensusDecision>,
+    pub union: Option<crate::fusion::union::UnionReport>,
 }
 
 impl RegistrationResult {
-    /// The fusion's provenance line ("fusion: consensus (chose geometry, ...)"), for the
-    /// `consensus` mode; None for the other modes (their label says the mode).
+    /// The fusion's provenance line ("fusion: union (983 Noisy-AND + 5869 geometry ...)"),
+    /// for the `union` mode; None for the other modes (their label says the mode).
     pub fn fusion_provenance(&self) -> Option<String> {
-        self.consensus.as_ref().map(|d| d.provenance())
+        self.union.as_ref().map(|d| d.provenance())
     }
 }
 

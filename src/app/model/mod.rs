@@ -315,8 +315,8 @@ pub struct InspectorModel {
     /// The inverse of the ground truth explains the data better than the ground truth
     /// (`metrics::convention`): shown next to the metrics.
     pub convention_warning: Option<String>,
-    /// Which pose the fusion kept and why ("fusion: consensus (chose geometry, ...)"), for
-    /// the `consensus` mode: shown next to the metrics.
+    /// What the `union` fusion merged and where its inliers came from ("fusion: union (...)"):
+    /// shown next to the metrics.
     pub fusion_note: Option<String>,
     /// The estimator's ranked hypotheses (computed on demand by the hypothesis browser).
     pub hypotheses: Option<super::hypotheses_panel::HypothesisList>,

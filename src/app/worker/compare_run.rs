@@ -31,7 +31,7 @@ pub fn bench_row(e: &PairEntry) -> PairRow {
         success,
         time_s: e.time_ms.unwrap_or(0.0) / 1e3,
         error,
-        consensus: None,
+        fusion: None,
     }
 }
 
