@@ -87,8 +87,8 @@ impl UnionReport {
         }
     }
 
-    /// One line, e.g. "fusion: union (983 Noisy-AND + 5869 geometry correspondences, 6846
-    /// distinct; inliers 99: 80 geometry only, 12 Noisy-AND only, 7 both)".
+    /// One line, e.g. "fusion: union (1030 Noisy-AND + 6256 geometry correspondences, 7279
+    /// distinct; inliers 139: 102 geometry only, 37 Noisy-AND only, 0 both)".
     pub fn provenance(&self) -> String {
         let n = self.inliers_noisy_and + self.inliers_geometry + self.inliers_both;
         format!(

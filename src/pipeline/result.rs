@@ -90,7 +90,7 @@ pub struct RegistrationResult {
 }
 
 impl RegistrationResult {
-    /// The fusion's provenance line ("fusion: union (983 Noisy-AND + 5869 geometry ...)"),
+    /// The fusion's provenance line ("fusion: union (1030 Noisy-AND + 6256 geometry ...)"),
     /// for the `union` mode; None for the other modes (their label says the mode).
     pub fn fusion_provenance(&self) -> Option<String> {
         self.union.as_ref().map(|d| d.provenance())
