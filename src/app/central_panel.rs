@@ -15,6 +15,10 @@ impl App {
             // next to the metrics: the GT they are computed against may be inverted
             ui.colored_label(egui::Color32::from_rgb(240, 150, 60), w);
         }
+        if let Some(f) = &self.model.fusion_note {
+            // which branch's pose the result is, and why
+            ui.label(f);
+        }
         ui.separator();
         self.current_tab(ui, commands)
     }

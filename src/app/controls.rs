@@ -663,7 +663,12 @@ fn switch_image_branch(
             params.image = Some(ImageBranchParams {
                 backend: b,
                 ..image_off.clone()
-            })
+            });
+            // two branches now: the fusion that never loses to its best branch, unless the
+            // user picked another mode
+            if params.fusion.mode == FusionMode::NoisyAnd {
+                params.fusion.mode = FusionMode::DEFAULT_WITH_IMAGE;
+            }
         }
         (false, None) => {}
     }

@@ -82,8 +82,11 @@ pub struct PipelineArgs {
     /// Softmax temperature of the geometric branch.
     #[arg(long, default_value_t = 0.1)]
     pub tau_geo: f32,
-    #[arg(long, value_enum, default_value = "noisy-and")]
-    pub fusion: FusionMode,
+    /// Fusion of the two branches. Default: `union` when the image branch runs (Noisy-AND's
+    /// correspondences and the geometric branch's own, estimated together), Noisy-AND with
+    /// `--reference` (the authors' code).
+    #[arg(long, value_enum)]
+    pub fusion: Option<FusionMode>,
     /// Noisy-AND prior; default 1/(N*M).
     #[arg(long)]
     pub prior: Option<f64>,
@@ -140,7 +143,11 @@ impl PipelineArgs {
         };
         p.fusion.calibration_img = cal.with_tau(self.tau_img);
         p.fusion.calibration_geo = cal.with_tau(self.tau_geo);
-        p.fusion.mode = self.fusion;
+        p.fusion.mode = self.fusion.unwrap_or(if image_branch && !self.reference {
+            FusionMode::DEFAULT_WITH_IMAGE
+        } else {
+            FusionMode::NoisyAnd
+        });
         p.fusion.selection = sel;
         p.fusion.exact_reference = self.reference;
         p.fusion.prior = self.prior;

@@ -466,7 +466,11 @@ pub fn run(a: BenchArgs) -> Result<()> {
                         .gt_target_from_source
                         .as_ref()
                         .map(|t| t.translation.vector.norm()),
+                    fusion: r.fusion_provenance(),
                 };
+                if let Some(f) = r.fusion_provenance() {
+                    log_line(&bar, &format!("{}: {f}", spec.id));
+                }
                 (row, stages, DONE)
             }
             Err(e) => (

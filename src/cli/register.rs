@@ -117,6 +117,9 @@ pub fn print_human(r: &RegistrationResult) {
         r.geo_features,
         r.image_branch.as_deref().unwrap_or("off")
     );
+    if let Some(f) = r.fusion_provenance() {
+        outln!("{f}");
+    }
     outln!(
         "keypoints: {} source, {} target; {} correspondences, {} inliers ({})",
         r.n_source_keypoints,

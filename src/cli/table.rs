@@ -86,6 +86,7 @@ fn fusion_name(mode: &str) -> String {
         "NoisyAnd" => "Noisy-AND".into(),
         "NoisyOr" => "Noisy-OR".into(),
         "Concat" => "Concat.".into(),
+        "Union" => "union".into(),
         m => m.into(),
     }
 }

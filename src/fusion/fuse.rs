@@ -37,11 +37,20 @@ pub enum FusionMode {
     /// Fuse-then-match baseline: concatenate L2-normalised features, then one cosine
     /// similarity calibrated like a single branch (see [`concat_features`]).
     Concat,
+    /// The Noisy-AND correspondences and the geometric branch's own (row NN) ones, estimated
+    /// together ([`super::union`]): a weak image branch cannot veto the geometric matches.
+    /// Its posterior (inspector, export) is Noisy-AND's.
+    Union,
 }
 
 impl FusionMode {
+    /// The mode the CLI and the inspector use when the image branch runs and none is chosen
+    /// (`FusionParams::default()` stays the paper's Noisy-AND).
+    pub const DEFAULT_WITH_IMAGE: FusionMode = FusionMode::Union;
+
     /// Every mode, in the order the inspector lists them.
-    pub const ALL: [FusionMode; 5] = [
+    pub const ALL: [FusionMode; 6] = [
+        FusionMode::Union,
         FusionMode::NoisyAnd,
         FusionMode::NoisyOr,
         FusionMode::Concat,
@@ -56,6 +65,16 @@ impl FusionMode {
             FusionMode::Concat => "Concatenation",
             FusionMode::ImageOnly => "Image only",
             FusionMode::GeometryOnly => "Geometry only",
+            FusionMode::Union => "Union (Noisy-AND + geometry correspondences)",
+        }
+    }
+
+    /// The mode whose posterior matrix this mode shows and selects from: Noisy-AND for
+    /// `Union` (a union of two selections, not a matrix), the mode itself otherwise.
+    pub fn matrix_mode(self) -> FusionMode {
+        match self {
+            FusionMode::Union => FusionMode::NoisyAnd,
+            m => m,
         }
     }
 }
@@ -247,6 +266,7 @@ pub fn fuse(
     prior: Option<f64>,
     exact_reference: bool,
 ) -> Result<DenseMatrix> {
+    let mode = mode.matrix_mode();
     match mode {
         FusionMode::ImageOnly => Ok(need(p_img, mode, "image")?.clone()),
         FusionMode::GeometryOnly => Ok(need(p_geo, mode, "geometric")?.clone()),
@@ -255,7 +275,7 @@ pub fn fuse(
              concat_similarity, then calibrate that one similarity"
                 .into(),
         )),
-        FusionMode::NoisyAnd | FusionMode::NoisyOr => {
+        FusionMode::NoisyAnd | FusionMode::NoisyOr | FusionMode::Union => {
             let (a, b) = (need(p_img, mode, "image")?, need(p_geo, mode, "geometric")?);
             same_shape(a, b)?;
             let mut out = DenseMatrix::zeros(a.rows, a.cols)?;

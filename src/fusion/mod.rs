@@ -18,6 +18,7 @@ pub mod posterior;
 pub mod select;
 pub mod similarity;
 pub mod streaming;
+pub mod union;
 
 pub use calibrate::{calibrate, calibrate_in_place, Calibration};
 pub use fuse::{concat_features, concat_similarity, fuse, noisy_and, noisy_or, FusionMode};
@@ -70,6 +71,13 @@ impl Default for FusionParams {
 }
 
 impl FusionParams {
+    /// These parameters with `mode` replaced by the mode whose matrix it selects from
+    /// ([`FusionMode::matrix_mode`]).
+    pub fn matrix_params(mut self) -> Self {
+        self.mode = self.mode.matrix_mode();
+        self
+    }
+
     /// The authors' code: dual softmax with T = 0.1, float32 Noisy-AND, global top-8000.
     pub fn reference() -> Self {
         FusionParams {
@@ -122,6 +130,7 @@ pub fn match_then_fuse(
     sim_geo: Option<&DenseMatrix>,
     params: &FusionParams,
 ) -> Result<FusionOutput> {
+    let params = &params.matrix_params();
     let shape = match (sim_img, sim_geo) {
         (Some((a, _, _)), Some(b)) if a.shape() != b.shape() => {
             return Err(Error::Invalid(format!(
@@ -278,6 +287,7 @@ pub fn match_then_fuse_select(
     sim_geo: Option<&DenseMatrix>,
     params: &FusionParams,
 ) -> Result<Vec<Correspondence>> {
+    let params = &params.matrix_params();
     if let (Some((a, _, _)), Some(b)) = (sim_img, sim_geo) {
         check_filled("image", a)?;
         check_filled("geometric", b)?;
@@ -300,6 +310,7 @@ pub fn match_then_fuse_select(
 /// configurations of [`fused`]: row softmax, mutual or row nearest neighbours, and stable
 /// Noisy-AND (row softmax for the geometric branch too) or the image branch alone.
 pub fn streams_from_features(params: &FusionParams) -> bool {
+    let params = &params.matrix_params();
     let nn = matches!(params.selection, Selection::MutualNn | Selection::RowNn);
     let img = matches!(params.calibration_img, Calibration::RowSoftmax { .. });
     let geo = matches!(params.calibration_geo, Calibration::RowSoftmax { .. });
@@ -333,6 +344,7 @@ pub fn match_then_fuse_select_features(
     if !streams_from_features(params) {
         return Ok(None);
     }
+    let params = &params.matrix_params();
     let tau = |c: Calibration| match c {
         Calibration::RowSoftmax { tau } => tau,
         _ => f32::NAN,

@@ -167,7 +167,7 @@ impl<'a> PosteriorRows<'a> {
         Ok(PosteriorRows {
             sim_img,
             sim_geo,
-            params: *params,
+            params: params.matrix_params(),
             rows,
             cols,
             image,
@@ -184,6 +184,7 @@ impl<'a> PosteriorRows<'a> {
     /// Row `i`: as [`posterior_row`] with the same inputs.
     pub fn row(&self, i: usize) -> Result<PosteriorRow> {
         let (rows, cols, params) = (self.rows, self.cols, &self.params);
+        // `new` stored the matrix mode: Union shows Noisy-AND's posterior
         if i >= rows {
             return Err(Error::Invalid(format!(
                 "posterior row: source point {i} out of range (the similarity has {rows} rows)"
@@ -205,7 +206,7 @@ impl<'a> PosteriorRows<'a> {
         let fused = match params.mode {
             FusionMode::ImageOnly => need(&image, "image")?,
             FusionMode::GeometryOnly => need(&geometric, "geometric")?,
-            FusionMode::NoisyAnd if !params.exact_reference => {
+            FusionMode::NoisyAnd | FusionMode::Union if !params.exact_reference => {
                 let (a, b) = (
                     as_row(need(&image, "image")?)?,
                     as_row(need(&geometric, "geometric")?)?,
@@ -214,13 +215,14 @@ impl<'a> PosteriorRows<'a> {
                 rank_keys_to_posteriors(&mut keys, Some(prior))?;
                 keys.data
             }
-            mode @ (FusionMode::NoisyAnd | FusionMode::NoisyOr) => {
+            mode @ (FusionMode::NoisyAnd | FusionMode::NoisyOr | FusionMode::Union) => {
                 let (a, b) = (
                     as_row(need(&image, "image")?)?,
                     as_row(need(&geometric, "geometric")?)?,
                 );
                 let mut out = DenseMatrix::zeros(1, cols)?;
-                fuse_into(&mut out, &a, &b, mode, Some(prior), params.exact_reference)?;
+                let m = mode.matrix_mode();
+                fuse_into(&mut out, &a, &b, m, Some(prior), params.exact_reference)?;
                 out.data
             }
             FusionMode::Concat => {

@@ -33,6 +33,9 @@ pub struct PairRow {
     /// The ground truth's translation norm (m): how far apart the two scans were taken.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub gt_distance_m: Option<f64>,
+    /// The `union` fusion's provenance line (None for the other modes).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fusion: Option<String>,
 }
 
 impl PairRow {

@@ -12,6 +12,7 @@ use crate::features::Features;
 use crate::fusion::matrix::DenseMatrix;
 use crate::fusion::{cosine_similarity, match_then_fuse_select, Calibration, Correspondence};
 use crate::fusion::{FusionMode, Selection};
+
 use crate::metrics::PairMetrics;
 use crate::vfm::pair_similarity::PairPointDescriptors;
 use nalgebra::Point3;
@@ -127,7 +128,7 @@ impl Similarities {
         }
     }
 
-    fn geo_row_max(&self) -> &[Option<(u32, f32)>] {
+    pub(crate) fn geo_row_max(&self) -> &[Option<(u32, f32)>] {
         self.geo_row_max
             .get_or_init(|| crate::fusion::streaming::row_maxima(&self.geo))
     }
@@ -286,83 +287,15 @@ pub fn fuse_and_finish_memo(
 ) -> Result<RegistrationResult> {
     let mut timer = Timer::new();
     let (src, tgt) = (&inputs.source_geo, &inputs.target_geo);
-    let streamed = match (&inputs.image, sims) {
-        (Some(ImageInputs::PerImage(fs, vs, ft, vt)), None)
-            if src.features.len().saturating_mul(tgt.features.len()) > STREAM_ENTRIES =>
-        {
-            let t = Instant::now();
-            let c = crate::fusion::match_then_fuse_select_features(
-                (fs, vs, ft, vt),
-                (&src.features, &tgt.features),
-                &params.fusion,
-            )?;
-            if c.is_some() {
-                timer.record("similarity+fusion", t.elapsed(), false);
-            }
-            c
-        }
-        _ => None,
-    };
-    let corr = match (&inputs.image, streamed) {
-        (Some(_), Some(c)) => c,
-        (Some(image), None) => {
-            let t = Instant::now();
-            let computed;
-            let (s_img, v_src, v_tgt, s_geo) = match sims {
-                Some(Similarities {
-                    image: Some((s, vs, vt)),
-                    geo,
-                    ..
-                }) => {
-                    // kept in memory: shown as a hit, like the stage cache's entries
-                    timer.record("similarity", Duration::ZERO, true);
-                    (s, vs, vt, geo)
-                }
-                Some(_) => return Err(mismatch()),
-                None => {
-                    let (s, vs, vt) = image.similarity()?;
-                    let geo = cosine_similarity(&src.features, &tgt.features)?;
-                    computed = (s, vs, vt, geo);
-                    timer.record("similarity", t.elapsed(), false);
-                    (&computed.0, &computed.1, &computed.2, &computed.3)
-                }
-            };
-            let t = Instant::now();
-            // Same correspondences as `match_then_fuse`, without its N x M outputs.
-            let corr = match_then_fuse_select(
-                Some((s_img, Some(v_src), Some(v_tgt))),
-                Some(s_geo),
-                &params.fusion,
-            )?;
-            timer.record("fusion", t.elapsed(), false);
-            corr
-        }
-        (None, _) => {
+    if inputs.image.is_some() && params.fusion.mode == FusionMode::Union {
+        return super::union::register(pair, params, inputs, sims, timer, memo);
+    }
+    let corr = match &inputs.image {
+        Some(_) => image_correspondences(params, inputs, sims, &params.fusion, &mut timer)?,
+        None => {
             let mut fusion = params.fusion;
             fusion.mode = FusionMode::GeometryOnly;
-            let t = Instant::now();
-            // Row softmax keeps each row's argmax, so nearest-neighbour selection needs no
-            // N x M matrix (same result as the dense path; see fusion::streaming).
-            let row_nn = match (fusion.selection, fusion.calibration_geo) {
-                (Selection::RowNn, Calibration::RowSoftmax { tau }) => Some(tau),
-                _ => None,
-            };
-            let c = match (sims, row_nn) {
-                (Some(Similarities { image: Some(_), .. }), _) => return Err(mismatch()),
-                (Some(s), Some(tau)) => {
-                    crate::fusion::streaming::row_nn_from_maxima(&s.geo, s.geo_row_max(), tau)?
-                }
-                (Some(s), None) => match_then_fuse_select(None, Some(&s.geo), &fusion)?,
-                (None, Some(tau)) => {
-                    crate::fusion::streaming::row_nn_posterior(&src.features, &tgt.features, tau)?
-                }
-                (None, None) => {
-                    let sim = cosine_similarity(&src.features, &tgt.features)?;
-                    match_then_fuse_select(None, Some(&sim), &fusion)?
-                }
-            };
-            timer.record("similarity+fusion", t.elapsed(), false);
-            c
+            geometry_correspondences(inputs, sims, &fusion, &mut timer)?
         }
     };
     let label = inputs
@@ -372,6 +305,99 @@ pub fn fuse_and_finish_memo(
     finish(pair, params, timer, (src, tgt), corr, label, memo)
 }
 
+/// The correspondences of a fusion with both branches (`fusion.mode` one of the matrix
+/// modes): streamed from the features for large pairs without kept matrices, else from the
+/// kept or computed similarity matrices.
+pub(crate) fn image_correspondences(
+    _params: &RegisterParams,
+    inputs: &FusionInputs,
+    sims: Option<&Similarities>,
+    fusion: &crate::fusion::FusionParams,
+    timer: &mut Timer,
+) -> Result<Vec<Correspondence>> {
+    let (src, tgt) = (&inputs.source_geo, &inputs.target_geo);
+    let Some(image) = &inputs.image else {
+        return Err(mismatch());
+    };
+    if let (ImageInputs::PerImage(fs, vs, ft, vt), None) = (image, sims) {
+        if src.features.len().saturating_mul(tgt.features.len()) > STREAM_ENTRIES {
+            let t = Instant::now();
+            let c = crate::fusion::match_then_fuse_select_features(
+                (fs, vs, ft, vt),
+                (&src.features, &tgt.features),
+                fusion,
+            )?;
+            if let Some(c) = c {
+                timer.record("similarity+fusion", t.elapsed(), false);
+                return Ok(c);
+            }
+        }
+    }
+    let t = Instant::now();
+    let computed;
+    let (s_img, v_src, v_tgt, s_geo) = match sims {
+        Some(Similarities {
+            image: Some((s, vs, vt)),
+            geo,
+            ..
+        }) => {
+            // kept in memory: shown as a hit, like the stage cache's entries
+            timer.record("similarity", Duration::ZERO, true);
+            (s, vs, vt, geo)
+        }
+        Some(_) => return Err(mismatch()),
+        None => {
+            let (s, vs, vt) = image.similarity()?;
+            let geo = cosine_similarity(&src.features, &tgt.features)?;
+            computed = (s, vs, vt, geo);
+            timer.record("similarity", t.elapsed(), false);
+            (&computed.0, &computed.1, &computed.2, &computed.3)
+        }
+    };
+    let t = Instant::now();
+    // Same correspondences as `match_then_fuse`, without its N x M outputs.
+    let corr =
+        match_then_fuse_select(Some((s_img, Some(v_src), Some(v_tgt))), Some(s_geo), fusion)?;
+    timer.record("fusion", t.elapsed(), false);
+    Ok(corr)
+}
+
+/// The correspondences of the geometric branch alone (`fusion.mode` GeometryOnly). With image
+/// inputs (the union's geometric set) `sims` may be a fused run's kept matrices.
+pub(crate) fn geometry_correspondences(
+    inputs: &FusionInputs,
+    sims: Option<&Similarities>,
+    fusion: &crate::fusion::FusionParams,
+    timer: &mut Timer,
+) -> Result<Vec<Correspondence>> {
+    let (src, tgt) = (&inputs.source_geo, &inputs.target_geo);
+    let t = Instant::now();
+    // Row softmax keeps each row's argmax, so nearest-neighbour selection needs no
+    // N x M matrix (same result as the dense path; see fusion::streaming).
+    let row_nn = match (fusion.selection, fusion.calibration_geo) {
+        (Selection::RowNn, Calibration::RowSoftmax { tau }) => Some(tau),
+        _ => None,
+    };
+    let c = match (sims, row_nn) {
+        (Some(Similarities { image: Some(_), .. }), _) if inputs.image.is_none() => {
+            return Err(mismatch())
+        }
+        (Some(s), Some(tau)) => {
+            crate::fusion::streaming::row_nn_from_maxima(&s.geo, s.geo_row_max(), tau)?
+        }
+        (Some(s), None) => match_then_fuse_select(None, Some(&s.geo), fusion)?,
+        (None, Some(tau)) => {
+            crate::fusion::streaming::row_nn_posterior(&src.features, &tgt.features, tau)?
+        }
+        (None, None) => {
+            let sim = cosine_similarity(&src.features, &tgt.features)?;
+            match_then_fuse_select(None, Some(&sim), fusion)?
+        }
+    };
+    timer.record("similarity+fusion", t.elapsed(), false);
+    Ok(c)
+}
+
 fn mismatch() -> Error {
     Error::Invalid(
         "kept similarities do not match the fusion inputs (image branch on one, off on the other)"
@@ -379,8 +405,25 @@ fn mismatch() -> Error {
     )
 }
 
+/// The endpoints and scores of `corr`.
+pub fn endpoints(
+    (src, tgt): (&GeoBranch, &GeoBranch),
+    corr: &[Correspondence],
+) -> (Vec<Point3<f32>>, Vec<Point3<f32>>, Vec<f32>) {
+    let sp: Vec<Point3<f32>> = corr
+        .iter()
+        .map(|c| src.keypoints.points[c.src as usize])
+        .collect();
+    let tp: Vec<Point3<f32>> = corr
+        .iter()
+        .map(|c| tgt.keypoints.points[c.tgt as usize])
+        .collect();
+    let w: Vec<f32> = corr.iter().map(|c| c.score).collect();
+    (sp, tp, w)
+}
+
 /// Pose estimation from `corr` and evaluation against the pair's ground truth.
-fn finish(
+pub(crate) fn finish(
     pair: &ScanPair,
     params: &RegisterParams,
     mut timer: Timer,
@@ -400,15 +443,7 @@ fn finish(
             )));
         }
     }
-    let sp: Vec<Point3<f32>> = corr
-        .iter()
-        .map(|c| src.keypoints.points[c.src as usize])
-        .collect();
-    let tp: Vec<Point3<f32>> = corr
-        .iter()
-        .map(|c| tgt.keypoints.points[c.tgt as usize])
-        .collect();
-    let w: Vec<f32> = corr.iter().map(|c| c.score).collect();
+    let (sp, tp, w) = endpoints((src, tgt), &corr);
     let est: Estimate = match memo {
         Some(m) => {
             let t = Instant::now();
@@ -468,6 +503,7 @@ fn finish(
         correspondences: corr,
         inliers: est.inliers,
         image: None,
+        union: None,
     })
 }
 

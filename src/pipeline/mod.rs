@@ -21,6 +21,7 @@ pub mod result;
 pub mod shard;
 pub mod stages;
 pub mod study;
+pub mod union;
 
 pub use memo::Memo;
 pub use params::{ImageBranchParams, RegisterParams, VfmSpec, WfmSpec};

@@ -84,6 +84,17 @@ pub struct RegistrationResult {
     pub inliers: Vec<usize>,
     #[serde(skip)]
     pub image: Option<ImageBranchOutput>,
+    /// The `union` fusion's report: the sets it merged and where its inliers came from.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub union: Option<crate::fusion::union::UnionReport>,
+}
+
+impl RegistrationResult {
+    /// The fusion's provenance line ("fusion: union (1030 Noisy-AND + 6256 geometry ...)"),
+    /// for the `union` mode; None for the other modes (their label says the mode).
+    pub fn fusion_provenance(&self) -> Option<String> {
+        self.union.as_ref().map(|d| d.provenance())
+    }
 }
 
 pub fn matrix_rows(t: &Isometry3<f64>) -> [[f64; 4]; 4] {

@@ -15,6 +15,7 @@ mod cache_safety;
 mod corruption_campaign;
 mod dataset_real;
 mod export_corr;
+mod fusion_union;
 mod fuzz_smoke;
 mod gui_compare;
 mod gui_pipeline;

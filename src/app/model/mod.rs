@@ -315,6 +315,9 @@ pub struct InspectorModel {
     /// The inverse of the ground truth explains the data better than the ground truth
     /// (`metrics::convention`): shown next to the metrics.
     pub convention_warning: Option<String>,
+    /// What the `union` fusion merged and where its inliers came from ("fusion: union (...)"):
+    /// shown next to the metrics.
+    pub fusion_note: Option<String>,
     /// The estimator's ranked hypotheses (computed on demand by the hypothesis browser).
     pub hypotheses: Option<super::hypotheses_panel::HypothesisList>,
 }
@@ -339,6 +342,7 @@ impl Default for InspectorModel {
             generation_missing: None,
             image_branch_note: None,
             convention_warning: None,
+            fusion_note: None,
             hypotheses: None,
         }
     }

@@ -247,6 +247,7 @@ pub fn result_to_model(
         generation_missing: None,
         image_branch_note: note,
         convention_warning: result.convention.as_ref().and_then(|c| c.warning.clone()),
+        fusion_note: result.fusion_provenance(),
         hypotheses: None,
     }
 }

@@ -1,0 +1,243 @@
+//! The study of the fusion rules on development pairs (docs/ablation.md, "A fusion that never
+//! loses to its best branch"): for every pair of a manifest, the image branch's inputs are
+//! computed once (through the stage cache), then every candidate of the protocol is estimated
+//! from them and written to one JSON line per pair:
+//! the geometry-alone, Noisy-AND and image-alone poses with their fit on the union of
+//! {geometry, Noisy-AND} and of all three sets (rules a2, a3, a2-msac), SC2-PCR on the union of
+//! the Noisy-AND and geometry sets (b), and Noisy-AND with unseen points neutral (c).
+//! `scripts/fusion_study.py` applies the rules and the decision rule to these lines.
+//!
+//! ```sh
+//! cargo run --example fusion_study -- assets/manifests/redkitchen-dev.toml --wfm oracle \
+//!     --cache-dir DIR --out dev-oracle.jsonl [--clouds-only] [--split S]
+//! ```
+//!
+//! Every option not named is the default of the parameter types (ALIKE-t, K = 4, row softmax
+//! τ 0.1, mutual NN for the fused sets, SC2-PCR), as `cgenreg bench --vfm alike` runs it.
+
+use cgenreg::dataset::manifest::Dataset;
+use cgenreg::estimate::estimate_pose;
+use cgenreg::fusion::union::merge;
+use cgenreg::fusion::{calibrate, fuse, select, Correspondence, FusionMode, Selection};
+use cgenreg::metrics::{rre_deg, rte_m};
+use cgenreg::pipeline::fuse::{endpoints, similarities, FusionInputs};
+use cgenreg::pipeline::union::{geometry_params, mode_correspondences, noisy_and_params};
+use cgenreg::pipeline::{
+    register_pair_cached_keep, ImageBranchParams, Memo, RegisterParams, VfmSpec, WfmSpec,
+};
+use clap::Parser;
+use serde_json::{json, Value};
+use std::io::Write;
+use std::path::PathBuf;
+
+#[derive(Parser)]
+struct Args {
+    manifest: PathBuf,
+    /// JSON lines output (appended; pairs already in it are skipped).
+    #[arg(long)]
+    out: PathBuf,
+    /// Drop the sensor frames: each fragment is only its cloud (virtual frames).
+    #[arg(long)]
+    clouds_only: bool,
+    /// Only this split.
+    #[arg(long)]
+    split: Option<String>,
+    /// oracle (the dataset's colour) or builtin (depth shading, virtual frames for clouds).
+    #[arg(long, default_value = "oracle")]
+    wfm: String,
+    /// The stage cache.
+    #[arg(long)]
+    cache_dir: PathBuf,
+}
+
+fn main() -> Result<(), Box<dyn std::error::Error>> {
+    let a = Args::parse();
+    let cache = Some(cgenreg::pipeline::cache::Cache::open(&a.cache_dir)?);
+    let ds = Dataset::load(&a.manifest)?.with_fragment_cache(cache.clone());
+    let backend = match a.wfm.as_str() {
+        "oracle" => WfmSpec::Oracle,
+        "builtin" => WfmSpec::Builtin,
+        w => return Err(format!("--wfm {w}: oracle or builtin").into()),
+    };
+    let params = RegisterParams {
+        image: Some(ImageBranchParams {
+            backend,
+            vfm: VfmSpec::Alike {
+                model: cgenreg::vfm::default_model_path("alike-t.onnx"),
+            },
+            ..Default::default()
+        }),
+        ..Default::default()
+    };
+    let done: std::collections::HashSet<String> = std::fs::read_to_string(&a.out)
+        .unwrap_or_default()
+        .lines()
+        .filter_map(|l| serde_json::from_str::<Value>(l).ok())
+        .filter_map(|v| v["id"].as_str().map(String::from))
+        .collect();
+    let mut out = std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(&a.out)?;
+    let memo = Memo::default();
+    for spec in ds.select_pairs(a.split.as_deref(), None) {
+        if done.contains(&spec.id) {
+            continue;
+        }
+        let t0 = std::time::Instant::now();
+        let mut pair = ds.load_pair(&spec.id)?;
+        if a.clouds_only {
+            pair.source.frames = None;
+            pair.target.frames = None;
+        }
+        let line = match study_pair(&pair, &params, cache.as_ref(), &memo) {
+            Ok(mut v) => {
+                v["id"] = json!(spec.id);
+                v["split"] = json!(spec.split);
+                v["time_s"] = json!(t0.elapsed().as_secs_f64());
+                v
+            }
+            Err(e) => json!({"id": spec.id, "split": spec.split, "error": e.to_string()}),
+        };
+        eprintln!("{}: {:.0} s", spec.id, t0.elapsed().as_secs_f64());
+        writeln!(out, "{line}")?;
+        out.flush()?;
+    }
+    Ok(())
+}
+
+fn study_pair(
+    pair: &cgenreg::dataset::ScanPair,
+    params: &cgenreg::pipeline::RegisterParams,
+    cache: Option<&cgenreg::pipeline::cache::Cache>,
+    memo: &Memo,
+) -> cgenreg::Result<Value> {
+    let (_, inputs) = register_pair_cached_keep(pair, params, cache, memo)?;
+    let gt = pair
+        .gt_target_from_source
+        .ok_or_else(|| cgenreg::Error::Invalid("the study needs ground truth".into()))?;
+    let sims = similarities(&inputs)?;
+    let set = |f| mode_correspondences(params, &inputs, Some(&sims), &f);
+    let mut image = params.fusion;
+    image.mode = FusionMode::ImageOnly;
+    let geo = &set(geometry_params(&params.fusion))?;
+    let and = &set(noisy_and_params(&params.fusion))?;
+    let img = &set(image)?;
+    // (b): Noisy-AND's set, then the geometry set's pairs not in it (the `union` mode's merge)
+    let b: Vec<Correspondence> = merge(and, geo).0;
+    let c = neutral_unseen(params, &inputs, &sims)?;
+    let theta = params.inlier_threshold;
+    let (src, tgt) = (&inputs.source_geo, &inputs.target_geo);
+    let pts = |u: &[(u32, u32)]| {
+        let s: Vec<_> = u
+            .iter()
+            .map(|&(i, _)| src.keypoints.points[i as usize])
+            .collect();
+        let t: Vec<_> = u
+            .iter()
+            .map(|&(_, j)| tgt.keypoints.points[j as usize])
+            .collect();
+        (s, t)
+    };
+    let (u2s, u2t) = pts(&union(&[geo, and]));
+    let (u3s, u3t) = pts(&union(&[geo, and, img]));
+    let mut cands = serde_json::Map::new();
+    for (name, corr) in [
+        ("geometry", geo),
+        ("noisy-and", and),
+        ("image", img),
+        ("union-b", &b),
+        ("neutral-c", &c),
+    ] {
+        let (sp, tp, w) = endpoints((src, tgt), corr);
+        let v = match estimate_pose(&sp, &tp, &w, &params.estimator) {
+            Ok(e) => {
+                let t = e.target_from_source;
+                let (r, tr) = (rre_deg(&t, &gt), rte_m(&t, &gt));
+                let f2 = fit(&t, &u2s, &u2t, theta);
+                let f3 = fit(&t, &u3s, &u3t, theta);
+                let gt_in = cgenreg::metrics::inlier_ratio(&sp, &tp, &gt, theta)?;
+                json!({"n": corr.len(), "est_inliers": e.inliers.len(), "method": e.method,
+                       "rre": r, "rte": tr, "ok": r <= 15.0 && tr <= 0.30,
+                       "fit2": f2.consensus, "msac2": f2.msac,
+                       "fit3": f3.consensus, "msac3": f3.msac, "gt_ir": gt_in})
+            }
+            Err(e) => json!({"n": corr.len(), "error": e.to_string()}),
+        };
+        cands.insert(name.into(), v);
+    }
+    Ok(
+        json!({"n_src": src.keypoints.len(), "n_tgt": tgt.keypoints.len(),
+              "u2": u2s.len(), "u3": u3s.len(), "candidates": cands}),
+    )
+}
+
+/// A pose's fit on a branch-neutral set: (pairs within `theta`, Σ min(r², θ²) / θ²).
+struct Fit {
+    consensus: usize,
+    msac: f64,
+}
+
+fn fit(
+    t: &nalgebra::Isometry3<f64>,
+    src: &[nalgebra::Point3<f32>],
+    tgt: &[nalgebra::Point3<f32>],
+    theta: f64,
+) -> Fit {
+    let t2 = theta * theta;
+    let (mut consensus, mut msac) = (0usize, 0.0f64);
+    for (s, q) in src.iter().zip(tgt) {
+        let r2 = (t * s.cast::<f64>() - q.cast::<f64>()).norm_squared();
+        if r2 <= t2 {
+            consensus += 1;
+            msac += r2 / t2;
+        } else {
+            msac += 1.0;
+        }
+    }
+    Fit { consensus, msac }
+}
+
+/// The distinct (source, target) pairs of the sets, in first-seen order.
+fn union(sets: &[&[Correspondence]]) -> Vec<(u32, u32)> {
+    let mut seen = std::collections::HashSet::new();
+    sets.iter()
+        .flat_map(|s| s.iter())
+        .filter(|c| seen.insert((c.src, c.tgt)))
+        .map(|c| (c.src, c.tgt))
+        .collect()
+}
+
+/// Candidate (c): Noisy-AND in which an entry whose source or target point has no pixel takes
+/// the image posterior π (Noisy-AND's neutral value) instead of 0; mutual NN.
+fn neutral_unseen(
+    params: &cgenreg::pipeline::RegisterParams,
+    inputs: &FusionInputs,
+    sims: &cgenreg::pipeline::fuse::Similarities,
+) -> cgenreg::Result<Vec<Correspondence>> {
+    let _ = inputs;
+    let (s_img, vs, vt) = sims
+        .image
+        .as_ref()
+        .ok_or_else(|| cgenreg::Error::Invalid("no image similarity".into()))?;
+    let mut p_img = calibrate(s_img, Some(vs), Some(vt), params.fusion.calibration_img)?;
+    let p_geo = calibrate(&sims.geo, None, None, params.fusion.calibration_geo)?;
+    let prior = params
+        .fusion
+        .prior
+        .unwrap_or_else(|| fuse::default_prior(p_img.rows, p_img.cols)) as f32;
+    for i in 0..p_img.rows {
+        let row = p_img.row_mut(i);
+        for (j, v) in row.iter_mut().enumerate() {
+            if !vs[i] || !vt[j] {
+                *v = prior;
+            }
+        }
+    }
+    let keys = fuse::noisy_and_rank_keys(&p_img, &p_geo)?;
+    let sel = match params.fusion.selection {
+        Selection::TopK(k) => Selection::TopK(k),
+        s => s,
+    };
+    Ok(select(&keys, sel))
+}

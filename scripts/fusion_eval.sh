@@ -1,0 +1,39 @@
+#!/usr/bin/env bash
+# The evaluated rows of the union fusion (docs/ablation.md, "A fusion that never loses to its
+# best branch"): for every evaluated set, with ALIKE-t and oracle RGB where the data has colour
+# (built-in frames otherwise), four runs: the default fusion (union), the paper's Noisy-AND,
+# the image branch alone and the geometric branch alone (no image branch: FPFH, NN). The image
+# branch's stages are cached by the first run, so the others cost only the in-memory tail.
+# Tables: python3 scripts/fusion_tables.py OUT
+#
+#   bash scripts/fusion_eval.sh SET [OUT_DIR]   # SET: staged-clouds rgbd-3dlomatch lidar staged rgbd-3dmatch
+#
+# Env: CGENREG_BIN (default target/debug/cgenreg), CGENREG_CACHE (stage cache folder),
+# CGENREG_DATA. A run cut short resumes (bench --json resumes).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+SET="${1:?SET}"
+OUT="${2:-docs/results/fusion}"
+BIN="${CGENREG_BIN:-target/debug/cgenreg}"
+CACHE="${CGENREG_CACHE:-$HOME/.cache/cgenreg}"
+export CGENREG_DATA="${CGENREG_DATA:-$(cd .. && pwd)/shared/data}"
+mkdir -p "$OUT"
+case "$SET" in
+    staged-clouds) M=assets/manifests/redkitchen-staged-clouds.toml; O=(--wfm builtin) ;;
+    rgbd-3dlomatch) M=assets/manifests/redkitchen-rgbd.toml; O=(--split 3DLoMatch --wfm oracle) ;;
+    rgbd-3dmatch) M=assets/manifests/redkitchen-rgbd.toml; O=(--split 3DMatch --wfm oracle) ;;
+    staged) M=assets/manifests/redkitchen-staged.toml; O=(--wfm oracle) ;;
+    lidar) M=assets/manifests/small-gicp-lidar.toml; O=(--wfm builtin) ;;
+    *) echo "unknown set $SET" >&2; exit 2 ;;
+esac
+run() { # mode name, then bench options
+    local name="$SET-$1"; shift
+    echo "== $name: cgenreg bench $M $* --json $OUT/$name.json" >&2
+    nice -n 5 "$BIN" bench "$M" "$@" --cache-dir "$CACHE" --json "$OUT/$name.json" \
+        > "$OUT/$name.txt" || echo "$name: exit $?" >&2
+}
+run union "${O[@]}" --vfm alike
+run noisy-and "${O[@]}" --vfm alike --fusion noisy-and
+run image "${O[@]}" --vfm alike --fusion image
+# geometry alone: the same pairs without the image branch (--wfm dropped)
+run geometry "${O[@]:0:${#O[@]}-2}"

@@ -1,0 +1,110 @@
+//! The `union` fusion mode in the in-memory tail: the Noisy-AND correspondences and the
+//! geometric branch's own (row NN) correspondences from the same inputs, merged
+//! ([`crate::fusion::union::merge`]), one estimate, and the result with its provenance.
+
+use super::fuse::{
+    finish, geometry_correspondences, image_correspondences, similarities, EstimateMemo,
+    FusionInputs, ImageInputs, Similarities, STREAM_ENTRIES,
+};
+use super::params::RegisterParams;
+use super::result::{RegistrationResult, Timer};
+use crate::dataset::ScanPair;
+use crate::error::{Error, Result};
+use crate::fusion::union::{merge, UnionReport};
+use crate::fusion::{Correspondence, FusionMode, FusionParams, Selection};
+use std::time::Instant;
+
+/// The geometric set of the union: the geometric branch alone with row nearest neighbours
+/// (the geometry-alone registration's selection).
+pub fn geometry_params(fusion: &FusionParams) -> FusionParams {
+    let mut p = *fusion;
+    p.mode = FusionMode::GeometryOnly;
+    p.selection = Selection::RowNn;
+    p
+}
+
+/// The Noisy-AND set of the union: the paper's fusion with the run's selection.
+pub fn noisy_and_params(fusion: &FusionParams) -> FusionParams {
+    let mut p = *fusion;
+    p.mode = FusionMode::NoisyAnd;
+    p
+}
+
+/// The correspondences `fusion` (one of the matrix modes) selects from `inputs`, untimed (the
+/// union's members, and studies of other rules).
+pub fn mode_correspondences(
+    params: &RegisterParams,
+    inputs: &FusionInputs,
+    sims: Option<&Similarities>,
+    fusion: &FusionParams,
+) -> Result<Vec<Correspondence>> {
+    let mut t = Timer::new();
+    match fusion.mode {
+        FusionMode::GeometryOnly => geometry_correspondences(inputs, sims, fusion, &mut t),
+        _ => image_correspondences(params, inputs, sims, fusion, &mut t),
+    }
+}
+
+/// The union's two sets (Noisy-AND, geometry) from `inputs` (image descriptors required). The
+/// similarity matrices are formed once (or taken from `sims`), except for a large pair whose
+/// Noisy-AND streams from the features.
+fn member_sets(
+    params: &RegisterParams,
+    inputs: &FusionInputs,
+    sims: Option<&Similarities>,
+    timer: &mut Timer,
+) -> Result<(Vec<Correspondence>, Vec<Correspondence>)> {
+    if inputs.image.is_none() {
+        return Err(Error::Invalid(
+            "fusion union: the image branch's descriptors are missing".into(),
+        ));
+    }
+    let (n, m) = (
+        inputs.source_geo.features.len(),
+        inputs.target_geo.features.len(),
+    );
+    let and = noisy_and_params(&params.fusion);
+    let streams = matches!(inputs.image, Some(ImageInputs::PerImage(..)))
+        && n.saturating_mul(m) > STREAM_ENTRIES
+        && crate::fusion::streams_from_features(&and);
+    let computed;
+    let sims = match sims {
+        Some(s) => Some(s),
+        None if streams => None,
+        None => {
+            let t = Instant::now();
+            computed = similarities(inputs)?;
+            timer.record("similarity", t.elapsed(), false);
+            Some(&computed)
+        }
+    };
+    let t = Instant::now();
+    let a = mode_correspondences(params, inputs, sims, &and)?;
+    timer.record("fusion: noisy-and", t.elapsed(), false);
+    let t = Instant::now();
+    let g = mode_correspondences(params, inputs, sims, &geometry_params(&params.fusion))?;
+    timer.record("fusion: geometry", t.elapsed(), false);
+    Ok((a, g))
+}
+
+/// The `union` registration of `pair` from `inputs` (image descriptors present).
+pub(crate) fn register(
+    pair: &ScanPair,
+    params: &RegisterParams,
+    inputs: &FusionInputs,
+    sims: Option<&Similarities>,
+    mut timer: Timer,
+    memo: Option<&EstimateMemo>,
+) -> Result<RegistrationResult> {
+    let (and, geo) = member_sets(params, inputs, sims, &mut timer)?;
+    let (corr, origin) = merge(&and, &geo);
+    let label = inputs.image_label.clone();
+    let src_tgt = (&inputs.source_geo, &inputs.target_geo);
+    let mut res = finish(pair, params, timer, src_tgt, corr, label, memo)?;
+    let report = UnionReport::new(and.len(), geo.len(), &origin, &res.inliers);
+    res.image_branch = res
+        .image_branch
+        .map(|l| format!("{l}; {})", report.provenance()));
+    res.union = Some(report);
+    Ok(res)
+}

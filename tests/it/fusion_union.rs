@@ -1,0 +1,100 @@
+//! The `union` fusion on a development pair (never an evaluated pair): the registration is
+//! never worse than its best branch, it estimates on exactly the Noisy-AND and geometric sets
+//! merged, and the result says what it merged and where its inliers came from. Skipped
+//! without the real data, failing under CI=true.
+
+use cgenreg::dataset::Dataset;
+use cgenreg::fusion::union::merge;
+use cgenreg::fusion::{FusionMode, FusionParams, Selection};
+use cgenreg::pipeline::fuse::fuse_and_finish;
+use cgenreg::pipeline::union::{geometry_params, mode_correspondences, noisy_and_params};
+use cgenreg::pipeline::{
+    register_pair_cached_keep, ImageBranchParams, Memo, RegisterParams, VfmSpec, WfmSpec,
+};
+use std::path::Path;
+
+/// A development pair (3DLoMatch-like) where geometry alone registers and Noisy-AND does not,
+/// oracle RGB + ALIKE-t (docs/ablation.md, the fusion study): about 30 s of CPU in a debug
+/// build.
+const DEV_PAIR: &str = "redkitchen-dev/f025-f425";
+
+fn params(mode: FusionMode) -> RegisterParams {
+    RegisterParams {
+        image: Some(ImageBranchParams {
+            backend: WfmSpec::Oracle,
+            vfm: VfmSpec::Alike {
+                model: cgenreg::vfm::default_model_path("alike-t.onnx"),
+            },
+            ..Default::default()
+        }),
+        fusion: FusionParams {
+            mode,
+            ..Default::default()
+        },
+        ..Default::default()
+    }
+}
+
+#[test]
+fn union_is_never_worse_than_its_best_branch_on_a_development_pair() {
+    let Some(_) = cgenreg::test_data_root() else {
+        return;
+    };
+    let manifest =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/manifests/redkitchen-dev.toml");
+    let ds = Dataset::load(&manifest).unwrap();
+    let p = params(FusionMode::Union);
+    let pair = ds.load_pair(DEV_PAIR).unwrap();
+    let (res, inputs) = register_pair_cached_keep(&pair, &p, None, &Memo::default()).unwrap();
+    let ok = |r: &cgenreg::pipeline::RegistrationResult| r.metrics.as_ref().unwrap().success;
+    // each branch alone, and the paper's Noisy-AND, from the same inputs
+    let alone = |mode, sel: Option<Selection>| {
+        let mut q = params(mode);
+        if let Some(s) = sel {
+            q.fusion.selection = s;
+        }
+        fuse_and_finish(&pair, &q, &inputs, None).unwrap()
+    };
+    let geo = alone(FusionMode::GeometryOnly, Some(Selection::RowNn));
+    let img = alone(FusionMode::ImageOnly, None);
+    let and = alone(FusionMode::NoisyAnd, None);
+    assert!(
+        ok(&res) || !(ok(&geo) || ok(&img)),
+        "union fails where a branch alone registers: {:?}",
+        res.fusion_provenance()
+    );
+    // the pair this test guards: geometry registers, Noisy-AND does not, the union does
+    assert!(ok(&geo) && !ok(&and) && ok(&res), "{:?}", res.metrics);
+    // the geometric set is the geometry-alone registration's (no image branch at all)
+    let geo_only = RegisterParams {
+        image: None,
+        fusion: FusionParams {
+            selection: Selection::RowNn,
+            ..Default::default()
+        },
+        ..Default::default()
+    };
+    let (g, _) = register_pair_cached_keep(&pair, &geo_only, None, &Memo::default()).unwrap();
+    assert_eq!(g.target_from_source, geo.target_from_source);
+    // the estimator was given exactly Noisy-AND's set, then the geometric set's new pairs
+    let a = mode_correspondences(&p, &inputs, None, &noisy_and_params(&p.fusion)).unwrap();
+    let gs = mode_correspondences(&p, &inputs, None, &geometry_params(&p.fusion)).unwrap();
+    let (u, _) = merge(&a, &gs);
+    assert_eq!(res.correspondences, u);
+    assert!(u.len() > gs.len() && u.len() < a.len() + gs.len());
+    // provenance in the result, its label and its JSON
+    let rep = res.union.as_ref().unwrap();
+    assert_eq!(
+        (rep.n_noisy_and, rep.n_geometry, rep.n_union),
+        (a.len(), gs.len(), u.len())
+    );
+    assert_eq!(
+        rep.inliers_noisy_and + rep.inliers_geometry + rep.inliers_both,
+        res.n_inliers
+    );
+    let line = res.fusion_provenance().unwrap();
+    assert!(line.starts_with("fusion: union ("), "{line}");
+    assert!(res.image_branch.as_deref().unwrap().contains(&line));
+    let json = serde_json::to_value(&res).unwrap();
+    assert_eq!(json["union"]["n_union"], u.len());
+}
