@@ -1,19 +1,19 @@
 //! The `cgenreg` command line: the same pipeline as the GUI, for scripts, benchmarks and CI.
 
-mod args;
+pub mod args;
 mod bench;
 mod cache;
 mod diff;
 mod generate;
 #[cfg(feature = "gui")]
-mod gui;
+pub mod gui;
 mod merge;
 mod register;
 mod slurm;
 mod study;
 mod table;
 
-use clap::{Parser, Subcommand};
+use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 use std::process::ExitCode;
 
 #[derive(Parser, Debug)]
@@ -64,6 +64,20 @@ pub enum Command {
     Screenshot(gui::ScreenshotArgs),
 }
 
+/// `inspect` changes only the saved settings its options name: it is told which were given.
+fn with_named_options(c: Command, matches: &clap::ArgMatches) -> Command {
+    match c {
+        #[cfg(feature = "gui")]
+        Command::Inspect(mut a) => {
+            if let Some(("inspect", m)) = matches.subcommand() {
+                a.named = gui::named_options(m);
+            }
+            Command::Inspect(a)
+        }
+        c => c,
+    }
+}
+
 /// Runs one command (also what a Slurm array task runs, in-process).
 pub fn run_command(c: Command) -> crate::Result<()> {
     match c {
@@ -86,7 +100,14 @@ pub fn run_command(c: Command) -> crate::Result<()> {
 }
 
 pub fn main() -> ExitCode {
-    let cli = Cli::parse();
+    let matches = Cli::command().get_matches();
+    let cli = match Cli::from_arg_matches(&matches) {
+        Ok(c) => c,
+        Err(e) => e.exit(),
+    };
+    let cli = Cli {
+        command: cli.command.map(|c| with_named_options(c, &matches)),
+    };
     let result = match cli.command {
         Some(c) => run_command(c),
         #[cfg(feature = "gui")]

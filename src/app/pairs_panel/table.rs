@@ -34,11 +34,27 @@ fn outcome_color(o: PairOutcome) -> egui::Color32 {
     }
 }
 
-fn status_cell(ui: &mut egui::Ui, p: &PairEntry) {
+fn status_cell(ui: &mut egui::Ui, p: &PairEntry, stale: bool) {
     let o = p.outcome();
-    let r = ui.colored_label(outcome_color(o), o.label());
-    if let PairStatus::Failed(m) = &p.status {
-        r.on_hover_text(m);
+    let settings = p
+        .settings
+        .as_ref()
+        .map(|s| format!("settings {}: {}", s.id, s.summary))
+        .unwrap_or_default();
+    let r = if stale {
+        ui.weak(format!("stale ({})", o.label()))
+            .on_hover_text(format!(
+                "computed with other settings than the current ones: {settings}"
+            ))
+    } else {
+        ui.colored_label(outcome_color(o), o.label())
+    };
+    let r = match &p.status {
+        PairStatus::Failed(m) => r.on_hover_text(m),
+        _ => r,
+    };
+    if !stale && !settings.is_empty() {
+        r.on_hover_text(settings);
     }
 }
 
@@ -154,6 +170,7 @@ pub fn table(
     v: TableView,
     sort: &mut PairSort,
     scrolled: &mut Option<String>,
+    current_settings: Option<&str>,
     out: &mut Vec<Command>,
 ) {
     let mut widths = column_widths(ui, v.model, v.rows, v.columns);
@@ -198,7 +215,9 @@ pub fn table(
                     .id_salt((v.id, "rows"))
                     .max_height(h)
                     .auto_shrink([false, v.max_height.is_some()])
-                    .show(ui, |ui| rows(ui, &v, &widths, row_h, scrolled, out));
+                    .show(ui, |ui| {
+                        rows(ui, &v, &widths, row_h, scrolled, current_settings, out)
+                    });
             },
         );
     };
@@ -222,10 +241,12 @@ fn rows(
     widths: &[f32],
     row_h: f32,
     scrolled: &mut Option<String>,
+    current_settings: Option<&str>,
     out: &mut Vec<Command>,
 ) {
     for (k, &i) in v.rows.iter().enumerate() {
         let p = &v.model.pairs[i];
+        let stale = super::is_stale(p, current_settings);
         let current = v.model.current_pair == Some(i);
         let stripe = ui.painter().add(egui::Shape::Noop);
         let row = ui.horizontal(|ui| {
@@ -236,7 +257,10 @@ fn rows(
             });
             for (&c, &w) in v.columns.iter().zip(widths).skip(1) {
                 fixed_cell(ui, w, row_h, is_number(c), |ui| match c {
-                    PairColumn::Status => status_cell(ui, p),
+                    PairColumn::Status => status_cell(ui, p, stale),
+                    _ if stale => {
+                        ui.weak(cell_text(p, c));
+                    }
                     _ => {
                         ui.label(cell_text(p, c));
                     }

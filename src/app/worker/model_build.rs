@@ -248,6 +248,9 @@ pub fn result_to_model(
         image_branch_note: note,
         convention_warning: result.convention.as_ref().and_then(|c| c.warning.clone()),
         hypotheses: None,
+        branches_ran: None,
+        settings: None,
+        demo_protocol: None,
     }
 }
 
