@@ -244,6 +244,25 @@ pub struct LogLine {
     pub echo: bool,
 }
 
+/// The smallest text the inspector draws (captions, matrix labels), in points at scale 1.
+pub const MIN_TEXT_PX: f32 = 11.0;
+
+/// Raises egui's small text style (about 9 px by default) to [`MIN_TEXT_PX`], in every theme.
+fn legible_small_text(ctx: &egui::Context) {
+    let small = |s: &egui::Style| {
+        s.text_styles
+            .get(&egui::TextStyle::Small)
+            .is_some_and(|f| f.size < MIN_TEXT_PX)
+    };
+    if small(&ctx.global_style()) {
+        ctx.all_styles_mut(|s| {
+            if let Some(f) = s.text_styles.get_mut(&egui::TextStyle::Small) {
+                f.size = MIN_TEXT_PX;
+            }
+        });
+    }
+}
+
 /// Warnings and errors the status area keeps in view at most.
 const STATUS_LINES: usize = 4;
 
@@ -594,6 +613,7 @@ impl App {
     /// The whole UI, inside any `Ui` (eframe window, headless renderer, test harness).
     pub fn show(&mut self, ui: &mut egui::Ui) {
         let ctx = ui.ctx().clone();
+        legible_small_text(&ctx);
         self.poll_worker();
         for (level, text) in self.compare.poll(&ctx) {
             self.push_log(level, text);

@@ -17,6 +17,7 @@ mod order;
 mod table;
 
 pub use order::{sorted_pairs, visible_pairs, OutcomeFilter, PairColumn, PairFilter, PairSort};
+pub use table::common_id_prefix;
 use table::{table, TableView};
 
 /// The browser's state besides the (persisted) sort.

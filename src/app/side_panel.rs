@@ -17,7 +17,13 @@ impl App {
         self.open_menu(ui, open_request);
         self.reopen_last(ui, commands);
         ui.separator();
-        ui.strong("Pairs");
+        let prefix = pairs_panel::common_id_prefix(&self.model);
+        ui.horizontal(|ui| {
+            ui.strong("Pairs");
+            if !prefix.is_empty() {
+                ui.weak(format!("(ids after “{prefix}”)"));
+            }
+        });
         pairs_panel::pairs_panel(
             ui,
             &self.model,

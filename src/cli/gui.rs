@@ -258,6 +258,11 @@ pub struct ScreenshotArgs {
     /// an error row), then show --pair.
     #[arg(long, alias = "all-pairs")]
     pub run_all: bool,
+    /// With --run-all: run every pair with the paper's defaults (geometry only, v = 5 cm),
+    /// then --pair with the settings given: the pair list holds rows of two settings, as
+    /// after a settings change.
+    #[arg(long, requires = "run_all")]
+    pub run_all_defaults: bool,
     /// The pair browser's order: COLUMN[:asc|:desc], COLUMN one of pair, split, status, rre,
     /// rte, inliers, corr, time (e.g. rre:desc, worst RRE first; the default).
     #[arg(long, value_parser = PairSort::parse)]
@@ -511,6 +516,10 @@ pub fn run_screenshot(a: ScreenshotArgs) -> Result<()> {
     )?;
     if a.run_all {
         let t = std::time::Instant::now();
+        let asked = worker.params().clone();
+        if a.run_all_defaults {
+            worker.set_params(crate::app::paper_defaults());
+        }
         let s = worker.run_all(RunSelection::All, &mut |p| {
             if let Some(r) = &p.row {
                 match &r.status {
@@ -539,6 +548,7 @@ pub fn run_screenshot(a: ScreenshotArgs) -> Result<()> {
             s.failure,
             s.errors
         );
+        worker.set_params(asked);
     }
     let mut studies = Vec::new();
     if let Some(ks) = &a.k_sweep {

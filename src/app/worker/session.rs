@@ -137,8 +137,8 @@ impl PipelineWorker {
     }
 
     /// Registers `pair` with the current parameters: the image branch through the stage
-    /// cache when a WFM is chosen (falling back to the geometric branch alone, with a note,
-    /// when it cannot run), else the geometric branch from memory. The one registration of
+    /// cache when a WFM is chosen (an error when it cannot run: never a geometry-only result
+    /// under its label), else the geometric branch from memory. The one registration of
     /// the inspector: a single pair, "Run all" and the studies' rows all come from it.
     pub(super) fn register(
         &mut self,
@@ -171,8 +171,8 @@ impl PipelineWorker {
                 Err(e @ crate::Error::GenerationNotCached { .. }) => return Err(e),
                 Err(e) => {
                     return Err(crate::Error::Invalid(format!(
-                        "the image branch ({}) cannot run for {id}: {e}; nothing was \
-                         registered (“Run geometry only” runs the geometric branch alone)",
+                        "the image branch cannot run for {id} (WFM: {}): {e}; nothing \
+                         was registered (“Run geometry only” runs the geometric branch alone)",
                         ib.backend.label()
                     )))
                 }
