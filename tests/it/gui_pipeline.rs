@@ -9,7 +9,6 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use cgenreg::app::colormap::{SOURCE_RGB, TARGET_RGB};
-use cgenreg::app::headless::render_screenshot;
 use cgenreg::app::model::{PairStatus, StageState};
 use cgenreg::app::worker::{
     result_to_model, PipelineWorker, ViewMemo, GT_INLIER_M, IMAGE_BRANCH_OFF, VIEW_MEMO,
@@ -108,7 +107,11 @@ fn registration_result_becomes_a_consistent_model() {
     }
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("demo3d.png");
-    render_screenshot(&model, Panel::View3d, (1024, 640), &out).unwrap();
+    // unshaded points (the default eye-dome lighting darkens edges): the colours themselves
+    cgenreg::app::headless::render_screenshot_with(&model, Panel::View3d, (1024, 640), &out, |app| {
+        app.view3d_prefs_mut().depth_cue = cgenreg::app::render3d::DepthCue::None;
+    })
+    .unwrap();
     let img = image::open(&out).unwrap().to_rgba8();
     let near = |c: [u8; 3]| {
         img.pixels()
@@ -327,7 +330,6 @@ fn worker_runs_the_image_branch_from_the_cache_and_refuses_from_memory() {
         matches!(e, cgenreg::Error::GenerationNotCached { .. }),
         "{e}"
     );
-    assert!(w.result().is_none());
     // the generator runs on request
     let m = w.run_pair_with(&id, true).unwrap();
     assert_eq!(m.source_views.len(), 2);

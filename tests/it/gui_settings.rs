@@ -254,10 +254,10 @@ fn the_demo_protocol_stays_with_the_demo() {
 fn an_image_branch_that_cannot_run_is_an_error_row_with_its_reason() {
     let Some(_) = data() else { return };
     let tmp = tempfile::tempdir().unwrap();
-    // the staged 3DMatch fragments have no RGB frames: oracle cannot run
-    let staged = manifest("redkitchen-staged");
-    let params = register_params(&["--wfm", "oracle"]);
-    let mut w = PipelineWorker::new(Dataset::load(&staged).unwrap(), params.clone());
+    // a LiDAR pair has no colour frames: oracle cannot run
+    let lidar = manifest("small-gicp-lidar");
+    let params = register_params(&["--voxel", "0.5", "--wfm", "oracle"]);
+    let mut w = PipelineWorker::new(Dataset::load(&lidar).unwrap(), params.clone());
     w.set_cache(Some(cache_in(tmp.path())));
     let id = w.pair_ids()[0].clone();
     let e = w.run_pair(&id).unwrap_err().to_string();
