@@ -108,9 +108,15 @@ fn registration_result_becomes_a_consistent_model() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("demo3d.png");
     // unshaded points (the default eye-dome lighting darkens edges): the colours themselves
-    cgenreg::app::headless::render_screenshot_with(&model, Panel::View3d, (1024, 640), &out, |app| {
-        app.view3d_prefs_mut().depth_cue = cgenreg::app::render3d::DepthCue::None;
-    })
+    cgenreg::app::headless::render_screenshot_with(
+        &model,
+        Panel::View3d,
+        (1024, 640),
+        &out,
+        |app| {
+            app.view3d_prefs_mut().depth_cue = cgenreg::app::render3d::DepthCue::None;
+        },
+    )
     .unwrap();
     let img = image::open(&out).unwrap().to_rgba8();
     let near = |c: [u8; 3]| {

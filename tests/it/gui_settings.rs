@@ -57,7 +57,10 @@ struct Flags {
     i: cgenreg::cli::args::ImageArgs,
 }
 
-fn default_args() -> (cgenreg::cli::args::PipelineArgs, cgenreg::cli::args::ImageArgs) {
+fn default_args() -> (
+    cgenreg::cli::args::PipelineArgs,
+    cgenreg::cli::args::ImageArgs,
+) {
     use clap::Parser;
     let a = Flags::try_parse_from(["cgenreg"]).unwrap();
     (a.p, a.i)
