@@ -11,6 +11,7 @@ impl App {
         commands: &mut Vec<Command>,
     ) -> Option<compare_panel::CompareAction> {
         self.tab_bar(ui);
+        self.pair_header(ui);
         if let Some(w) = &self.model.convention_warning {
             // next to the metrics: the GT they are computed against may be inverted
             ui.colored_label(egui::Color32::from_rgb(240, 150, 60), w);
@@ -36,6 +37,29 @@ impl App {
                     if let (Some(r), Some(t)) = (p.rre_deg, p.rte_m) {
                         ui.label(format!("RRE {r:.2}° · RTE {:.1} cm", t * 100.0));
                     }
+                }
+            }
+        });
+    }
+
+    /// Which branches actually ran for the shown result, and whether its settings are the
+    /// ones in force.
+    fn pair_header(&mut self, ui: &mut egui::Ui) {
+        let current = self.settings_id();
+        let Some(ran) = &self.model.branches_ran else {
+            return;
+        };
+        ui.horizontal_wrapped(|ui| {
+            ui.label(ran);
+            if let Some(tag) = &self.model.settings {
+                if tag.id != current {
+                    ui.colored_label(
+                        controls::STATUS_WARN,
+                        format!("stale: computed with other settings ({})", tag.summary),
+                    );
+                } else {
+                    ui.weak(format!("settings {}", tag.id))
+                        .on_hover_text(&tag.summary);
                 }
             }
         });

@@ -333,6 +333,9 @@ pub fn controls_ui(
     egui::CollapsingHeader::new("Views")
         .default_open(true)
         .show(ui, |ui| view_controls(ui, ib));
+    egui::CollapsingHeader::new("Geometry & evaluation")
+        .default_open(true)
+        .show(ui, |ui| geometry_controls(ui, params));
     egui::CollapsingHeader::new("Calibration & fusion")
         .default_open(true)
         .show(ui, |ui| fusion_controls(ui, params));
@@ -341,43 +344,75 @@ pub fn controls_ui(
         .default_open(true)
         .show(ui, |ui| scale_controls(ui, params));
     if *params != before {
-        let mut p = params.clone();
-        if let Some(ib) = &mut p.image {
-            // whitespace at either end of the prompt changes nothing the user means
-            ib.prompt = crate::wfm::Prompt::new(ib.prompt.prefix.trim(), ib.prompt.scene.trim());
-        }
-        out.push(Command::ApplySettings(p));
+        out.push(Command::ApplySettings(params.clone()));
     }
 }
 
-/// Prompt presets, the shared prefix and the scene description.
+/// Prompt presets, the shared prefix and the scene description. Edits go to a draft that
+/// re-runs nothing until “Apply prompt” (a new prompt means a new generation).
 fn prompt_controls(ui: &mut egui::Ui, ib: &mut ImageBranchParams, scene_specific: &str) {
-    let current = PromptPreset::of_scene(&ib.prompt.scene).or_else(|| {
-        (!scene_specific.is_empty() && ib.prompt.scene.trim() == scene_specific.trim())
+    let id = ui.make_persistent_id("prompt_draft");
+    let mut draft: crate::wfm::Prompt = ui
+        .data_mut(|d| d.get_temp(id))
+        .unwrap_or_else(|| ib.prompt.clone());
+    let current = PromptPreset::of_scene(&draft.scene).or_else(|| {
+        (!scene_specific.is_empty() && draft.scene.trim() == scene_specific.trim())
             .then_some(PromptPreset::SceneSpecific)
     });
     ui.horizontal_wrapped(|ui| {
         for p in PromptPreset::ALL {
             if ui.selectable_label(current == Some(p), p.label()).clicked() {
-                ib.prompt.scene = p.scene_text(scene_specific);
+                draft.scene = p.scene_text(scene_specific);
             }
         }
     });
     let l = ui.label("Shared prefix");
     ui.add(
-        egui::TextEdit::multiline(&mut ib.prompt.prefix)
+        egui::TextEdit::multiline(&mut draft.prefix)
             .desired_rows(2)
             .desired_width(f32::INFINITY),
     )
     .labelled_by(l.id);
     let l = ui.label("Scene description");
     ui.add(
-        egui::TextEdit::multiline(&mut ib.prompt.scene)
+        egui::TextEdit::multiline(&mut draft.scene)
             .desired_rows(3)
             .desired_width(f32::INFINITY),
     )
     .labelled_by(l.id);
+    // whitespace at either end of the prompt changes nothing the user means
+    let trimmed = crate::wfm::Prompt::new(draft.prefix.trim(), draft.scene.trim());
+    if trimmed.text() == ib.prompt.text() {
+        ui.data_mut(|d| d.remove::<crate::wfm::Prompt>(id));
+        return;
+    }
+    ui.colored_label(
+        STATUS_WARN,
+        "prompt edited: nothing re-runs until it is applied",
+    );
+    let mut keep = true;
+    ui.horizontal(|ui| {
+        if ui
+            .button("Apply prompt")
+            .on_hover_text("re-runs the generation and the stages after it")
+            .clicked()
+        {
+            ib.prompt = trimmed.clone();
+            keep = false;
+        }
+        if ui.button("Revert").clicked() {
+            keep = false;
+        }
+    });
+    if keep {
+        ui.data_mut(|d| d.insert_temp(id, draft));
+    } else {
+        ui.data_mut(|d| d.remove::<crate::wfm::Prompt>(id));
+    }
 }
+
+/// The colour of a warning in the controls and the status area.
+pub const STATUS_WARN: egui::Color32 = egui::Color32::from_rgb(230, 190, 60);
 
 /// The WFM (None: geometry only) with its folder, spec or command, and the seed.
 fn image_branch_controls(
@@ -415,10 +450,35 @@ fn image_branch_controls(
     });
 }
 
-/// K, the safeguard margin, the VFM, its model file and (dense VFMs) the read cell.
+/// Most frames per fragment the L slider offers (the command line allows more).
+pub const MAX_FRAMES_SLIDER: usize = 200;
+
+/// L, the safeguard margin m and K, each bounded by the others so that no invalid
+/// combination can be chosen (m < L, 1 <= K <= L - m), the lift radius, the VFM, its model
+/// file and (dense VFMs) the read cell.
 fn view_controls(ui: &mut egui::Ui, ib: &mut ImageBranchParams) {
-    ui.add(egui::Slider::new(&mut ib.k, 1..=8).text("K views"));
-    ui.add(egui::Slider::new(&mut ib.margin, 0..=10).text("Safeguard margin (frames)"));
+    let max_l = MAX_FRAMES_SLIDER.max(ib.frames_per_fragment);
+    ui.add(
+        egui::Slider::new(&mut ib.frames_per_fragment, 2..=max_l)
+            .logarithmic(true)
+            .text("L frames per fragment"),
+    )
+    .on_hover_text("frames of each scan in the depth video the WFM turns into RGB (the paper: 50)");
+    clamp_views(ib);
+    let l = ib.frames_per_fragment;
+    ui.add(
+        egui::Slider::new(&mut ib.margin, 0..=(l - 1).min(10)).text("Safeguard margin m (frames)"),
+    );
+    clamp_views(ib);
+    let usable = ib.frames_per_fragment - ib.margin;
+    ui.add(egui::Slider::new(&mut ib.k, 1..=usable.min(16)).text("K views"))
+        .on_hover_text(format!("at most L - m = {usable} views per side"));
+    ui.add(
+        egui::Slider::new(&mut ib.lift_radius, 0.005..=0.5)
+            .logarithmic(true)
+            .text("Lift radius (m)"),
+    )
+    .on_hover_text("a keypoint with no valid pixel this close gets no image feature");
     let options = VfmSpec::all().map(|v| match v {
         v if v.same_kind(&ib.vfm) => ib.vfm.clone(),
         v => v,
@@ -442,6 +502,46 @@ fn view_controls(ui: &mut egui::Ui, ib: &mut ImageBranchParams) {
              of s x s cells",
         );
     }
+}
+
+/// Keeps m < L and 1 <= K <= L - m (the view selection's conditions) after L or m moved.
+pub fn clamp_views(ib: &mut ImageBranchParams) {
+    ib.frames_per_fragment = ib.frames_per_fragment.max(2);
+    ib.margin = ib.margin.min(ib.frames_per_fragment - 1);
+    ib.k = ib.k.clamp(1, ib.frames_per_fragment - ib.margin);
+}
+
+/// The keypoint voxel, the Noisy-AND prior and the inlier threshold of the evaluation.
+fn geometry_controls(ui: &mut egui::Ui, params: &mut RegisterParams) {
+    ui.add(
+        egui::Slider::new(&mut params.voxel, 0.01..=1.0)
+            .logarithmic(true)
+            .text("Keypoint voxel (m)"),
+    )
+    .on_hover_text("FPFH radii follow it: normals 2v, features 5v");
+    let mut auto = params.fusion.prior.is_none();
+    ui.horizontal(|ui| {
+        ui.checkbox(&mut auto, "Noisy-AND prior 1/(N·M)");
+        if let Some(p) = params.fusion.prior.as_mut() {
+            ui.add(
+                egui::DragValue::new(p)
+                    .range(1e-12..=0.5)
+                    .speed(1e-6)
+                    .custom_formatter(|v, _| format!("{v:.2e}")),
+            );
+        }
+    });
+    match (auto, params.fusion.prior) {
+        (true, Some(_)) => params.fusion.prior = None,
+        (false, None) => params.fusion.prior = Some(1e-6),
+        _ => {}
+    }
+    ui.add(
+        egui::Slider::new(&mut params.inlier_threshold, 0.01..=1.0)
+            .logarithmic(true)
+            .text("Inlier threshold (m)"),
+    )
+    .on_hover_text("the inlier ratio of the selected correspondences under ground truth");
 }
 
 /// Each branch's calibration and temperature, the fusion mode, the selection (with top-k)
@@ -643,30 +743,43 @@ fn switch_image_branch(
     image_on: bool,
     backend: Option<WfmSpec>,
 ) {
+    use crate::fusion::FusionMode;
     match (image_on, backend) {
         (true, Some(b)) => match params.image.as_mut() {
             Some(img) => img.backend = b,
             // not on yet: switch it on with the kept parameters
             None => {
-                params.image = Some(ImageBranchParams {
+                let mut ib = ImageBranchParams {
                     backend: b,
                     ..image_off.clone()
-                })
+                };
+                clamp_views(&mut ib);
+                params.image = Some(ib);
             }
         },
         (true, None) => {
-            if let Some(img) = params.image.take() {
-                *image_off = img;
+            if let Some(ib) = params.image.take() {
+                *image_off = ib;
             }
+            // the geometric branch's own defaults, as `register` takes them without --wfm
+            if params.fusion.selection == Selection::MutualNn {
+                params.fusion.selection = Selection::RowNn;
+            }
+            params.fusion.mode = FusionMode::GeometryOnly;
         }
         (false, Some(b)) => {
-            params.image = Some(ImageBranchParams {
+            let mut ib = ImageBranchParams {
                 backend: b,
                 ..image_off.clone()
-            });
-            // two branches now: the fusion that never loses to its best branch, unless the
-            // user picked another mode
-            if params.fusion.mode == FusionMode::NoisyAnd {
+            };
+            clamp_views(&mut ib);
+            params.image = Some(ib);
+            // the fused pipeline's defaults, as `register --wfm` takes them (the union of both
+            // branches' correspondences unless the user picked another mode)
+            if params.fusion.selection == Selection::RowNn {
+                params.fusion.selection = Selection::MutualNn;
+            }
+            if matches!(params.fusion.mode, FusionMode::GeometryOnly | FusionMode::NoisyAnd) {
                 params.fusion.mode = FusionMode::DEFAULT_WITH_IMAGE;
             }
         }

@@ -194,6 +194,52 @@ pub fn hypotheses_panel(
     });
 }
 
+/// The consensus set's shape: named when it cannot determine a pose (near-collinear, or
+/// fewer than 3 points), by the library's test.
+fn shape_cell(ui: &mut egui::Ui, model: &InspectorModel, matches: &[usize]) {
+    use crate::pipeline::hypotheses::{spread_ratios, COLLINEAR_RATIO};
+    let pts: Vec<nalgebra::Point3<f32>> = matches
+        .iter()
+        .filter_map(|&i| model.matches.get(i))
+        .filter_map(|m| model.source.get(m.src))
+        .map(|p| nalgebra::Point3::new(p[0], p[1], p[2]))
+        .collect();
+    let warn = egui::Color32::from_rgb(240, 150, 60);
+    match spread_ratios(&pts) {
+        None => {
+            ui.colored_label(warn, "degenerate (< 3 points)");
+        }
+        Some((r2, r3)) if r2 < COLLINEAR_RATIO => {
+            ui.colored_label(warn, "degenerate: near-collinear")
+                .on_hover_text(format!(
+                    "spread ratios {r2:.3}, {r3:.3}: a rotation about the line is free"
+                ));
+        }
+        Some((r2, r3)) => {
+            ui.weak("spread").on_hover_text(format!(
+                "second / first principal spread {r2:.2}, third / first {r3:.2}"
+            ));
+        }
+    }
+}
+
+/// The final estimate as its own row: the winner refined on its inliers (its consensus, the
+/// estimator's kept matches, and its errors are the result's).
+fn refined_row(ui: &mut egui::Ui, model: &InspectorModel) {
+    let kept: Vec<usize> = (0..model.matches.len())
+        .filter(|&i| model.matches[i].survived == Some(true))
+        .collect();
+    let row = model.current_pair.and_then(|i| model.pairs.get(i));
+    ui.strong("refined");
+    ui.label(kept.len().to_string());
+    ui.label(fmt_opt(row.and_then(|r| r.rre_deg), 1.0, 2));
+    ui.label(fmt_opt(row.and_then(|r| r.rte_m), 100.0, 1));
+    ui.label("final estimate")
+        .on_hover_text("the winner refined on its inliers: the pose the result reports");
+    shape_cell(ui, model, &kept);
+    ui.end_row();
+}
+
 fn hypothesis_list(ui: &mut egui::Ui, shared: &mut Shared<'_>) {
     let model = shared.model;
     ui.strong("Estimator hypotheses");
@@ -228,13 +274,14 @@ fn hypothesis_list(ui: &mut egui::Ui, shared: &mut Shared<'_>) {
         .show(ui, |ui| {
             egui::Grid::new("hypotheses_grid")
                 .striped(true)
-                .num_columns(5)
+                .num_columns(6)
                 .show(ui, |ui| {
                     ui.strong("rank");
                     ui.strong("consensus");
                     ui.strong("RRE deg");
                     ui.strong("RTE cm");
                     ui.strong("");
+                    ui.strong("shape");
                     ui.end_row();
                     for (i, r) in list.rows.iter().enumerate() {
                         let on = selected == Some(r.rank);
@@ -249,8 +296,10 @@ fn hypothesis_list(ui: &mut egui::Ui, shared: &mut Shared<'_>) {
                         } else {
                             ui.label("");
                         }
+                        shape_cell(ui, model, &r.inliers);
                         ui.end_row();
                     }
+                    refined_row(ui, model);
                 });
         });
     if let Some(c) = clicked {

@@ -5,6 +5,19 @@ use super::*;
 
 impl App {
     pub(super) fn log_bar(&mut self, ui: &mut egui::Ui) {
+        // the status area: warnings and errors stay until dismissed (newest last)
+        let mut dismiss = None;
+        for (i, l) in self.status.iter().enumerate() {
+            ui.horizontal(|ui| {
+                if ui.small_button("×").on_hover_text("dismiss").clicked() {
+                    dismiss = Some(i);
+                }
+                ui.colored_label(level_color(l.level), &l.text);
+            });
+        }
+        if let Some(i) = dismiss {
+            self.status.remove(i);
+        }
         ui.horizontal(|ui| {
             let label = if self.show_log {
                 "Hide log"
@@ -22,7 +35,8 @@ impl App {
             {
                 ui.spinner();
             }
-            if let Some(l) = self.log.last() {
+            // the last message for a person (command echoes are in the log only)
+            if let Some(l) = self.log.iter().rev().find(|l| !l.echo) {
                 ui.colored_label(level_color(l.level), &l.text);
             } else {
                 ui.weak("ready");
@@ -31,11 +45,15 @@ impl App {
         if self.show_log {
             egui::ScrollArea::vertical()
                 .id_salt("log")
-                .max_height(120.0)
+                .max_height(260.0)
                 .stick_to_bottom(true)
                 .show(ui, |ui| {
                     for l in &self.log {
-                        ui.colored_label(level_color(l.level), &l.text);
+                        if l.echo {
+                            ui.weak(&l.text);
+                        } else {
+                            ui.colored_label(level_color(l.level), &l.text);
+                        }
                     }
                 });
         }

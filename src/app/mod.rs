@@ -53,6 +53,17 @@ use posterior_panel::PosteriorState;
 use view3d::{View3dPrefs, View3dState};
 use views_panel::ViewsState;
 
+/// The paper's defaults, as `cgenreg register` takes them without options: the geometric
+/// branch (FPFH, v = 5 cm, nearest neighbours, SC2-PCR); choosing a WFM adds the image branch
+/// with L = 50, m = 3, K = 4, row softmax at tau = 0.1, Noisy-AND and mutual nearest
+/// neighbours.
+pub fn paper_defaults() -> RegisterParams {
+    let mut p = RegisterParams::default();
+    p.fusion.mode = crate::fusion::FusionMode::GeometryOnly;
+    p.fusion.selection = crate::fusion::Selection::RowNn;
+    p
+}
+
 /// The tabs of the central area.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub enum Panel {
@@ -154,14 +165,15 @@ impl Default for UiState {
     fn default() -> Self {
         Self {
             tab: Panel::Views,
-            match_mode: MatchColorMode::Categorical,
-            match_count: 40,
+            // one set of view defaults for the window and `cgenreg screenshot`
+            match_mode: MatchColorMode::InlierOutlier,
+            match_count: 150,
             selected_match: None,
             hovered_match: None,
             prev_hovered: None,
             selected_source_point: None,
             pair_sort: PairSort::WORST_RRE,
-            show_3d_below_views: true,
+            show_3d_below_views: false,
             only_survivors: false,
             hypothesis: None,
         }
@@ -228,7 +240,31 @@ impl Shared<'_> {
 pub struct LogLine {
     pub level: LogLevel,
     pub text: String,
+    /// A command echoed for debugging: in the log only, never in the status line.
+    pub echo: bool,
 }
+
+/// The smallest text the inspector draws (captions, matrix labels), in points at scale 1.
+pub const MIN_TEXT_PX: f32 = 11.0;
+
+/// Raises egui's small text style (about 9 px by default) to [`MIN_TEXT_PX`], in every theme.
+fn legible_small_text(ctx: &egui::Context) {
+    let small = |s: &egui::Style| {
+        s.text_styles
+            .get(&egui::TextStyle::Small)
+            .is_some_and(|f| f.size < MIN_TEXT_PX)
+    };
+    if small(&ctx.global_style()) {
+        ctx.all_styles_mut(|s| {
+            if let Some(f) = s.text_styles.get_mut(&egui::TextStyle::Small) {
+                f.size = MIN_TEXT_PX;
+            }
+        });
+    }
+}
+
+/// Warnings and errors the status area keeps in view at most.
+const STATUS_LINES: usize = 4;
 
 /// What a native file dialog sends back: the kind asked for, and the paths (None: cancelled).
 type DialogAnswer = Receiver<(OpenKind, Option<Vec<PathBuf>>)>;
@@ -255,6 +291,8 @@ pub struct App {
     pub pairs: pairs_panel::PairsState,
     worker: Option<WorkerHandle>,
     pub log: Vec<LogLine>,
+    /// Warnings and errors kept in view (the status area) until dismissed.
+    pub status: Vec<LogLine>,
     show_log: bool,
     /// The native dialog's answer channel and when it was opened.
     dialog: Option<(DialogAnswer, std::time::Instant)>,
@@ -266,6 +304,8 @@ pub struct App {
     settings_path: Option<PathBuf>,
     last_saved: Option<Persisted>,
     last_opened: Option<(OpenKind, Vec<PathBuf>)>,
+    /// The settings' id and the parameters it was computed from.
+    settings_id: Option<(RegisterParams, String)>,
     /// Native dialogs are refused in tests and headless rendering.
     pub allow_dialogs: bool,
 }
@@ -294,6 +334,7 @@ impl App {
             pairs: pairs_panel::PairsState::default(),
             worker,
             log: Vec::new(),
+            status: Vec::new(),
             show_log: false,
             dialog: None,
             browser: None,
@@ -301,6 +342,7 @@ impl App {
             settings_path,
             last_saved: None,
             last_opened: None,
+            settings_id: None,
             allow_dialogs: true,
         };
         if let Some(path) = app.settings_path.clone() {
@@ -334,8 +376,14 @@ impl App {
     }
 
     pub fn persisted(&self) -> Persisted {
+        // the demo's protocol belongs to the demo: what was saved before stays saved
+        let params = match (&self.model.demo_protocol, &self.last_saved) {
+            (None, _) => self.params.clone(),
+            (Some(_), Some(saved)) => saved.params.clone(),
+            (Some(_), None) => paper_defaults(),
+        };
         Persisted {
-            params: self.params.clone(),
+            params,
             image_off: self.image_off.clone(),
             view3d: self.view3d.prefs.clone(),
             match_mode: self.ui_state.match_mode,
@@ -348,6 +396,32 @@ impl App {
 
     pub fn model(&self) -> &InspectorModel {
         &self.model
+    }
+
+    /// The id of the settings in force ([`model::SettingsTag`]), recomputed when they change.
+    pub fn settings_id(&mut self) -> String {
+        match &self.settings_id {
+            Some((p, id)) if *p == self.params => id.clone(),
+            _ => {
+                let id = model::SettingsTag::of(&self.params).id;
+                self.settings_id = Some((self.params.clone(), id.clone()));
+                id
+            }
+        }
+    }
+
+    /// Back to the paper's defaults: the pipeline's parameters, the image branch's (kept for
+    /// when a WFM is chosen) and the view options; the data stays open.
+    pub fn reset_to_paper_defaults(&mut self, commands: &mut Vec<Command>) {
+        self.params = paper_defaults();
+        self.image_off = ImageBranchParams::default();
+        self.view3d.prefs = View3dPrefs::default();
+        let ui = UiState::default();
+        self.ui_state.match_mode = ui.match_mode;
+        self.ui_state.match_count = ui.match_count;
+        self.ui_state.only_survivors = ui.only_survivors;
+        self.ui_state.show_3d_below_views = ui.show_3d_below_views;
+        commands.push(Command::ApplySettings(self.params.clone()));
     }
 
     /// Replaces the shown model (caches keyed on the generation are rebuilt; the 3D view keeps
@@ -417,9 +491,35 @@ impl App {
         let text = text.into();
         if level == LogLevel::Error {
             eprintln!("cgenreg: {text}");
-            self.show_log = true;
         }
-        self.log.push(LogLine { level, text });
+        let line = LogLine {
+            level,
+            text,
+            echo: false,
+        };
+        if level != LogLevel::Info {
+            // a warning stays in view until dismissed; the same text is not stacked twice
+            self.status.retain(|l| l.text != line.text);
+            self.status.push(line.clone());
+            if self.status.len() > STATUS_LINES {
+                self.status.remove(0);
+            }
+        }
+        self.log.push(line);
+        self.trim_log();
+    }
+
+    /// A command echoed to the log (debugging aid; never shown as the status).
+    fn push_echo(&mut self, text: String) {
+        self.log.push(LogLine {
+            level: LogLevel::Info,
+            text,
+            echo: true,
+        });
+        self.trim_log();
+    }
+
+    fn trim_log(&mut self) {
         if self.log.len() > 2000 {
             self.log.drain(..500);
         }
@@ -439,7 +539,7 @@ impl App {
         }
         let ok = self.worker.as_ref().map(|w| w.send(c.clone()));
         match ok {
-            Some(true) => self.push_log(LogLevel::Info, format!("-> {}", short(&c))),
+            Some(true) => self.push_echo(format!("-> {}", short(&c))),
             Some(false) => self.push_log(
                 LogLevel::Error,
                 "the worker thread has stopped; command dropped",
@@ -513,11 +613,13 @@ impl App {
     /// The whole UI, inside any `Ui` (eframe window, headless renderer, test harness).
     pub fn show(&mut self, ui: &mut egui::Ui) {
         let ctx = ui.ctx().clone();
+        legible_small_text(&ctx);
         self.poll_worker();
         for (level, text) in self.compare.poll(&ctx) {
             self.push_log(level, text);
         }
         self.handle_drops(&ctx);
+        self.pairs.current_settings = Some(self.settings_id());
         self.ui_state.prev_hovered = self.ui_state.hovered_match.take();
         let mut commands: Vec<Command> = Vec::new();
         let mut open_request: Option<OpenKind> = None;

@@ -17,6 +17,7 @@ mod order;
 mod table;
 
 pub use order::{sorted_pairs, visible_pairs, OutcomeFilter, PairColumn, PairFilter, PairSort};
+pub use table::common_id_prefix;
 use table::{table, TableView};
 
 /// The browser's state besides the (persisted) sort.
@@ -29,6 +30,17 @@ pub struct PairsState {
     requested: Option<String>,
     /// The current pair each list last scrolled to (side panel, tab).
     scrolled: [Option<String>; 2],
+    /// The id of the settings in force ([`super::model::SettingsTag`]): rows computed with
+    /// others are marked stale and left out of the counts (None: every row counts).
+    pub current_settings: Option<String>,
+}
+
+/// Whether a row was computed with other settings than `current`.
+pub fn is_stale(row: &super::model::PairEntry, current: Option<&str>) -> bool {
+    match (&row.settings, current) {
+        (Some(s), Some(c)) => s.id != c,
+        _ => false,
+    }
 }
 
 /// Applies a run's progress to the shown model: the finished pair's row, the running mark.
@@ -221,14 +233,34 @@ pub fn pairs_panel(
         max_height: Some(170.0),
         sideways: false,
     };
-    table(ui, view, sort, &mut state.scrolled[0], out);
+    let current = state.current_settings.clone();
+    table(
+        ui,
+        view,
+        sort,
+        &mut state.scrolled[0],
+        current.as_deref(),
+        out,
+    );
+    let stale = rows
+        .iter()
+        .filter(|&&i| is_stale(&model.pairs[i], current.as_deref()))
+        .count();
+    if stale > 0 {
+        ui.weak(format!("{stale} stale rows: computed with other settings"));
+    }
 }
 
-/// Counts of the outcomes over `rows`, as "12 success · 3 failure · ...".
-fn summary(model: &InspectorModel, rows: &[usize]) -> String {
+/// Counts of the outcomes over `rows` computed with the settings in force, as "12 success ·
+/// 3 failure · ..."; rows of other settings are counted apart, never mixed in.
+pub fn summary(model: &InspectorModel, rows: &[usize], current: Option<&str>) -> String {
     use PairOutcome as O;
+    let (stale, fresh): (Vec<usize>, Vec<usize>) = rows
+        .iter()
+        .partition(|&&i| is_stale(&model.pairs[i], current));
     let count = |o: O| {
-        rows.iter()
+        fresh
+            .iter()
             .filter(|&&i| model.pairs[i].outcome() == o)
             .count()
     };
@@ -245,7 +277,22 @@ fn summary(model: &InspectorModel, rows: &[usize]) -> String {
     .filter(|(_, n)| *n > 0)
     .map(|(o, n)| format!("{n} {}", o.label()))
     .collect();
-    format!("{} pairs: {}", rows.len(), parts.join(" · "))
+    let mut s = format!(
+        "{} pairs with the current settings: {}",
+        fresh.len(),
+        if parts.is_empty() {
+            "none run".to_string()
+        } else {
+            parts.join(" · ")
+        }
+    );
+    if !stale.is_empty() {
+        s.push_str(&format!(
+            " · {} stale (other settings, not counted; “Run failed/pending” re-runs them)",
+            stale.len()
+        ));
+    }
+    s
 }
 
 /// The "Pairs" tab: filters, a summary, and every column.
@@ -258,7 +305,7 @@ pub fn pairs_tab(
 ) {
     filter_controls(ui, model, &mut state.filter);
     let rows = visible_pairs(&model.pairs, &state.filter, *sort);
-    ui.label(summary(model, &rows));
+    ui.label(summary(model, &rows, state.current_settings.as_deref()));
     ui.weak("click a header to sort (again: reverse) · Up/Down or j/k: previous / next pair");
     ui.separator();
     let view = TableView {
@@ -269,7 +316,15 @@ pub fn pairs_tab(
         max_height: None,
         sideways: true,
     };
-    table(ui, view, sort, &mut state.scrolled[1], out);
+    let current = state.current_settings.clone();
+    table(
+        ui,
+        view,
+        sort,
+        &mut state.scrolled[1],
+        current.as_deref(),
+        out,
+    );
 }
 
 #[cfg(test)]

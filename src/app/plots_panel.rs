@@ -66,7 +66,7 @@ fn opt(v: Option<f64>) -> String {
 /// The data of each plot as CSV text, `(file stem, text)` in [`PLOT_NAMES`] order (a header
 /// row, then one row per bar / point; empty cells for unknown values).
 pub fn plot_csvs(model: &InspectorModel) -> Vec<(&'static str, String)> {
-    let mut per_pair = String::from("pair,status,rre_deg,rte_m\n");
+    let mut per_pair = String::from("pair,status,rre_deg,rte_m,settings\n");
     for p in &model.pairs {
         let status = match &p.status {
             super::model::PairStatus::Failed(_) => "failed",
@@ -75,10 +75,11 @@ pub fn plot_csvs(model: &InspectorModel) -> Vec<(&'static str, String)> {
             _ => "pending",
         };
         per_pair += &format!(
-            "{},{status},{},{}\n",
+            "{},{status},{},{},{}\n",
             csv_field(&p.id),
             opt(p.rre_deg),
-            opt(p.rte_m)
+            opt(p.rte_m),
+            p.settings.as_ref().map(|s| s.id.as_str()).unwrap_or("")
         );
     }
     let mut vs_k = String::from("k,rre_mean_deg,rte_mean_m,pairs,skipped,recall\n");
@@ -226,7 +227,18 @@ fn plot(id: &str, title: &str, x: &str, y: &str, ui: &mut egui::Ui, h: f32) -> P
 
 /// RRE (degrees) and RTE (centimetres) share an axis so both read at a glance.
 pub fn per_pair_plot(ui: &mut egui::Ui, model: &InspectorModel, h: f32) -> egui::Rect {
-    let done: Vec<_> = model.pairs.iter().filter(|p| p.rre_deg.is_some()).collect();
+    // one settings set at a time: the shown result's
+    let current = model.settings.as_ref().map(|s| s.id.as_str());
+    let stale = model
+        .pairs
+        .iter()
+        .filter(|p| super::pairs_panel::is_stale(p, current))
+        .count();
+    let done: Vec<_> = model
+        .pairs
+        .iter()
+        .filter(|p| p.rre_deg.is_some() && !super::pairs_panel::is_stale(p, current))
+        .collect();
     let rre: Vec<Bar> = done
         .iter()
         .enumerate()
@@ -249,38 +261,40 @@ pub fn per_pair_plot(ui: &mut egui::Ui, model: &InspectorModel, h: f32) -> egui:
     let failed = model
         .pairs
         .iter()
-        .filter(|p| matches!(p.status, super::model::PairStatus::Failed(_)))
+        .filter(|p| {
+            matches!(p.status, super::model::PairStatus::Failed(_))
+                && !super::pairs_panel::is_stale(p, current)
+        })
         .count();
-    plot(
-        "per_pair",
-        &if failed > 0 {
-            format!("RRE / RTE per pair ({} done, {failed} failed)", done.len())
-        } else {
-            format!("RRE / RTE per pair ({} done)", done.len())
-        },
-        "pair",
-        "RRE (°) · RTE (cm)",
-        ui,
-        h,
-    )
-    .include_y(0.0)
-    .x_axis_formatter(move |mark, _range| {
-        let i = mark.value.round();
-        if (mark.value - i).abs() < 1e-6 && i >= 0.0 {
-            names
-                .get(i as usize)
-                .map(|n| n.rsplit('/').next().unwrap_or(n).to_owned())
-                .unwrap_or_default()
-        } else {
-            String::new()
-        }
-    })
-    .show(ui, |p| {
-        p.bar_chart(BarChart::new("RRE (°)", rre).color(RRE_COLOR));
-        p.bar_chart(BarChart::new("RTE (cm)", rte).color(RTE_COLOR));
-    })
-    .response
-    .rect
+    let mut title = if failed > 0 {
+        format!("RRE / RTE per pair ({} done, {failed} failed)", done.len())
+    } else {
+        format!("RRE / RTE per pair ({} done)", done.len())
+    };
+    if stale > 0 {
+        title.push_str(&format!(
+            " · {stale} stale rows of other settings not shown"
+        ));
+    }
+    plot("per_pair", &title, "pair", "RRE (°) · RTE (cm)", ui, h)
+        .include_y(0.0)
+        .x_axis_formatter(move |mark, _range| {
+            let i = mark.value.round();
+            if (mark.value - i).abs() < 1e-6 && i >= 0.0 {
+                names
+                    .get(i as usize)
+                    .map(|n| n.rsplit('/').next().unwrap_or(n).to_owned())
+                    .unwrap_or_default()
+            } else {
+                String::new()
+            }
+        })
+        .show(ui, |p| {
+            p.bar_chart(BarChart::new("RRE (°)", rre).color(RRE_COLOR));
+            p.bar_chart(BarChart::new("RTE (cm)", rte).color(RTE_COLOR));
+        })
+        .response
+        .rect
 }
 
 pub fn pr_plot(ui: &mut egui::Ui, model: &InspectorModel, h: f32) -> egui::Rect {

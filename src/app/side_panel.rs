@@ -17,7 +17,13 @@ impl App {
         self.open_menu(ui, open_request);
         self.reopen_last(ui, commands);
         ui.separator();
-        ui.strong("Pairs");
+        let prefix = pairs_panel::common_id_prefix(&self.model);
+        ui.horizontal(|ui| {
+            ui.strong("Pairs");
+            if !prefix.is_empty() {
+                ui.weak(format!("(ids after “{prefix}”)"));
+            }
+        });
         pairs_panel::pairs_panel(
             ui,
             &self.model,
@@ -31,8 +37,81 @@ impl App {
         self.correspondence_summary(ui);
         ui.separator();
         self.generation_missing_prompt(ui, commands);
+        self.image_branch_failed(ui, commands);
+        self.settings_header(ui, commands);
         let scene = self.scene_specific_prompt();
         controls::controls_ui(ui, &mut self.params, &mut self.image_off, &scene, commands);
+    }
+
+    /// The current pair could not run the image branch asked for: its reason is the pair's
+    /// error; one click runs the geometric branch alone instead (the WFM control then says so).
+    fn image_branch_failed(&mut self, ui: &mut egui::Ui, commands: &mut Vec<Command>) {
+        let failed = self
+            .model
+            .current_pair
+            .and_then(|i| self.model.pairs.get(i))
+            .and_then(|p| match &p.status {
+                model::PairStatus::Failed(why) => Some(why.clone()),
+                _ => None,
+            });
+        let (Some(why), Some(_)) = (failed, self.params.image.as_ref()) else {
+            return;
+        };
+        ui.colored_label(
+            egui::Color32::from_rgb(240, 80, 70),
+            format!("Not registered: {why}"),
+        );
+        if ui
+            .button("Run geometry only")
+            .on_hover_text("switch the image branch off (WFM: none) and register this pair")
+            .clicked()
+        {
+            if let Some(ib) = self.params.image.take() {
+                self.image_off = ib;
+            }
+            self.params.fusion.mode = crate::fusion::FusionMode::GeometryOnly;
+            if self.params.fusion.selection == crate::fusion::Selection::MutualNn {
+                self.params.fusion.selection = crate::fusion::Selection::RowNn;
+            }
+            commands.push(Command::ApplySettings(self.params.clone()));
+        }
+        ui.separator();
+    }
+
+    /// What the settings are: the demo's protocol while the demo is open, what is saved and
+    /// where, and the reset.
+    fn settings_header(&mut self, ui: &mut egui::Ui, commands: &mut Vec<Command>) {
+        ui.horizontal(|ui| {
+            ui.strong("Settings");
+            if let Some(tag) = &self.model.settings {
+                ui.weak(format!("id {}", tag.id))
+                    .on_hover_text(format!("the shown result's settings: {}", tag.summary));
+            }
+        });
+        if let Some(note) = &self.model.demo_protocol {
+            ui.colored_label(controls::STATUS_WARN, note);
+        }
+        let saved = match &self.settings_path {
+            Some(p) => format!(
+                "Saved on change to {}: the pipeline settings below (never the demo's \
+                 protocol), the image branch's settings while it is off, the 3D view and \
+                 match display options, the tab, the pair order and the last opened data. \
+                 Options given to `cgenreg inspect` replace only the settings they name.",
+                p.display()
+            ),
+            None => "Nothing is saved in this session (no settings file).".to_string(),
+        };
+        ui.weak("what is saved").on_hover_text(saved);
+        if ui
+            .button("Reset to the paper's defaults")
+            .on_hover_text(format!(
+                "{}; with a WFM: L = 50, m = 3, K = 4, Noisy-AND, mutual NN",
+                model::settings_summary(&paper_defaults())
+            ))
+            .clicked()
+        {
+            self.reset_to_paper_defaults(commands);
+        }
     }
 
     /// "Open..." with one entry per kind of data, and the built-in browser switch.

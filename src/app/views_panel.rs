@@ -503,6 +503,7 @@ fn match_lines(
 ) -> Vec<Segment> {
     let (rs, rt) = (layout.rs, layout.rt);
     let mut segs = Vec::with_capacity(in_pair.len());
+    let quantiles = shared.model.score_quantiles();
     for &(rank, mi, a, b) in in_pair {
         let (pa, pb) = (
             to_screen_win(rs, win, &sv.rgb, a),
@@ -511,7 +512,13 @@ fn match_lines(
         if !(rs.contains(pa) && rt.contains(pb)) {
             continue;
         }
-        let c = to_color32(match_rgb(shared.model, mi, rank, shared.ui.match_mode));
+        let c = to_color32(match_rgb(
+            shared.model,
+            mi,
+            rank,
+            shared.ui.match_mode,
+            &quantiles,
+        ));
         painter.line_segment([pa, pb], egui::Stroke::new(1.2, c));
         painter.circle_filled(pa, 2.2, c);
         painter.circle_filled(pb, 2.2, c);

@@ -7,6 +7,7 @@ use crate::app::pairs_panel::PairSort;
 use crate::app::worker::PipelineWorker;
 use crate::app::{Command, MatchColorMode, Panel};
 use crate::error::{Error, Result};
+use crate::pipeline::RegisterParams;
 use clap::Args;
 use std::path::{Path, PathBuf};
 
@@ -30,6 +31,161 @@ pub struct InspectArgs {
     /// start from these.
     #[command(flatten)]
     pub image: Option<ImageArgs>,
+    /// The ids of the options given on the command line (each replaces only its own setting).
+    #[arg(skip)]
+    pub named: Vec<String>,
+}
+
+/// The ids of the options given on the command line (not their defaults).
+pub fn named_options(m: &clap::ArgMatches) -> Vec<String> {
+    m.ids()
+        .filter(|id| {
+            matches!(
+                m.value_source(id.as_str()),
+                Some(
+                    clap::parser::ValueSource::CommandLine | clap::parser::ValueSource::EnvVariable
+                )
+            )
+        })
+        .map(|id| id.as_str().to_string())
+        .collect()
+}
+
+/// `base` with the settings of the options in `named` taken from `given` (the parameters the
+/// whole command line describes): `inspect --k 8` changes K and nothing else of the saved
+/// settings. Options that decide a default of another setting (`--wfm` the selection and
+/// the fusion mode, as in `register`) carry it along unless that one is named too.
+pub fn apply_named(
+    base: &RegisterParams,
+    given: &RegisterParams,
+    given_image: &crate::pipeline::ImageBranchParams,
+    named: &[String],
+) -> Result<RegisterParams> {
+    let has = |id: &str| named.iter().any(|n| n == id);
+    let mut p = base.clone();
+    let (f, g) = (&mut p.fusion, &given.fusion);
+    if has("voxel") {
+        p.voxel = given.voxel;
+    }
+    if has("learned_source") || has("learned_target") || has("geotransformer_pkl") {
+        p.geo_features = given.geo_features.clone();
+    }
+    if has("reference") {
+        *f = g.clone();
+    }
+    if has("calibration") || has("tau_img") {
+        f.calibration_img = g.calibration_img;
+    }
+    if has("calibration") || has("tau_geo") {
+        f.calibration_geo = g.calibration_geo;
+    }
+    if has("fusion") {
+        f.mode = g.mode;
+    }
+    if has("prior") {
+        f.prior = g.prior;
+    }
+    if has("selection") || has("topk") {
+        f.selection = g.selection;
+    }
+    if has("estimator") {
+        p.estimator = given.estimator.clone();
+    }
+    let image_named: Vec<&str> = [
+        "wfm_dir",
+        "wfm_spec",
+        "cosmos_cmd",
+        "cosmos_work_dir",
+        "cosmos_timeout",
+        "prompt_preset",
+        "prompt",
+        "seed",
+        "vfm",
+        "vfm_model",
+        "k",
+        "margin",
+        "frames",
+        "lift_radius",
+        "virtual_camera",
+        "lidar_cameras",
+        "lidar_origin",
+        "dense_stride",
+    ]
+    .into_iter()
+    .filter(|id| has(id))
+    .collect();
+    if has("wfm") {
+        // switching the branch on or off: the selection and fusion defaults follow, as in
+        // `register`, unless named
+        if !has("selection") && !has("topk") && !has("reference") {
+            p.fusion.selection = g.selection;
+        }
+        if !has("fusion") {
+            p.fusion.mode = match given.image {
+                None => crate::fusion::FusionMode::GeometryOnly,
+                Some(_) => g.mode,
+            };
+        }
+        // the saved image-branch settings stay; only the backend is the one named
+        p.image = given.image.as_ref().map(|gb| {
+            let mut ib = base.image.clone().unwrap_or_default();
+            ib.backend = gb.backend.clone();
+            ib
+        });
+    }
+    if image_named.is_empty() {
+        return Ok(p);
+    }
+    let Some(ib) = p.image.as_mut() else {
+        return Err(Error::Invalid(format!(
+            "--{} sets the image branch, which is off (in the saved settings and on the \
+             command line): add --wfm oracle|builtin|cached",
+            image_named[0].replace('_', "-")
+        )));
+    };
+    let gb = given_image;
+    macro_rules! take {
+        ($id:literal, $field:ident) => {
+            if has($id) {
+                ib.$field = gb.$field.clone();
+            }
+        };
+    }
+    take!("seed", seed);
+    take!("k", k);
+    take!("margin", margin);
+    take!("frames", frames_per_fragment);
+    take!("lift_radius", lift_radius);
+    take!("virtual_camera", virtual_camera);
+    take!("lidar_cameras", lidar_cameras);
+    take!("lidar_origin", lidar_origin);
+    take!("dense_stride", dense_stride);
+    if has("vfm") || has("vfm_model") {
+        ib.vfm = gb.vfm.clone();
+    }
+    if has("prompt_preset") || has("prompt") {
+        ib.prompt = gb.prompt.clone();
+    }
+    if [
+        "wfm_dir",
+        "wfm_spec",
+        "cosmos_cmd",
+        "cosmos_work_dir",
+        "cosmos_timeout",
+    ]
+    .iter()
+    .any(|id| has(id))
+    {
+        if !gb.backend.same_kind(&ib.backend) {
+            return Err(Error::Invalid(format!(
+                "--{} belongs to another WFM backend than the saved one ({}): add --wfm",
+                image_named[0].replace('_', "-"),
+                ib.backend.label()
+            )));
+        }
+        ib.backend = gb.backend.clone();
+    }
+    Ok(p)
 }
 
 #[derive(Args, Debug)]
@@ -58,23 +214,30 @@ pub struct ScreenshotArgs {
     /// Replace an existing --out file even when it is not a PNG.
     #[arg(long)]
     pub force: bool,
+    /// Also write the registration result the picture shows, in `register --json`'s format.
+    #[arg(long, value_name = "FILE")]
+    pub result_json: Option<PathBuf>,
     #[arg(long, default_value_t = 1600)]
     pub width: u32,
     #[arg(long, default_value_t = 1000)]
     pub height: u32,
     /// Correspondence colours: gt (green inlier / red outlier under ground truth),
-    /// categorical or confidence.
-    #[arg(long, value_enum, default_value = "gt")]
-    pub match_colors: MatchColorMode,
-    /// Number of correspondences drawn (highest fused score first).
-    #[arg(long, default_value_t = 150)]
-    pub matches: usize,
+    /// categorical or confidence (default: the inspector's, gt).
+    #[arg(long, value_enum)]
+    pub match_colors: Option<MatchColorMode>,
+    /// Number of correspondences drawn, highest fused score first (default: the
+    /// inspector's, 150).
+    #[arg(long)]
+    pub matches: Option<usize>,
     /// Pose the source is drawn under in the 3D view: estimated, gt, initial or all.
     #[arg(long, value_enum, default_value_t = Alignment::Estimated)]
     pub alignment: Alignment,
     /// Draw only the correspondences the estimator kept (SC2-PCR inliers).
     #[arg(long)]
     pub only_survivors: bool,
+    /// 3D view: the source beside the target, so correct correspondences are parallel lines.
+    #[arg(long)]
+    pub side_by_side: bool,
     /// Colour mode of both clouds in the 3D view.
     #[arg(long, value_enum, default_value = "fixed")]
     pub cloud_colors: crate::app::view3d::CloudColorMode,
@@ -85,9 +248,10 @@ pub struct ScreenshotArgs {
     /// pair holding the most shown matches.
     #[arg(long, value_parser = parse_view_pair)]
     pub view_pair: Option<(usize, usize)>,
-    /// Depth cue of the 3D view's points: eye-dome lighting, normal shading or none.
-    #[arg(long, value_enum, default_value = "edl")]
-    pub depth_cue: crate::app::render3d::DepthCue,
+    /// Depth cue of the 3D view's points: eye-dome lighting, normal shading or none
+    /// (default: the inspector's, edl).
+    #[arg(long, value_enum)]
+    pub depth_cue: Option<crate::app::render3d::DepthCue>,
     /// Who draws the 3D view's points: auto (CPU splatting under a software GL such as the
     /// headless llvmpipe, GL points on a GPU), gl or cpu.
     #[arg(long, value_enum, default_value = "auto")]
@@ -97,6 +261,11 @@ pub struct ScreenshotArgs {
     /// an error row), then show --pair.
     #[arg(long, alias = "all-pairs")]
     pub run_all: bool,
+    /// With --run-all: run every pair with the paper's defaults (geometry only, v = 5 cm),
+    /// then --pair with the settings given: the pair list holds rows of two settings, as
+    /// after a settings change.
+    #[arg(long, requires = "run_all")]
+    pub run_all_defaults: bool,
     /// The pair browser's order: COLUMN[:asc|:desc], COLUMN one of pair, split, status, rre,
     /// rte, inliers, corr, time (e.g. rre:desc, worst RRE first; the default).
     #[arg(long, value_parser = PairSort::parse)]
@@ -124,6 +293,19 @@ fn parse_view_pair(s: &str) -> std::result::Result<(usize, usize), String> {
     ))
 }
 
+/// An output file's folder must exist: a typo in a path never creates folders silently.
+fn check_out_folder(flag: &str, path: &Path) -> Result<()> {
+    let dir = path.parent().filter(|d| !d.as_os_str().is_empty());
+    match dir {
+        Some(d) if !d.is_dir() => Err(Error::Invalid(format!(
+            "{flag} {}: the folder {} does not exist (create it first)",
+            path.display(),
+            d.display()
+        ))),
+        _ => Ok(()),
+    }
+}
+
 #[derive(Clone, Copy, Debug, PartialEq, clap::ValueEnum)]
 pub enum Alignment {
     Estimated,
@@ -146,6 +328,17 @@ fn open(
     manifest: Option<&Path>,
     pair: Option<&str>,
     pipeline: &PipelineArgs,
+    image: &ImageArgs,
+) -> Result<(PipelineWorker, String)> {
+    let mut params = pipeline.to_params(image.wfm.is_some());
+    params.image = image.to_image_params()?;
+    open_with(manifest, pair, params, image)
+}
+
+fn open_with(
+    manifest: Option<&Path>,
+    pair: Option<&str>,
+    params: RegisterParams,
     image: &ImageArgs,
 ) -> Result<(PipelineWorker, String)> {
     let manifest = manifest
@@ -191,32 +384,52 @@ fn default_args() -> (PipelineArgs, ImageArgs) {
     (p.p, p.i)
 }
 
-pub fn run_inspect(a: InspectArgs) -> Result<()> {
-    let (dp, mut di) = default_args();
-    if a.manifest.is_none() {
-        // The bundled demo (8 frames per sequence) runs the whole method out of the box: the
-        // built-in generator (NOT a WFM) + XFeat, with L = 8, m = 1 and K = 2 views per side.
-        di.wfm = Some(crate::pipeline::params::WfmSpec::Builtin);
-        di.frames = 8;
-        di.margin = 1;
-        di.k = 2;
+/// The settings `inspect` starts with: the saved ones (else the paper's defaults) with each
+/// option named on the command line replacing its own setting.
+pub fn inspect_settings(
+    saved: Option<&RegisterParams>,
+    pipeline: &PipelineArgs,
+    image: &ImageArgs,
+    named: &[String],
+) -> Result<RegisterParams> {
+    let base = saved.cloned().unwrap_or_else(crate::app::paper_defaults);
+    let mut given = pipeline.to_params(image.wfm.is_some());
+    given.image = image.to_image_params()?;
+    // the image options' values even without --wfm (they then change the saved branch)
+    let mut with_wfm = image.clone();
+    if with_wfm.wfm.is_none() {
+        with_wfm.wfm = Some(crate::pipeline::params::WfmSpec::Builtin);
     }
-    let explicit = a.pipeline.is_some() || a.image.is_some();
+    let given_image = with_wfm.to_image_params()?.unwrap_or_default();
+    apply_named(&base, &given, &given_image, named)
+}
+
+pub fn run_inspect(a: InspectArgs) -> Result<()> {
+    let (dp, di) = default_args();
     let pipeline = a.pipeline.unwrap_or(dp);
     let image = a.image.unwrap_or(di);
-    let (worker, id) = open(a.manifest.as_deref(), a.pair.as_deref(), &pipeline, &image)?;
+    let settings_path = crate::app::default_settings_path();
+    let saved = settings_path
+        .as_deref()
+        .filter(|p| p.is_file())
+        .map(|p| crate::app::load_persisted(p).0.params);
+    let params = inspect_settings(saved.as_ref(), &pipeline, &image, &a.named)?;
+    let (mut worker, id) = open_with(a.manifest.as_deref(), a.pair.as_deref(), params, &image)?;
+    if a.manifest.is_none() {
+        // the bundled demo runs under its own protocol (8 frames per sequence); other data
+        // opened later gets the settings above back
+        worker.enter_demo_protocol();
+    }
     let model = worker.initial_model(Some(&id));
     // Without an explicit dataset, the data opened last time comes back (the demo when that
     // fails); `screenshot` and the tests never read the settings file.
     let initial = if a.manifest.is_none() && !a.demo {
-        crate::app::startup_commands(crate::app::default_settings_path().as_deref(), &id)
+        crate::app::startup_commands(settings_path.as_deref(), &id)
     } else {
         vec![Command::SelectPair(id)]
     };
-    // Options on the command line (or --demo) set the pipeline; otherwise the settings saved
-    // last time do, when there are any. Either way the controls show what runs.
-    let persisted = crate::app::default_settings_path().is_some_and(|p| p.is_file());
-    let worker_settings = (explicit || a.demo || !persisted).then(|| worker.params().clone());
+    // the controls show what the worker runs
+    let worker_settings = Some(worker.params().clone());
     let compare = a.compare.map(|v| (v[0].clone(), v[1].clone()));
     crate::app::run_gui_configured(model, Box::new(worker), initial, worker_settings, |app| {
         if let Some((x, y)) = compare {
@@ -298,6 +511,11 @@ pub fn run_screenshot(a: ScreenshotArgs) -> Result<()> {
         }
         (None, _) => {}
     }
+    for (flag, path) in
+        std::iter::once(("--out", &a.out)).chain(a.result_json.iter().map(|p| ("--result-json", p)))
+    {
+        check_out_folder(flag, path)?;
+    }
     let (mut worker, id) = open(
         a.manifest.as_deref(),
         a.pair.as_deref(),
@@ -306,6 +524,10 @@ pub fn run_screenshot(a: ScreenshotArgs) -> Result<()> {
     )?;
     if a.run_all {
         let t = std::time::Instant::now();
+        let asked = worker.params().clone();
+        if a.run_all_defaults {
+            worker.set_params(crate::app::paper_defaults());
+        }
         let s = worker.run_all(RunSelection::All, &mut |p| {
             if let Some(r) = &p.row {
                 match &r.status {
@@ -334,6 +556,7 @@ pub fn run_screenshot(a: ScreenshotArgs) -> Result<()> {
             s.failure,
             s.errors
         );
+        worker.set_params(asked);
     }
     let mut studies = Vec::new();
     if let Some(ks) = &a.k_sweep {
@@ -357,6 +580,16 @@ pub fn run_screenshot(a: ScreenshotArgs) -> Result<()> {
         t.elapsed().as_secs_f64() * 1e3,
         model.matches.len()
     );
+    if let Some(path) = &a.result_json {
+        // the result the picture shows, as `register --json` prints it
+        let r = worker
+            .result()
+            .ok_or_else(|| Error::Invalid(format!("{id}: no registration result to write")))?;
+        let text = serde_json::to_string_pretty(r)
+            .map_err(|e| Error::Invalid(format!("serialising the result: {e}")))?;
+        crate::error::write_atomic(path, format!("{text}\n").as_bytes())?;
+        eprintln!("wrote {}", path.display());
+    }
     // Figure 7 (Noisy-AND against Noisy-OR), as the inspector shows it after a run.
     if let Some(curves) = worker.fusion_pr_curves() {
         model.plots.pr_curves = curves;
@@ -386,7 +619,7 @@ pub fn run_screenshot(a: ScreenshotArgs) -> Result<()> {
     }
     let params = worker.params().clone();
     let (mode, count, only, align) = (a.match_colors, a.matches, a.only_survivors, a.alignment);
-    let (cloud_mode, depth_frames) = (a.cloud_colors, a.depth_frames);
+    let (cloud_mode, depth_frames, side) = (a.cloud_colors, a.depth_frames, a.side_by_side);
     let (view_pair, depth_cue, sort) = (a.view_pair, a.depth_cue, a.sort);
     let rasterizer = a.rasterizer;
     if let Some((i, j)) = view_pair {
@@ -405,17 +638,23 @@ pub fn run_screenshot(a: ScreenshotArgs) -> Result<()> {
         &a.out,
         |app| {
             app.params = params;
-            app.ui_state.match_mode = mode;
-            app.ui_state.match_count = count;
-            // the views get the whole height (the 3D overlay has its own screenshot)
-            app.ui_state.show_3d_below_views = false;
+            // unset options keep the inspector's own defaults (one set for both)
+            if let Some(m) = mode {
+                app.ui_state.match_mode = m;
+            }
+            if let Some(n) = count {
+                app.ui_state.match_count = n;
+            }
             app.ui_state.only_survivors = only;
             let p = app.view3d_prefs_mut();
             p.show_estimated = matches!(align, Alignment::Estimated | Alignment::All);
             p.show_ground_truth = matches!(align, Alignment::Gt | Alignment::All);
             p.show_initial = matches!(align, Alignment::Initial | Alignment::All);
             (p.source_mode, p.target_mode) = (cloud_mode, cloud_mode);
-            p.depth_cue = depth_cue;
+            if let Some(c) = depth_cue {
+                p.depth_cue = c;
+            }
+            p.side_by_side = side;
             p.rasterizer = rasterizer;
             app.show_depth_frames(depth_frames);
             app.show_view_pair(view_pair);

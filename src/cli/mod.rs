@@ -22,20 +22,20 @@ macro_rules! out {
     };
 }
 
-mod args;
+pub mod args;
 mod bench;
 mod cache;
 mod diff;
 mod generate;
 #[cfg(feature = "gui")]
-mod gui;
+pub mod gui;
 mod merge;
 mod register;
 mod slurm;
 mod study;
 mod table;
 
-use clap::{Parser, Subcommand};
+use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 use std::process::ExitCode;
 
 #[derive(Parser, Debug)]
@@ -84,6 +84,20 @@ pub enum Command {
     /// Render the inspector headless (no X server) to a PNG.
     #[cfg(feature = "gui")]
     Screenshot(gui::ScreenshotArgs),
+}
+
+/// `inspect` changes only the saved settings its options name: it is told which were given.
+fn with_named_options(c: Command, matches: &clap::ArgMatches) -> Command {
+    match c {
+        #[cfg(feature = "gui")]
+        Command::Inspect(mut a) => {
+            if let Some(("inspect", m)) = matches.subcommand() {
+                a.named = gui::named_options(m);
+            }
+            Command::Inspect(a)
+        }
+        c => c,
+    }
 }
 
 /// Runs one command (also what a Slurm array task runs, in-process).
@@ -139,8 +153,8 @@ fn stdout_error() -> Option<std::io::Error> {
 }
 
 pub fn main() -> ExitCode {
-    let cli = match Cli::try_parse() {
-        Ok(c) => c,
+    let matches = match Cli::command().try_get_matches() {
+        Ok(m) => m,
         // --help / --version go through the same checked stdout as everything else
         Err(e) if !e.use_stderr() => {
             out!("{}", e.render());
@@ -153,6 +167,13 @@ pub fn main() -> ExitCode {
             };
         }
         Err(e) => e.exit(),
+    };
+    let cli = match Cli::from_arg_matches(&matches) {
+        Ok(c) => c,
+        Err(e) => e.exit(),
+    };
+    let cli = Cli {
+        command: cli.command.map(|c| with_named_options(c, &matches)),
     };
     let result = match cli.command {
         Some(c) => run_command(c),

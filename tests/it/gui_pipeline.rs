@@ -9,7 +9,6 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use cgenreg::app::colormap::{SOURCE_RGB, TARGET_RGB};
-use cgenreg::app::headless::render_screenshot;
 use cgenreg::app::model::{PairStatus, StageState};
 use cgenreg::app::worker::{
     result_to_model, PipelineWorker, ViewMemo, GT_INLIER_M, IMAGE_BRANCH_OFF, VIEW_MEMO,
@@ -108,7 +107,17 @@ fn registration_result_becomes_a_consistent_model() {
     }
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("demo3d.png");
-    render_screenshot(&model, Panel::View3d, (1024, 640), &out).unwrap();
+    // unshaded points (the default eye-dome lighting darkens edges): the colours themselves
+    cgenreg::app::headless::render_screenshot_with(
+        &model,
+        Panel::View3d,
+        (1024, 640),
+        &out,
+        |app| {
+            app.view3d_prefs_mut().depth_cue = cgenreg::app::render3d::DepthCue::None;
+        },
+    )
+    .unwrap();
     let img = image::open(&out).unwrap().to_rgba8();
     let near = |c: [u8; 3]| {
         img.pixels()
@@ -320,37 +329,26 @@ fn worker_runs_the_image_branch_from_the_cache_and_refuses_from_memory() {
     s.image.as_mut().unwrap().prompt.scene = "a snowy pine forest".into();
     w.set_params(s);
     assert!(w.refuse().is_none(), "a new prompt needs the image stages");
-    let m = w.run_pair_with(&id, false).unwrap();
+    // the pair is an error until the generator runs, never a geometry-only result under
+    // the image branch's label
+    let e = w.run_pair_with(&id, false).unwrap_err();
     assert!(
-        m.stages[0]
-            .name
-            .starts_with("settings change invalidated: generation and "),
-        "{:?}",
-        m.stages[0]
-    );
-    assert!(m.generation_missing.is_some());
-    assert!(m.source_views.is_empty() && m.target_views.is_empty());
-    assert!(m
-        .image_branch_note
-        .as_deref()
-        .unwrap()
-        .contains("Run the generator"));
-    assert!(
-        m.estimated.is_some(),
-        "the geometric branch still registers"
+        matches!(e, cgenreg::Error::GenerationNotCached { .. }),
+        "{e}"
     );
     // the generator runs on request
     let m = w.run_pair_with(&id, true).unwrap();
     assert_eq!(m.source_views.len(), 2);
-    // too few frames for L: geometry only, with the reason
+    // too few frames for L: an error with the reason, no geometry-only result
     base.image.as_mut().unwrap().frames_per_fragment = 50;
     let mut w = PipelineWorker::open_manifest(&demo_manifest(), base).unwrap();
     w.set_cache(None);
-    let m = w.run_pair(&id).unwrap();
-    assert!(m.source_views.is_empty());
-    let note = m.image_branch_note.unwrap();
-    assert!(note.contains("fell back to the geometric branch"), "{note}");
-    assert!(m.estimated.is_some());
+    let e = w.run_pair(&id).unwrap_err().to_string();
+    assert!(
+        e.contains("image branch cannot run") && e.contains("built-in"),
+        "{e}"
+    );
+    assert!(w.result().is_none());
 }
 
 // ---- opening data through Command::Open (file dialogs and drag-and-drop end here) ----

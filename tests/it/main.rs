@@ -20,6 +20,7 @@ mod fuzz_smoke;
 mod gui_compare;
 mod gui_pipeline;
 mod gui_run_all;
+mod gui_settings;
 mod gui_snapshots;
 mod gui_study;
 mod headless_no_egl;

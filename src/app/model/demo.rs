@@ -312,6 +312,7 @@ fn pair_rows(rre: f64, rte: f64, correspondences: usize) -> Vec<PairEntry> {
         inlier_ratio: Some(0.62),
         correspondences: Some(correspondences),
         time_ms: Some(64.0),
+        settings: None,
     }];
     for i in 1..8 {
         let e = ((i * 37) % 11) as f64;
@@ -329,6 +330,7 @@ fn pair_rows(rre: f64, rte: f64, correspondences: usize) -> Vec<PairEntry> {
             inlier_ratio: (i != 5).then_some(0.7 - e * 0.05),
             correspondences: (i != 5).then_some(900 + 37 * i),
             time_ms: Some(40.0 + 11.0 * i as f64),
+            settings: None,
         });
     }
     pairs.push(PairEntry::pending(

@@ -40,6 +40,60 @@ pub struct PairEntry {
     pub correspondences: Option<usize>,
     /// Registration time of the last run (ms; stages served by the cache count as loaded).
     pub time_ms: Option<f64>,
+    /// The settings the row was computed with (None: not run yet).
+    pub settings: Option<SettingsTag>,
+}
+
+/// Which settings produced a result: a short id (blake3 of the parameters' canonical JSON) and
+/// what a person reads. Rows, plot points and summaries compare ids, never labels.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct SettingsTag {
+    pub id: String,
+    pub summary: String,
+}
+
+impl SettingsTag {
+    pub fn of(p: &crate::pipeline::RegisterParams) -> Self {
+        let json = serde_json::to_vec(p).unwrap_or_default();
+        let id = blake3::hash(&json).to_hex()[..8].to_string();
+        Self {
+            summary: settings_summary(p),
+            id,
+        }
+    }
+}
+
+/// One line naming the settings that change a result: the branches and their main parameters.
+pub fn settings_summary(p: &crate::pipeline::RegisterParams) -> String {
+    let features = match p.geo_features {
+        crate::pipeline::params::GeoFeatureSource::Fpfh => "FPFH",
+        _ => "learned features",
+    };
+    let geo = format!("{features} v = {} cm", fmt_num(p.voxel * 100.0));
+    let fusion = &p.fusion;
+    match &p.image {
+        None => format!(
+            "geometry only ({geo}), {}, {}",
+            fusion.selection.label(),
+            p.estimator.label()
+        ),
+        Some(ib) => format!(
+            "{} + {} (L = {}, m = {}, K = {}), {geo}, {}, {}, {}",
+            ib.backend.label(),
+            ib.vfm.label(),
+            ib.frames_per_fragment,
+            ib.margin,
+            ib.k,
+            fusion.mode.label(),
+            fusion.selection.label(),
+            p.estimator.label()
+        ),
+    }
+}
+
+fn fmt_num(x: f64) -> String {
+    let s = format!("{x:.2}");
+    s.trim_end_matches('0').trim_end_matches('.').to_string()
 }
 
 /// What the pair browser's status column and its filter say of a row.
@@ -320,6 +374,13 @@ pub struct InspectorModel {
     pub fusion_note: Option<String>,
     /// The estimator's ranked hypotheses (computed on demand by the hypothesis browser).
     pub hypotheses: Option<super::hypotheses_panel::HypothesisList>,
+    /// What actually ran for the shown result ("geometry (FPFH) + image (oracle, XFeat)"):
+    /// the pair's header shows it next to the settings asked for.
+    pub branches_ran: Option<String>,
+    /// The settings the shown result was computed with.
+    pub settings: Option<SettingsTag>,
+    /// Set while the bundled demo runs under its own protocol (what it is, for the controls).
+    pub demo_protocol: Option<String>,
 }
 
 impl Default for InspectorModel {
@@ -344,6 +405,9 @@ impl Default for InspectorModel {
             convention_warning: None,
             fusion_note: None,
             hypotheses: None,
+            branches_ran: None,
+            settings: None,
+            demo_protocol: None,
         }
     }
 }
@@ -359,6 +423,12 @@ impl InspectorModel {
     /// The synthetic demo with `n` points per cloud (benchmarks use 100k and 300k).
     pub fn demo_sized(n: usize) -> Self {
         demo::build(n)
+    }
+
+    /// Each match's rank quantile of fused score in [0, 1] (the confidence colours).
+    pub fn score_quantiles(&self) -> Vec<f32> {
+        let s: Vec<f32> = self.matches.iter().map(|m| m.score).collect();
+        super::colormap::rank_quantiles(&s)
     }
 
     /// Posterior for a source point, if the pipeline computed one.

@@ -34,11 +34,27 @@ fn outcome_color(o: PairOutcome) -> egui::Color32 {
     }
 }
 
-fn status_cell(ui: &mut egui::Ui, p: &PairEntry) {
+fn status_cell(ui: &mut egui::Ui, p: &PairEntry, stale: bool) {
     let o = p.outcome();
-    let r = ui.colored_label(outcome_color(o), o.label());
-    if let PairStatus::Failed(m) = &p.status {
-        r.on_hover_text(m);
+    let settings = p
+        .settings
+        .as_ref()
+        .map(|s| format!("settings {}: {}", s.id, s.summary))
+        .unwrap_or_default();
+    let r = if stale {
+        ui.weak(format!("stale ({})", o.label()))
+            .on_hover_text(format!(
+                "computed with other settings than the current ones: {settings}"
+            ))
+    } else {
+        ui.colored_label(outcome_color(o), o.label())
+    };
+    let r = match &p.status {
+        PairStatus::Failed(m) => r.on_hover_text(m),
+        _ => r,
+    };
+    if !stale && !settings.is_empty() {
+        r.on_hover_text(settings);
     }
 }
 
@@ -64,6 +80,22 @@ fn cell_text(p: &PairEntry, c: PairColumn) -> String {
     }
 }
 
+/// The part of the ids every pair shares up to a '/' ("redkitchen-rgbd/"): the side list
+/// leaves it out so long ids keep their distinguishing end in view.
+pub fn common_id_prefix(model: &InspectorModel) -> String {
+    let mut ids = model.pairs.iter().map(|p| p.id.as_str());
+    let Some(first) = ids.next() else {
+        return String::new();
+    };
+    let mut n = first.rfind('/').map_or(0, |i| i + 1);
+    for id in ids {
+        while n > 0 && !(id.len() >= n && id.as_bytes()[..n] == first.as_bytes()[..n]) {
+            n = first[..n - 1].rfind('/').map_or(0, |i| i + 1);
+        }
+    }
+    first[..n].to_string()
+}
+
 /// Column widths shared by the header and every row: the header (with its sort mark) or the
 /// widest content, whichever is wider (measured on each column's longest few texts).
 fn column_widths(
@@ -71,6 +103,7 @@ fn column_widths(
     model: &InspectorModel,
     rows: &[usize],
     columns: &[PairColumn],
+    id_prefix: &str,
 ) -> Vec<f32> {
     let font = egui::TextStyle::Body.resolve(ui.style());
     let strong = egui::TextStyle::Button.resolve(ui.style());
@@ -90,7 +123,10 @@ fn column_widths(
             // the longest few texts by characters, measured (bounded work on large datasets)
             let mut texts: Vec<String> = rows
                 .iter()
-                .map(|&i| cell_text(&model.pairs[i], c))
+                .map(|&i| match c {
+                    PairColumn::Pair => model.pairs[i].id[id_prefix.len()..].to_string(),
+                    _ => cell_text(&model.pairs[i], c),
+                })
                 .collect();
             texts.sort_by_key(|t| std::cmp::Reverse(t.chars().count()));
             texts.dedup();
@@ -154,9 +190,15 @@ pub fn table(
     v: TableView,
     sort: &mut PairSort,
     scrolled: &mut Option<String>,
+    current_settings: Option<&str>,
     out: &mut Vec<Command>,
 ) {
-    let mut widths = column_widths(ui, v.model, v.rows, v.columns);
+    let id_prefix = if v.sideways {
+        String::new()
+    } else {
+        common_id_prefix(v.model)
+    };
+    let mut widths = column_widths(ui, v.model, v.rows, v.columns, &id_prefix);
     let gap = ui.spacing().item_spacing.x;
     let mut total: f32 = widths.iter().sum::<f32>() + gap * widths.len().saturating_sub(1) as f32;
     if !v.sideways {
@@ -198,7 +240,14 @@ pub fn table(
                     .id_salt((v.id, "rows"))
                     .max_height(h)
                     .auto_shrink([false, v.max_height.is_some()])
-                    .show(ui, |ui| rows(ui, &v, &widths, row_h, scrolled, out));
+                    .show(ui, |ui| {
+                        let ctx = RowCtx {
+                            scrolled,
+                            current_settings,
+                            id_prefix: &id_prefix,
+                        };
+                        rows(ui, &v, &widths, row_h, ctx, out)
+                    });
             },
         );
     };
@@ -215,28 +264,46 @@ pub fn table(
 /// The narrowest the pair column gets in a table that does not scroll sideways.
 const MIN_ID_WIDTH: f32 = 80.0;
 
+/// What the rows need besides the view: the scroll memory, the settings in force and the
+/// ids' shared prefix (left out).
+struct RowCtx<'a> {
+    scrolled: &'a mut Option<String>,
+    current_settings: Option<&'a str>,
+    id_prefix: &'a str,
+}
+
 /// The rows of [`table`], striped.
 fn rows(
     ui: &mut egui::Ui,
     v: &TableView,
     widths: &[f32],
     row_h: f32,
-    scrolled: &mut Option<String>,
+    ctx: RowCtx<'_>,
     out: &mut Vec<Command>,
 ) {
+    let RowCtx {
+        scrolled,
+        current_settings,
+        id_prefix,
+    } = ctx;
     for (k, &i) in v.rows.iter().enumerate() {
         let p = &v.model.pairs[i];
+        let stale = super::is_stale(p, current_settings);
+        let shown_id = &p.id[id_prefix.len()..];
         let current = v.model.current_pair == Some(i);
         let stripe = ui.painter().add(egui::Shape::Noop);
         let row = ui.horizontal(|ui| {
             let id_w = widths.first().copied().unwrap_or(120.0);
             let r = fixed_cell(ui, id_w, row_h, false, |ui| {
                 ui.style_mut().wrap_mode = Some(egui::TextWrapMode::Truncate);
-                ui.selectable_label(current, &p.id).on_hover_text(&p.id)
+                ui.selectable_label(current, shown_id).on_hover_text(&p.id)
             });
             for (&c, &w) in v.columns.iter().zip(widths).skip(1) {
                 fixed_cell(ui, w, row_h, is_number(c), |ui| match c {
-                    PairColumn::Status => status_cell(ui, p),
+                    PairColumn::Status => status_cell(ui, p, stale),
+                    _ if stale => {
+                        ui.weak(cell_text(p, c));
+                    }
                     _ => {
                         ui.label(cell_text(p, c));
                     }

@@ -5,7 +5,7 @@ use std::sync::Arc;
 use nalgebra::Point3;
 
 use super::{apply, point3, rgba, CloudColorMode, OCCLUDED_RGB, RESIDUAL_CAP_M, VISIBLE_RGB};
-use crate::app::colormap::{self, SOURCE_RGB, TARGET_RGB};
+use crate::app::colormap::{self, NEUTRAL_RGB, SOURCE_RGB, TARGET_RGB};
 use crate::app::model::{Branch, InspectorModel};
 use crate::app::MatchColorMode;
 use crate::geometry::knn::KdIndex;
@@ -36,14 +36,39 @@ pub fn display_normals(pts: &[[f32; 3]]) -> Vec<[f32; 3]> {
         .collect()
 }
 
-/// Per-point colours of a cloud under a colour mode.
-pub fn cloud_colors(model: &InspectorModel, is_source: bool, mode: CloudColorMode) -> Vec<[u8; 4]> {
+/// Whether a mode colours by a continuous scale (a colour bar goes with it).
+pub fn is_scalar(mode: CloudColorMode) -> bool {
+    matches!(
+        mode,
+        CloudColorMode::FusedScore
+            | CloudColorMode::ResidualEstimate
+            | CloudColorMode::ResidualGroundTruth
+    )
+}
+
+/// The fixed colour of a cloud: grey while the other cloud shows a colour map.
+pub fn fixed_rgb(is_source: bool, other_scalar: bool) -> [u8; 3] {
+    match (is_source, other_scalar) {
+        (_, true) => NEUTRAL_RGB,
+        (true, false) => SOURCE_RGB,
+        (false, false) => TARGET_RGB,
+    }
+}
+
+/// Per-point colours of a cloud under a colour mode; `other_scalar`: the other cloud shows a
+/// colour map (a fixed colour then turns grey).
+pub fn cloud_colors(
+    model: &InspectorModel,
+    is_source: bool,
+    mode: CloudColorMode,
+    other_scalar: bool,
+) -> Vec<[u8; 4]> {
     let pts = if is_source {
         &model.source
     } else {
         &model.target
     };
-    let base = if is_source { SOURCE_RGB } else { TARGET_RGB };
+    let base = fixed_rgb(is_source, other_scalar || is_scalar(mode));
     let dim = |c: [u8; 3]| rgba([c[0] / 3 + 40, c[1] / 3 + 40, c[2] / 3 + 40]);
     match mode {
         CloudColorMode::Fixed => vec![rgba(base); pts.len()],
@@ -72,11 +97,12 @@ pub fn cloud_colors(model: &InspectorModel, is_source: bool, mode: CloudColorMod
         }
         CloudColorMode::FusedScore | CloudColorMode::Branch => {
             let mut out = vec![dim(base); pts.len()];
-            for m in &model.matches {
+            let q = model.score_quantiles();
+            for (m, &q) in model.matches.iter().zip(&q) {
                 let i = if is_source { m.src } else { m.tgt };
                 if i < out.len() {
                     out[i] = rgba(if mode == CloudColorMode::FusedScore {
-                        colormap::turbo(m.score)
+                        colormap::turbo(q)
                     } else {
                         branch_rgb(m.branch)
                     });
@@ -121,8 +147,15 @@ pub fn branch_rgb(b: Branch) -> [u8; 3] {
     }
 }
 
-/// Colour of a shown match under the chosen colour mode (`rank` is its index in the shown set).
-pub fn match_rgb(model: &InspectorModel, idx: usize, rank: usize, mode: MatchColorMode) -> [u8; 3] {
+/// Colour of a shown match under the chosen colour mode (`rank` is its index in the shown set;
+/// `quantiles`: [`InspectorModel::score_quantiles`], the confidence colours' scale).
+pub fn match_rgb(
+    model: &InspectorModel,
+    idx: usize,
+    rank: usize,
+    mode: MatchColorMode,
+    quantiles: &[f32],
+) -> [u8; 3] {
     let m = &model.matches[idx];
     match mode {
         MatchColorMode::Categorical => colormap::categorical(rank),
@@ -131,6 +164,6 @@ pub fn match_rgb(model: &InspectorModel, idx: usize, rank: usize, mode: MatchCol
             Some(false) => colormap::OUTLIER_RGB,
             None => [160, 160, 160],
         },
-        MatchColorMode::Confidence => colormap::turbo(m.score),
+        MatchColorMode::Confidence => colormap::turbo(quantiles.get(idx).copied().unwrap_or(0.0)),
     }
 }

@@ -2,9 +2,10 @@
 
 use eframe::egui;
 
-use super::{CloudColorMode, View3dPrefs, OCCLUDED_RGB, VISIBLE_RGB};
-use crate::app::colormap::{to_color32, SOURCE_RGB, TARGET_RGB};
-use crate::app::model::InspectorModel;
+use super::{CloudColorMode, View3dPrefs, OCCLUDED_RGB, RESIDUAL_CAP_M, VISIBLE_RGB};
+use crate::app::colormap::{quantile_value, to_color32, turbo, INLIER_RGB, OUTLIER_RGB};
+use crate::app::model::{Branch, InspectorModel};
+use crate::app::MatchColorMode;
 
 pub(super) fn legend(
     painter: &egui::Painter,
@@ -12,19 +13,25 @@ pub(super) fn legend(
     model: &InspectorModel,
     p: &View3dPrefs,
     hypothesis: Option<String>,
+    match_mode: MatchColorMode,
 ) {
+    let scalar = [p.source_mode, p.target_mode]
+        .into_iter()
+        .any(super::colors::is_scalar);
+    let source_rgb = super::colors::fixed_rgb(true, scalar);
+    let target_rgb = super::colors::fixed_rgb(false, scalar);
     let mut rows: Vec<(String, [u8; 3])> = Vec::new();
     let tinted = |t: [f32; 3]| {
         [
-            (SOURCE_RGB[0] as f32 * t[0]) as u8,
-            (SOURCE_RGB[1] as f32 * t[1]) as u8,
-            (SOURCE_RGB[2] as f32 * t[2]) as u8,
+            (source_rgb[0] as f32 * t[0]) as u8,
+            (source_rgb[1] as f32 * t[1]) as u8,
+            (source_rgb[2] as f32 * t[2]) as u8,
         ]
     };
     if let Some(h) = hypothesis {
         rows.push((h, tinted([0.6, 0.8, 1.0])));
     } else if p.show_estimated && model.estimated.is_some() {
-        rows.push(("source (estimated)".into(), SOURCE_RGB));
+        rows.push(("source (estimated)".into(), source_rgb));
     }
     if p.show_ground_truth && model.ground_truth.is_some() {
         rows.push(("source (ground truth)".into(), tinted([0.55, 1.0, 0.55])));
@@ -33,7 +40,7 @@ pub(super) fn legend(
         rows.push(("source (initial)".into(), tinted([1.0, 0.55, 0.5])));
     }
     if p.show_target {
-        rows.push(("target".into(), TARGET_RGB));
+        rows.push(("target".into(), target_rgb));
     }
     if p.source_mode == CloudColorMode::Visibility || p.target_mode == CloudColorMode::Visibility {
         let cams: Vec<&str> = model
@@ -56,6 +63,18 @@ pub(super) fn legend(
         rows.push(("in a view, occluded".into(), OCCLUDED_RGB));
         rows.push(("outside every view: dimmed".into(), [110, 110, 110]));
     }
+    if [p.source_mode, p.target_mode].contains(&CloudColorMode::Branch) {
+        for b in [Branch::Both, Branch::Geometry, Branch::Image] {
+            rows.push((
+                format!("matched point, proposed by: {}", b.label()),
+                super::colors::branch_rgb(b),
+            ));
+        }
+    }
+    if p.show_lines && match_mode == MatchColorMode::InlierOutlier && model.ground_truth.is_some() {
+        rows.push(("match: GT inlier (10 cm)".into(), INLIER_RGB));
+        rows.push(("match: GT outlier".into(), OUTLIER_RGB));
+    }
     let mut y = rect.top() + 8.0;
     for (text, c) in rows {
         let pos = egui::pos2(rect.left() + 10.0, y);
@@ -69,6 +88,27 @@ pub(super) fn legend(
         );
         y += 18.0;
     }
+    // colour bars: one per continuous scale in use, with its range and units
+    let mut bars: Vec<ColorBar> = Vec::new();
+    for (mode, who) in [(p.source_mode, "source"), (p.target_mode, "target")] {
+        if let Some(b) = cloud_bar(model, mode, who) {
+            if let Some(same) = bars.iter_mut().find(|x| x.title_key == b.title_key) {
+                same.title = format!("{} (both clouds)", same.title_key);
+            } else {
+                bars.push(b);
+            }
+        }
+    }
+    if p.show_lines && match_mode == MatchColorMode::Confidence && !model.matches.is_empty() {
+        bars.push(confidence_bar(
+            model,
+            "match lines: fused confidence, rank quantile",
+        ));
+    }
+    let mut top = y + 6.0;
+    for b in &bars {
+        top = color_bar(painter, egui::pos2(rect.left() + 10.0, top), b) + 10.0;
+    }
     painter.text(
         rect.right_bottom() + egui::vec2(-8.0, -6.0),
         egui::Align2::RIGHT_BOTTOM,
@@ -80,4 +120,123 @@ pub(super) fn legend(
         egui::FontId::proportional(11.0),
         egui::Color32::from_gray(160),
     );
+}
+
+/// A continuous colour scale: turbo from `ticks[0]` (bottom of the map) to the last tick.
+pub struct ColorBar {
+    pub title: String,
+    /// The mode's name, to merge the source's and the target's bar.
+    title_key: String,
+    /// (position in [0, 1] along the map, label).
+    pub ticks: Vec<(f32, String)>,
+}
+
+/// The colour bar of a cloud colour mode, None for discrete modes.
+pub fn cloud_bar(model: &InspectorModel, mode: CloudColorMode, who: &str) -> Option<ColorBar> {
+    let cap_cm = RESIDUAL_CAP_M * 100.0;
+    let residual = |what: &str| {
+        let key =
+            format!("residual under the {what}: distance to the nearest point of the other cloud");
+        Some(ColorBar {
+            title: format!("{key} ({who})"),
+            title_key: key,
+            ticks: (0..=4)
+                .map(|i| {
+                    let f = i as f32 / 4.0;
+                    let v = f * cap_cm;
+                    let l = if i == 4 {
+                        format!(">= {v:.1} cm")
+                    } else {
+                        format!("{v:.1} cm")
+                    };
+                    (f, l)
+                })
+                .collect(),
+        })
+    };
+    match mode {
+        CloudColorMode::ResidualEstimate => residual("estimate"),
+        CloudColorMode::ResidualGroundTruth => residual("ground truth"),
+        CloudColorMode::FusedScore => {
+            let mut b = confidence_bar(model, "matched keypoints: fused score, rank quantile");
+            b.title = format!("{} ({who}; other points dimmed)", b.title_key);
+            Some(b)
+        }
+        _ => None,
+    }
+}
+
+/// The rank-quantile scale of the fused confidence, its ticks labelled with the score at
+/// each quantile (unitless, in [0, 1]).
+pub fn confidence_bar(model: &InspectorModel, what: &str) -> ColorBar {
+    let s: Vec<f32> = model.matches.iter().map(|m| m.score).collect();
+    let ticks = [0.0f32, 0.25, 0.5, 0.75, 1.0]
+        .into_iter()
+        .map(|q| {
+            let v = quantile_value(&s, q).unwrap_or(f32::NAN);
+            (q, format!("q{:.0}: {}", q * 100.0, score_text(v)))
+        })
+        .collect();
+    ColorBar {
+        title: what.to_string(),
+        title_key: what.to_string(),
+        ticks,
+    }
+}
+
+/// A score near 1 with enough digits to tell neighbours apart (Noisy-AND saturates).
+fn score_text(v: f32) -> String {
+    if v > 0.99 && v < 1.0 {
+        format!("1 - {:.1e}", 1.0 - v as f64)
+    } else {
+        format!("{v:.3}")
+    }
+}
+
+/// Draws `bar` horizontally at `at` (title above, ticks below); returns the bottom.
+pub fn color_bar(painter: &egui::Painter, at: egui::Pos2, bar: &ColorBar) -> f32 {
+    let (w, h) = (240.0, 12.0);
+    let font = egui::FontId::proportional(12.0);
+    let text = egui::Color32::from_gray(230);
+    painter.text(at, egui::Align2::LEFT_TOP, &bar.title, font.clone(), text);
+    let top = at.y + 17.0;
+    let n = 64;
+    for i in 0..n {
+        let x0 = at.x + w * i as f32 / n as f32;
+        let x1 = at.x + w * (i + 1) as f32 / n as f32 + 0.5;
+        let c = to_color32(turbo((i as f32 + 0.5) / n as f32));
+        painter.rect_filled(
+            egui::Rect::from_min_max(egui::pos2(x0, top), egui::pos2(x1, top + h)),
+            0.0,
+            c,
+        );
+    }
+    painter.rect_stroke(
+        egui::Rect::from_min_size(egui::pos2(at.x, top), egui::vec2(w, h)),
+        0.0,
+        egui::Stroke::new(1.0, egui::Color32::from_gray(200)),
+        egui::StrokeKind::Outside,
+    );
+    for (k, (f, label)) in bar.ticks.iter().enumerate() {
+        let x = at.x + w * f;
+        painter.line_segment(
+            [egui::pos2(x, top + h), egui::pos2(x, top + h + 4.0)],
+            egui::Stroke::new(1.0, text),
+        );
+        // alternate rows so neighbouring labels never overlap
+        let y = top + h + 5.0 + if k % 2 == 1 { 14.0 } else { 0.0 };
+        let align = match k {
+            0 => egui::Align2::LEFT_TOP,
+            _ if k + 1 == bar.ticks.len() => egui::Align2::RIGHT_TOP,
+            _ => egui::Align2::CENTER_TOP,
+        };
+        painter.text(
+            egui::pos2(x, y),
+            align,
+            label,
+            egui::FontId::proportional(11.0),
+            text,
+        );
+    }
+    top + h + 5.0 + 28.0
 }

@@ -78,6 +78,9 @@ pub struct View3dPrefs {
     pub show_ground_truth: bool,
     pub show_target: bool,
     pub show_lines: bool,
+    /// Draw the source beside the target (shifted along x by the clouds' size): correct
+    /// correspondences are then parallel lines of one length, wrong ones cross them.
+    pub side_by_side: bool,
     pub show_frusta: bool,
     pub point_size: f32,
     pub source_mode: CloudColorMode,
@@ -97,11 +100,12 @@ impl Default for View3dPrefs {
             show_ground_truth: false,
             show_target: true,
             show_lines: true,
+            side_by_side: false,
             show_frusta: true,
             point_size: 2.0,
             source_mode: CloudColorMode::Fixed,
             target_mode: CloudColorMode::Fixed,
-            depth_cue: DepthCue::None,
+            depth_cue: DepthCue::Edl,
             edl_strength: 1.0,
             rasterizer: Rasterizer::Auto,
         }
@@ -217,6 +221,19 @@ fn rgba(c: [u8; 3]) -> [u8; 4] {
 
 /// The transform the source is shown under for lines and picking: estimated, else ground
 /// truth, else initial, following the toggles.
+/// The shift that puts the source beside the target (side-by-side view): along x, by half
+/// of each cloud's bounding-box diagonal plus a tenth of a gap.
+pub fn side_by_side_offset(model: &InspectorModel) -> Isometry3<f64> {
+    let diag = |pts: &[[f32; 3]]| {
+        crate::app::model::bounds_of(pts).map_or(0.0, |(lo, hi)| {
+            let d: f32 = (0..3).map(|k| (hi[k] - lo[k]).powi(2)).sum();
+            d.sqrt() as f64
+        })
+    };
+    let dx = 0.55 * (diag(&model.source) + diag(&model.target));
+    Isometry3::translation(dx, 0.0, 0.0)
+}
+
 pub fn primary_alignment(model: &InspectorModel, prefs: &View3dPrefs) -> Isometry3<f64> {
     if prefs.show_estimated {
         if let Some(e) = model.estimated {
@@ -258,6 +275,8 @@ pub fn view3d_options(ui: &mut egui::Ui, state: &mut View3dState) {
         ui.separator();
         ui.checkbox(&mut p.show_target, "target");
         ui.checkbox(&mut p.show_lines, "lines");
+        ui.checkbox(&mut p.side_by_side, "side by side")
+            .on_hover_text("source shifted beside the target: inliers are parallel lines");
         ui.checkbox(&mut p.show_frusta, "frusta");
         ui.add(egui::Slider::new(&mut p.point_size, 1.0..=8.0).text("point size"));
     });

@@ -10,8 +10,9 @@ use nalgebra::{Isometry3, Matrix4, Point3};
 use super::colors::{cloud_colors, display_normals, match_rgb};
 use super::legend::legend;
 use super::{
-    adapt_moving_budget, apply, iso_to_mat, mat_to_arr, next_id, primary_alignment, project, rgba,
-    SceneCamera, TargetOverride, View3dPrefs, View3dState, REFINE_POINTS_PER_FRAME, SETTLE,
+    adapt_moving_budget, apply, iso_to_mat, mat_to_arr, next_id, point3, primary_alignment,
+    project, rgba, SceneCamera, TargetOverride, View3dPrefs, View3dState, REFINE_POINTS_PER_FRAME,
+    SETTLE,
 };
 use crate::app::colormap::{to_color32, HIGHLIGHT_RGB, SOURCE_RGB, TARGET_RGB};
 use crate::app::model::{bounds_of, InspectorModel, ViewImage};
@@ -40,7 +41,12 @@ pub fn scene_ui(
     let vp = state.camera.view_projection(rect.width(), rect.height());
     // a hypothesis selected in the hypothesis browser replaces the estimate
     let hyp_pose = shared.ui.hypothesis.as_ref().map(|h| h.pose);
-    let src_xf = hyp_pose.unwrap_or_else(|| primary_alignment(model, &prefs));
+    let offset = if prefs.side_by_side {
+        super::side_by_side_offset(model)
+    } else {
+        Isometry3::identity()
+    };
+    let src_xf = offset * hyp_pose.unwrap_or_else(|| primary_alignment(model, &prefs));
 
     update_colors(state, model, shared.model_gen);
     let Some((source, target)) = clouds(state, target_override) else {
@@ -61,7 +67,7 @@ pub fn scene_ui(
     let mut frame = SceneFrame {
         source,
         target,
-        source_instances: instances(model, &prefs, hyp_pose),
+        source_instances: instances(model, &prefs, hyp_pose, &offset),
         show_target: prefs.show_target,
         view_proj,
         eye: [eye.x, eye.y, eye.z],
@@ -90,8 +96,21 @@ pub fn scene_ui(
     pointer_picking(&response, shared, state, &segments, &src_xf, &vp, rect);
     let painter = ui.painter_at(rect);
     highlights(&painter, shared, &segments, &src_xf, &vp, rect);
+    if let Some(pos) = response.hover_pos() {
+        let text = hover_readout(shared, state, &src_xf, &vp, rect, pos);
+        if let Some(text) = text {
+            readout_box(&painter, pos, rect, &text);
+        }
+    }
     let hyp = shared.ui.hypothesis.as_ref();
-    legend(&painter, rect, model, &prefs, hyp.map(|h| h.legend_label()));
+    legend(
+        &painter,
+        rect,
+        model,
+        &prefs,
+        hyp.map(|h| h.legend_label()),
+        shared.ui.match_mode,
+    );
 }
 
 /// Which points of each cloud this frame draws, and whether straight to the screen (a
@@ -154,12 +173,20 @@ fn motion(state: &mut View3dState, view_proj: [f32; 16]) -> bool {
 /// display normals) of the clouds with scene generation `gen` (a re-fusion of the same pair
 /// keeps both, and the camera where the user left it).
 fn sync_with_model(state: &mut View3dState, model: &InspectorModel, gen: u64) {
-    if state.framed_for != Some(gen) {
-        state.camera = match model.bounds() {
+    // framed again when the side-by-side layout is switched (the source moves aside)
+    let framing = gen ^ state.prefs.side_by_side as u64;
+    if state.framed_for != Some(framing) {
+        let bounds = model.bounds().map(|(lo, mut hi)| {
+            if state.prefs.side_by_side {
+                hi[0] += super::side_by_side_offset(model).translation.x as f32;
+            }
+            (lo, hi)
+        });
+        state.camera = match bounds {
             Some((lo, hi)) => SceneCamera::framing(lo, hi),
             None => SceneCamera::default(),
         };
-        state.framed_for = Some(gen);
+        state.framed_for = Some(framing);
     }
     if state.positions_for != Some(gen) {
         state.source_pos = Arc::new(model.source.clone());
@@ -225,9 +252,16 @@ fn update_colors(state: &mut View3dState, model: &InspectorModel, gen: u64) {
             &state.target_pos,
         ),
     ] {
-        let key = (gen, mode, is_src, shade_normals as u64);
+        let other = if is_src { target_mode } else { source_mode };
+        let other_scalar = super::colors::is_scalar(other);
+        let key = (
+            gen,
+            mode,
+            is_src,
+            shade_normals as u64 | (other_scalar as u64) << 1,
+        );
         if cache.key != Some(key) {
-            let colors = Arc::new(cloud_colors(model, is_src, mode));
+            let colors = Arc::new(cloud_colors(model, is_src, mode, other_scalar));
             let normals = state.normals.as_ref().filter(|_| shade_normals).map(|n| {
                 if is_src {
                     n.1.clone()
@@ -282,12 +316,13 @@ fn instances(
     model: &InspectorModel,
     prefs: &View3dPrefs,
     hyp_pose: Option<Isometry3<f64>>,
+    offset: &Isometry3<f64>,
 ) -> Vec<Instance> {
     let mut instances = Vec::new();
     let mut add_inst = |on: bool, t: Option<Isometry3<f64>>, tint: [f32; 4]| {
         if let (true, Some(t)) = (on, t) {
             instances.push(Instance {
-                model: mat_to_arr(&iso_to_mat(&t)),
+                model: mat_to_arr(&iso_to_mat(&(offset * t))),
                 tint,
             });
         }
@@ -320,6 +355,7 @@ fn correspondence_lines(
 ) -> (Vec<[f32; 3]>, Vec<[u8; 4]>, Vec<ScreenSegment>) {
     let model = shared.model;
     let shown = shared.shown_matches();
+    let quantiles = model.score_quantiles();
     let mut lpos = Vec::new();
     let mut lcol = Vec::new();
     let mut screen_segments = Vec::with_capacity(shown.len());
@@ -331,7 +367,7 @@ fn correspondence_lines(
         let a = apply(src_xf, *s);
         if show_lines {
             lpos.extend_from_slice(&[a, *t]);
-            let c = rgba(match_rgb(model, mi, rank, shared.ui.match_mode));
+            let c = rgba(match_rgb(model, mi, rank, shared.ui.match_mode, &quantiles));
             lcol.extend_from_slice(&[c, c]);
         }
         if let (Some(pa), Some(pb)) = (
@@ -379,6 +415,96 @@ fn pointer_picking(
             }
         }
     }
+}
+
+/// What is under the pointer: the hovered match (its keypoints, fused score and its rank
+/// quantile, its residual under the drawn pose, GT and estimator verdicts), else the source
+/// or target point there (its index, and its match when it has one).
+fn hover_readout(
+    shared: &Shared<'_>,
+    state: &View3dState,
+    src_xf: &Isometry3<f64>,
+    vp: &Matrix4<f32>,
+    rect: egui::Rect,
+    pos: egui::Pos2,
+) -> Option<String> {
+    let model = shared.model;
+    let describe = |mi: usize| -> Option<String> {
+        let m = model.matches.get(mi)?;
+        let (s, t) = (model.source.get(m.src)?, model.target.get(m.tgt)?);
+        let pose = model.estimated.unwrap_or(model.initial);
+        let d = (point3(apply(&pose, *s)) - point3(*t)).norm();
+        let q = model.score_quantiles().get(mi).copied().unwrap_or(0.0);
+        Some(format!(
+            "match #{mi}: source point {} -> target point {}\nfused score {:.4} (rank quantile {:.2}) · {}\nresidual under the estimate {:.1} cm · {} · {}",
+            m.src,
+            m.tgt,
+            m.score,
+            q,
+            m.branch.label(),
+            d * 100.0,
+            match m.inlier_gt {
+                Some(true) => "GT inlier",
+                Some(false) => "GT outlier",
+                None => "GT unknown",
+            },
+            match m.survived {
+                Some(true) => "kept by the estimator",
+                Some(false) => "rejected by the estimator",
+                None => "not estimated",
+            }
+        ))
+    };
+    if let Some(mi) = shared.ui.hovered_match {
+        return describe(mi);
+    }
+    let src = pick_point(&state.source_pos, src_xf, vp, rect, pos, 6.0);
+    let (who, i, matched) = match src {
+        Some(i) => ("source", i, model.matches.iter().position(|m| m.src == i)),
+        None => {
+            if !state.prefs.show_target {
+                return None;
+            }
+            let i = pick_point(
+                &state.target_pos,
+                &Isometry3::identity(),
+                vp,
+                rect,
+                pos,
+                6.0,
+            )?;
+            ("target", i, model.matches.iter().position(|m| m.tgt == i))
+        }
+    };
+    let kind = if matched.is_some() {
+        "keypoint"
+    } else {
+        "point"
+    };
+    Some(match matched.and_then(describe) {
+        Some(m) => format!("{who} {kind} {i}\n{m}"),
+        None => format!("{who} {kind} {i} (no correspondence)"),
+    })
+}
+
+/// A small text box beside the pointer, kept inside the viewport.
+fn readout_box(painter: &egui::Painter, pos: egui::Pos2, rect: egui::Rect, text: &str) {
+    let galley = painter.layout_no_wrap(
+        text.to_string(),
+        egui::FontId::proportional(12.0),
+        egui::Color32::from_gray(235),
+    );
+    let size = galley.size() + egui::vec2(12.0, 8.0);
+    let mut at = pos + egui::vec2(16.0, 16.0);
+    if at.x + size.x > rect.right() {
+        at.x = pos.x - 16.0 - size.x;
+    }
+    if at.y + size.y > rect.bottom() {
+        at.y = pos.y - 16.0 - size.y;
+    }
+    let r = egui::Rect::from_min_size(at, size);
+    painter.rect_filled(r, 4.0, egui::Color32::from_black_alpha(210));
+    painter.galley(at + egui::vec2(6.0, 4.0), galley, egui::Color32::WHITE);
 }
 
 /// The hovered and selected match and the selected source point, drawn on top.

@@ -129,7 +129,50 @@ pub struct PipelineWorker {
     cancel: Arc<std::sync::atomic::AtomicBool>,
     /// The stage-panel row of the last settings change that needs a run (shown by that run).
     invalidated: Option<StageInfo>,
+    /// While the bundled demo is open under its own protocol ([`demo_protocol`]): the user's
+    /// settings it replaced, restored when other data is opened.
+    demo_user: Option<RegisterParams>,
 }
+
+/// The bundled demo's protocol: its sequences have 8 frames, so L = 8, m = 1 and K = 2 views
+/// per side, shaded by the built-in generator (NOT a WFM). A property of that dataset, not a
+/// setting: it applies while the demo is open and never to other data.
+pub fn demo_protocol(user: &RegisterParams) -> RegisterParams {
+    let mut p = user.clone();
+    let mut ib = user.image.clone().unwrap_or_default();
+    ib.backend = crate::pipeline::WfmSpec::Builtin;
+    (ib.frames_per_fragment, ib.margin, ib.k) = (8, 1, 2);
+    if user.image.is_none() {
+        // the fused pipeline's own defaults, as `register --wfm builtin` takes them
+        p.fusion.mode = crate::fusion::FusionMode::NoisyAnd;
+        p.fusion.selection = crate::fusion::Selection::MutualNn;
+    }
+    p.image = Some(ib);
+    p
+}
+
+/// The user's own settings after `new` was applied while the demo's protocol is in force:
+/// a field the protocol sets (image branch, fusion mode, selection) is the user's choice only
+/// when it differs from the protocol's value; every other field is taken as set.
+fn user_settings_under_demo(user: &RegisterParams, new: &RegisterParams) -> RegisterParams {
+    let demo = demo_protocol(user);
+    let mut u = new.clone();
+    if new.image == demo.image {
+        u.image = user.image.clone();
+    }
+    if new.fusion.mode == demo.fusion.mode {
+        u.fusion.mode = user.fusion.mode;
+    }
+    if new.fusion.selection == demo.fusion.selection {
+        u.fusion.selection = user.fusion.selection;
+    }
+    u
+}
+
+/// What the demo protocol says of itself (the controls and the status area show it).
+pub const DEMO_PROTOCOL_NOTE: &str = "Demo protocol: built-in frames (NOT a WFM), L = 8, m = 1, \
+     K = 2. It belongs to the bundled demo: opening other data restores your settings, and it \
+     is never saved.";
 
 impl PipelineWorker {
     /// A worker on `dataset` with the default stage cache (`$CGENREG_CACHE` or
@@ -179,6 +222,7 @@ impl PipelineWorker {
             studies: StudyPlots::default(),
             cancel: Arc::default(),
             invalidated: None,
+            demo_user: None,
         }
     }
 
@@ -238,6 +282,29 @@ impl PipelineWorker {
     pub fn set_params(&mut self, p: RegisterParams) {
         self.params = p;
     }
+
+    /// The current pair's registration result (what the inspector shows).
+    pub fn result(&self) -> Option<&RegistrationResult> {
+        self.current.as_ref().map(|c| &c.result)
+    }
+
+    /// Runs the open dataset (the bundled demo) under [`demo_protocol`]; the settings in
+    /// force until now come back when other data is opened.
+    pub fn enter_demo_protocol(&mut self) {
+        let user = self.demo_user.take().unwrap_or_else(|| self.params.clone());
+        self.params = demo_protocol(&user);
+        self.demo_user = Some(user);
+    }
+
+    /// Whether the demo's protocol is in force.
+    pub fn demo_protocol_active(&self) -> bool {
+        self.demo_user.is_some()
+    }
+
+    /// The settings that other data gets: the user's (the demo's protocol taken out).
+    pub fn user_params(&self) -> &RegisterParams {
+        self.demo_user.as_ref().unwrap_or(&self.params)
+    }
 }
 
 impl Worker for PipelineWorker {
@@ -257,6 +324,9 @@ impl Worker for PipelineWorker {
                 // a new prompt or seed is not generated without asking (the button)
                 let gen_of = |p: &RegisterParams| p.image.as_ref().map(|i| (i.prompt.text(), i.seed));
                 let generate = gen_of(&s) == gen_of(&self.params);
+                if let Some(user) = self.demo_user.as_mut() {
+                    *user = user_settings_under_demo(user, &s);
+                }
                 self.params = s;
                 let Some(id) = self.current.as_ref().map(|c| c.result.pair_id.clone()) else {
                     events.log(LogLevel::Info, "settings stored; no pair selected yet");

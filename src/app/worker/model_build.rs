@@ -249,6 +249,9 @@ pub fn result_to_model(
         convention_warning: result.convention.as_ref().and_then(|c| c.warning.clone()),
         fusion_note: result.fusion_provenance(),
         hypotheses: None,
+        branches_ran: None,
+        settings: None,
+        demo_protocol: None,
     }
 }
 

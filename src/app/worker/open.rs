@@ -132,6 +132,23 @@ impl PipelineWorker {
         what: &str,
         events: &EventSink,
     ) {
+        // the demo's protocol stays with the demo: the data opened now gets the user's
+        // settings back (the controls follow)
+        if let Some(user) = self.demo_user.take() {
+            let mut restored = self.params.clone();
+            restored.image = user.image.clone();
+            restored.fusion.mode = user.fusion.mode;
+            restored.fusion.selection = user.fusion.selection;
+            if restored != self.params {
+                events.log(
+                    LogLevel::Warn,
+                    "the demo's protocol (built-in frames, L = 8, m = 1, K = 2) stays with the \
+                     demo: your own image-branch, fusion-mode and selection settings are back",
+                );
+                self.params = restored;
+                events.send(WorkerEvent::Settings(Box::new(self.params.clone())));
+            }
+        }
         let params = self.params.clone();
         let cache = self.cache.take();
         // the models and file hashes stay valid across datasets

@@ -39,10 +39,13 @@ impl RunAllSummary {
 }
 
 impl RunSelection {
-    /// Whether a row is part of the selection.
-    pub fn picks(self, row: &PairEntry) -> bool {
+    /// Whether a row is part of the selection; a row computed with other settings than
+    /// `current` counts as not run.
+    pub fn picks(self, row: &PairEntry, current: &str) -> bool {
+        let stale = row.settings.as_ref().is_some_and(|s| s.id != current);
         match self {
             RunSelection::All => true,
+            RunSelection::FailedOrPending if stale => true,
             RunSelection::FailedOrPending => matches!(
                 row.outcome(),
                 PairOutcome::Pending
@@ -65,9 +68,10 @@ fn panic_text(p: &(dyn std::any::Any + Send)) -> String {
 impl PipelineWorker {
     /// The ids of the rows `sel` picks, in the dataset's order.
     pub fn selected_pairs(&self, sel: RunSelection) -> Vec<String> {
+        let current = crate::app::model::SettingsTag::of(&self.params).id;
         self.pairs
             .iter()
-            .filter(|p| sel.picks(p))
+            .filter(|p| sel.picks(p, &current))
             .map(|p| p.id.clone())
             .collect()
     }
@@ -117,6 +121,7 @@ impl PipelineWorker {
                 row.time_ms = Some(t.elapsed().as_secs_f64() * 1e3);
             }
         }
+        row.settings = Some(crate::app::model::SettingsTag::of(&self.params));
         row
     }
 

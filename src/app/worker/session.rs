@@ -11,7 +11,8 @@ use super::model_build::{
 use super::{invalidated_row, Current, Kept, PipelineWorker};
 use crate::app::controls::{EventSink, LogLevel, WorkerEvent};
 use crate::app::model::{
-    Branch, InspectorModel, MatchInfo, PairEntry, PairStatus, PrCurve, StageInfo, StageState,
+    Branch, InspectorModel, MatchInfo, PairEntry, PairStatus, PrCurve, SettingsTag, StageInfo,
+    StageState,
 };
 use crate::app::stages_panel::StageRole;
 use crate::dataset::ScanPair;
@@ -107,6 +108,7 @@ impl PipelineWorker {
             model.image_branch_note = note.clone();
         }
         model.generation_missing = missing.clone();
+        self.stamp(&mut model, &params, &result);
         self.studies.fill(&mut model.plots);
         self.pairs = model.pairs.clone();
         if let Some(row) = invalidated {
@@ -135,8 +137,8 @@ impl PipelineWorker {
     }
 
     /// Registers `pair` with the current parameters: the image branch through the stage
-    /// cache when a WFM is chosen (falling back to the geometric branch alone, with a note,
-    /// when it cannot run), else the geometric branch from memory. The one registration of
+    /// cache when a WFM is chosen (an error when it cannot run: never a geometry-only result
+    /// under its label), else the geometric branch from memory. The one registration of
     /// the inspector: a single pair, "Run all" and the studies' rows all come from it.
     pub(super) fn register(
         &mut self,
@@ -146,7 +148,7 @@ impl PipelineWorker {
     ) -> crate::Result<Registered> {
         let params = self.params.clone();
         let mut note: Option<String> = None;
-        let mut missing: Option<String> = None;
+        let missing: Option<String> = None;
         let mut with_image: Option<(RegistrationResult, FusionInputs)> = None;
         let estimates = EstimateMemo::default();
         if let Some(ib) = &params.image {
@@ -164,19 +166,15 @@ impl PipelineWorker {
                 generate,
             ) {
                 Ok(x) => with_image = Some(x),
-                Err(e @ crate::Error::GenerationNotCached { .. }) => {
-                    missing = Some(ib.prompt.text());
-                    note = Some(format!(
-                        "No cached generation for this prompt ({e}). Press “Run the generator” \
-                         to make it; until then the geometric branch runs alone and no views are \
-                         shown (never views generated from another prompt)."
-                    ));
-                }
+                // never a geometry-only result under an image-branch label: the pair is an
+                // error with its reason (the UI offers the generator, or geometry alone)
+                Err(e @ crate::Error::GenerationNotCached { .. }) => return Err(e),
                 Err(e) => {
-                    note = Some(format!(
-                        "image branch unavailable for {id}: {e} — fell back to the geometric \
-                         branch alone"
-                    ))
+                    return Err(crate::Error::Invalid(format!(
+                        "the image branch cannot run for {id} (WFM: {}): {e}; nothing \
+                         was registered (“Run geometry only” runs the geometric branch alone)",
+                        ib.backend.label()
+                    )))
                 }
             }
         }
@@ -268,6 +266,23 @@ impl PipelineWorker {
             .as_ref()
             .map(|c| c.model.clone())
             .unwrap_or_default()
+    }
+
+    /// Marks `model` (and the current pair's row) with the settings it was computed with and
+    /// the branches that ran.
+    pub(super) fn stamp(
+        &self,
+        model: &mut InspectorModel,
+        params: &crate::pipeline::RegisterParams,
+        result: &RegistrationResult,
+    ) {
+        let ran = branches_ran(params, result);
+        stamp_model(
+            model,
+            SettingsTag::of(params),
+            ran,
+            self.demo_user.is_some(),
+        );
     }
 
     fn fusion_label(&self, result: &RegistrationResult) -> String {
@@ -362,6 +377,8 @@ impl PipelineWorker {
             model.image_branch_note = kept.note.clone();
         }
         model.generation_missing = kept.generation_missing.clone();
+        let (tag, ran) = (SettingsTag::of(&params), branches_ran(&params, &result));
+        stamp_model(&mut model, tag, ran, self.demo_user.is_some());
         self.studies.fill(&mut model.plots);
         self.pairs = model.pairs.clone();
         cur.model = model;
@@ -477,8 +494,10 @@ impl PipelineWorker {
             }
             Err(e) => {
                 let msg = format!("{id}: {e}");
+                let tag = SettingsTag::of(&self.params);
                 if let Some(p) = self.pairs.iter_mut().find(|p| p.id == id) {
-                    p.status = PairStatus::Failed(e.to_string());
+                    p.reset(PairStatus::Failed(e.to_string()));
+                    p.settings = Some(tag.clone());
                 }
                 let mut model = self.initial_model(Some(id));
                 model.pairs = self.pairs.clone();
@@ -492,6 +511,15 @@ impl PipelineWorker {
                     role: StageRole::Container,
                 }];
                 model.image_branch_note = Some(format!("registration failed: {e}"));
+                if let crate::Error::GenerationNotCached { .. } = e {
+                    model.generation_missing =
+                        self.params.image.as_ref().map(|ib| ib.prompt.text());
+                }
+                model.settings = Some(tag);
+                model.demo_protocol = self
+                    .demo_user
+                    .is_some()
+                    .then(|| super::DEMO_PROTOCOL_NOTE.to_string());
                 self.current = None;
                 events.send(WorkerEvent::Model(Box::new(model)));
                 events.log(LogLevel::Error, msg);
@@ -590,6 +618,32 @@ impl PipelineWorker {
         let t = Instant::now();
         let r = self.run_pair_with(id, generate);
         self.report(id, t, r, "load + register", events);
+    }
+}
+
+fn stamp_model(model: &mut InspectorModel, tag: SettingsTag, ran: String, demo: bool) {
+    if let Some(row) = model.current_pair.and_then(|i| model.pairs.get_mut(i)) {
+        row.settings = Some(tag.clone());
+    }
+    model.settings = Some(tag);
+    model.branches_ran = Some(ran);
+    model.demo_protocol = demo.then(|| super::DEMO_PROTOCOL_NOTE.to_string());
+}
+
+/// What ran for `result`: the geometric branch, and the image branch with its backend and VFM
+/// when it did (from the result, not from the settings asked for).
+pub fn branches_ran(
+    params: &crate::pipeline::RegisterParams,
+    result: &RegistrationResult,
+) -> String {
+    let geo = format!("geometry ({})", result.geo_features);
+    match (&result.image_branch, &params.image) {
+        (Some(img), _) => format!(
+            "ran: {geo} + image ({img}), fused by {}",
+            params.fusion.mode.label()
+        ),
+        (None, Some(_)) => format!("ran: {geo} only — the image branch asked for did not run"),
+        (None, None) => format!("ran: {geo} only (image branch off)"),
     }
 }
 

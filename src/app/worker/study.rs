@@ -30,6 +30,26 @@ impl StudyPlots {
     }
 }
 
+/// `s` with every absolute path cut to its file name (titles and saved figures name no
+/// machine's folders).
+fn without_dirs(s: &str) -> String {
+    s.split(' ')
+        .map(|w| {
+            let core = w.trim_matches(|c: char| "()[],;".contains(c));
+            if core.starts_with('/') && core.len() > 1 {
+                let name = std::path::Path::new(core)
+                    .file_name()
+                    .map(|n| n.to_string_lossy().into_owned())
+                    .unwrap_or_default();
+                w.replace(core, &name)
+            } else {
+                w.to_string()
+            }
+        })
+        .collect::<Vec<_>>()
+        .join(" ")
+}
+
 /// The plots of a study report: one point / bar per setting that ran at least one pair.
 fn study_plots(rep: &StudyReport) -> (Vec<KPoint>, Vec<PromptBar>) {
     let ran = || {
@@ -114,7 +134,20 @@ impl PipelineWorker {
         )?;
         let (k, p) = study_plots(&rep);
         let runs: usize = rep.rows.iter().map(|r| r.pairs_run).sum();
-        let source = format!("{} · {} pairs", rep.label(), rep.pairs.len());
+        let mut source = format!("{} · {} pairs", without_dirs(&rep.label()), rep.pairs.len());
+        // a setting that ran no pair has no point: the title says so and why
+        let dropped: Vec<String> = rep
+            .rows
+            .iter()
+            .filter(|r| r.setting_skipped.is_some() || r.pairs_run == 0)
+            .map(|r| match &r.setting_skipped {
+                Some(why) => format!("{} ({why})", r.setting),
+                None => format!("{} (no pair ran)", r.setting),
+            })
+            .collect();
+        if !dropped.is_empty() {
+            source.push_str(&format!(" · not plotted: {}", dropped.join("; ")));
+        }
         match req {
             StudyRequest::K(_) => {
                 self.studies.vs_k = k;
