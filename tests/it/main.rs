@@ -11,6 +11,7 @@ mod common;
 mod cache_safety;
 mod corruption_campaign;
 mod dataset_real;
+mod docs_hygiene;
 mod export_corr;
 mod fuzz_smoke;
 mod gui_compare;
