@@ -56,9 +56,9 @@ fn violation(line: &str) -> Option<String> {
         }
     }
     let b = l.as_bytes();
-    for i in 0..b.len() {
+    for (i, &c) in b.iter().enumerate() {
         // "#12" (an issue reference; not "&#12;" nor a colour "#1f77b4")
-        if b[i] == b'#'
+        if c == b'#'
             && (i == 0 || !(b[i - 1].is_ascii_alphanumeric() || b[i - 1] == b'&'))
             && b.get(i + 1).is_some_and(|c| c.is_ascii_digit())
         {
@@ -72,15 +72,12 @@ fn violation(line: &str) -> Option<String> {
         }
         // "vfm-s11": a session number in a folder or file name
         if i > 0
-            && b[i] == b'-'
+            && c == b'-'
             && b[i - 1].is_ascii_alphanumeric()
             && b.get(i + 1) == Some(&b's')
             && b.get(i + 2).is_some_and(|c| c.is_ascii_digit())
         {
-            let digits = b[i + 2..]
-                .iter()
-                .take_while(|c| c.is_ascii_digit())
-                .count();
+            let digits = b[i + 2..].iter().take_while(|c| c.is_ascii_digit()).count();
             let after = b.get(i + 2 + digits);
             if digits <= 2 && !after.is_some_and(|c| c.is_ascii_alphanumeric()) {
                 return Some("a session number in a name (-sN)".into());
@@ -97,7 +94,11 @@ fn word_start(l: &str, i: usize) -> bool {
 fn contains_word(l: &str, phrase: &str) -> bool {
     l.match_indices(phrase).any(|(i, _)| {
         let end = i + phrase.len();
-        word_start(l, i) && !l.as_bytes().get(end).is_some_and(|c| c.is_ascii_alphanumeric())
+        word_start(l, i)
+            && !l
+                .as_bytes()
+                .get(end)
+                .is_some_and(|c| c.is_ascii_alphanumeric())
     })
 }
 
@@ -174,16 +175,23 @@ fn user_documents_carry_no_process_words_or_machine_paths() {
     let mut read = 0;
     for f in &files {
         let ext = f.extension().and_then(|e| e.to_str()).unwrap_or("");
-        if !matches!(ext, "md" | "txt" | "json" | "csv" | "toml" | "jsonl" | "log") {
+        if !matches!(
+            ext,
+            "md" | "txt" | "json" | "csv" | "toml" | "jsonl" | "log"
+        ) {
             continue;
         }
-        let text = std::fs::read_to_string(f)
-            .unwrap_or_else(|e| panic!("reading {}: {e}", f.display()));
+        let text =
+            std::fs::read_to_string(f).unwrap_or_else(|e| panic!("reading {}: {e}", f.display()));
         read += 1;
         let rel = f.strip_prefix(root).unwrap_or(f).display().to_string();
         found.extend(scan(&rel, &text));
     }
-    assert!(read > 50, "only {read} documents found under {}", root.display());
+    assert!(
+        read > 50,
+        "only {read} documents found under {}",
+        root.display()
+    );
     assert!(
         found.is_empty(),
         "{} lines in user documents mention the development process or a machine's path \
