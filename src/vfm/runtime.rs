@@ -36,7 +36,9 @@ impl BackendInfo {
             // machine's folders do not belong (`library` keeps the full path).
             ("onnxruntime", Some(v), Some(p)) => format!(
                 "onnxruntime {v} ({})",
-                p.file_name().map(|n| n.to_string_lossy()).unwrap_or_default()
+                p.file_name()
+                    .map(|n| n.to_string_lossy())
+                    .unwrap_or_default()
             ),
             _ => match &self.note {
                 Some(n) => format!("tract (pure Rust; {n})"),
