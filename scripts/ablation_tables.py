@@ -17,8 +17,8 @@ import sys
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 BIN = os.environ.get("CGENREG_BIN", os.path.join(ROOT, "target/debug/cgenreg"))
-V = "docs/ablation/vfm"  # this session's rows (debug build)
-I3 = "docs/ablation"  # the issue-3 XFeat rows (release build, e0bcd09)
+V = "docs/ablation/vfm"  # the per-VFM rows (debug build)
+I3 = "docs/ablation"  # the first XFeat rows (release build, e0bcd09)
 BEGIN, END = "<!-- vfm-tables:begin -->", "<!-- vfm-tables:end -->"
 SPLITS = ["3DMatch", "3DLoMatch"]
 FUSIONS = ["image", "concat", "noisy-or", "noisy-and", "reference"]
@@ -26,7 +26,7 @@ FUSIONS = ["image", "concat", "noisy-or", "noisy-and", "reference"]
 
 def groups():
     """(title, [(row name, JSON path)]) in table order; FPFH rows head every table."""
-    mutual = f"{V}/fpfh-mutual.json"  # this build's, else the issue-3 row (same code path)
+    mutual = f"{V}/fpfh-mutual.json"  # this build's, else the first XFeat run's row (same code path)
     if load(mutual) is None:
         mutual = f"{I3}/fpfh-mutual.json"
     fpfh = [("FPFH, NN", f"{V}/fpfh-nn.json"), ("FPFH, mutual NN", mutual)]
@@ -34,11 +34,11 @@ def groups():
     for wfm, wlabel in [("oracle", "oracle RGB"), ("builtin", "built-in shading (not a WFM)")]:
         for vfm, vlabel in [("xfeat", "XFeat"), ("alike", "ALIKE-t"), ("disk", "DISK")]:
             rows = list(fpfh)
-            if vfm == "xfeat":  # the issue-3 rows (release build), mutual NN and NN
+            if vfm == "xfeat":  # the first XFeat run's rows (release build), mutual NN and NN
                 for f in FUSIONS[:4]:
-                    rows.append((f"{f} (issue 3)", f"{I3}/{wfm}-{f}.json"))
+                    rows.append((f"{f} (docs/ablation, release)", f"{I3}/{wfm}-{f}.json"))
                     if wfm == "oracle":
-                        rows.append((f"{f}, NN (issue 3)", f"{I3}/{wfm}-{f}-nn.json"))
+                        rows.append((f"{f}, NN (docs/ablation, release)", f"{I3}/{wfm}-{f}-nn.json"))
                 rows.append(("reference", f"{V}/{vfm}-{wfm}-reference.json"))
             else:
                 for f in FUSIONS:
@@ -126,8 +126,9 @@ def main():
             f.write(text + "\n")
         doc = os.path.join(ROOT, "docs/ablation.md")
         s = open(doc).read()
-        a, b = s.index(BEGIN) + len(BEGIN), s.index(END)
-        open(doc, "w").write(s[:a] + "\n" + text + "\n" + s[b:])
+        if BEGIN in s and END in s:  # docs/ablation.md now shows scripts/tables.py's summary instead
+            a, b = s.index(BEGIN) + len(BEGIN), s.index(END)
+            open(doc, "w").write(s[:a] + "\n" + text + "\n" + s[b:])
 
 
 if __name__ == "__main__":

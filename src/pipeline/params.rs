@@ -277,16 +277,28 @@ impl clap::ValueEnum for VfmSpec {
 #[serde(tag = "kind", rename_all = "kebab-case")]
 pub enum VfmSpec {
     /// XFeat through ONNX (default `models/xfeat.onnx`): one descriptor grid per view.
-    Xfeat { model: PathBuf },
+    Xfeat {
+        #[serde(with = "crate::vfm::model_path_serde")]
+        model: PathBuf,
+    },
     /// DISK through ONNX (default `models/disk.onnx`): dense 128-D descriptors at every pixel,
     /// sampled at the lifted pixels.
-    Disk { model: PathBuf },
+    Disk {
+        #[serde(with = "crate::vfm::model_path_serde")]
+        model: PathBuf,
+    },
     /// ALIKE through ONNX (default `models/alike-t.onnx`, 64-D; `models/alike-n.onnx` is 128-D):
     /// dense descriptors at every pixel, sampled at the lifted pixels.
-    Alike { model: PathBuf },
+    Alike {
+        #[serde(with = "crate::vfm::model_path_serde")]
+        model: PathBuf,
+    },
     /// A MASt3R ONNX export (reference §13 signature): descriptors of every ordered
     /// (source view, target view) pair, compared pair-conditioned (reference §8.1).
-    Mast3r { model: PathBuf },
+    Mast3r {
+        #[serde(with = "crate::vfm::model_path_serde")]
+        model: PathBuf,
+    },
 }
 
 impl VfmSpec {

@@ -275,9 +275,59 @@ pub fn default_model_path(name: &str) -> std::path::PathBuf {
         .join(name)
 }
 
+/// Serde form of a model path in run files and results: a file under the repository the
+/// binary was built from (the bundled `models/`) is written relative to it, so a result JSON
+/// names `models/xfeat.onnx` rather than the build machine's folders; reading it back resolves
+/// a relative path against that repository when the file is there (the form it was written in).
+pub mod model_path_serde {
+    use serde::{Deserialize, Deserializer, Serializer};
+    use std::path::{Path, PathBuf};
+
+    fn repo() -> &'static Path {
+        Path::new(env!("CARGO_MANIFEST_DIR"))
+    }
+
+    pub fn serialize<S: Serializer>(p: &Path, s: S) -> Result<S::Ok, S::Error> {
+        match p.strip_prefix(repo()) {
+            Ok(rel) if !rel.as_os_str().is_empty() => s.collect_str(&rel.display()),
+            _ => s.collect_str(&p.display()),
+        }
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<PathBuf, D::Error> {
+        let p = PathBuf::deserialize(d)?;
+        if p.is_relative() && !p.as_os_str().is_empty() && repo().join(&p).exists() {
+            return Ok(repo().join(p));
+        }
+        Ok(p)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn bundled_model_paths_are_written_relative_to_the_repository() {
+        #[derive(serde::Serialize, serde::Deserialize, PartialEq, Debug)]
+        struct M {
+            #[serde(with = "model_path_serde")]
+            model: std::path::PathBuf,
+        }
+        let bundled = M {
+            model: default_xfeat_path(),
+        };
+        let json = serde_json::to_string(&bundled).unwrap();
+        assert_eq!(json, r#"{"model":"models/xfeat.onnx"}"#);
+        let back: M = serde_json::from_str(&json).unwrap();
+        assert_eq!(back, bundled, "read back as the bundled file");
+        let elsewhere = M {
+            model: "/opt/models/mine.onnx".into(),
+        };
+        let json = serde_json::to_string(&elsewhere).unwrap();
+        assert_eq!(json, r#"{"model":"/opt/models/mine.onnx"}"#);
+        assert_eq!(serde_json::from_str::<M>(&json).unwrap(), elsewhere);
+    }
 
     /// Reference upsampling written independently: torch bilinear, align_corners=False,
     /// output size (oh, ow) from an input grid (h, w).

@@ -3,7 +3,8 @@
 //! One `ort` build (2.0.0-rc.14, `alternative-backend`) serves two backends, chosen once per
 //! process on first use:
 //! 1. native ONNX Runtime (>= 1.24, C API 24), from `ORT_DYLIB_PATH`, else the shared library of
-//!    a pip-installed `onnxruntime` wheel (`onnxruntime/capi/libonnxruntime.so.*`), found through
+//!    a pip-installed `onnxruntime` wheel (`onnxruntime/capi/libonnxruntime.so.*`), found in the
+//!    build folder's private venv (`target/ortvenv`, made by scripts/setup.sh), through
 //!    `python3 -c 'import onnxruntime'` and by globbing the usual site-packages folders;
 //! 2. tract (pure Rust), when no native library loads.
 //!
@@ -31,7 +32,14 @@ pub struct BackendInfo {
 impl BackendInfo {
     pub fn describe(&self) -> String {
         match (self.kind, &self.version, &self.library) {
-            ("onnxruntime", Some(v), Some(p)) => format!("onnxruntime {v} ({})", p.display()),
+            // The file name only: this string lands in results, tables and plot titles, where a
+            // machine's folders do not belong (`library` keeps the full path).
+            ("onnxruntime", Some(v), Some(p)) => format!(
+                "onnxruntime {v} ({})",
+                p.file_name()
+                    .map(|n| n.to_string_lossy())
+                    .unwrap_or_default()
+            ),
             _ => match &self.note {
                 Some(n) => format!("tract (pure Rust; {n})"),
                 None => "tract (pure Rust)".to_string(),
@@ -120,6 +128,19 @@ pub fn native_library_candidates() -> Vec<PathBuf> {
         }
     }
     let mut dirs: Vec<PathBuf> = Vec::new();
+    let mut roots: Vec<PathBuf> = Vec::new();
+    // scripts/setup.sh installs the wheel into a private venv in the build folder
+    // (`target/ortvenv`), never into the system Python: look beside the running binary first
+    // (target/release/cgenreg, target/debug/deps/<test>).
+    if let Ok(exe) = std::env::current_exe() {
+        for a in exe.ancestors().skip(1).take(4) {
+            let lib = a.join("ortvenv").join("lib");
+            if lib.is_dir() {
+                dirs.extend(site_packages(&lib));
+                break;
+            }
+        }
+    }
     if let Ok(o) = std::process::Command::new("python3")
         .args([
             "-c",
@@ -135,7 +156,6 @@ pub fn native_library_candidates() -> Vec<PathBuf> {
             }
         }
     }
-    let mut roots: Vec<PathBuf> = Vec::new();
     if let Ok(v) = std::env::var("VIRTUAL_ENV") {
         roots.push(PathBuf::from(v).join("lib"));
     }
@@ -144,17 +164,7 @@ pub fn native_library_candidates() -> Vec<PathBuf> {
     }
     roots.extend(["/usr/local/lib", "/usr/lib"].map(PathBuf::from));
     for root in roots {
-        let Ok(rd) = std::fs::read_dir(&root) else {
-            continue;
-        };
-        for e in rd.flatten() {
-            let name = e.file_name().to_string_lossy().into_owned();
-            if name.starts_with("python3") {
-                for sp in ["site-packages", "dist-packages"] {
-                    dirs.push(e.path().join(sp).join("onnxruntime"));
-                }
-            }
-        }
+        dirs.extend(site_packages(&root));
     }
     for d in dirs {
         let capi = d.join("capi");
@@ -180,12 +190,28 @@ pub fn native_library_candidates() -> Vec<PathBuf> {
     out
 }
 
+/// `<lib>/python3*/{site,dist}-packages/onnxruntime` folders under a Python `lib` folder.
+fn site_packages(lib: &Path) -> Vec<PathBuf> {
+    let mut out = Vec::new();
+    let Ok(rd) = std::fs::read_dir(lib) else {
+        return out;
+    };
+    for e in rd.flatten() {
+        if e.file_name().to_string_lossy().starts_with("python3") {
+            for sp in ["site-packages", "dist-packages"] {
+                out.push(e.path().join(sp).join("onnxruntime"));
+            }
+        }
+    }
+    out
+}
+
 /// dlopen a native ONNX Runtime and fetch its C API at the version this build uses.
 fn load_native() -> std::result::Result<(ort::sys::OrtApi, String, PathBuf), String> {
     let cands = native_library_candidates();
     if cands.is_empty() {
         return Err(
-            "no native ONNX Runtime found (set ORT_DYLIB_PATH or `pip install onnxruntime`)".into(),
+            "no native ONNX Runtime found (run scripts/setup.sh, or set ORT_DYLIB_PATH)".into(),
         );
     }
     let mut errors = Vec::new();

@@ -1,7 +1,7 @@
 //! cgenreg's integration tests, one module per former test file, in one test binary.
 //!
 //! One binary links the library and its GUI / ONNX dependencies once instead of once per file:
-//! on CI's 2-core machine that was most of the debug build (see docs/architecture.md, "Tests").
+//! on CI's 2-core machine that was most of the debug build (see docs/development.md).
 //! Run one file's tests with `cargo test --test it <module>::`, e.g.
 //! `cargo test --test it gui_snapshots::`. `tests/gui_monkey.rs` stays a binary of its own
 //! because it changes the process's working directory.
@@ -14,6 +14,7 @@ mod common;
 mod cache_safety;
 mod corruption_campaign;
 mod dataset_real;
+mod docs_hygiene;
 mod export_corr;
 mod fusion_union;
 mod fuzz_smoke;
