@@ -473,12 +473,7 @@ fn view_controls(ui: &mut egui::Ui, ib: &mut ImageBranchParams) {
     let usable = ib.frames_per_fragment - ib.margin;
     ui.add(egui::Slider::new(&mut ib.k, 1..=usable.min(16)).text("K views"))
         .on_hover_text(format!("at most L - m = {usable} views per side"));
-    ui.add(
-        egui::Slider::new(&mut ib.lift_radius, 0.005..=0.5)
-            .logarithmic(true)
-            .text("Lift radius (m)"),
-    )
-    .on_hover_text("a keypoint with no valid pixel this close gets no image feature");
+    // the lift radius is in "Scale & success" (it follows the voxel unless set)
     let options = VfmSpec::all().map(|v| match v {
         v if v.same_kind(&ib.vfm) => ib.vfm.clone(),
         v => v,
@@ -511,14 +506,8 @@ pub fn clamp_views(ib: &mut ImageBranchParams) {
     ib.k = ib.k.clamp(1, ib.frames_per_fragment - ib.margin);
 }
 
-/// The keypoint voxel, the Noisy-AND prior and the inlier threshold of the evaluation.
+/// The Noisy-AND prior (the keypoint voxel and the distances are in "Scale & success").
 fn geometry_controls(ui: &mut egui::Ui, params: &mut RegisterParams) {
-    ui.add(
-        egui::Slider::new(&mut params.voxel, 0.01..=1.0)
-            .logarithmic(true)
-            .text("Keypoint voxel (m)"),
-    )
-    .on_hover_text("FPFH radii follow it: normals 2v, features 5v");
     let mut auto = params.fusion.prior.is_none();
     ui.horizontal(|ui| {
         ui.checkbox(&mut auto, "Noisy-AND prior 1/(N·M)");
@@ -536,12 +525,7 @@ fn geometry_controls(ui: &mut egui::Ui, params: &mut RegisterParams) {
         (false, None) => params.fusion.prior = Some(1e-6),
         _ => {}
     }
-    ui.add(
-        egui::Slider::new(&mut params.inlier_threshold, 0.01..=1.0)
-            .logarithmic(true)
-            .text("Inlier threshold (m)"),
-    )
-    .on_hover_text("the inlier ratio of the selected correspondences under ground truth");
+    // the keypoint voxel and the inlier threshold are in "Scale & success"
 }
 
 /// Each branch's calibration and temperature, the fusion mode, the selection (with top-k)

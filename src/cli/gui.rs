@@ -330,7 +330,12 @@ fn open(
     pipeline: &PipelineArgs,
     image: &ImageArgs,
 ) -> Result<(PipelineWorker, String)> {
-    let mut params = pipeline.to_params(image.wfm.is_some());
+    // the preset the manifest names, unless --preset
+    let preset = match manifest {
+        Some(m) => crate::dataset::manifest::Dataset::load(m)?.preset,
+        None => None,
+    };
+    let mut params = pipeline.to_params(image.wfm.is_some(), preset);
     params.image = image.to_image_params()?;
     open_with(manifest, pair, params, image)
 }
@@ -347,8 +352,6 @@ fn open_with(
     // fragments rebuilt from raw RGB-D frames are kept in the stage cache, as in `register`
     let dataset = crate::dataset::manifest::Dataset::load(&manifest)?
         .with_fragment_cache(image.fragment_cache()?);
-    let mut params = pipeline.to_params(image.wfm.is_some(), dataset.preset);
-    params.image = image.to_image_params()?;
     let mut worker = PipelineWorker::new(dataset, params);
     worker.set_cache(image.open_cache()?);
     let ids = worker.pair_ids();
@@ -393,7 +396,7 @@ pub fn inspect_settings(
     named: &[String],
 ) -> Result<RegisterParams> {
     let base = saved.cloned().unwrap_or_else(crate::app::paper_defaults);
-    let mut given = pipeline.to_params(image.wfm.is_some());
+    let mut given = pipeline.to_params(image.wfm.is_some(), None);
     given.image = image.to_image_params()?;
     // the image options' values even without --wfm (they then change the saved branch)
     let mut with_wfm = image.clone();
