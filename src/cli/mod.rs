@@ -13,6 +13,8 @@ mod slurm;
 mod study;
 mod table;
 
+pub use register::{register_with_options, PairInput, Registered};
+
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
 
@@ -85,8 +87,56 @@ pub fn run_command(c: Command) -> crate::Result<()> {
     }
 }
 
-pub fn main() -> ExitCode {
-    let cli = Cli::parse();
+/// `cgenreg register`'s pipeline and image-branch options alone (no program name, no pair):
+/// what the Python package parses its keyword arguments with, so that they mean exactly what
+/// the command line's options mean (names, defaults, checks and messages).
+#[derive(Parser, Debug)]
+#[command(name = "cgenreg register", no_binary_name = true)]
+struct SettingsArgs {
+    #[command(flatten)]
+    pipeline: args::PipelineArgs,
+    #[command(flatten)]
+    image: args::ImageArgs,
+}
+
+fn parse_settings(options: &[String]) -> crate::Result<SettingsArgs> {
+    SettingsArgs::try_parse_from(options).map_err(|e| {
+        // clap's own text without its usage footer: the option, the value and what it takes
+        let text = e.to_string();
+        let text = text.split("\n\n").next().unwrap_or(&text);
+        crate::Error::Invalid(text.trim_start_matches("error: ").trim().to_string())
+    })
+}
+
+/// The settings `cgenreg register` runs with under `options` (e.g. `["--voxel", "0.1",
+/// "--wfm", "builtin"]`): the same defaults, checks and errors; no cache is opened.
+pub fn register_settings(options: &[String]) -> crate::Result<crate::pipeline::RegisterParams> {
+    let a = parse_settings(options)?;
+    let mut params = a.pipeline.to_params(a.image.wfm.is_some());
+    params.image = a.image.to_image_params()?;
+    Ok(params)
+}
+
+/// [`register_settings`] for the fusion stage alone: the default selection is the fused one
+/// (mutual nearest neighbours) when `image_branch`, row nearest neighbours otherwise, as in
+/// `cgenreg register`; no cache is opened.
+pub fn fusion_settings(
+    options: &[String],
+    image_branch: bool,
+) -> crate::Result<crate::pipeline::RegisterParams> {
+    Ok(parse_settings(options)?.pipeline.to_params(image_branch))
+}
+
+/// The command line run in-process on `argv` (program name first); the exit code. What the
+/// Python package's `cgenreg` console script runs.
+pub fn main_with_args(argv: Vec<std::ffi::OsString>) -> i32 {
+    let cli = match Cli::try_parse_from(argv) {
+        Ok(c) => c,
+        Err(e) => {
+            let _ = e.print();
+            return e.exit_code();
+        }
+    };
     let result = match cli.command {
         Some(c) => run_command(c),
         #[cfg(feature = "gui")]
@@ -97,10 +147,17 @@ pub fn main() -> ExitCode {
         )),
     };
     match result {
-        Ok(()) => ExitCode::SUCCESS,
+        Ok(()) => 0,
         Err(e) => {
             eprintln!("cgenreg: error: {e}");
-            ExitCode::FAILURE
+            1
         }
+    }
+}
+
+pub fn main() -> ExitCode {
+    match main_with_args(std::env::args_os().collect()) {
+        0 => ExitCode::SUCCESS,
+        code => ExitCode::from(u8::try_from(code).unwrap_or(1)),
     }
 }
