@@ -531,7 +531,9 @@ fn match_then_fuse<'py>(
     target_img: Option<PyReadonlyArray2<'py, f32>>,
     target_valid: Option<PyReadonlyArray1<'py, bool>>,
 ) -> PyResult<Corr<'py>> {
-    use cgenreg::fusion::{cosine_similarity, match_then_fuse_select, FusionMode};
+    use cgenreg::fusion::{
+        cosine_similarity, match_then_fuse_select, Calibration, FusionMode, Selection,
+    };
     let fs = features(&source_geo, "source_geo")?;
     let ft = features(&target_geo, "target_geo")?;
     let image = match (&source_img, &target_img) {
@@ -560,9 +562,9 @@ fn match_then_fuse<'py>(
     }
     let corr = py
         .detach(|| -> cgenreg::Result<_> {
-            let geo = cosine_similarity(&fs, &ft)?;
             match &image {
                 Some((ia, va, ib, vb)) => {
+                    let geo = cosine_similarity(&fs, &ft)?;
                     let img = cosine_similarity(ia, ib)?;
                     match_then_fuse_select(
                         Some((&img, Some(va), Some(vb))),
@@ -570,7 +572,18 @@ fn match_then_fuse<'py>(
                         &params.fusion,
                     )
                 }
-                None => match_then_fuse_select(None, Some(&geo), &params.fusion),
+                None => match (params.fusion.selection, params.fusion.calibration_geo) {
+                    // as the pipeline's geometric-only tail: row softmax keeps each row's
+                    // argmax, so row NN needs no N x M matrix (same correspondences)
+                    (Selection::RowNn, Calibration::RowSoftmax { tau }) => {
+                        cgenreg::fusion::streaming::row_nn_posterior(&fs, &ft, tau)
+                    }
+                    _ => match_then_fuse_select(
+                        None,
+                        Some(&cosine_similarity(&fs, &ft)?),
+                        &params.fusion,
+                    ),
+                },
             }
         })
         .map_err(to_py)?;
