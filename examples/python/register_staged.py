@@ -112,6 +112,9 @@ def main() -> int:
     print("== KITTI 07 ladder (voxel %.2f m; success RRE < 5 deg, RTE < 2 m)" % a.kitti_voxel)
     ok = ok_o3d = n = 0
     kd = root / "kitti07-lidar"
+    # these scans are x, y, z only (12 bytes a point; the folder's MANIFEST.md); some sizes fit
+    # both KITTI layouts, and the reader refuses to guess
+    os.environ["CGENREG_KITTI_FIELDS"] = "3"
     for t, s, gt in kitti_pairs(root):
         n += 1
         src, tgt = kd / ("keyframe-%d.bin" % s), kd / ("keyframe-%d.bin" % t)
