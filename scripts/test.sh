@@ -18,4 +18,8 @@ for isa in avx2 scalar; do
   echo "== CGENREG_SIMD=$isa: fusion, estimate and simd unit tests"
   CGENREG_SIMD=$isa cargo test --lib --no-fail-fast -- fusion:: estimate:: simd:: 2>&1 || status=$?
 done
+# The Python package (pip install . gives it): built in the dev profile into target/, tested
+# with pytest in a private virtual environment under target/.
+echo "== Python package: tests/python"
+bash scripts/test_python.sh 2>&1 || status=$?
 exit $status

@@ -35,6 +35,8 @@ mod slurm;
 mod study;
 mod table;
 
+pub use register::{register_with_options, PairInput, Registered};
+
 use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 use std::process::ExitCode;
 
@@ -152,8 +154,50 @@ fn stdout_error() -> Option<std::io::Error> {
     err.take()
 }
 
-pub fn main() -> ExitCode {
-    let matches = match Cli::command().try_get_matches() {
+/// `cgenreg register`'s pipeline and image-branch options alone (no program name, no pair):
+/// what the Python package parses its keyword arguments with, so that they mean exactly what
+/// the command line's options mean (names, defaults, checks and messages).
+#[derive(Parser, Debug)]
+#[command(name = "cgenreg register", no_binary_name = true)]
+struct SettingsArgs {
+    #[command(flatten)]
+    pipeline: args::PipelineArgs,
+    #[command(flatten)]
+    image: args::ImageArgs,
+}
+
+fn parse_settings(options: &[String]) -> crate::Result<SettingsArgs> {
+    SettingsArgs::try_parse_from(options).map_err(|e| {
+        // clap's own text without its usage footer: the option, the value and what it takes
+        let text = e.to_string();
+        let text = text.split("\n\n").next().unwrap_or(&text);
+        crate::Error::Invalid(text.trim_start_matches("error: ").trim().to_string())
+    })
+}
+
+/// The settings `cgenreg register` runs with under `options` (e.g. `["--voxel", "0.1",
+/// "--wfm", "builtin"]`): the same defaults, checks and errors; no cache is opened.
+pub fn register_settings(options: &[String]) -> crate::Result<crate::pipeline::RegisterParams> {
+    let a = parse_settings(options)?;
+    let mut params = a.pipeline.to_params(a.image.wfm.is_some(), None);
+    params.image = a.image.to_image_params()?;
+    Ok(params)
+}
+
+/// [`register_settings`] for the fusion stage alone: the default selection is the fused one
+/// (mutual nearest neighbours) when `image_branch`, row nearest neighbours otherwise, as in
+/// `cgenreg register`; no cache is opened.
+pub fn fusion_settings(
+    options: &[String],
+    image_branch: bool,
+) -> crate::Result<crate::pipeline::RegisterParams> {
+    Ok(parse_settings(options)?.pipeline.to_params(image_branch, None))
+}
+
+/// The command line run in-process on `argv` (program name first); the exit code. What the
+/// Python package's `cgenreg` console script runs.
+pub fn main_with_args(argv: Vec<std::ffi::OsString>) -> i32 {
+    let matches = match Cli::command().try_get_matches_from(argv) {
         Ok(m) => m,
         // --help / --version go through the same checked stdout as everything else
         Err(e) if !e.use_stderr() => {
@@ -161,16 +205,22 @@ pub fn main() -> ExitCode {
             return match stdout_error() {
                 Some(e) if e.kind() != std::io::ErrorKind::BrokenPipe => {
                     eprintln!("cgenreg: error: writing to stdout: {e}");
-                    ExitCode::FAILURE
+                    1
                 }
-                _ => ExitCode::SUCCESS,
+                _ => 0,
             };
         }
-        Err(e) => e.exit(),
+        Err(e) => {
+            let _ = e.print();
+            return e.exit_code();
+        }
     };
     let cli = match Cli::from_arg_matches(&matches) {
         Ok(c) => c,
-        Err(e) => e.exit(),
+        Err(e) => {
+            let _ = e.print();
+            return e.exit_code();
+        }
     };
     let cli = Cli {
         command: cli.command.map(|c| with_named_options(c, &matches)),
@@ -188,14 +238,21 @@ pub fn main() -> ExitCode {
     match (result, out_err) {
         (Err(e), _) => {
             eprintln!("cgenreg: error: {e}");
-            ExitCode::FAILURE
+            1
         }
         // The reader went away (`| head`): the output it wanted was written.
-        (Ok(()), Some(e)) if e.kind() == std::io::ErrorKind::BrokenPipe => ExitCode::SUCCESS,
+        (Ok(()), Some(e)) if e.kind() == std::io::ErrorKind::BrokenPipe => 0,
         (Ok(()), Some(e)) => {
             eprintln!("cgenreg: error: writing to stdout: {e}");
-            ExitCode::FAILURE
+            1
         }
-        (Ok(()), None) => ExitCode::SUCCESS,
+        (Ok(()), None) => 0,
+    }
+}
+
+pub fn main() -> ExitCode {
+    match main_with_args(std::env::args_os().collect()) {
+        0 => ExitCode::SUCCESS,
+        code => ExitCode::from(u8::try_from(code).unwrap_or(1)),
     }
 }

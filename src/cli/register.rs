@@ -42,37 +42,63 @@ pub struct RegisterArgs {
     pub image: ImageArgs,
 }
 
-/// The pair, whether its clouds came from the fragment cache (None: no cache involved), and
-/// the preset its manifest names for it.
-pub(crate) fn load_pair(a: &RegisterArgs) -> Result<(ScanPair, Option<bool>, Option<Preset>)> {
-    match (&a.source, &a.target, &a.manifest, &a.pair) {
-        (Some(s), Some(t), _, _) => {
-            crate::dataset::pair_from_files(s, t, a.gt.as_deref()).map(|p| (p, None, None))
+/// Where the pair of a registration comes from.
+pub enum PairInput {
+    /// Two cloud files and an optional ground-truth file (`--source --target [--gt]`).
+    Files {
+        source: PathBuf,
+        target: PathBuf,
+        gt: Option<PathBuf>,
+    },
+    /// A pair of a dataset manifest (`--manifest --pair`).
+    Manifest { manifest: PathBuf, pair: String },
+    /// A pair already in memory, and how long making it took (ms).
+    Loaded { pair: Box<ScanPair>, load_ms: f64 },
+}
+
+/// What one registration produced: the pair, the settings it ran with, the result and the
+/// fusion inputs (for the correspondence export).
+pub struct Registered {
+    pub pair: ScanPair,
+    pub params: crate::pipeline::RegisterParams,
+    pub result: RegistrationResult,
+    pub inputs: crate::pipeline::fuse::FusionInputs,
+}
+
+/// The pair, whether its clouds came from the fragment cache (None: no cache involved), the
+/// time it took (ms) and the preset its manifest names for it.
+fn load_pair(
+    input: PairInput,
+    image: &ImageArgs,
+) -> Result<(ScanPair, Option<bool>, f64, Option<Preset>)> {
+    let t0 = std::time::Instant::now();
+    let ms = |t: std::time::Instant| t.elapsed().as_secs_f64() * 1e3;
+    match input {
+        PairInput::Files { source, target, gt } => {
+            crate::dataset::pair_from_files(&source, &target, gt.as_deref())
+                .map(|p| (p, None, ms(t0), None))
         }
-        (_, _, Some(m), Some(id)) => {
-            let ds = Dataset::load(m)?.with_fragment_cache(a.image.fragment_cache()?);
-            let (p, st) = ds.load_pair_status(id)?;
+        PairInput::Manifest { manifest, pair } => {
+            let ds = Dataset::load(&manifest)?.with_fragment_cache(image.fragment_cache()?);
+            let (p, st) = ds.load_pair_status(&pair)?;
             let (hit, rebuilt) = pair_summary(&st);
             for why in rebuilt {
                 eprintln!("warning: fragment cache: {why}");
             }
-            Ok((p, hit, ds.preset_of(id)))
+            Ok((p, hit, ms(t0), ds.preset_of(&pair)))
         }
-        _ => Err(Error::Invalid(
-            "give --source and --target, or --manifest and --pair".into(),
-        )),
+        PairInput::Loaded { pair, load_ms } => Ok((*pair, None, load_ms, None)),
     }
 }
 
-pub fn run(a: RegisterArgs) -> Result<()> {
-    if let Some(path) = &a.export_corr {
-        // before the work: a bad output path fails at once
-        crate::io::output::prepare(path, crate::io::output::OutputKind::Npz, a.force)?;
-    }
-    let t0 = std::time::Instant::now();
-    let (pair, load_hit, preset) = load_pair(&a)?;
-    let load_ms = t0.elapsed().as_secs_f64() * 1e3;
-    let (params, cache) = a.image.params_and_cache_for(&a.pipeline, preset)?;
+/// What `cgenreg register` computes for `input` under its pipeline and image options.
+fn register_input(
+    input: PairInput,
+    pipeline: &PipelineArgs,
+    image: &ImageArgs,
+) -> Result<Registered> {
+    let (pair, load_hit, load_ms, preset) = load_pair(input, image)?;
+    let (params, cache) = image.params_and_cache_for(pipeline, preset)?;
     let memo = crate::pipeline::Memo::default();
     let (mut res, inputs) = register_pair_cached_keep(&pair, &params, cache.as_ref(), &memo)?;
     res.timings.insert(
@@ -87,6 +113,46 @@ pub fn run(a: RegisterArgs) -> Result<()> {
         },
     );
     res.total_ms += load_ms;
+    Ok(Registered {
+        pair,
+        params,
+        result: res,
+        inputs,
+    })
+}
+
+/// `cgenreg register` without its printing: `input` registered under `options`, the command's
+/// own pipeline and image-branch options (e.g. `["--voxel", "0.1"]`), with the same defaults,
+/// checks and errors. The Python package's `register` and `register_pair`.
+pub fn register_with_options(input: PairInput, options: &[String]) -> Result<Registered> {
+    let a = super::parse_settings(options)?;
+    register_input(input, &a.pipeline, &a.image)
+}
+
+pub fn run(a: RegisterArgs) -> Result<()> {
+    if let Some(path) = &a.export_corr {
+        // before the work: a bad output path fails at once
+        crate::io::output::prepare(path, crate::io::output::OutputKind::Npz, a.force)?;
+    }
+    let input = match (a.source, a.target, a.manifest, a.pair) {
+        (Some(source), Some(target), _, _) => PairInput::Files {
+            source,
+            target,
+            gt: a.gt,
+        },
+        (_, _, Some(manifest), Some(pair)) => PairInput::Manifest { manifest, pair },
+        _ => {
+            return Err(Error::Invalid(
+                "give --source and --target, or --manifest and --pair".into(),
+            ))
+        }
+    };
+    let Registered {
+        pair,
+        params,
+        result: res,
+        inputs,
+    } = register_input(input, &a.pipeline, &a.image)?;
     if let Some(path) = &a.export_corr {
         crate::io::output::prepare(path, crate::io::output::OutputKind::Npz, a.force)?;
         let t = crate::pipeline::export::export_correspondences(

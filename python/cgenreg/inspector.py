@@ -1,0 +1,145 @@
+"""Opening the inspector (the ``cgenreg`` GUI) from Python, as a separate process."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+from typing import Any, List, Optional, Sequence, Union
+
+import numpy as np
+
+from . import _cgenreg
+from ._options import to_options
+from .errors import CgenregError
+
+PathLike = Union[str, "os.PathLike[str]"]
+
+
+def _is_native(path: str) -> bool:
+    try:
+        with open(path, "rb") as f:
+            return f.read(4) == b"\x7fELF" or path.endswith(".exe")
+    except OSError:
+        return False
+
+
+def inspector_command() -> List[str]:
+    """The argument vector that starts the GUI-capable ``cgenreg``.
+
+    ``$CGENREG_BIN`` when set; else this package itself when its extension was built with the
+    inspector (``HAS_GUI``); else a native ``cgenreg`` binary on ``PATH`` (the console script this
+    package installs is skipped: it has no inspector unless built with it).
+    """
+    env = os.environ.get("CGENREG_BIN")
+    if env:
+        return [env]
+    if _cgenreg.HAS_GUI:
+        return [sys.executable, "-m", "cgenreg"]
+    for d in os.environ.get("PATH", "").split(os.pathsep):
+        p = os.path.join(d, "cgenreg")
+        if os.path.isfile(p) and os.access(p, os.X_OK) and _is_native(p):
+            return [p]
+    raise CgenregError(
+        "the inspector needs the cgenreg binary with its GUI: build it with "
+        "`cargo install --path .` in the source tree (or `cargo build --release` and set "
+        "CGENREG_BIN to target/release/cgenreg); this Python package's extension was built "
+        "without the GUI"
+    )
+
+
+def _toml_str(s: str) -> str:
+    return json.dumps(s)  # a TOML basic string uses JSON's escapes
+
+
+def _write_pair(
+    folder: str, source: np.ndarray, target: np.ndarray, gt: Optional[np.ndarray]
+) -> str:
+    """Two arrays (and a GT) as a manifest of one pair in ``folder``; returns the manifest."""
+    from . import write_cloud
+
+    write_cloud(os.path.join(folder, "source.ply"), source)
+    write_cloud(os.path.join(folder, "target.ply"), target)
+    lines = [
+        'name = "python"',
+        "root = %s" % _toml_str(folder),
+        "",
+        "[[fragments]]",
+        'id = "source"',
+        'cloud = "source.ply"',
+        "",
+        "[[fragments]]",
+        'id = "target"',
+        'cloud = "target.ply"',
+        "",
+        "[[pairs]]",
+        'target = "target"',
+        'source = "source"',
+    ]
+    if gt is not None:
+        m = np.asarray(gt, dtype=np.float64).reshape(4, 4)
+        with open(os.path.join(folder, "gt.txt"), "w") as f:
+            for row in m:
+                f.write(" ".join(repr(float(v)) for v in row) + "\n")
+        lines.append('gt_file = "gt.txt"')
+    manifest = os.path.join(folder, "pair.toml")
+    with open(manifest, "w") as f:
+        f.write("\n".join(lines) + "\n")
+    return manifest
+
+
+def inspect(
+    manifest: Optional[PathLike] = None,
+    pair: Optional[str] = None,
+    *,
+    source: Optional[Any] = None,
+    target: Optional[Any] = None,
+    gt: Optional[Any] = None,
+    wait: bool = False,
+    command: Optional[Sequence[str]] = None,
+    **params: Any,
+) -> "subprocess.Popen[bytes]":
+    """Open the inspector on a manifest pair, or on two clouds (arrays or files).
+
+    ``manifest``/``pair``: as ``cgenreg inspect --manifest M --pair ID`` (e.g. the pair of a
+    failed :func:`register_pair`). ``source``/``target`` (+ ``gt``): clouds given as arrays or
+    files are written to a temporary manifest of one pair (removed when the inspector exits if
+    ``wait=True``; otherwise it stays in the system's temporary folder). ``**params``: the
+    same settings as :func:`cgenreg.register` (the inspector's controls start from them).
+    The inspector runs as a separate process started with an argument vector (never a shell);
+    returns the process (``wait=True`` waits for it to close). ``command`` overrides the
+    program (see :func:`inspector_command`).
+    """
+    from . import read_cloud
+
+    tmp = None
+    if source is not None or target is not None:
+        if source is None or target is None or manifest is not None:
+            raise CgenregError("inspect: give manifest (and pair), or source and target")
+        tmp = tempfile.mkdtemp(prefix="cgenreg-inspect-")
+        src = read_cloud(source) if isinstance(source, (str, os.PathLike)) else source
+        tgt = read_cloud(target) if isinstance(target, (str, os.PathLike)) else target
+        gt_m = None
+        if gt is not None:
+            if isinstance(gt, (str, os.PathLike)):
+                gt_m = np.loadtxt(os.fspath(gt)).reshape(4, 4)
+            else:
+                gt_m = np.asarray(gt, dtype=np.float64)
+        manifest = _write_pair(tmp, np.asarray(src), np.asarray(tgt), gt_m)
+        pair = "python/target-source"
+    argv = list(command) if command is not None else inspector_command()
+    argv.append("inspect")
+    if manifest is not None:
+        argv += ["--manifest", os.fspath(manifest)]
+    if pair is not None:
+        argv += ["--pair", str(pair)]
+    argv += to_options(params)
+    proc = subprocess.Popen(argv)
+    if wait:
+        proc.wait()
+        if tmp is not None:
+            shutil.rmtree(tmp, ignore_errors=True)
+    return proc

@@ -1,0 +1,26 @@
+#!/usr/bin/env bash
+# The Python package's tests (tests/python): the extension built by maturin in the dev profile
+# into this repository's target folder (so the dependencies the Rust tests compiled are
+# reused), installed into a private virtual environment under target/ (never the system's
+# pip), then pytest. Needs the `cgenreg` binary of the Rust build (scripts/test.sh builds it
+# first) to compare with. Exit status: pytest's (any failure, error or no test collected fails).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+export CGENREG_DATA="${CGENREG_DATA:-$(cd .. && pwd)/shared/data}"
+venv="$PWD/target/pyvenv"
+if [ ! -x "$venv/bin/python" ]; then
+  python3 -m venv "$venv" || {
+    echo "test_python: 'python3 -m venv' failed (Debian/Ubuntu: apt-get install python3-venv)" >&2
+    exit 1
+  }
+fi
+"$venv/bin/python" -m pip install -q --disable-pip-version-check \
+  "maturin==1.16.0" "numpy>=1.21" "pytest>=7" pandas
+# maturin reads pyproject.toml (manifest python/Cargo.toml); `develop` installs into $VIRTUAL_ENV.
+# `--features gui`: the library with its default features, as the Rust build above compiled it,
+# so that build's artifacts are reused (without the GUI, crates such as `half` get other
+# features and the ONNX stack is compiled a second time); the wheel `pip install .` builds
+# differs only in carrying no inspector (tested by monkeypatching the extension's HAS_GUI).
+VIRTUAL_ENV="$venv" PATH="$venv/bin:$PATH" "$venv/bin/maturin" develop --quiet --features gui
+CGENREG_TEST_BIN="${CGENREG_TEST_BIN:-$PWD/target/debug/cgenreg}" \
+  "$venv/bin/python" -m pytest -q -p no:cacheprovider tests/python "$@"
