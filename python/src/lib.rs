@@ -438,6 +438,7 @@ fn register_arrays(
             name: name.into(),
             cloud: c,
             frames: None,
+            notes: Vec::new(),
         })
     };
     let s = scan(
