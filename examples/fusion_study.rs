@@ -126,7 +126,7 @@ fn study_pair(
     // (b): Noisy-AND's set, then the geometry set's pairs not in it (the `union` mode's merge)
     let b: Vec<Correspondence> = merge(and, geo).0;
     let c = neutral_unseen(params, &inputs, &sims)?;
-    let theta = params.inlier_threshold;
+    let theta = params.inlier_threshold_m();
     let (src, tgt) = (&inputs.source_geo, &inputs.target_geo);
     let pts = |u: &[(u32, u32)]| {
         let s: Vec<_> = u
