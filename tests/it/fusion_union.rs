@@ -37,7 +37,7 @@ fn params(mode: FusionMode) -> RegisterParams {
 
 #[test]
 fn union_is_never_worse_than_its_best_branch_on_a_development_pair() {
-    let Some(_) = cgenreg::test_data_root() else {
+    let Some(_) = cgenreg::testing::test_data_root() else {
         return;
     };
     let manifest =
