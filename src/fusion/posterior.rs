@@ -341,7 +341,7 @@ mod tests {
                 }
             }
         }
-        assert_eq!(checked, 5 * 2 * 2 * 2 * 2 * 2 * n);
+        assert_eq!(checked, FusionMode::ALL.len() * 2 * 2 * 2 * 2 * 2 * n);
     }
 
     #[test]

@@ -345,7 +345,7 @@ fn worker_runs_the_image_branch_from_the_cache_and_refuses_from_memory() {
     w.set_cache(None);
     let e = w.run_pair(&id).unwrap_err().to_string();
     assert!(
-        e.contains("image branch cannot run") && e.contains("built-in"),
+        e.contains("image branch cannot run") && e.contains("L = 50") && e.contains("WFM:"),
         "{e}"
     );
     assert!(w.result().is_none());

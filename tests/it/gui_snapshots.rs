@@ -318,12 +318,13 @@ fn tabs_and_controls_drive_the_ui_and_the_worker() {
     // a prompt preset re-runs the pipeline through a command, without blocking the UI
     h.get_by_label("Minimal").click();
     h.run_steps(2);
-    // the image branch is off: the controls edit the parameters it will run with, and
-    // nothing re-runs (the run does not depend on them)
-    assert_eq!(
+    // a prompt edit is a draft until applied: the parameters keep their prompt, and the
+    // "Apply prompt" button is offered
+    assert_ne!(
         h.state().image_off.prompt.scene,
         PromptPreset::Minimal.default_scene()
     );
+    assert!(h.query_all_by_label("Apply prompt").next().is_some());
     h.run_steps(3);
     assert!(
         !seen
@@ -341,7 +342,7 @@ fn tabs_and_controls_drive_the_ui_and_the_worker() {
     h.get_by_label("WFM");
     assert!(h.state().params.image.is_none());
     assert!(h
-        .query_all_by_label("Safeguard margin (frames)")
+        .query_all_by_label("Safeguard margin m (frames)")
         .next()
         .is_some());
 }

@@ -282,21 +282,16 @@ fn opening_a_cosmos_folder_switches_the_image_branch_and_keeps_the_dataset() {
     }));
     let t0 = Instant::now();
     let mut settings = None;
-    let mut logs = Vec::new();
-    let mut model = None;
-    while model.is_none() && t0.elapsed() < Duration::from_secs(300) {
+    let mut logs: Vec<(LogLevel, String)> = Vec::new();
+    let refused = |logs: &[(LogLevel, String)]| {
+        logs.iter()
+            .any(|(l, t)| *l == LogLevel::Error && t.contains("image branch cannot run"))
+    };
+    while !(settings.is_some() && refused(&logs)) && t0.elapsed() < Duration::from_secs(300) {
         for e in h.poll() {
             match e {
                 WorkerEvent::Settings(s) => settings = Some(s),
                 WorkerEvent::Log(l, t) => logs.push((l, t)),
-                WorkerEvent::Model(m)
-                    if settings.is_some()
-                        && m.current_pair.is_some_and(|i| {
-                            m.pairs[i].status == cgenreg::app::model::PairStatus::Done
-                        }) =>
-                {
-                    model = Some(m)
-                }
                 _ => {}
             }
         }
@@ -310,16 +305,15 @@ fn opening_a_cosmos_folder_switches_the_image_branch_and_keeps_the_dataset() {
             spec: out.join("batch.jsonl")
         }
     );
-    let m = model.unwrap_or_else(|| panic!("no re-run; log {logs:?}"));
-    // same dataset, same pair, re-run; this fake folder has no output.mp4, so the image
-    // branch says why and the geometric branch registers alone
-    assert_eq!(
-        m.pairs.iter().map(|p| p.id.clone()).collect::<Vec<_>>(),
-        ids
-    );
-    assert!(m.estimated.is_some());
-    let note = m.image_branch_note.clone().unwrap_or_default();
-    assert!(note.contains("image branch unavailable"), "{note}");
+    // same dataset, same pair, re-run; this fake folder cannot feed the image branch, so the
+    // pair is an error that says why (never a geometry-only result under the Cosmos label)
+    let err = logs
+        .iter()
+        .find(|(l, t)| *l == LogLevel::Error && t.contains("image branch cannot run"))
+        .map(|(_, t)| t.clone())
+        .unwrap_or_else(|| panic!("no refusal; log {logs:?}"));
+    assert!(err.contains(&ids[0]), "{err}");
+    assert!(err.contains("Run geometry only"), "{err}");
     // a folder without a spec is refused with the reason; the settings stay
     let bad = root.path().join("bad");
     std::fs::create_dir_all(bad.join("video_0")).unwrap();
