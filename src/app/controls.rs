@@ -763,7 +763,10 @@ fn switch_image_branch(
             if params.fusion.selection == Selection::RowNn {
                 params.fusion.selection = Selection::MutualNn;
             }
-            if matches!(params.fusion.mode, FusionMode::GeometryOnly | FusionMode::NoisyAnd) {
+            if matches!(
+                params.fusion.mode,
+                FusionMode::GeometryOnly | FusionMode::NoisyAnd
+            ) {
                 params.fusion.mode = FusionMode::DEFAULT_WITH_IMAGE;
             }
         }

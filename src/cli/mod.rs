@@ -191,7 +191,9 @@ pub fn fusion_settings(
     options: &[String],
     image_branch: bool,
 ) -> crate::Result<crate::pipeline::RegisterParams> {
-    Ok(parse_settings(options)?.pipeline.to_params(image_branch, None))
+    Ok(parse_settings(options)?
+        .pipeline
+        .to_params(image_branch, None))
 }
 
 /// The command line run in-process on `argv` (program name first); the exit code. What the

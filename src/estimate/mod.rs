@@ -91,14 +91,14 @@ impl EstimatorKind {
     pub fn inlier_threshold(&self) -> f64 {
         match self {
             // resolved parameters hold metres; unresolved ones read at SC2-PCR's own voxel
-            EstimatorKind::Sc2Pcr(p) => p
-                .inlier_threshold
-                .at(scale::REFERENCE_VOXEL, scale::THRESHOLD_PER_VOXEL)
-                as f64,
-            EstimatorKind::Ransac(p) => p
-                .distance_threshold
-                .at(scale::REFERENCE_VOXEL, scale::RANSAC_PER_VOXEL)
-                as f64,
+            EstimatorKind::Sc2Pcr(p) => {
+                p.inlier_threshold
+                    .at(scale::REFERENCE_VOXEL, scale::THRESHOLD_PER_VOXEL) as f64
+            }
+            EstimatorKind::Ransac(p) => {
+                p.distance_threshold
+                    .at(scale::REFERENCE_VOXEL, scale::RANSAC_PER_VOXEL) as f64
+            }
             EstimatorKind::WeightedSvd => 0.10,
         }
     }
