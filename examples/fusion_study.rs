@@ -117,7 +117,7 @@ fn study_pair(
         .gt_target_from_source
         .ok_or_else(|| cgenreg::Error::Invalid("the study needs ground truth".into()))?;
     let sims = similarities(&inputs)?;
-    let set = |f| mode_correspondences(params, &inputs, Some(&sims), &f);
+    let set = |f| mode_correspondences(&inputs, Some(&sims), &f);
     let mut image = params.fusion;
     image.mode = FusionMode::ImageOnly;
     let geo = &set(geometry_params(&params.fusion))?;

@@ -22,6 +22,19 @@ const SCALE_TOLERANCE: f64 = 0.05;
 const LOW_COUNT: usize = 50;
 const LOW_FRACTION: f64 = 0.01;
 
+/// How many correspondences `rigid` maps within `threshold` of their target.
+fn agreeing(
+    src: &[Point3<f32>],
+    tgt: &[Point3<f32>],
+    rigid: &Isometry3<f64>,
+    threshold: f64,
+) -> usize {
+    src.iter()
+        .zip(tgt)
+        .filter(|(s, t)| (rigid * s.cast::<f64>() - t.cast::<f64>()).norm() < threshold)
+        .count()
+}
+
 /// A warning when fewer than [`LOW_COUNT`] correspondences, and under 1 % of them, agree with
 /// the rigid estimate within `threshold` (at least 1000 correspondences given).
 pub fn low_consensus_warning(
@@ -31,9 +44,7 @@ pub fn low_consensus_warning(
     threshold: f64,
 ) -> Option<String> {
     let n = src.len().min(tgt.len());
-    let k = (0..n)
-        .filter(|&i| (rigid * src[i].cast::<f64>() - tgt[i].cast::<f64>()).norm() < threshold)
-        .count();
+    let k = agreeing(src, tgt, rigid, threshold);
     (n >= 1000 && k < LOW_COUNT && (k as f64) < LOW_FRACTION * n as f64).then(|| {
         format!(
             "only {k} of {n} correspondences ({:.1} %) agree with the estimate within \
@@ -60,9 +71,7 @@ pub fn nonrigid_warning(
     }
     let s: Vec<Vector3<f64>> = src[..n].iter().map(|p| p.coords.cast()).collect();
     let t: Vec<Vector3<f64>> = tgt[..n].iter().map(|p| p.coords.cast()).collect();
-    let rigid_count = (0..n)
-        .filter(|&i| (rigid * Point3::from(s[i]) - Point3::from(t[i])).norm() < threshold)
-        .count();
+    let rigid_count = agreeing(src, tgt, rigid, threshold);
     let count = |a: &Matrix3<f64>, b: &Vector3<f64>| {
         (0..n)
             .filter(|&i| (a * s[i] + b - t[i]).norm() < threshold)

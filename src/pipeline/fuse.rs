@@ -291,7 +291,7 @@ pub fn fuse_and_finish_memo(
         return super::union::register(pair, params, inputs, sims, timer, memo);
     }
     let corr = match &inputs.image {
-        Some(_) => image_correspondences(params, inputs, sims, &params.fusion, &mut timer)?,
+        Some(_) => image_correspondences(inputs, sims, &params.fusion, &mut timer)?,
         None => {
             let mut fusion = params.fusion;
             fusion.mode = FusionMode::GeometryOnly;
@@ -309,7 +309,6 @@ pub fn fuse_and_finish_memo(
 /// modes): streamed from the features for large pairs without kept matrices, else from the
 /// kept or computed similarity matrices.
 pub(crate) fn image_correspondences(
-    _params: &RegisterParams,
     inputs: &FusionInputs,
     sims: Option<&Similarities>,
     fusion: &crate::fusion::FusionParams,

@@ -33,7 +33,6 @@ pub fn noisy_and_params(fusion: &FusionParams) -> FusionParams {
 /// The correspondences `fusion` (one of the matrix modes) selects from `inputs`, untimed (the
 /// union's members, and studies of other rules).
 pub fn mode_correspondences(
-    params: &RegisterParams,
     inputs: &FusionInputs,
     sims: Option<&Similarities>,
     fusion: &FusionParams,
@@ -41,7 +40,7 @@ pub fn mode_correspondences(
     let mut t = Timer::new();
     match fusion.mode {
         FusionMode::GeometryOnly => geometry_correspondences(inputs, sims, fusion, &mut t),
-        _ => image_correspondences(params, inputs, sims, fusion, &mut t),
+        _ => image_correspondences(inputs, sims, fusion, &mut t),
     }
 }
 
@@ -79,10 +78,10 @@ fn member_sets(
         }
     };
     let t = Instant::now();
-    let a = mode_correspondences(params, inputs, sims, &and)?;
+    let a = mode_correspondences(inputs, sims, &and)?;
     timer.record("fusion: noisy-and", t.elapsed(), false);
     let t = Instant::now();
-    let g = mode_correspondences(params, inputs, sims, &geometry_params(&params.fusion))?;
+    let g = mode_correspondences(inputs, sims, &geometry_params(&params.fusion))?;
     timer.record("fusion: geometry", t.elapsed(), false);
     Ok((a, g))
 }

@@ -77,8 +77,8 @@ fn union_is_never_worse_than_its_best_branch_on_a_development_pair() {
     let (g, _) = register_pair_cached_keep(&pair, &geo_only, None, &Memo::default()).unwrap();
     assert_eq!(g.target_from_source, geo.target_from_source);
     // the estimator was given exactly Noisy-AND's set, then the geometric set's new pairs
-    let a = mode_correspondences(&p, &inputs, None, &noisy_and_params(&p.fusion)).unwrap();
-    let gs = mode_correspondences(&p, &inputs, None, &geometry_params(&p.fusion)).unwrap();
+    let a = mode_correspondences(&inputs, None, &noisy_and_params(&p.fusion)).unwrap();
+    let gs = mode_correspondences(&inputs, None, &geometry_params(&p.fusion)).unwrap();
     let (u, _) = merge(&a, &gs);
     assert_eq!(res.correspondences, u);
     assert!(u.len() > gs.len() && u.len() < a.len() + gs.len());

@@ -6,11 +6,11 @@
 //!
 //! Cost in the debug test profile: see `kitti07_pairs_register_with_the_outdoor_preset`.
 
+use crate::common;
 use cgenreg::dataset::Dataset;
 use cgenreg::pipeline::params::Preset;
 use cgenreg::pipeline::{register_pair, RegisterParams};
-use kiddo::{ImmutableKdTree, SquaredEuclidean};
-use nalgebra::{Isometry3, Matrix4, Point3};
+use nalgebra::{Isometry3, Matrix4};
 use std::path::Path;
 
 fn manifest() -> std::path::PathBuf {
@@ -37,26 +37,6 @@ fn gt_pairs(root: &Path) -> Vec<((String, String), Isometry3<f64>)> {
             ((h[0].to_string(), h[1].to_string()), t)
         })
         .collect()
-}
-
-/// Fraction of every 10th point of `query`, moved by `t`, with a `reference` point within `r`.
-fn overlap(query: &[Point3<f32>], reference: &[Point3<f32>], t: &Isometry3<f64>, r: f32) -> f64 {
-    let pts: Vec<[f32; 3]> = reference.iter().map(|p| [p.x, p.y, p.z]).collect();
-    let tree = ImmutableKdTree::new_from_slice(&pts).unwrap();
-    let t = t.cast::<f32>();
-    let sub: Vec<_> = query.iter().step_by(10).collect();
-    let hits = sub
-        .iter()
-        .filter(|q| {
-            let p = t * **q;
-            tree.query(&[p.x, p.y, p.z])
-                .nearest_one::<SquaredEuclidean<f32>>()
-                .execute()
-                .distance
-                <= r * r
-        })
-        .count();
-    hits as f64 / sub.len() as f64
 }
 
 #[test]
@@ -99,9 +79,9 @@ fn kitti07_manifest_loads_with_the_right_ground_truth_and_preset() {
         let gt = pair.gt_target_from_source.unwrap();
         let (s, t) = (&pair.source.cloud.points, &pair.target.cloud.points);
         let (o_gt, o_inv, o_id) = (
-            overlap(s, t, &gt, 0.5),
-            overlap(s, t, &gt.inverse(), 0.5),
-            overlap(s, t, &Isometry3::identity(), 0.5),
+            common::overlap(s, t, &gt, 0.5),
+            common::overlap(s, t, &gt.inverse(), 0.5),
+            common::overlap(s, t, &Isometry3::identity(), 0.5),
         );
         println!(
             "{id}: overlap within 0.5 m: GT {o_gt:.2}, inverse {o_inv:.2}, identity {o_id:.2}"

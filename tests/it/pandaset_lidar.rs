@@ -3,33 +3,13 @@
 //! ego_000000 point for point), and under the GT the two clouds of each pair overlap far more
 //! than under identity. Fast: loading and nearest neighbours only, no registration.
 
+use crate::common;
 use cgenreg::dataset::Dataset;
-use kiddo::{ImmutableKdTree, SquaredEuclidean};
-use nalgebra::{Isometry3, Point3};
+use nalgebra::Isometry3;
 use std::path::Path;
 
 fn manifest() -> std::path::PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/manifests/pandaset-lidar.toml")
-}
-
-/// Fraction of every 10th point of `query`, moved by `t`, with a `reference` point within `r`.
-fn overlap(query: &[Point3<f32>], reference: &[Point3<f32>], t: &Isometry3<f64>, r: f32) -> f64 {
-    let pts: Vec<[f32; 3]> = reference.iter().map(|p| [p.x, p.y, p.z]).collect();
-    let tree = ImmutableKdTree::new_from_slice(&pts).unwrap();
-    let t = t.cast::<f32>();
-    let sub: Vec<_> = query.iter().step_by(10).collect();
-    let hits = sub
-        .iter()
-        .filter(|q| {
-            let p = t * **q;
-            tree.query(&[p.x, p.y, p.z])
-                .nearest_one::<SquaredEuclidean<f32>>()
-                .execute()
-                .distance
-                <= r * r
-        })
-        .count();
-    hits as f64 / sub.len() as f64
 }
 
 #[test]
@@ -82,8 +62,8 @@ fn pandaset_manifest_loads_with_the_right_ground_truth() {
         let pair = ds.load_pair(&p.id).unwrap();
         let gt = pair.gt_target_from_source.unwrap();
         let (s, t) = (&pair.source.cloud.points, &pair.target.cloud.points);
-        let with_gt = overlap(s, t, &gt, 0.5);
-        let ident = overlap(s, t, &Isometry3::identity(), 0.5);
+        let with_gt = common::overlap(s, t, &gt, 0.5);
+        let ident = common::overlap(s, t, &Isometry3::identity(), 0.5);
         println!(
             "{}: source points within 0.5 m of the target: GT {with_gt:.3}, identity {ident:.3}",
             p.id

@@ -142,3 +142,28 @@ pub fn export_data_env(data: &std::path::Path) {
     }
     ONCE.call_once(|| std::env::set_var("CGENREG_DATA", data));
 }
+
+/// Fraction of every 10th point of `query`, moved by `t`, with a `reference` point within `r`.
+pub fn overlap(
+    query: &[nalgebra::Point3<f32>],
+    reference: &[nalgebra::Point3<f32>],
+    t: &nalgebra::Isometry3<f64>,
+    r: f32,
+) -> f64 {
+    let pts: Vec<[f32; 3]> = reference.iter().map(|p| [p.x, p.y, p.z]).collect();
+    let tree = kiddo::ImmutableKdTree::new_from_slice(&pts).unwrap();
+    let t = t.cast::<f32>();
+    let sub: Vec<_> = query.iter().step_by(10).collect();
+    let hits = sub
+        .iter()
+        .filter(|q| {
+            let p = t * **q;
+            tree.query(&[p.x, p.y, p.z])
+                .nearest_one::<kiddo::SquaredEuclidean<f32>>()
+                .execute()
+                .distance
+                <= r * r
+        })
+        .count();
+    hits as f64 / sub.len() as f64
+}
