@@ -6,8 +6,9 @@ use super::cache::Cache;
 use super::fuse::{fuse_and_finish, FusionInputs};
 use super::geo::geo_branches;
 use super::memo::Memo;
-use super::params::RegisterParams;
-use super::result::{RegistrationResult, Timer};
+use super::params::{GeoFeatureSource, RegisterParams};
+use super::result::RegistrationResult;
+use super::stages::{geo, Ctx};
 use crate::dataset::ScanPair;
 use crate::error::{Error, Result};
 
@@ -40,18 +41,27 @@ pub fn register_pair_cached_keep(
         Some(ib) => {
             super::image_branch::register_with_image_keep(pair, params, ib, cache, memo, true)
         }
-        None => register_geometry(pair, params),
+        None => register_geometry(pair, params, cache, memo),
     }
 }
 
-/// The geometric branch alone: keypoints and features, then the shared tail
-/// ([`fuse_and_finish`] with no image descriptors).
+/// The geometric branch alone: keypoints and features (FPFH through the cached `geo-fpfh`
+/// stage, as with the image branch), then the shared tail ([`fuse_and_finish`] with no image
+/// descriptors).
 fn register_geometry(
     pair: &ScanPair,
     params: &RegisterParams,
+    cache: Option<&Cache>,
+    memo: &Memo,
 ) -> Result<(RegistrationResult, FusionInputs)> {
-    let mut timer = Timer::new();
-    let (src, tgt) = geo_branches(pair, params, &mut timer)?;
+    let mut ctx = Ctx::new(cache, memo);
+    let (src, tgt) = match params.geo_features {
+        GeoFeatureSource::Fpfh => (
+            geo::run(&mut ctx, "fpfh source", &pair.source, params.voxel)?.0,
+            geo::run(&mut ctx, "fpfh target", &pair.target, params.voxel)?.0,
+        ),
+        _ => geo_branches(pair, params, &mut ctx.timer)?,
+    };
     if src.features.dim != tgt.features.dim {
         return Err(Error::Invalid(format!(
             "source features are {}-D but target features are {}-D",
@@ -65,9 +75,13 @@ fn register_geometry(
         image_label: None,
     };
     let mut res = fuse_and_finish(pair, params, &inputs, None)?;
+    let Ctx {
+        timer, warnings, ..
+    } = ctx;
     let mut timings = timer.timings;
     timings.append(&mut res.timings);
     res.timings = timings;
     res.total_ms = timer.t0.elapsed().as_secs_f64() * 1e3;
+    res.warnings.extend(warnings);
     Ok((res, inputs))
 }
