@@ -6,7 +6,7 @@
 # branch's stages are cached by the first run, so the others cost only the in-memory tail.
 # Tables: python3 scripts/fusion_tables.py OUT
 #
-#   bash scripts/fusion_eval.sh SET [OUT_DIR]   # SET: staged-clouds rgbd-3dlomatch lidar staged rgbd-3dmatch
+#   bash scripts/fusion_eval.sh SET [OUT_DIR]   # SET: staged-clouds rgbd-3dlomatch lidar staged rgbd-3dmatch kitti07
 #
 # Env: CGENREG_BIN (default target/debug/cgenreg), CGENREG_CACHE (stage cache folder),
 # CGENREG_DATA. A run cut short resumes (bench --json resumes).
@@ -24,6 +24,7 @@ case "$SET" in
     rgbd-3dmatch) M=assets/manifests/redkitchen-rgbd.toml; O=(--split 3DMatch --wfm oracle) ;;
     staged) M=assets/manifests/redkitchen-staged.toml; O=(--wfm oracle) ;;
     lidar) M=assets/manifests/small-gicp-lidar.toml; O=(--wfm builtin) ;;
+    kitti07) M=assets/manifests/kitti07.toml; O=(--wfm builtin) ;;
     *) echo "unknown set $SET" >&2; exit 2 ;;
 esac
 run() { # mode name, then bench options
