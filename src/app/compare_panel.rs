@@ -13,7 +13,7 @@ use std::sync::mpsc::{channel, Receiver};
 
 use eframe::egui;
 
-use super::controls::LogLevel;
+use super::channel::LogLevel;
 use super::model::InspectorModel;
 use crate::metrics::compare::{self, Flip, PairOrder};
 
@@ -23,24 +23,9 @@ mod scatter;
 pub mod settings_run;
 mod table;
 
+pub use crate::app::model::{CompareEvent, SettingsCompareRequest, SettingsRuns, Side};
 pub use load::{load_comparison, LoadedComparison, LoadedRun};
-pub use settings_run::{CompareEvent, SettingsCompare, SettingsCompareRequest, SettingsRuns};
-
-/// One of the two runs.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Side {
-    A,
-    B,
-}
-
-impl Side {
-    pub fn label(self) -> &'static str {
-        match self {
-            Side::A => "A",
-            Side::B => "B",
-        }
-    }
-}
+pub use settings_run::SettingsCompare;
 
 /// What the user asked for in the panel; the app carries it out.
 #[derive(Clone, Debug, PartialEq)]
@@ -56,7 +41,7 @@ pub enum CompareAction {
     /// Take the controls' settings as settings A or B of a comparison over the open dataset.
     TakeSettings(Side),
     /// Send a command to the worker (run or cancel a settings comparison).
-    Send(super::controls::Command),
+    Send(super::channel::Command),
 }
 
 /// Index of a flip in [`CompareState::show`] and in the quadrant buttons.

@@ -5,6 +5,7 @@
 //! [`WorkerEvent`]s replace the model, update stages and fill the log.
 
 mod central_panel;
+pub mod channel;
 pub mod colormap;
 pub mod compare_panel;
 pub mod controls;
@@ -38,7 +39,7 @@ use crate::dataset::open::classify_drop;
 use crate::pipeline::params::{ImageBranchParams, RegisterParams};
 use log_bar::short;
 
-pub use controls::{
+pub use channel::{
     spawn_worker, Command, EventSink, LogLevel, LogOnlyWorker, OpenKind, StudyRequest, Worker,
     WorkerEvent, WorkerHandle,
 };

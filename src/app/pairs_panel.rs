@@ -9,7 +9,7 @@
 
 use eframe::egui;
 
-use super::controls::{RunProgress, RunSelection};
+use super::channel::{RunProgress, RunSelection};
 use super::model::{InspectorModel, PairOutcome, PairStatus};
 use super::Command;
 

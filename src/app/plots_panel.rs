@@ -7,7 +7,7 @@ use egui_plot::{Bar, BarChart, Legend, Line, Plot, PlotPoints, Points};
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 
-use super::controls::{Command, StudyRequest};
+use super::channel::{Command, StudyRequest};
 use super::model::InspectorModel;
 
 /// The plots panel's own inputs (the K list of the sweep, where plots are saved) and the

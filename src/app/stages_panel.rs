@@ -2,21 +2,8 @@
 
 use eframe::egui;
 
-use super::controls::Command;
-use super::model::{InspectorModel, StageInfo, StageState};
-
-/// Where a stage-panel row's time sits: the total adds top-level rows only.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub enum StageRole {
-    /// A step timed on its own (e.g. comparing the stage keys after a settings change).
-    #[default]
-    Stage,
-    /// A row whose time includes the [`StageRole::Part`] rows ("load + register",
-    /// "re-fuse from memory").
-    Container,
-    /// A pipeline stage timed inside a container row.
-    Part,
-}
+use super::channel::Command;
+use super::model::{InspectorModel, StageInfo, StageRole, StageState};
 
 /// The stage panel's total: the timed top-level rows (stages and containers), not the parts a
 /// container already includes. With no timed container (e.g. a run still in progress, or rows

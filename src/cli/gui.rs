@@ -2,7 +2,7 @@
 //! rendered headless to a PNG.
 
 use super::args::{ImageArgs, PipelineArgs};
-use crate::app::controls::RunSelection;
+use crate::app::channel::RunSelection;
 use crate::app::pairs_panel::PairSort;
 use crate::app::worker::PipelineWorker;
 use crate::app::{Command, MatchColorMode, Panel};

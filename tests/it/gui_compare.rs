@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use cgenreg::app::controls::{spawn_worker, Command, EventSink, Worker};
+use cgenreg::app::channel::{spawn_worker, Command, EventSink, Worker};
 use cgenreg::app::worker::PipelineWorker;
 use cgenreg::app::{App, InspectorModel, Panel};
 use cgenreg::metrics::compare::{compare, load_bench_run};

@@ -274,7 +274,7 @@ fn an_image_branch_that_cannot_run_is_an_error_row_with_its_reason() {
     );
     // Run failed/pending: the same error row, stamped with the settings asked for
     let s = w.run_all(
-        cgenreg::app::controls::RunSelection::FailedOrPending,
+        cgenreg::app::channel::RunSelection::FailedOrPending,
         &mut |_| {},
     );
     assert_eq!(s.errors, s.done);
@@ -342,7 +342,7 @@ fn rows_of_other_settings_are_stale_and_counted_apart() {
     assert!(s.contains(one), "{s}");
     // Run failed/pending re-runs the stale row
     assert!(w
-        .selected_pairs(cgenreg::app::controls::RunSelection::FailedOrPending)
+        .selected_pairs(cgenreg::app::channel::RunSelection::FailedOrPending)
         .contains(&ids[0]));
 }
 

@@ -5,8 +5,8 @@
 
 use std::sync::{Arc, Mutex};
 
+use cgenreg::app::channel::{spawn_worker, Command, EventSink, Worker};
 use cgenreg::app::colormap::{SOURCE_RGB, TARGET_RGB};
-use cgenreg::app::controls::{spawn_worker, Command, EventSink, Worker};
 use cgenreg::app::headless::{render_screenshot, HeadlessGl};
 use cgenreg::app::render3d::{DepthCue, Rasterizer};
 use cgenreg::app::{App, InspectorModel, Panel};
@@ -131,7 +131,7 @@ fn snapshot_compare() {
 /// hypothesis in the 3D view (its pose, only its consensus drawn).
 #[test]
 fn snapshot_hypotheses() {
-    use cgenreg::app::hypotheses_panel::HypothesisList;
+    use cgenreg::app::model::HypothesisList;
     let mut model = InspectorModel::demo();
     model.hypotheses = Some(HypothesisList::fixture(&model));
     let mut app = App::new(model, None, None);
@@ -222,7 +222,7 @@ fn snapshot_pairs() {
 /// and Cancel reaches the worker.
 #[test]
 fn pairs_tab_runs_all_sorts_navigates_and_cancels() {
-    use cgenreg::app::controls::{RunProgress, RunSelection};
+    use cgenreg::app::channel::{RunProgress, RunSelection};
     use cgenreg::app::pairs_panel::{visible_pairs, PairColumn, PairSort};
     let seen = Arc::new(Mutex::new(Vec::new()));
     let handle = spawn_worker(Box::new(Recorder(seen.clone())), None);

@@ -4,7 +4,7 @@
 use std::path::Path;
 
 use super::PipelineWorker;
-use crate::app::hypotheses_panel::HypothesisList;
+use crate::app::model::HypothesisList;
 use crate::app::model::InspectorModel;
 
 impl PipelineWorker {

@@ -9,12 +9,12 @@ use super::model_build::{
     default_posterior_point, point_posterior, pr_curve, result_to_model, FIGURE7_CORRECT_M,
 };
 use super::{invalidated_row, Current, Kept, PipelineWorker};
-use crate::app::controls::{EventSink, LogLevel, WorkerEvent};
+use crate::app::channel::{EventSink, LogLevel, WorkerEvent};
+use crate::app::model::StageRole;
 use crate::app::model::{
     Branch, InspectorModel, MatchInfo, PairEntry, PairStatus, PrCurve, SettingsTag, StageInfo,
     StageState,
 };
-use crate::app::stages_panel::StageRole;
 use crate::dataset::ScanPair;
 use crate::fusion::fuse::FusionMode;
 use crate::pipeline::fuse::{fuse_and_finish_memo, similarities, EstimateMemo, FusionInputs};
