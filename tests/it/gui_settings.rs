@@ -315,16 +315,16 @@ fn rows_of_other_settings_are_stale_and_counted_apart() {
     assert_ne!(ta.id, tb.id);
     assert_eq!(m.pairs[0].settings.as_ref(), Some(&ta));
     assert_eq!(m.pairs[1].settings.as_ref(), Some(&tb));
-    assert!(cgenreg::app::pairs_panel::is_stale(
+    assert!(cgenreg::app::tabs::pairs::is_stale(
         &m.pairs[0],
         Some(&tb.id)
     ));
-    assert!(!cgenreg::app::pairs_panel::is_stale(
+    assert!(!cgenreg::app::tabs::pairs::is_stale(
         &m.pairs[1],
         Some(&tb.id)
     ));
     let rows: Vec<usize> = (0..m.pairs.len()).collect();
-    let s = cgenreg::app::pairs_panel::summary(&m, &rows, Some(&tb.id));
+    let s = cgenreg::app::tabs::pairs::summary(&m, &rows, Some(&tb.id));
     assert!(s.contains("1 stale"), "{s}");
     assert!(
         s.starts_with(&format!(

@@ -5,7 +5,7 @@ use eframe::egui;
 use super::{CloudColorMode, View3dPrefs, OCCLUDED_RGB, RESIDUAL_CAP_M, VISIBLE_RGB};
 use crate::app::colormap::{quantile_value, to_color32, turbo, INLIER_RGB, OUTLIER_RGB};
 use crate::app::model::{Branch, InspectorModel};
-use crate::app::MatchColorMode;
+use crate::app::state::MatchColorMode;
 
 pub(super) fn legend(
     painter: &egui::Painter,

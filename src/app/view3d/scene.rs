@@ -17,7 +17,7 @@ use super::{
 use crate::app::colormap::{to_color32, HIGHLIGHT_RGB, SOURCE_RGB, TARGET_RGB};
 use crate::app::model::{bounds_of, InspectorModel, ViewImage};
 use crate::app::render3d::{self, CloudData, DepthCue, Instance, LineData, SceneFrame};
-use crate::app::Shared;
+use crate::app::state::Shared;
 
 /// A drawn correspondence on screen: (match index, source end, target end).
 type ScreenSegment = (usize, egui::Pos2, egui::Pos2);

@@ -6,11 +6,12 @@ use std::sync::Arc;
 use eframe::egui;
 use serde::{Deserialize, Serialize};
 
-use super::colormap::{to_color32, turbo, TARGET_RGB};
-use super::model::{InspectorModel, Posterior};
-use super::view3d::{self, TargetOverride, View3dState};
-use super::views_panel::{image_in_rect, to_screen, ViewsState};
-use super::Shared;
+use super::views::{image_in_rect, to_screen, ViewsState};
+use super::{Tab, TabContext};
+use crate::app::colormap::{to_color32, turbo, TARGET_RGB};
+use crate::app::model::{InspectorModel, Posterior};
+use crate::app::state::{Panel, Shared};
+use crate::app::view3d::{self, TargetOverride, View3dState};
 use crate::geometry::knn::KdIndex;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -40,7 +41,7 @@ impl PosteriorKind {
 }
 
 #[derive(Default)]
-pub struct PosteriorState {
+pub struct PosteriorTab {
     pub kind3d: Option<PosteriorKind>,
     pub view3d: View3dState,
     colors_key: Option<(u64, usize, PosteriorKind)>,
@@ -223,11 +224,20 @@ fn heat_map(
     });
 }
 
+impl Tab for PosteriorTab {
+    fn panel(&self) -> Panel {
+        Panel::Posterior
+    }
+    fn ui(&mut self, ui: &mut egui::Ui, cx: &mut TabContext<'_>) {
+        posterior_panel(ui, &mut cx.shared, cx.views, self);
+    }
+}
+
 pub fn posterior_panel(
     ui: &mut egui::Ui,
     shared: &mut Shared<'_>,
     views: &mut ViewsState,
-    state: &mut PosteriorState,
+    state: &mut PosteriorTab,
 ) {
     let model = shared.model;
     if model.posteriors.is_empty() {
@@ -374,7 +384,7 @@ pub fn posterior_panel(
 fn posterior_3d(
     ui: &mut egui::Ui,
     shared: &mut Shared<'_>,
-    state: &mut PosteriorState,
+    state: &mut PosteriorTab,
     p: &Posterior,
 ) {
     let model = shared.model;

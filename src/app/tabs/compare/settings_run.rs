@@ -7,7 +7,7 @@
 use eframe::egui;
 
 use super::load::{settings_comparison, settings_run};
-use super::{CompareAction, CompareState, Side, WARN};
+use super::{CompareAction, CompareTab, Side, WARN};
 use crate::app::channel::{Command, LogLevel};
 use crate::app::model::InspectorModel;
 use crate::app::model::{CompareEvent, SettingsCompareRequest, SettingsRuns};
@@ -71,7 +71,7 @@ impl SettingsCompare {
     }
 }
 
-impl CompareState {
+impl CompareTab {
     /// Takes a worker event of a settings comparison; returns lines for the log.
     pub fn on_event(&mut self, e: CompareEvent) -> Vec<(LogLevel, String)> {
         match e {

@@ -7,45 +7,16 @@
 //! shown and the model has none), so registrations and re-fusions never pay for it.
 
 use eframe::egui;
-use nalgebra::Isometry3;
 
-use super::model::{HypothesisRow, InspectorModel};
-use super::view3d::{self, View3dState};
-use super::{Command, Shared};
-
-/// A selected hypothesis as the 3D view and the match lists use it.
-#[derive(Clone, Debug, PartialEq)]
-pub struct HypothesisView {
-    pub rank: usize,
-    pub pose: Isometry3<f64>,
-    /// Per match of the model: in the hypothesis's consensus.
-    pub inlier: Vec<bool>,
-}
-
-impl HypothesisView {
-    /// The 3D legend's row for the source drawn under this hypothesis.
-    pub fn legend_label(&self) -> String {
-        format!("source (hypothesis #{})", self.rank)
-    }
-
-    pub fn of(row: &HypothesisRow, n_matches: usize) -> Self {
-        let mut inlier = vec![false; n_matches];
-        for &i in &row.inliers {
-            if let Some(x) = inlier.get_mut(i) {
-                *x = true;
-            }
-        }
-        HypothesisView {
-            rank: row.rank,
-            pose: row.pose,
-            inlier,
-        }
-    }
-}
+use super::{Tab, TabContext};
+use crate::app::channel::Command;
+use crate::app::model::InspectorModel;
+use crate::app::state::{HypothesisView, Panel, Shared};
+use crate::app::view3d::{self, View3dState};
 
 /// The panel's own state: for which model the list was asked for.
 #[derive(Clone, Debug, Default)]
-pub struct HypothesesState {
+pub struct HypothesesTab {
     asked_for: Option<u64>,
 }
 
@@ -55,10 +26,19 @@ fn fmt_opt(v: Option<f64>, scale: f64, digits: usize) -> String {
 }
 
 /// The list (left) and the 3D view (right).
-pub fn hypotheses_panel(
+impl Tab for HypothesesTab {
+    fn panel(&self) -> Panel {
+        Panel::Hypotheses
+    }
+    fn ui(&mut self, ui: &mut egui::Ui, cx: &mut TabContext<'_>) {
+        hypotheses_panel(ui, &mut cx.shared, self, cx.view3d);
+    }
+}
+
+fn hypotheses_panel(
     ui: &mut egui::Ui,
     shared: &mut Shared<'_>,
-    state: &mut HypothesesState,
+    state: &mut HypothesesTab,
     view: &mut View3dState,
 ) {
     let model = shared.model;
