@@ -9,6 +9,7 @@
 mod camera;
 mod colors;
 mod legend;
+mod pick;
 mod scene;
 
 use std::sync::Arc;
