@@ -229,20 +229,28 @@ impl App {
     /// Replaces the shown model (caches keyed on the generation are rebuilt; the 3D view keeps
     /// its camera and points when the clouds are the same).
     pub fn set_model(&mut self, model: InspectorModel) {
-        if model.source != self.model.source || model.target != self.model.target {
+        let same_clouds = model.source == self.model.source && model.target == self.model.target;
+        if !same_clouds {
             self.scene_gen = view3d::next_id();
         }
+        // the selected match by identity (its keypoints): a re-fusion reorders the matches,
+        // and an index would silently name another one
+        let selected = self
+            .ui_state
+            .selected_match
+            .and_then(|i| self.model.matches.get(i))
+            .map(|m| (m.src, m.tgt))
+            .filter(|_| same_clouds);
         self.model = model;
         self.model_gen = view3d::next_id();
         // a hypothesis indexes the old model's matches
         self.ui_state.hypothesis = None;
-        if self
-            .ui_state
-            .selected_match
-            .is_some_and(|m| m >= self.model.matches.len())
-        {
-            self.ui_state.selected_match = None;
-        }
+        self.ui_state.selected_match = selected.and_then(|(src, tgt)| {
+            self.model
+                .matches
+                .iter()
+                .position(|m| m.src == src && m.tgt == tgt)
+        });
     }
 
     /// Turns the 3D camera (benchmarks and scripted screenshots).
@@ -458,5 +466,40 @@ impl App {
         }
         open_ui::drop_overlay(&ctx);
         self.save_if_changed();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_selected_match_is_kept_by_its_keypoints_across_a_refusion() {
+        let demo = InspectorModel::demo();
+        let mut app = App::new(demo.clone(), None, None);
+        let mi = 5;
+        let (src, tgt) = (demo.matches[mi].src, demo.matches[mi].tgt);
+        app.ui_state.selected_match = Some(mi);
+        // a re-fusion: the same clouds, the matches in another order and one fewer
+        let mut refused = demo.clone();
+        refused.matches.reverse();
+        refused.matches.remove(0);
+        app.set_model(refused.clone());
+        let now = app.ui_state.selected_match.expect("still selected");
+        assert_ne!(now, mi, "the order changed, so must the index");
+        let m = &app.model().matches[now];
+        assert_eq!((m.src, m.tgt), (src, tgt));
+        // the match is gone after the next re-fusion: nothing is selected
+        let mut without = refused.clone();
+        without.matches.retain(|m| (m.src, m.tgt) != (src, tgt));
+        app.set_model(without);
+        assert_eq!(app.ui_state.selected_match, None);
+        // another pair (other clouds): keypoint indices name other points
+        app.set_model(demo.clone());
+        app.ui_state.selected_match = Some(mi);
+        let mut other = demo;
+        other.source.truncate(other.source.len() / 2);
+        app.set_model(other);
+        assert_eq!(app.ui_state.selected_match, None);
     }
 }

@@ -35,6 +35,46 @@ pub struct PairsTab {
     /// The id of the settings in force ([`crate::app::model::SettingsTag`]): rows computed with
     /// others are marked stale and left out of the counts (None: every row counts).
     pub current_settings: Option<String>,
+    /// While a run is in progress: the order and filter the rows were shown with when it
+    /// started, and their ids in that order (rows do not move under the cursor as results
+    /// come in; a new sort or filter chosen during the run applies at once).
+    held: Option<(PairSort, PairFilter, Vec<String>)>,
+}
+
+impl PairsTab {
+    /// The rows shown (indices into `model.pairs`), filtered and in `sort`'s order; during a
+    /// run, in the order they had when the run started.
+    pub fn rows(&mut self, model: &InspectorModel, sort: PairSort) -> Vec<usize> {
+        let rows = visible_pairs(&model.pairs, &self.filter, sort);
+        if self.progress.is_none() {
+            self.held = None;
+            return rows;
+        }
+        let stale = self
+            .held
+            .as_ref()
+            .is_none_or(|(s, f, _)| *s != sort || *f != self.filter);
+        if stale {
+            let ids = rows.iter().map(|&i| model.pairs[i].id.clone()).collect();
+            self.held = Some((sort, self.filter.clone(), ids));
+        }
+        let Some((_, _, ids)) = &self.held else {
+            return rows;
+        };
+        let at: std::collections::HashMap<&str, usize> = ids
+            .iter()
+            .enumerate()
+            .map(|(k, id)| (id.as_str(), k))
+            .collect();
+        let mut rows = rows;
+        // stable: rows that entered the filter since keep their sorted order, at the end
+        rows.sort_by_key(|&i| {
+            at.get(model.pairs[i].id.as_str())
+                .copied()
+                .unwrap_or(usize::MAX)
+        });
+        rows
+    }
 }
 
 /// Whether a row was computed with other settings than `current`.
@@ -213,7 +253,7 @@ pub fn pairs_panel(
         ui.selectable_value(sort, PairSort::WORST_RTE, "worst RTE");
         ui.selectable_value(sort, PairSort::BY_NAME, "name");
     });
-    let rows = visible_pairs(&model.pairs, &state.filter, *sort);
+    let rows = state.rows(model, *sort);
     if state.filter.is_active() {
         ui.weak(format!(
             "{} of {} pairs (filtered in the Pairs tab)",
@@ -306,7 +346,7 @@ impl Tab for PairsTab {
         let model = cx.shared.model;
         filter_controls(ui, model, &mut self.filter);
         let sort = &mut cx.shared.ui.pair_sort;
-        let rows = visible_pairs(&model.pairs, &self.filter, *sort);
+        let rows = self.rows(model, *sort);
         ui.label(summary(model, &rows, self.current_settings.as_deref()));
         ui.weak("click a header to sort (again: reverse) · Up/Down or j/k: previous / next pair");
         ui.separator();
@@ -356,5 +396,44 @@ mod tests {
         apply_progress(&mut m, &mut st, p(Some(row.clone()), true));
         assert_eq!(m.pairs[8], row);
         assert!(st.progress.is_none());
+    }
+
+    #[test]
+    fn rows_keep_their_order_while_a_run_fills_them() {
+        let mut m = InspectorModel::demo();
+        let mut st = PairsTab::default();
+        let sort = PairSort::WORST_RRE;
+        let before = st.rows(&m, sort);
+        let last = *before.last().unwrap();
+        let id = m.pairs[last].id.clone();
+        let total = m.pairs.len();
+        let progress = |row: Option<PairEntry>, finished| RunProgress {
+            done: 0,
+            total,
+            pair: id.clone(),
+            row,
+            finished,
+            cancelled: false,
+        };
+        apply_progress(&mut m, &mut st, progress(None, false));
+        let running = st.rows(&m, sort);
+        // the last row's result comes in as the worst of all: it stays where it was
+        let mut row = m.pairs[last].clone();
+        row.status = PairStatus::Done;
+        row.rre_deg = Some(179.0);
+        apply_progress(&mut m, &mut st, progress(Some(row.clone()), false));
+        assert_eq!(st.rows(&m, sort), running);
+        assert_eq!(*st.rows(&m, sort).last().unwrap(), last);
+        // a sort chosen during the run applies at once
+        assert_eq!(
+            st.rows(&m, PairSort::BY_NAME),
+            visible_pairs(&m.pairs, &st.filter, PairSort::BY_NAME)
+        );
+        // the run ends: the order is the sort's again, the row moved up (behind the error row,
+        // whose RRE counts as infinite)
+        apply_progress(&mut m, &mut st, progress(Some(row), true));
+        let after = st.rows(&m, sort);
+        assert_eq!(after, visible_pairs(&m.pairs, &st.filter, sort));
+        assert_eq!(after.iter().position(|&i| i == last), Some(1), "{after:?}");
     }
 }
