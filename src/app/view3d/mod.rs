@@ -8,7 +8,7 @@
 
 mod camera;
 mod colors;
-mod legend;
+pub mod legend;
 mod pick;
 mod scene;
 
