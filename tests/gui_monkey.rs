@@ -10,7 +10,7 @@
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 #![cfg(feature = "gui")]
 
-use cgenreg::app::controls::spawn_worker;
+use cgenreg::app::channel::spawn_worker;
 use cgenreg::app::model::PairStatus;
 use cgenreg::app::worker::PipelineWorker;
 use cgenreg::app::{App, InspectorModel};

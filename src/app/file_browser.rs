@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 
 use eframe::egui;
 
-use super::controls::OpenKind;
+use crate::dataset::open::OpenKind;
 
 /// File extensions a kind opens (lower case); folder kinds list folders only.
 pub fn extensions(kind: OpenKind) -> &'static [&'static str] {

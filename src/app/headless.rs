@@ -17,7 +17,9 @@ use glutin::config::{ConfigSurfaceTypes, ConfigTemplateBuilder};
 use glutin::context::{ContextApi, ContextAttributesBuilder, GlProfile, Version};
 use glutin::prelude::*;
 
-use super::{App, InspectorModel, Panel};
+use super::model::InspectorModel;
+use super::shell::App;
+use super::state::Panel;
 
 /// A current, surfaceless GL 3.3 core context with an offscreen framebuffer and an egui
 /// painter. Bound to the thread that created it.

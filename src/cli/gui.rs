@@ -2,8 +2,8 @@
 //! rendered headless to a PNG.
 
 use super::args::{ImageArgs, PipelineArgs};
-use crate::app::controls::RunSelection;
-use crate::app::pairs_panel::PairSort;
+use crate::app::channel::RunSelection;
+use crate::app::pair_order::PairSort;
 use crate::app::worker::PipelineWorker;
 use crate::app::{Command, MatchColorMode, Panel};
 use crate::error::{Error, Result};
@@ -71,7 +71,7 @@ pub fn apply_named(
         p.geo_features = given.geo_features.clone();
     }
     if has("reference") {
-        *f = g.clone();
+        *f = *g;
     }
     if has("calibration") || has("tau_img") {
         f.calibration_img = g.calibration_img;
@@ -446,7 +446,7 @@ pub fn run_inspect(a: InspectArgs) -> Result<()> {
 /// registering anything.
 fn run_compare_screenshot(a: &ScreenshotArgs, runs: &[PathBuf], panel: Panel) -> Result<()> {
     let loaded =
-        crate::app::compare_panel::load_comparison(&runs[0], &runs[1]).map_err(Error::Invalid)?;
+        crate::app::tabs::compare::load_comparison(&runs[0], &runs[1]).map_err(Error::Invalid)?;
     let manifest = a.manifest.clone().or_else(|| loaded.a.manifest.clone());
     let worker = PipelineWorker::open_manifest(
         &manifest.unwrap_or_else(demo_manifest),
@@ -458,7 +458,7 @@ fn run_compare_screenshot(a: &ScreenshotArgs, runs: &[PathBuf], panel: Panel) ->
     model.image_branch_note = None;
     let c = &loaded.comparison;
     let rows = {
-        let mut st = crate::app::compare_panel::CompareState::default();
+        let mut st = crate::app::tabs::compare::CompareTab::default();
         st.set_loaded(loaded.clone());
         st.rows()
     };
@@ -482,8 +482,8 @@ fn run_compare_screenshot(a: &ScreenshotArgs, runs: &[PathBuf], panel: Panel) ->
         &a.out,
         |app| {
             app.params = params;
-            app.compare.set_loaded(loaded);
-            app.compare.selected = selected;
+            app.tabs.compare.set_loaded(loaded);
+            app.tabs.compare.selected = selected;
         },
     )
     .map_err(|e| Error::Invalid(format!("cannot render the screenshot headless: {e}")))?;

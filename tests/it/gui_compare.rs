@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use cgenreg::app::controls::{spawn_worker, Command, EventSink, Worker};
+use cgenreg::app::channel::{spawn_worker, Command, EventSink, Worker};
 use cgenreg::app::worker::PipelineWorker;
 use cgenreg::app::{App, InspectorModel, Panel};
 use cgenreg::metrics::compare::{compare, load_bench_run};
@@ -87,11 +87,11 @@ fn compare_two_real_runs_and_open_a_pair_with_run_b() {
     h.run_steps(1);
     assert_eq!(h.state().ui_state.tab, Panel::Compare);
     let t0 = Instant::now();
-    while h.state().compare.loaded.is_none() {
+    while h.state().tabs.compare.loaded.is_none() {
         assert!(
             t0.elapsed() < Duration::from_secs(60),
             "the comparison never loaded: {:?}",
-            h.state().compare.error
+            h.state().tabs.compare.error
         );
         h.run_steps(1);
         std::thread::sleep(Duration::from_millis(10));
@@ -99,6 +99,7 @@ fn compare_two_real_runs_and_open_a_pair_with_run_b() {
     // the counts shown are the library's, and the files' own success fields
     let q = h
         .state()
+        .tabs
         .compare
         .loaded
         .as_ref()
@@ -131,20 +132,23 @@ fn compare_two_real_runs_and_open_a_pair_with_run_b() {
         .click();
     h.run_steps(2);
     assert_eq!(
-        h.state().compare.rows().len(),
+        h.state().tabs.compare.rows().len(),
         q.only_a + q.only_b + q.both_failure
     );
     // the first row (flipped first) is a pair A solves and B does not
-    let rows = h.state().compare.rows();
+    let rows = h.state().tabs.compare.rows();
     let id = {
-        let c = &h.state().compare.loaded.as_ref().unwrap().comparison;
+        let c = &h.state().tabs.compare.loaded.as_ref().unwrap().comparison;
         c.pairs[rows[0]].id.clone()
     };
     assert!(sa[&id] && !sb[&id], "{id}");
     // the table's row (the pair browser on the left lists the id too)
     h.query_all_by_label(&id).last().unwrap().click();
     h.run_steps(2);
-    assert_eq!(h.state().compare.selected.as_deref(), Some(id.as_str()));
+    assert_eq!(
+        h.state().tabs.compare.selected.as_deref(),
+        Some(id.as_str())
+    );
     h.get_by_label("open with B").click();
     h.run_steps(2);
     let b_params = run_b.register_params().unwrap();
@@ -218,14 +222,14 @@ fn a_bad_run_file_is_reported_with_its_name_and_field() {
         .with_size(egui::vec2(1280.0, 800.0))
         .build_ui_state(|ui, app: &mut App| app.show(ui), app);
     let t0 = Instant::now();
-    while h.state().compare.is_loading() {
+    while h.state().tabs.compare.is_loading() {
         assert!(t0.elapsed() < Duration::from_secs(30));
         h.run_steps(1);
         std::thread::sleep(Duration::from_millis(10));
     }
-    let e = h.state().compare.error.clone().expect("an error");
+    let e = h.state().tabs.compare.error.clone().expect("an error");
     assert!(e.contains("not-a-run.json") && e.contains("pairs"), "{e}");
-    assert!(h.state().compare.loaded.is_none());
+    assert!(h.state().tabs.compare.loaded.is_none());
 }
 
 /// A geometry-only worker on the staged redkitchen manifest with its own empty stage cache.
@@ -283,6 +287,7 @@ fn compare_two_settings_over_the_open_dataset() {
     // nothing to run before both settings are taken
     assert!(h
         .state()
+        .tabs
         .compare
         .settings
         .request(h.state().model())
@@ -294,18 +299,18 @@ fn compare_two_settings_over_the_open_dataset() {
     h.state_mut().params = b.clone();
     h.get_by_label("take B from the controls").click();
     h.run_steps(2);
-    assert_eq!(h.state().compare.settings.a.as_ref(), Some(&a));
-    assert_eq!(h.state().compare.settings.b.as_ref(), Some(&b));
+    assert_eq!(h.state().tabs.compare.settings.a.as_ref(), Some(&a));
+    assert_eq!(h.state().tabs.compare.settings.b.as_ref(), Some(&b));
     // what differs is said before the run
     h.get_by_label_contains("A and B differ in fusion.selection");
-    h.state_mut().compare.settings.limit = 3;
+    h.state_mut().tabs.compare.settings.limit = 3;
     h.run_steps(2);
     h.get_by_label("Run A vs B").click();
     h.run_steps(2);
     let t0 = Instant::now();
     let mut saw_progress = false;
-    while h.state().compare.loaded.is_none() {
-        saw_progress |= h.state().compare.settings.progress.is_some();
+    while h.state().tabs.compare.loaded.is_none() {
+        saw_progress |= h.state().tabs.compare.settings.progress.is_some();
         assert!(
             t0.elapsed() < Duration::from_secs(600),
             "the comparison never came back; log: {:?}",
@@ -315,8 +320,8 @@ fn compare_two_settings_over_the_open_dataset() {
         std::thread::sleep(Duration::from_millis(20));
     }
     assert!(saw_progress, "a progress bar while the worker runs");
-    assert!(h.state().compare.settings.progress.is_none());
-    let l = h.state().compare.loaded.clone().unwrap();
+    assert!(h.state().tabs.compare.settings.progress.is_none());
+    let l = h.state().tabs.compare.loaded.clone().unwrap();
     let c = &l.comparison;
     let got: Vec<&str> = c.pairs.iter().map(|p| p.id.as_str()).collect();
     assert_eq!(got, ids.iter().map(String::as_str).collect::<Vec<_>>());
@@ -374,7 +379,7 @@ fn a_cancelled_settings_comparison_keeps_the_pairs_run_under_both() {
     let a = w.params().clone();
     let b = settings_b(&a);
     let ids = w.pair_ids()[..3].to_vec();
-    let req = cgenreg::app::compare_panel::SettingsCompareRequest {
+    let req = cgenreg::app::tabs::compare::SettingsCompareRequest {
         a: a.clone(),
         b: b.clone(),
         pairs: Some(ids.clone()),
@@ -383,7 +388,7 @@ fn a_cancelled_settings_comparison_keeps_the_pairs_run_under_both() {
     let mut events = Vec::new();
     let runs = w.compare_settings(&req, &mut |e| {
         // Cancel while the second pair runs under A: it stops before its B
-        if let cgenreg::app::compare_panel::CompareEvent::Progress { done: 2, .. } = &e {
+        if let cgenreg::app::tabs::compare::CompareEvent::Progress { done: 2, .. } = &e {
             cancel.store(true, std::sync::atomic::Ordering::Relaxed);
         }
         events.push(e);

@@ -371,7 +371,7 @@ fn worker_runs_the_image_branch_from_the_cache_and_refuses_from_memory() {
 
 // ---- opening data through Command::Open (file dialogs and drag-and-drop end here) ----
 
-use cgenreg::app::controls::WorkerHandle;
+use cgenreg::app::channel::WorkerHandle;
 use cgenreg::app::model::InspectorModel;
 use cgenreg::app::{LogLevel, OpenKind};
 

@@ -7,7 +7,7 @@
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
-use cgenreg::app::controls::{RunProgress, RunSelection};
+use cgenreg::app::channel::{RunProgress, RunSelection};
 use cgenreg::app::model::{InspectorModel, PairEntry, PairStatus};
 use cgenreg::app::worker::PipelineWorker;
 use cgenreg::app::{spawn_worker, Command, WorkerEvent, WorkerHandle};

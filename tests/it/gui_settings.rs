@@ -274,7 +274,7 @@ fn an_image_branch_that_cannot_run_is_an_error_row_with_its_reason() {
     );
     // Run failed/pending: the same error row, stamped with the settings asked for
     let s = w.run_all(
-        cgenreg::app::controls::RunSelection::FailedOrPending,
+        cgenreg::app::channel::RunSelection::FailedOrPending,
         &mut |_| {},
     );
     assert_eq!(s.errors, s.done);
@@ -315,16 +315,16 @@ fn rows_of_other_settings_are_stale_and_counted_apart() {
     assert_ne!(ta.id, tb.id);
     assert_eq!(m.pairs[0].settings.as_ref(), Some(&ta));
     assert_eq!(m.pairs[1].settings.as_ref(), Some(&tb));
-    assert!(cgenreg::app::pairs_panel::is_stale(
+    assert!(cgenreg::app::tabs::pairs::is_stale(
         &m.pairs[0],
         Some(&tb.id)
     ));
-    assert!(!cgenreg::app::pairs_panel::is_stale(
+    assert!(!cgenreg::app::tabs::pairs::is_stale(
         &m.pairs[1],
         Some(&tb.id)
     ));
     let rows: Vec<usize> = (0..m.pairs.len()).collect();
-    let s = cgenreg::app::pairs_panel::summary(&m, &rows, Some(&tb.id));
+    let s = cgenreg::app::tabs::pairs::summary(&m, &rows, Some(&tb.id));
     assert!(s.contains("1 stale"), "{s}");
     assert!(
         s.starts_with(&format!(
@@ -342,7 +342,7 @@ fn rows_of_other_settings_are_stale_and_counted_apart() {
     assert!(s.contains(one), "{s}");
     // Run failed/pending re-runs the stale row
     assert!(w
-        .selected_pairs(cgenreg::app::controls::RunSelection::FailedOrPending)
+        .selected_pairs(cgenreg::app::channel::RunSelection::FailedOrPending)
         .contains(&ids[0]));
 }
 

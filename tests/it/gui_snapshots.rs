@@ -5,8 +5,8 @@
 
 use std::sync::{Arc, Mutex};
 
+use cgenreg::app::channel::{spawn_worker, Command, EventSink, Worker};
 use cgenreg::app::colormap::{SOURCE_RGB, TARGET_RGB};
-use cgenreg::app::controls::{spawn_worker, Command, EventSink, Worker};
 use cgenreg::app::headless::{render_screenshot, HeadlessGl};
 use cgenreg::app::render3d::{DepthCue, Rasterizer};
 use cgenreg::app::{App, InspectorModel, Panel};
@@ -105,7 +105,7 @@ fn snapshot_stages() {
 /// + XFeat with FPFH, Noisy-AND, NN (B), the first row (flipped first) selected.
 #[test]
 fn snapshot_compare() {
-    use cgenreg::app::compare_panel::load_comparison;
+    use cgenreg::app::tabs::compare::load_comparison;
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/ablation");
     let mut l = load_comparison(
         &dir.join("fpfh-nn.json"),
@@ -116,12 +116,12 @@ fn snapshot_compare() {
     l.b.missing.clear();
     let mut app = demo_app();
     app.ui_state.tab = Panel::Compare;
-    app.compare.set_loaded(l);
-    let first = app.compare.rows()[0];
-    let id = app.compare.loaded.as_ref().unwrap().comparison.pairs[first]
+    app.tabs.compare.set_loaded(l);
+    let first = app.tabs.compare.rows()[0];
+    let id = app.tabs.compare.loaded.as_ref().unwrap().comparison.pairs[first]
         .id
         .clone();
-    app.compare.selected = Some(id);
+    app.tabs.compare.selected = Some(id);
     let Some(mut h) = harness(app) else { return };
     h.run_steps(4);
     h.snapshot("compare");
@@ -131,7 +131,7 @@ fn snapshot_compare() {
 /// hypothesis in the 3D view (its pose, only its consensus drawn).
 #[test]
 fn snapshot_hypotheses() {
-    use cgenreg::app::hypotheses_panel::HypothesisList;
+    use cgenreg::app::model::HypothesisList;
     let mut model = InspectorModel::demo();
     model.hypotheses = Some(HypothesisList::fixture(&model));
     let mut app = App::new(model, None, None);
@@ -164,7 +164,7 @@ fn snapshot_hypotheses() {
 #[test]
 fn plots_save_as_png_and_csv() {
     use cgenreg::app::headless::HeadlessRenderer;
-    use cgenreg::app::plots_panel::PLOT_NAMES;
+    use cgenreg::app::tabs::plots::PLOT_NAMES;
     if renderer().is_none() {
         return;
     }
@@ -173,13 +173,13 @@ fn plots_save_as_png_and_csv() {
     let mut r = HeadlessRenderer::new(InspectorModel::demo(), (1280, 800)).unwrap();
     r.app.ui_state.tab = Panel::Plots;
     r.settled_frame().unwrap();
-    r.app.plots.save_dir = out.display().to_string();
-    r.app.plots.save_now = true;
+    r.app.tabs.plots.save_dir = out.display().to_string();
+    r.app.tabs.plots.save_now = true;
     for _ in 0..4 {
         r.frame(false).unwrap();
     }
     assert!(
-        r.app.plots.pending_png.is_none(),
+        r.app.tabs.plots.pending_png.is_none(),
         "the screenshot never came"
     );
     for name in PLOT_NAMES {
@@ -188,6 +188,7 @@ fn plots_save_as_png_and_csv() {
         let png = image::open(out.join(format!("{name}.png"))).unwrap();
         let rect = r
             .app
+            .tabs
             .plots
             .rects
             .iter()
@@ -208,7 +209,14 @@ fn plots_save_as_png_and_csv() {
         per_pair.lines().count(),
         1 + InspectorModel::demo().pairs.len()
     );
-    assert!(r.app.plots.last_save.as_deref().unwrap().contains("PNG"));
+    assert!(r
+        .app
+        .tabs
+        .plots
+        .last_save
+        .as_deref()
+        .unwrap()
+        .contains("PNG"));
 }
 
 #[test]
@@ -222,8 +230,8 @@ fn snapshot_pairs() {
 /// and Cancel reaches the worker.
 #[test]
 fn pairs_tab_runs_all_sorts_navigates_and_cancels() {
-    use cgenreg::app::controls::{RunProgress, RunSelection};
-    use cgenreg::app::pairs_panel::{visible_pairs, PairColumn, PairSort};
+    use cgenreg::app::channel::{RunProgress, RunSelection};
+    use cgenreg::app::tabs::pairs::{visible_pairs, PairColumn, PairSort};
     let seen = Arc::new(Mutex::new(Vec::new()));
     let handle = spawn_worker(Box::new(Recorder(seen.clone())), None);
     let mut app = App::new(InspectorModel::demo(), Some(handle), None);
@@ -262,7 +270,7 @@ fn pairs_tab_runs_all_sorts_navigates_and_cancels() {
     let m = h.state().model().clone();
     let order = visible_pairs(
         &m.pairs,
-        &h.state().pairs.filter,
+        &h.state().tabs.pairs.filter,
         h.state().ui_state.pair_sort,
     );
     let at = order
@@ -276,7 +284,7 @@ fn pairs_tab_runs_all_sorts_navigates_and_cancels() {
     // a run in progress: bar, Cancel, the running row
     h.state_mut().ui_state.pair_sort = PairSort::WORST_RRE;
     let pair = m.pairs[8].id.clone();
-    h.state_mut().pairs.progress = Some(RunProgress {
+    h.state_mut().tabs.pairs.progress = Some(RunProgress {
         done: 5,
         total: 9,
         pair: pair.clone(),

@@ -24,6 +24,7 @@ mod gui_pipeline;
 mod gui_run_all;
 mod gui_settings;
 mod gui_snapshots;
+mod gui_structure;
 mod gui_study;
 mod headless_no_egl;
 mod headline;

@@ -358,7 +358,7 @@ fn stage_rows() -> Vec<StageInfo> {
         name: n.into(),
         state: s,
         time_ms: t,
-        role: crate::app::stages_panel::StageRole::Stage,
+        role: StageRole::Stage,
     })
     .collect()
 }

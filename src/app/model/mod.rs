@@ -10,6 +10,12 @@ use nalgebra::Isometry3;
 
 use crate::camera::CameraModel;
 
+mod compare;
+mod hypotheses;
+
+pub use compare::{CompareEvent, SettingsCompareRequest, SettingsRuns, Side};
+pub use hypotheses::{HypothesisList, HypothesisRow};
+
 /// State of one scan pair in the pair browser.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub enum PairStatus {
@@ -285,13 +291,26 @@ pub enum StageState {
     Done,
 }
 
+/// Where a stage row's time sits: the total adds top-level rows only.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum StageRole {
+    /// A step timed on its own (e.g. comparing the stage keys after a settings change).
+    #[default]
+    Stage,
+    /// A row whose time includes the [`StageRole::Part`] rows ("load + register",
+    /// "re-fuse from memory").
+    Container,
+    /// A pipeline stage timed inside a container row.
+    Part,
+}
+
 #[derive(Clone, Debug, PartialEq)]
 pub struct StageInfo {
     pub name: String,
     pub state: StageState,
     pub time_ms: Option<f64>,
     /// Whether the total adds it (see [`StageRole`]).
-    pub role: super::stages_panel::StageRole,
+    pub role: StageRole,
 }
 
 /// Precision-recall curve of the matches, points are (recall, precision).
@@ -373,7 +392,7 @@ pub struct InspectorModel {
     /// shown next to the metrics.
     pub fusion_note: Option<String>,
     /// The estimator's ranked hypotheses (computed on demand by the hypothesis browser).
-    pub hypotheses: Option<super::hypotheses_panel::HypothesisList>,
+    pub hypotheses: Option<HypothesisList>,
     /// What actually ran for the shown result ("geometry (FPFH) + image (oracle, XFeat)"):
     /// the pair's header shows it next to the settings asked for.
     pub branches_ran: Option<String>,

@@ -7,7 +7,7 @@ use nalgebra::Point3;
 use super::{apply, point3, rgba, CloudColorMode, OCCLUDED_RGB, RESIDUAL_CAP_M, VISIBLE_RGB};
 use crate::app::colormap::{self, NEUTRAL_RGB, SOURCE_RGB, TARGET_RGB};
 use crate::app::model::{Branch, InspectorModel};
-use crate::app::MatchColorMode;
+use crate::app::state::MatchColorMode;
 use crate::geometry::knn::KdIndex;
 
 /// Per-point display normals of one cloud (shared with the GL thread).

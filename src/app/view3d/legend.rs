@@ -5,7 +5,7 @@ use eframe::egui;
 use super::{CloudColorMode, View3dPrefs, OCCLUDED_RGB, RESIDUAL_CAP_M, VISIBLE_RGB};
 use crate::app::colormap::{quantile_value, to_color32, turbo, INLIER_RGB, OUTLIER_RGB};
 use crate::app::model::{Branch, InspectorModel};
-use crate::app::MatchColorMode;
+use crate::app::state::MatchColorMode;
 
 pub(super) fn legend(
     painter: &egui::Painter,
@@ -122,13 +122,31 @@ pub(super) fn legend(
     );
 }
 
-/// A continuous colour scale: turbo from `ticks[0]` (bottom of the map) to the last tick.
+/// A continuous colour scale from position 0 (bottom of the map) to 1, with labelled ticks.
 pub struct ColorBar {
     pub title: String,
     /// The mode's name, to merge the source's and the target's bar.
     title_key: String,
     /// (position in [0, 1] along the map, label).
     pub ticks: Vec<(f32, String)>,
+    /// The colour at a position in [0, 1] (turbo unless the scale is diverging).
+    pub map: fn(f32) -> [u8; 3],
+}
+
+impl ColorBar {
+    pub fn new(
+        title: impl Into<String>,
+        ticks: Vec<(f32, String)>,
+        map: fn(f32) -> [u8; 3],
+    ) -> Self {
+        let title = title.into();
+        Self {
+            title_key: title.clone(),
+            title,
+            ticks,
+            map,
+        }
+    }
 }
 
 /// The colour bar of a cloud colour mode, None for discrete modes.
@@ -152,6 +170,7 @@ pub fn cloud_bar(model: &InspectorModel, mode: CloudColorMode, who: &str) -> Opt
                     (f, l)
                 })
                 .collect(),
+            map: turbo,
         })
     };
     match mode {
@@ -177,11 +196,7 @@ pub fn confidence_bar(model: &InspectorModel, what: &str) -> ColorBar {
             (q, format!("q{:.0}: {}", q * 100.0, score_text(v)))
         })
         .collect();
-    ColorBar {
-        title: what.to_string(),
-        title_key: what.to_string(),
-        ticks,
-    }
+    ColorBar::new(what, ticks, turbo)
 }
 
 /// A score near 1 with enough digits to tell neighbours apart (Noisy-AND saturates).
@@ -204,7 +219,7 @@ pub fn color_bar(painter: &egui::Painter, at: egui::Pos2, bar: &ColorBar) -> f32
     for i in 0..n {
         let x0 = at.x + w * i as f32 / n as f32;
         let x1 = at.x + w * (i + 1) as f32 / n as f32 + 0.5;
-        let c = to_color32(turbo((i as f32 + 0.5) / n as f32));
+        let c = to_color32((bar.map)((i as f32 + 0.5) / n as f32));
         painter.rect_filled(
             egui::Rect::from_min_max(egui::pos2(x0, top), egui::pos2(x1, top + h)),
             0.0,

@@ -8,7 +8,8 @@
 
 mod camera;
 mod colors;
-mod legend;
+pub mod legend;
+mod pick;
 mod scene;
 
 use std::sync::Arc;
@@ -19,7 +20,6 @@ use serde::{Deserialize, Serialize};
 
 use super::model::InspectorModel;
 use super::render3d::{self, CloudData, DepthCue, LineData, Rasterizer};
-use super::Shared;
 
 pub use camera::{project, SceneCamera};
 pub use colors::{branch_rgb, cloud_colors, display_normals, match_rgb};
@@ -333,12 +333,6 @@ pub fn next_id() -> u64 {
     use std::sync::atomic::{AtomicU64, Ordering};
     static ID: AtomicU64 = AtomicU64::new(1);
     ID.fetch_add(1, Ordering::Relaxed)
-}
-
-/// Full 3D panel: options row then the viewport.
-pub fn view3d_panel(ui: &mut egui::Ui, shared: &mut Shared<'_>, state: &mut View3dState) {
-    view3d_options(ui, state);
-    scene_ui(ui, shared, state, None);
 }
 
 #[cfg(test)]

@@ -7,8 +7,8 @@
 use serde_json::json;
 
 use super::PipelineWorker;
-use crate::app::compare_panel::{CompareEvent, SettingsCompareRequest, SettingsRuns, Side};
-use crate::app::controls::{EventSink, LogLevel, WorkerEvent};
+use crate::app::channel::{EventSink, LogLevel, WorkerEvent};
+use crate::app::model::{CompareEvent, SettingsCompareRequest, SettingsRuns, Side};
 use crate::app::model::{PairEntry, PairStatus};
 use crate::metrics::compare::{BenchRun, PairRow};
 use crate::pipeline::{RegisterParams, WfmSpec};

@@ -29,9 +29,9 @@ mod study;
 use std::sync::Arc;
 use std::time::Instant;
 
-use super::controls::{Command, EventSink, LogLevel, Worker, WorkerEvent};
+use super::channel::{Command, EventSink, LogLevel, Worker, WorkerEvent};
+use super::model::StageRole;
 use super::model::{InspectorModel, PairEntry, PairStatus, StageInfo, StageState};
-use super::stages_panel::StageRole;
 use crate::dataset::manifest::Dataset;
 use crate::dataset::ScanPair;
 use crate::fusion::fuse::FusionMode;

@@ -6,11 +6,11 @@ use std::sync::Arc;
 
 use nalgebra::{Isometry3, Point3};
 
+use crate::app::model::StageRole;
 use crate::app::model::{
     Branch, InspectorModel, MatchInfo, PairEntry, PairStatus, PlotData, Posterior, PrCurve,
     RgbImage, StageInfo, StageState, ViewCamera, ViewImage, ViewLabel,
 };
-use crate::app::stages_panel::StageRole;
 use crate::dataset::ScanPair;
 use crate::fusion::fuse::FusionMode;
 use crate::pipeline::fuse::{FusionInputs, Similarities};

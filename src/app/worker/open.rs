@@ -6,8 +6,8 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use super::PipelineWorker;
-use crate::app::controls::{EventSink, LogLevel, WorkerEvent};
-use crate::app::OpenKind;
+use crate::app::channel::OpenKind;
+use crate::app::channel::{EventSink, LogLevel, WorkerEvent};
 use crate::dataset::manifest::Dataset;
 use crate::dataset::ScanPair;
 use crate::pipeline::cache::Cache;

@@ -8,7 +8,7 @@ use std::time::Instant;
 
 use super::model_build::fill_row;
 use super::PipelineWorker;
-use crate::app::controls::{EventSink, LogLevel, RunProgress, RunSelection, WorkerEvent};
+use crate::app::channel::{EventSink, LogLevel, RunProgress, RunSelection, WorkerEvent};
 use crate::app::model::{InspectorModel, PairEntry, PairOutcome, PairStatus};
 use crate::pipeline::WfmSpec;
 

@@ -4,7 +4,7 @@
 use std::time::Instant;
 
 use super::PipelineWorker;
-use crate::app::controls::{EventSink, LogLevel, StudyRequest, WorkerEvent};
+use crate::app::channel::{EventSink, LogLevel, StudyRequest, WorkerEvent};
 use crate::app::model::{InspectorModel, KPoint, PlotData, PromptBar};
 use crate::pipeline::study::{
     k_settings, prompt_settings, run_study_with, StudyReport, StudySetting,

@@ -9,20 +9,22 @@
 
 use eframe::egui;
 
-use super::controls::{RunProgress, RunSelection};
-use super::model::{InspectorModel, PairOutcome, PairStatus};
-use super::Command;
+use super::{Tab, TabContext};
+use crate::app::channel::{Command, RunProgress, RunSelection};
+use crate::app::model::{InspectorModel, PairEntry, PairOutcome, PairStatus};
+use crate::app::state::Panel;
 
-mod order;
 mod table;
 
-pub use order::{sorted_pairs, visible_pairs, OutcomeFilter, PairColumn, PairFilter, PairSort};
+pub use crate::app::pair_order::{
+    sorted_pairs, visible_pairs, OutcomeFilter, PairColumn, PairFilter, PairSort,
+};
 pub use table::common_id_prefix;
 use table::{table, TableView};
 
 /// The browser's state besides the (persisted) sort.
 #[derive(Debug, Default)]
-pub struct PairsState {
+pub struct PairsTab {
     pub filter: PairFilter,
     /// The run in progress (None when none runs).
     pub progress: Option<RunProgress>,
@@ -30,13 +32,53 @@ pub struct PairsState {
     requested: Option<String>,
     /// The current pair each list last scrolled to (side panel, tab).
     scrolled: [Option<String>; 2],
-    /// The id of the settings in force ([`super::model::SettingsTag`]): rows computed with
+    /// The id of the settings in force ([`crate::app::model::SettingsTag`]): rows computed with
     /// others are marked stale and left out of the counts (None: every row counts).
     pub current_settings: Option<String>,
+    /// While a run is in progress: the order and filter the rows were shown with when it
+    /// started, and their ids in that order (rows do not move under the cursor as results
+    /// come in; a new sort or filter chosen during the run applies at once).
+    held: Option<(PairSort, PairFilter, Vec<String>)>,
+}
+
+impl PairsTab {
+    /// The rows shown (indices into `model.pairs`), filtered and in `sort`'s order; during a
+    /// run, in the order they had when the run started.
+    pub fn rows(&mut self, model: &InspectorModel, sort: PairSort) -> Vec<usize> {
+        let rows = visible_pairs(&model.pairs, &self.filter, sort);
+        if self.progress.is_none() {
+            self.held = None;
+            return rows;
+        }
+        let stale = self
+            .held
+            .as_ref()
+            .is_none_or(|(s, f, _)| *s != sort || *f != self.filter);
+        if stale {
+            let ids = rows.iter().map(|&i| model.pairs[i].id.clone()).collect();
+            self.held = Some((sort, self.filter.clone(), ids));
+        }
+        let Some((_, _, ids)) = &self.held else {
+            return rows;
+        };
+        let at: std::collections::HashMap<&str, usize> = ids
+            .iter()
+            .enumerate()
+            .map(|(k, id)| (id.as_str(), k))
+            .collect();
+        let mut rows = rows;
+        // stable: rows that entered the filter since keep their sorted order, at the end
+        rows.sort_by_key(|&i| {
+            at.get(model.pairs[i].id.as_str())
+                .copied()
+                .unwrap_or(usize::MAX)
+        });
+        rows
+    }
 }
 
 /// Whether a row was computed with other settings than `current`.
-pub fn is_stale(row: &super::model::PairEntry, current: Option<&str>) -> bool {
+pub fn is_stale(row: &PairEntry, current: Option<&str>) -> bool {
     match (&row.settings, current) {
         (Some(s), Some(c)) => s.id != c,
         _ => false,
@@ -44,7 +86,7 @@ pub fn is_stale(row: &super::model::PairEntry, current: Option<&str>) -> bool {
 }
 
 /// Applies a run's progress to the shown model: the finished pair's row, the running mark.
-pub fn apply_progress(model: &mut InspectorModel, state: &mut PairsState, p: RunProgress) {
+pub fn apply_progress(model: &mut InspectorModel, state: &mut PairsTab, p: RunProgress) {
     if let Some(row) = model.pairs.iter_mut().find(|r| r.id == p.pair) {
         match &p.row {
             Some(new) => *row = new.clone(),
@@ -59,7 +101,7 @@ pub fn apply_progress(model: &mut InspectorModel, state: &mut PairsState, p: Run
 pub fn keyboard_nav(
     ctx: &egui::Context,
     model: &InspectorModel,
-    state: &mut PairsState,
+    state: &mut PairsTab,
     sort: PairSort,
     out: &mut Vec<Command>,
 ) {
@@ -111,7 +153,7 @@ pub fn keyboard_nav(
 }
 
 /// "Run all" and "Run failed/pending", or the running run's progress bar and Cancel.
-pub fn run_controls(ui: &mut egui::Ui, state: &PairsState, out: &mut Vec<Command>) {
+pub fn run_controls(ui: &mut egui::Ui, state: &PairsTab, out: &mut Vec<Command>) {
     match &state.progress {
         Some(p) => {
             ui.horizontal(|ui| {
@@ -200,7 +242,7 @@ pub fn filter_controls(ui: &mut egui::Ui, model: &InspectorModel, filter: &mut P
 pub fn pairs_panel(
     ui: &mut egui::Ui,
     model: &InspectorModel,
-    state: &mut PairsState,
+    state: &mut PairsTab,
     sort: &mut PairSort,
     out: &mut Vec<Command>,
 ) {
@@ -211,7 +253,7 @@ pub fn pairs_panel(
         ui.selectable_value(sort, PairSort::WORST_RTE, "worst RTE");
         ui.selectable_value(sort, PairSort::BY_NAME, "name");
     });
-    let rows = visible_pairs(&model.pairs, &state.filter, *sort);
+    let rows = state.rows(model, *sort);
     if state.filter.is_active() {
         ui.weak(format!(
             "{} of {} pairs (filtered in the Pairs tab)",
@@ -296,46 +338,46 @@ pub fn summary(model: &InspectorModel, rows: &[usize], current: Option<&str>) ->
 }
 
 /// The "Pairs" tab: filters, a summary, and every column.
-pub fn pairs_tab(
-    ui: &mut egui::Ui,
-    model: &InspectorModel,
-    state: &mut PairsState,
-    sort: &mut PairSort,
-    out: &mut Vec<Command>,
-) {
-    filter_controls(ui, model, &mut state.filter);
-    let rows = visible_pairs(&model.pairs, &state.filter, *sort);
-    ui.label(summary(model, &rows, state.current_settings.as_deref()));
-    ui.weak("click a header to sort (again: reverse) · Up/Down or j/k: previous / next pair");
-    ui.separator();
-    let view = TableView {
-        id: "pairs_tab_grid",
-        model,
-        rows: &rows,
-        columns: &PairColumn::ALL,
-        max_height: None,
-        sideways: true,
-    };
-    let current = state.current_settings.clone();
-    table(
-        ui,
-        view,
-        sort,
-        &mut state.scrolled[1],
-        current.as_deref(),
-        out,
-    );
+impl Tab for PairsTab {
+    fn panel(&self) -> Panel {
+        Panel::Pairs
+    }
+    fn ui(&mut self, ui: &mut egui::Ui, cx: &mut TabContext<'_>) {
+        let model = cx.shared.model;
+        filter_controls(ui, model, &mut self.filter);
+        let sort = &mut cx.shared.ui.pair_sort;
+        let rows = self.rows(model, *sort);
+        ui.label(summary(model, &rows, self.current_settings.as_deref()));
+        ui.weak("click a header to sort (again: reverse) · Up/Down or j/k: previous / next pair");
+        ui.separator();
+        let view = TableView {
+            id: "pairs_tab_grid",
+            model,
+            rows: &rows,
+            columns: &PairColumn::ALL,
+            max_height: None,
+            sideways: true,
+        };
+        let current = self.current_settings.clone();
+        table(
+            ui,
+            view,
+            sort,
+            &mut self.scrolled[1],
+            current.as_deref(),
+            cx.shared.commands,
+        );
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::app::model::PairEntry;
 
     #[test]
     fn progress_updates_rows_and_clears_when_finished() {
         let mut m = InspectorModel::demo();
-        let mut st = PairsState::default();
+        let mut st = PairsTab::default();
         let id = m.pairs[8].id.clone();
         let p = |row: Option<PairEntry>, finished| RunProgress {
             done: 0,
@@ -354,5 +396,44 @@ mod tests {
         apply_progress(&mut m, &mut st, p(Some(row.clone()), true));
         assert_eq!(m.pairs[8], row);
         assert!(st.progress.is_none());
+    }
+
+    #[test]
+    fn rows_keep_their_order_while_a_run_fills_them() {
+        let mut m = InspectorModel::demo();
+        let mut st = PairsTab::default();
+        let sort = PairSort::WORST_RRE;
+        let before = st.rows(&m, sort);
+        let last = *before.last().unwrap();
+        let id = m.pairs[last].id.clone();
+        let total = m.pairs.len();
+        let progress = |row: Option<PairEntry>, finished| RunProgress {
+            done: 0,
+            total,
+            pair: id.clone(),
+            row,
+            finished,
+            cancelled: false,
+        };
+        apply_progress(&mut m, &mut st, progress(None, false));
+        let running = st.rows(&m, sort);
+        // the last row's result comes in as the worst of all: it stays where it was
+        let mut row = m.pairs[last].clone();
+        row.status = PairStatus::Done;
+        row.rre_deg = Some(179.0);
+        apply_progress(&mut m, &mut st, progress(Some(row.clone()), false));
+        assert_eq!(st.rows(&m, sort), running);
+        assert_eq!(*st.rows(&m, sort).last().unwrap(), last);
+        // a sort chosen during the run applies at once
+        assert_eq!(
+            st.rows(&m, PairSort::BY_NAME),
+            visible_pairs(&m.pairs, &st.filter, PairSort::BY_NAME)
+        );
+        // the run ends: the order is the sort's again, the row moved up (behind the error row,
+        // whose RRE counts as infinite)
+        apply_progress(&mut m, &mut st, progress(Some(row), true));
+        let after = st.rows(&m, sort);
+        assert_eq!(after, visible_pairs(&m.pairs, &st.filter, sort));
+        assert_eq!(after.iter().position(|&i| i == last), Some(1), "{after:?}");
     }
 }

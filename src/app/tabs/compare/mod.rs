@@ -4,7 +4,7 @@
 //! with the settings of either run. Everything computed comes from
 //! [`crate::metrics::compare`] (the same comparison as `cgenreg diff`); this file draws it.
 //!
-//! The two files are read off the UI thread ([`CompareState::request`] starts a short-lived
+//! The two files are read off the UI thread ([`CompareTab::request`] starts a short-lived
 //! loader thread, polled every frame): a merged run over a whole dataset is a large file, and
 //! the pipeline worker may be busy for minutes (a study, Run all) when the user asks.
 
@@ -13,8 +13,10 @@ use std::sync::mpsc::{channel, Receiver};
 
 use eframe::egui;
 
-use super::controls::LogLevel;
-use super::model::InspectorModel;
+use super::{Tab, TabContext};
+use crate::app::channel::{Command, LogLevel};
+use crate::app::model::InspectorModel;
+use crate::app::state::Panel;
 use crate::metrics::compare::{self, Flip, PairOrder};
 
 mod header;
@@ -23,24 +25,9 @@ mod scatter;
 pub mod settings_run;
 mod table;
 
+pub use crate::app::model::{CompareEvent, SettingsCompareRequest, SettingsRuns, Side};
 pub use load::{load_comparison, LoadedComparison, LoadedRun};
-pub use settings_run::{CompareEvent, SettingsCompare, SettingsCompareRequest, SettingsRuns};
-
-/// One of the two runs.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Side {
-    A,
-    B,
-}
-
-impl Side {
-    pub fn label(self) -> &'static str {
-        match self {
-            Side::A => "A",
-            Side::B => "B",
-        }
-    }
-}
+pub use settings_run::SettingsCompare;
 
 /// What the user asked for in the panel; the app carries it out.
 #[derive(Clone, Debug, PartialEq)]
@@ -56,10 +43,10 @@ pub enum CompareAction {
     /// Take the controls' settings as settings A or B of a comparison over the open dataset.
     TakeSettings(Side),
     /// Send a command to the worker (run or cancel a settings comparison).
-    Send(super::controls::Command),
+    Send(Command),
 }
 
-/// Index of a flip in [`CompareState::show`] and in the quadrant buttons.
+/// Index of a flip in [`CompareTab::show`] and in the quadrant buttons.
 fn flip_index(f: Flip) -> usize {
     match f {
         Flip::BothSuccess => 0,
@@ -103,7 +90,7 @@ fn flip_short(f: Flip) -> &'static str {
 type Loading = (Receiver<Result<LoadedComparison, String>>, PathBuf, PathBuf);
 
 /// The Compare tab's state: the loaded comparison, the loader thread, filters and sorting.
-pub struct CompareState {
+pub struct CompareTab {
     pub loaded: Option<LoadedComparison>,
     /// Paths asked for and not yet handed to a loader thread (started on the next frame).
     request: Option<(PathBuf, PathBuf)>,
@@ -120,9 +107,11 @@ pub struct CompareState {
     pub selected: Option<String>,
     /// Two settings compared over the open dataset.
     pub settings: SettingsCompare,
+    /// What the user asked for this frame; the app takes it after drawing the tab.
+    pub action: Option<CompareAction>,
 }
 
-impl Default for CompareState {
+impl Default for CompareTab {
     fn default() -> Self {
         Self {
             loaded: None,
@@ -135,11 +124,12 @@ impl Default for CompareState {
             log_axes: true,
             selected: None,
             settings: SettingsCompare::default(),
+            action: None,
         }
     }
 }
 
-impl CompareState {
+impl CompareTab {
     /// Loads `a` and `b` off the UI thread (started on the next frame).
     pub fn request(&mut self, a: PathBuf, b: PathBuf) {
         self.request = Some((a, b));
@@ -239,10 +229,19 @@ fn fmt(v: Option<f64>, scale: f64, digits: usize) -> String {
 const WARN: egui::Color32 = egui::Color32::from_rgb(230, 190, 60);
 
 /// Draws the Compare tab; returns what the user asked for.
-pub fn compare_panel(
+impl Tab for CompareTab {
+    fn panel(&self) -> Panel {
+        Panel::Compare
+    }
+    fn ui(&mut self, ui: &mut egui::Ui, cx: &mut TabContext<'_>) {
+        self.action = compare_panel(ui, cx.shared.model, self);
+    }
+}
+
+fn compare_panel(
     ui: &mut egui::Ui,
     model: &InspectorModel,
-    st: &mut CompareState,
+    st: &mut CompareTab,
 ) -> Option<CompareAction> {
     let mut action = None;
     ui.horizontal(|ui| {
@@ -303,7 +302,7 @@ pub fn compare_panel(
 
 /// The quadrant counts (each a filter of the table and the scatter), recalls and median
 /// differences, and the pairs not in both runs.
-fn quadrant_bar(ui: &mut egui::Ui, st: &mut CompareState) {
+fn quadrant_bar(ui: &mut egui::Ui, st: &mut CompareTab) {
     let Some(l) = &st.loaded else { return };
     let c = &l.comparison;
     ui.horizontal_wrapped(|ui| {

@@ -6,11 +6,13 @@ use std::sync::Arc;
 use eframe::egui;
 use serde::{Deserialize, Serialize};
 
-use super::colormap::{to_color32, turbo, TARGET_RGB};
-use super::model::{InspectorModel, Posterior};
-use super::view3d::{self, TargetOverride, View3dState};
-use super::views_panel::{image_in_rect, to_screen, ViewsState};
-use super::Shared;
+use super::views::{image_in_rect, to_screen, ViewsState};
+use super::{Tab, TabContext};
+use crate::app::colormap::{to_color32, turbo, TARGET_RGB};
+use crate::app::model::{InspectorModel, Posterior};
+use crate::app::state::{Panel, Shared};
+use crate::app::view3d::legend::{color_bar, ColorBar};
+use crate::app::view3d::{self, TargetOverride, View3dState};
 use crate::geometry::knn::KdIndex;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -40,7 +42,7 @@ impl PosteriorKind {
 }
 
 #[derive(Default)]
-pub struct PosteriorState {
+pub struct PosteriorTab {
     pub kind3d: Option<PosteriorKind>,
     pub view3d: View3dState,
     colors_key: Option<(u64, usize, PosteriorKind)>,
@@ -106,6 +108,87 @@ fn argmax(v: &[f32]) -> Option<usize> {
 /// linear colormap).
 pub const LOG_DECADES: f32 = 3.0;
 
+/// What the 3D view draws of a normalised value: log scale over [`LOG_DECADES`] decades in
+/// [0, 1], the disagreement as it is (in [-1, 1]); [`value_rgb`] colours it.
+pub fn shown_value(v: f32, kind: PosteriorKind) -> f32 {
+    if kind == PosteriorKind::Disagreement {
+        v
+    } else {
+        (1.0 + v.max(1e-12).log10() / LOG_DECADES).clamp(0.0, 1.0)
+    }
+}
+
+/// The colour bar of the 3D posterior colours: ticks at the values they show (the posterior
+/// over its maximum, log scale; the disagreement from geometry only to image only).
+pub fn posterior_bar(kind: PosteriorKind) -> ColorBar {
+    if kind == PosteriorKind::Disagreement {
+        let ticks = [
+            (-1.0, "-1: geometry only"),
+            (0.0, "0"),
+            (1.0, "+1: image only"),
+        ]
+        .into_iter()
+        .map(|(v, l): (f32, &str)| ((v + 1.0) / 2.0, l.to_string()))
+        .collect();
+        return ColorBar::new(
+            "target cloud: image minus geometric posterior, each over its maximum",
+            ticks,
+            |t| value_rgb(2.0 * t - 1.0, PosteriorKind::Disagreement),
+        );
+    }
+    let decades = LOG_DECADES as i32;
+    let ticks = (0..=decades)
+        .map(|k| {
+            let v = 10f32.powi(k - decades);
+            let label = match k {
+                0 => format!("<= {v}"),
+                _ if k == decades => "1 (its maximum)".to_string(),
+                _ => format!("{v}"),
+            };
+            (shown_value(v, kind), label)
+        })
+        .collect();
+    ColorBar::new(
+        format!(
+            "target cloud: {} posterior over its maximum, log scale",
+            kind.label()
+        ),
+        ticks,
+        |t| value_rgb(t, PosteriorKind::Fused),
+    )
+}
+
+/// The heat maps' colour bar: the posterior over its maximum, linear.
+pub fn heat_map_bar() -> ColorBar {
+    let ticks = [0.0f32, 0.25, 0.5, 0.75, 1.0]
+        .into_iter()
+        .map(|v| {
+            (
+                v,
+                if v == 1.0 {
+                    "1 (its maximum)".to_string()
+                } else {
+                    format!("{v}")
+                },
+            )
+        })
+        .collect();
+    ColorBar::new(
+        "heat maps: posterior over its maximum (linear; disagreement: magenta = image only, cyan = geometry only)",
+        ticks,
+        |t| value_rgb(t, PosteriorKind::Fused),
+    )
+}
+
+/// Draws `bar` on its own line of `ui`.
+fn bar_line(ui: &mut egui::Ui, bar: &ColorBar) {
+    let (rect, _) = ui.allocate_exact_size(
+        egui::vec2(ui.available_width().min(420.0), 62.0),
+        egui::Sense::hover(),
+    );
+    color_bar(ui.painter(), rect.min, bar);
+}
+
 /// Target-cloud colours for the 3D posterior view: every target point within `SPLAT_M` of a
 /// candidate takes the candidate's value (candidates are sparse keypoints among dense display
 /// points), the rest dimmed. Log scale over `LOG_DECADES` except for the disagreement.
@@ -127,13 +210,7 @@ pub fn posterior_cloud_colors(
     if pos.is_empty() {
         return vec![dim; model.target.len()];
     }
-    let shown = |v: f32| {
-        if kind == PosteriorKind::Disagreement {
-            v
-        } else {
-            (1.0 + v.max(1e-12).log10() / LOG_DECADES).clamp(0.0, 1.0)
-        }
-    };
+    let shown = |v: f32| shown_value(v, kind);
     let index = KdIndex::new(&pos.iter().map(|p| view3d::point3(*p)).collect::<Vec<_>>());
     use rayon::prelude::*;
     model
@@ -223,11 +300,20 @@ fn heat_map(
     });
 }
 
+impl Tab for PosteriorTab {
+    fn panel(&self) -> Panel {
+        Panel::Posterior
+    }
+    fn ui(&mut self, ui: &mut egui::Ui, cx: &mut TabContext<'_>) {
+        posterior_panel(ui, &mut cx.shared, cx.views, self);
+    }
+}
+
 pub fn posterior_panel(
     ui: &mut egui::Ui,
     shared: &mut Shared<'_>,
     views: &mut ViewsState,
-    state: &mut PosteriorState,
+    state: &mut PosteriorTab,
 ) {
     let model = shared.model;
     if model.posteriors.is_empty() {
@@ -326,9 +412,10 @@ pub fn posterior_panel(
             ui.label("No image posterior (image branch off): the target cloud shows the geometric posterior, which is also the fused one.");
         }
         ui.label(format!("3D: target points within 4 cm of a candidate keypoint, log scale over {LOG_DECADES} decades (turbo: low to high); white circle: the source point under the estimate"));
-        posterior_3d(ui, shared, state, p);
+        posterior_3d(ui, shared, state, p, true);
         return;
     }
+    bar_line(ui, &heat_map_bar());
     let w = (ui.available_width() - 30.0) / 4.0;
     let size = egui::vec2(w, w * 0.75);
     ui.horizontal(|ui| {
@@ -366,16 +453,22 @@ pub fn posterior_panel(
     });
     ui.horizontal(|ui| {
         heat_map(ui, shared, views, p, PosteriorKind::Disagreement, size);
-        ui.vertical(|ui| posterior_3d(ui, shared, state, p));
+        ui.vertical(|ui| posterior_3d(ui, shared, state, p, false));
     });
+    // below the row, so that the 3D view keeps the heat maps' height
+    if let Some(kind) = state.kind3d {
+        bar_line(ui, &posterior_bar(kind));
+    }
 }
 
-/// The target cloud coloured by a posterior, with a chooser of which one.
+/// The target cloud coloured by a posterior, with a chooser of which one (and its colour
+/// bar above the view when `bar_above`; else the caller draws it).
 fn posterior_3d(
     ui: &mut egui::Ui,
     shared: &mut Shared<'_>,
-    state: &mut PosteriorState,
+    state: &mut PosteriorTab,
     p: &Posterior,
+    bar_above: bool,
 ) {
     let model = shared.model;
     let kind = state.kind3d.get_or_insert(PosteriorKind::Fused);
@@ -387,6 +480,9 @@ fn posterior_3d(
             }
         });
     let kind = *kind;
+    if bar_above {
+        bar_line(ui, &posterior_bar(kind));
+    }
     let key = (shared.model_gen, p.source_point, kind);
     if state.colors_key != Some(key) {
         state.colors = Some((
@@ -412,5 +508,43 @@ fn posterior_3d(
     view3d::scene_ui(ui, shared, &mut state.view3d, over);
     if shared.ui.selected_source_point == Some(p.source_point) {
         shared.ui.selected_source_point = prev.or(Some(p.source_point));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The bar says what the target cloud shows: the best candidate's point has the colour
+    /// of the top tick, a candidate under the bottom decade that of the bottom tick, and the
+    /// ticks run up the bar.
+    #[test]
+    fn the_3d_colour_bar_matches_the_cloud_colours() {
+        let model = InspectorModel::demo();
+        let p = &model.posteriors[0];
+        for kind in [
+            PosteriorKind::Fused,
+            PosteriorKind::Image,
+            PosteriorKind::Geometric,
+        ] {
+            let bar = posterior_bar(kind);
+            let pos: Vec<f32> = bar.ticks.iter().map(|t| t.0).collect();
+            assert_eq!(pos.first(), Some(&0.0));
+            assert_eq!(pos.last(), Some(&1.0));
+            assert!(pos.windows(2).all(|w| w[0] < w[1]), "{pos:?}");
+            let colors = posterior_cloud_colors(&model, p, kind);
+            let vals = normalised(p, kind);
+            let rgb = |c: [u8; 4]| [c[0], c[1], c[2]];
+            let best = argmax(&vals).unwrap();
+            assert_eq!(rgb(colors[p.candidates[best]]), (bar.map)(1.0), "{kind:?}");
+            let low = vals.iter().position(|&v| v <= 1e-3 && v > 0.0);
+            if let Some(i) = low {
+                assert_eq!(rgb(colors[p.candidates[i]]), (bar.map)(0.0), "{kind:?}");
+            }
+        }
+        let d = posterior_bar(PosteriorKind::Disagreement);
+        assert_eq!((d.map)(1.0), value_rgb(1.0, PosteriorKind::Disagreement));
+        assert_eq!((d.map)(0.0), value_rgb(-1.0, PosteriorKind::Disagreement));
+        assert_eq!((d.map)(0.5), value_rgb(0.0, PosteriorKind::Disagreement));
     }
 }

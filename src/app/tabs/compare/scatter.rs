@@ -6,7 +6,7 @@ use egui_plot::{
     GridInput, GridMark, HLine, Legend, Line, LineStyle, Plot, PlotPoint, Points, VLine,
 };
 
-use super::{flip_color, flip_short, fmt, CompareState, FLIPS};
+use super::{flip_color, flip_short, fmt, CompareTab, FLIPS};
 use crate::metrics::compare::{Flip, PairDiff};
 
 /// Smallest RRE drawn on log axes (0.001 deg); smaller values sit on it.
@@ -63,7 +63,7 @@ fn log_label(mark: GridMark) -> String {
 }
 
 /// The scatter of the shown pairs, `side` pixels wide.
-pub(super) fn scatter(ui: &mut egui::Ui, st: &mut CompareState, rows: &[usize], side: f32) {
+pub(super) fn scatter(ui: &mut egui::Ui, st: &mut CompareTab, rows: &[usize], side: f32) {
     let Some(l) = &st.loaded else { return };
     let c = &l.comparison;
     let log = st.log_axes;

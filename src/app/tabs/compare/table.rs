@@ -4,7 +4,7 @@
 
 use eframe::egui;
 
-use super::{flip_color, fmt, CompareState};
+use super::{flip_color, fmt, CompareTab};
 use crate::metrics::compare::{Flip, PairOrder};
 
 /// Column widths of the table (pixels); the six number columns share what is left.
@@ -12,7 +12,7 @@ const ID_W: f32 = 140.0;
 const FLAG_W: f32 = 30.0;
 
 /// The table of the shown pairs; clicking an id selects the pair.
-pub(super) fn table(ui: &mut egui::Ui, st: &mut CompareState, rows: &[usize]) {
+pub(super) fn table(ui: &mut egui::Ui, st: &mut CompareTab, rows: &[usize]) {
     let Some(l) = &st.loaded else { return };
     let c = &l.comparison;
     let gap = ui.spacing().item_spacing.x;

@@ -7,45 +7,12 @@
 use eframe::egui;
 
 use super::load::{settings_comparison, settings_run};
-use super::{CompareAction, CompareState, Side, WARN};
-use crate::app::controls::{Command, LogLevel};
+use super::{CompareAction, CompareTab, Side, WARN};
+use crate::app::channel::{Command, LogLevel};
 use crate::app::model::InspectorModel;
-use crate::metrics::compare::{self, json_diff, BenchRun};
+use crate::app::model::{CompareEvent, SettingsCompareRequest, SettingsRuns};
+use crate::metrics::compare::{self, json_diff};
 use crate::pipeline::params::RegisterParams;
-
-/// What the worker is asked to run: the open dataset's pairs with `a`, then with `b`.
-#[derive(Clone, Debug, PartialEq)]
-pub struct SettingsCompareRequest {
-    pub a: RegisterParams,
-    pub b: RegisterParams,
-    /// The pairs, in order; None: every pair of the open dataset.
-    pub pairs: Option<Vec<String>>,
-}
-
-/// The two runs a settings comparison made, as bench runs (rows of the pairs that ran).
-#[derive(Clone, Debug, PartialEq)]
-pub struct SettingsRuns {
-    pub a: BenchRun,
-    pub b: BenchRun,
-    pub request: SettingsCompareRequest,
-    /// Stopped by Cancel: the runs hold the pairs that ran under both settings.
-    pub cancelled: bool,
-}
-
-/// What the worker reports of a settings comparison.
-#[derive(Clone, Debug, PartialEq)]
-pub enum CompareEvent {
-    /// `pair` starts under settings `side`; `done` of `total` registrations (both settings
-    /// together) have finished.
-    Progress {
-        side: Side,
-        pair: String,
-        done: usize,
-        total: usize,
-    },
-    /// The comparison ended (finished or cancelled).
-    Finished(Box<SettingsRuns>),
-}
 
 /// The settings-comparison part of the Compare tab's state.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -104,7 +71,7 @@ impl SettingsCompare {
     }
 }
 
-impl CompareState {
+impl CompareTab {
     /// Takes a worker event of a settings comparison; returns lines for the log.
     pub fn on_event(&mut self, e: CompareEvent) -> Vec<(LogLevel, String)> {
         match e {

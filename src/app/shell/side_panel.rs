@@ -17,17 +17,17 @@ impl App {
         self.open_menu(ui, open_request);
         self.reopen_last(ui, commands);
         ui.separator();
-        let prefix = pairs_panel::common_id_prefix(&self.model);
+        let prefix = tabs::pairs::common_id_prefix(&self.model);
         ui.horizontal(|ui| {
             ui.strong("Pairs");
             if !prefix.is_empty() {
                 ui.weak(format!("(ids after “{prefix}”)"));
             }
         });
-        pairs_panel::pairs_panel(
+        tabs::pairs::pairs_panel(
             ui,
             &self.model,
-            &mut self.pairs,
+            &mut self.tabs.pairs,
             &mut self.ui_state.pair_sort,
             commands,
         );

@@ -5,8 +5,8 @@
 use eframe::egui;
 
 use super::{PairColumn, PairSort};
+use crate::app::channel::Command;
 use crate::app::model::{InspectorModel, PairEntry, PairOutcome, PairStatus};
-use crate::app::Command;
 
 /// A clickable header cell; the sorted column shows its direction.
 fn header(ui: &mut egui::Ui, column: PairColumn, sort: &mut PairSort) {

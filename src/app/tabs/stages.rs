@@ -2,21 +2,10 @@
 
 use eframe::egui;
 
-use super::controls::Command;
-use super::model::{InspectorModel, StageInfo, StageState};
-
-/// Where a stage-panel row's time sits: the total adds top-level rows only.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub enum StageRole {
-    /// A step timed on its own (e.g. comparing the stage keys after a settings change).
-    #[default]
-    Stage,
-    /// A row whose time includes the [`StageRole::Part`] rows ("load + register",
-    /// "re-fuse from memory").
-    Container,
-    /// A pipeline stage timed inside a container row.
-    Part,
-}
+use super::{Tab, TabContext};
+use crate::app::channel::Command;
+use crate::app::model::{InspectorModel, StageInfo, StageRole, StageState};
+use crate::app::state::Panel;
 
 /// The stage panel's total: the timed top-level rows (stages and containers), not the parts a
 /// container already includes. With no timed container (e.g. a run still in progress, or rows
@@ -34,7 +23,7 @@ pub fn stage_total_ms(stages: &[StageInfo]) -> f64 {
 
 /// The stage panel's own input: where "Export correspondences..." writes.
 #[derive(Clone, Debug, Default, PartialEq)]
-pub struct StagesState {
+pub struct StagesTab {
     /// Empty: `correspondences-<pair>.npz` in the working directory.
     pub export_path: String,
 }
@@ -59,7 +48,7 @@ pub fn default_export_name(pair_id: &str) -> String {
 pub fn export_bar(
     ui: &mut egui::Ui,
     model: &InspectorModel,
-    state: &mut StagesState,
+    state: &mut StagesTab,
     commands: &mut Vec<Command>,
 ) {
     let pair = model
@@ -106,10 +95,19 @@ pub fn state_text(s: &StageState) -> (String, egui::Color32) {
     }
 }
 
-pub fn stages_panel(
+impl Tab for StagesTab {
+    fn panel(&self) -> Panel {
+        Panel::Stages
+    }
+    fn ui(&mut self, ui: &mut egui::Ui, cx: &mut TabContext<'_>) {
+        stages_panel(ui, cx.shared.model, self, cx.shared.commands);
+    }
+}
+
+fn stages_panel(
     ui: &mut egui::Ui,
     model: &InspectorModel,
-    state: &mut StagesState,
+    state: &mut StagesTab,
     commands: &mut Vec<Command>,
 ) {
     export_bar(ui, model, state, commands);

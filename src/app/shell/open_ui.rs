@@ -9,7 +9,7 @@ pub(super) const NO_DIALOG_WITHIN: std::time::Duration = std::time::Duration::fr
 impl App {
     /// Compares two bench runs in the Compare tab (read off the UI thread).
     pub fn compare_runs(&mut self, a: PathBuf, b: PathBuf) {
-        self.compare.request(a, b);
+        self.tabs.compare.request(a, b);
         self.ui_state.tab = Panel::Compare;
     }
 
@@ -34,15 +34,15 @@ impl App {
     /// Carries out what the Compare tab asked for.
     pub(super) fn compare_action(
         &mut self,
-        action: compare_panel::CompareAction,
+        action: tabs::compare::CompareAction,
         commands: &mut Vec<Command>,
         open_request: &mut Option<OpenKind>,
     ) {
-        use compare_panel::CompareAction;
+        use tabs::compare::CompareAction;
         match action {
             CompareAction::Browse => *open_request = Some(OpenKind::Comparison),
             CompareAction::TakeSettings(side) => {
-                self.compare.settings.take(side, self.params.clone());
+                self.tabs.compare.settings.take(side, self.params.clone());
             }
             CompareAction::Send(c) => commands.push(c),
             CompareAction::OpenManifest(m) => commands.push(Command::Open {
@@ -50,7 +50,7 @@ impl App {
                 paths: vec![m],
             }),
             CompareAction::Open(side, pair) => {
-                let Some(l) = &self.compare.loaded else {
+                let Some(l) = &self.tabs.compare.loaded else {
                     return;
                 };
                 let run = l.run(side);

@@ -3,9 +3,7 @@
 
 use eframe::egui;
 
-use super::{
-    file_name, flip_color, fmt, CompareAction, CompareState, LoadedComparison, Side, WARN,
-};
+use super::{file_name, flip_color, fmt, CompareAction, CompareTab, LoadedComparison, Side, WARN};
 use crate::app::model::InspectorModel;
 
 /// The two runs, what differs between their parameters, and what keeps a run from opening.
@@ -92,7 +90,7 @@ pub(super) fn header(ui: &mut egui::Ui, l: &LoadedComparison) {
 pub(super) fn selected_pair(
     ui: &mut egui::Ui,
     model: &InspectorModel,
-    st: &CompareState,
+    st: &CompareTab,
 ) -> Option<CompareAction> {
     let l = st.loaded.as_ref()?;
     let mut action = None;

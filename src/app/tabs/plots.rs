@@ -7,13 +7,15 @@ use egui_plot::{Bar, BarChart, Legend, Line, Plot, PlotPoints, Points};
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 
-use super::controls::{Command, StudyRequest};
-use super::model::InspectorModel;
+use super::{Tab, TabContext};
+use crate::app::channel::{Command, StudyRequest};
+use crate::app::model::InspectorModel;
+use crate::app::state::Panel;
 
 /// The plots panel's own inputs (the K list of the sweep, where plots are saved) and the
 /// screen rectangles of its four plots in the last frame (to crop the PNGs from).
 #[derive(Clone, Debug)]
-pub struct PlotsState {
+pub struct PlotsTab {
     pub k_list: String,
     /// Folder of "Save plots": `<name>.png` and `<name>.csv` per plot.
     pub save_dir: String,
@@ -29,7 +31,7 @@ pub struct PlotsState {
     pub save_now: bool,
 }
 
-impl Default for PlotsState {
+impl Default for PlotsTab {
     fn default() -> Self {
         Self {
             k_list: "1,2,4,8".into(),
@@ -69,9 +71,9 @@ pub fn plot_csvs(model: &InspectorModel) -> Vec<(&'static str, String)> {
     let mut per_pair = String::from("pair,status,rre_deg,rte_m,settings\n");
     for p in &model.pairs {
         let status = match &p.status {
-            super::model::PairStatus::Failed(_) => "failed",
-            super::model::PairStatus::Done => "done",
-            super::model::PairStatus::Running => "running",
+            crate::app::model::PairStatus::Failed(_) => "failed",
+            crate::app::model::PairStatus::Done => "done",
+            crate::app::model::PairStatus::Running => "running",
             _ => "pending",
         };
         per_pair += &format!(
@@ -161,7 +163,7 @@ pub fn save_plot_pngs(
 }
 
 /// "Save plots" with its folder: the CSVs at once, the PNGs from the next frame's screenshot.
-fn save_bar(ui: &mut egui::Ui, model: &InspectorModel, state: &mut PlotsState) {
+fn save_bar(ui: &mut egui::Ui, model: &InspectorModel, state: &mut PlotsTab) {
     let mut log = None;
     let arrived = state.shot.lock().ok().and_then(|mut s| s.take());
     if let (Some(dir), Some(shot)) = (state.pending_png.clone(), arrived) {
@@ -232,12 +234,12 @@ pub fn per_pair_plot(ui: &mut egui::Ui, model: &InspectorModel, h: f32) -> egui:
     let stale = model
         .pairs
         .iter()
-        .filter(|p| super::pairs_panel::is_stale(p, current))
+        .filter(|p| super::pairs::is_stale(p, current))
         .count();
     let done: Vec<_> = model
         .pairs
         .iter()
-        .filter(|p| p.rre_deg.is_some() && !super::pairs_panel::is_stale(p, current))
+        .filter(|p| p.rre_deg.is_some() && !super::pairs::is_stale(p, current))
         .collect();
     let rre: Vec<Bar> = done
         .iter()
@@ -262,8 +264,8 @@ pub fn per_pair_plot(ui: &mut egui::Ui, model: &InspectorModel, h: f32) -> egui:
         .pairs
         .iter()
         .filter(|p| {
-            matches!(p.status, super::model::PairStatus::Failed(_))
-                && !super::pairs_panel::is_stale(p, current)
+            matches!(p.status, crate::app::model::PairStatus::Failed(_))
+                && !super::pairs::is_stale(p, current)
         })
         .count();
     let mut title = if failed > 0 {
@@ -503,10 +505,19 @@ pub fn prompt_plot(ui: &mut egui::Ui, model: &InspectorModel, h: f32) -> egui::R
 }
 
 /// The study buttons and progress, then the four plots in a 2 x 2 grid.
-pub fn plots_panel(
+impl Tab for PlotsTab {
+    fn panel(&self) -> Panel {
+        Panel::Plots
+    }
+    fn ui(&mut self, ui: &mut egui::Ui, cx: &mut TabContext<'_>) {
+        plots_panel(ui, cx.shared.model, self, cx.shared.commands);
+    }
+}
+
+fn plots_panel(
     ui: &mut egui::Ui,
     model: &InspectorModel,
-    state: &mut PlotsState,
+    state: &mut PlotsTab,
     commands: &mut Vec<Command>,
 ) {
     study_bar(ui, model, state, commands);
@@ -531,7 +542,7 @@ pub fn plots_panel(
 fn study_bar(
     ui: &mut egui::Ui,
     model: &InspectorModel,
-    state: &mut PlotsState,
+    state: &mut PlotsTab,
     commands: &mut Vec<Command>,
 ) {
     let running = model.plots.study_progress.clone();
