@@ -18,7 +18,7 @@
 use cgenreg::dataset::manifest::Dataset;
 use cgenreg::estimate::estimate_pose;
 use cgenreg::fusion::union::merge;
-use cgenreg::fusion::{calibrate, fuse, select, Correspondence, FusionMode, Selection};
+use cgenreg::fusion::{calibrate, fuse, select, Correspondence, FusionMode};
 use cgenreg::metrics::{rre_deg, rte_m};
 use cgenreg::pipeline::fuse::{endpoints, similarities, FusionInputs};
 use cgenreg::pipeline::union::{geometry_params, mode_correspondences, noisy_and_params};
@@ -234,18 +234,14 @@ fn neutral_unseen(
         .fusion
         .prior
         .unwrap_or_else(|| fuse::default_prior(p_img.rows, p_img.cols)) as f32;
-    for i in 0..p_img.rows {
+    for (i, &seen) in vs.iter().enumerate().take(p_img.rows) {
         let row = p_img.row_mut(i);
         for (j, v) in row.iter_mut().enumerate() {
-            if !vs[i] || !vt[j] {
+            if !seen || !vt[j] {
                 *v = prior;
             }
         }
     }
     let keys = fuse::noisy_and_rank_keys(&p_img, &p_geo)?;
-    let sel = match params.fusion.selection {
-        Selection::TopK(k) => Selection::TopK(k),
-        s => s,
-    };
-    Ok(select(&keys, sel))
+    Ok(select(&keys, params.fusion.selection))
 }
