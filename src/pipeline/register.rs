@@ -4,10 +4,11 @@
 
 use super::cache::Cache;
 use super::fuse::{fuse_and_finish, FusionInputs};
-use super::geo::geo_branches;
+use super::geo::{cached_branch, geo_branches, spinnet_input};
 use super::memo::Memo;
 use super::params::RegisterParams;
 use super::result::{RegistrationResult, Timer};
+use super::stages::Ctx;
 use crate::dataset::ScanPair;
 use crate::error::{Error, Result};
 
@@ -40,7 +41,7 @@ pub fn register_pair_cached_keep(
         Some(ib) => {
             super::image_branch::register_with_image_keep(pair, params, ib, cache, memo, true)
         }
-        None => register_geometry(pair, params),
+        None => register_geometry(pair, params, cache, memo),
     }
 }
 
@@ -49,9 +50,22 @@ pub fn register_pair_cached_keep(
 fn register_geometry(
     pair: &ScanPair,
     params: &RegisterParams,
+    cache: Option<&Cache>,
+    memo: &Memo,
 ) -> Result<(RegistrationResult, FusionInputs)> {
     let mut timer = Timer::new();
-    let (src, tgt) = geo_branches(pair, params, &mut timer)?;
+    let mut warnings = Vec::new();
+    // SpinNet (minutes per scan) goes through its cached stage; FPFH is computed in memory
+    let (src, tgt) = if spinnet_input(params).is_some() {
+        let mut ctx = Ctx::new(cache, memo);
+        let (s, _) = cached_branch(&mut ctx, "source", &pair.source, params)?;
+        let (t, _) = cached_branch(&mut ctx, "target", &pair.target, params)?;
+        timer.timings.append(&mut ctx.timer.timings);
+        warnings.append(&mut ctx.warnings);
+        (s, t)
+    } else {
+        geo_branches(pair, params, &mut timer)?
+    };
     if src.features.dim != tgt.features.dim {
         return Err(Error::Invalid(format!(
             "source features are {}-D but target features are {}-D",
@@ -65,6 +79,7 @@ fn register_geometry(
         image_label: None,
     };
     let mut res = fuse_and_finish(pair, params, &inputs, None)?;
+    res.warnings.splice(0..0, warnings);
     let mut timings = timer.timings;
     timings.append(&mut res.timings);
     res.timings = timings;

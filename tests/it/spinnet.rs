@@ -144,3 +144,134 @@ fn a_missing_export_is_an_error_naming_the_file_and_the_script() {
     assert!(e.contains("no/such/spinnet-3dmatch.onnx"), "{e}");
     assert!(e.contains("spinnet_export.sh"), "{e}");
 }
+
+/// The geometric branch as SpinNet through `register`: a `geo-spinnet` cache entry per scan,
+/// a second run served from it with the same result, the model and keypoint count in the
+/// result's provenance, and the stage key following the keypoint count and the protocol.
+/// Six keypoints per scan keep it to a few seconds; registration quality is measured in
+/// BENCHMARKS.md, not here.
+#[test]
+fn spinnet_geometry_is_a_cached_stage_with_its_provenance() {
+    use cgenreg::dataset::Dataset;
+    use cgenreg::pipeline::cache::Cache;
+    use cgenreg::pipeline::params::{GeoFeatureSource, Preset};
+    use cgenreg::pipeline::stages::geo_spinnet::{self, SpinNetInput};
+    use cgenreg::pipeline::{register_pair_cached, Memo, RegisterParams};
+    let Some((onnx, _)) = artefacts(Protocol::Kitti) else {
+        return;
+    };
+    let manifest =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/manifests/kitti07.toml");
+    let pair = Dataset::load(&manifest)
+        .unwrap()
+        .load_pair("kitti07/0-1")
+        .unwrap();
+    let mut p = RegisterParams::preset(Preset::Outdoor);
+    p.geo_features = GeoFeatureSource::Spinnet {
+        protocol: Protocol::Kitti,
+        model: onnx.clone(),
+        keypoints: 6,
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let cache = Cache::open(dir.path()).unwrap();
+    let first = register_pair_cached(&pair, &p, Some(&cache)).unwrap();
+    assert!(
+        first.geo_features.starts_with("spinnet-kitti@"),
+        "{}",
+        first.geo_features
+    );
+    assert!(first.geo_features.contains("n=6"), "{}", first.geo_features);
+    assert_eq!((first.n_source_keypoints, first.n_target_keypoints), (6, 6));
+    let status = |r: &cgenreg::pipeline::RegistrationResult, s: &str| {
+        r.timings
+            .iter()
+            .find(|t| t.stage == s)
+            .map(|t| t.status.clone())
+            .unwrap()
+    };
+    assert_eq!(status(&first, "spinnet source"), "computed");
+    let entries = std::fs::read_dir(dir.path().join(geo_spinnet::STAGE))
+        .unwrap()
+        .count();
+    assert_eq!(entries, 2, "one entry per scan");
+    let second = register_pair_cached(&pair, &p, Some(&cache)).unwrap();
+    assert_eq!(status(&second, "spinnet source"), "cached");
+    assert_eq!(status(&second, "spinnet target"), "cached");
+    assert_eq!(second.target_from_source, first.target_from_source);
+    assert_eq!(second.source_keypoints, first.source_keypoints);
+    // the key follows the keypoint count, the protocol and the model file
+    let memo = Memo::default();
+    let input = |protocol, keypoints| SpinNetInput {
+        protocol,
+        model: &onnx,
+        keypoints,
+        voxel: 0.3,
+    };
+    let key = |i: &SpinNetInput| {
+        let id = geo_spinnet::model_id(&memo, i).unwrap();
+        geo_spinnet::key(&pair.source, i, &id).unwrap().hash
+    };
+    let base = key(&input(Protocol::Kitti, 6));
+    assert_ne!(base, key(&input(Protocol::Kitti, 7)));
+    assert_ne!(base, key(&input(Protocol::ThreeDMatch, 6)));
+}
+
+/// The CLI's `--geo-features` reaches the pipeline's own parameter type, and the settings
+/// round-trip through JSON as a run file writes them.
+#[test]
+fn geo_features_option_sets_the_pipelines_parameters() {
+    use cgenreg::cli::args::PipelineArgs;
+    use cgenreg::pipeline::params::GeoFeatureSource;
+    use clap::Parser;
+    #[derive(Parser)]
+    struct Cli {
+        #[command(flatten)]
+        p: PipelineArgs,
+    }
+    let cli = Cli::try_parse_from([
+        "x",
+        "--geo-features",
+        "spinnet-kitti",
+        "--spinnet-keypoints",
+        "300",
+        "--spinnet-model",
+        "exports/k.onnx",
+    ])
+    .unwrap();
+    let p = cli.p.to_params(false, None);
+    assert_eq!(
+        p.geo_features,
+        GeoFeatureSource::Spinnet {
+            protocol: Protocol::Kitti,
+            model: "exports/k.onnx".into(),
+            keypoints: 300,
+        }
+    );
+    let json = serde_json::to_value(&p).unwrap();
+    assert_eq!(json["geo_features"]["kind"], "spinnet");
+    assert_eq!(json["geo_features"]["protocol"], "kitti");
+    let back: cgenreg::pipeline::RegisterParams = serde_json::from_value(json).unwrap();
+    assert_eq!(back, p);
+    let d = Cli::try_parse_from(["x", "--geo-features", "spinnet-3dmatch"]).unwrap();
+    match d.p.to_params(false, None).geo_features {
+        GeoFeatureSource::Spinnet {
+            protocol,
+            model,
+            keypoints,
+        } => {
+            assert_eq!(protocol, Protocol::ThreeDMatch);
+            assert!(
+                model.ends_with("spinnet-3dmatch.onnx"),
+                "{}",
+                model.display()
+            );
+            assert_eq!(
+                keypoints,
+                cgenreg::pipeline::params::SPINNET_DEFAULT_KEYPOINTS
+            );
+        }
+        other => panic!("{other:?}"),
+    }
+    assert!(Cli::try_parse_from(["x", "--geo-features", "spinnet"]).is_err());
+    assert!(Cli::try_parse_from(["x", "--spinnet-keypoints", "5"]).is_err());
+}

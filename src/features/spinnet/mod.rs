@@ -18,6 +18,7 @@
 pub mod ball_query;
 pub mod grid;
 pub mod invariant;
+pub mod keypoints;
 pub mod lrf;
 #[cfg(feature = "onnx")]
 pub mod model;
@@ -25,6 +26,7 @@ pub mod neighbourhood;
 pub mod patch;
 
 use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
 
 /// Which of the authors' two published settings (checkpoint and patch geometry) to use.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize, clap::ValueEnum)]
@@ -116,4 +118,20 @@ impl Protocol {
     pub fn onnx_file(self) -> String {
         format!("spinnet-{}.onnx", self.name())
     }
+}
+
+/// Where the exports are looked for by default: `$CGENREG_SPINNET_DIR`, else the build
+/// folder's `target/spinnet` (what `scripts/spinnet_export.sh` writes).
+pub fn default_model_dir() -> PathBuf {
+    match std::env::var_os("CGENREG_SPINNET_DIR") {
+        Some(d) if !d.is_empty() => PathBuf::from(d),
+        _ => Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("target")
+            .join("spinnet"),
+    }
+}
+
+/// The default export of `protocol`'s checkpoint.
+pub fn default_model_path(protocol: Protocol) -> PathBuf {
+    default_model_dir().join(protocol.onnx_file())
 }

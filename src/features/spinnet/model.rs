@@ -17,28 +17,14 @@ use crate::features::Features;
 use crate::vfm::runtime::{file_id, OnnxModel};
 use nalgebra::Point3;
 use rayon::prelude::*;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 pub const INPUT: &str = "grouped";
 pub const OUTPUT: &str = "descriptor";
 /// Keypoints per network run (memory about 0.3 GB per batch for 3DMatch on the CPU).
 pub const BATCH: usize = 4;
 
-/// Where the exports are looked for by default: `$CGENREG_SPINNET_DIR`, else the build
-/// folder's `target/spinnet` (what `scripts/spinnet_export.sh` writes).
-pub fn default_model_dir() -> PathBuf {
-    match std::env::var_os("CGENREG_SPINNET_DIR") {
-        Some(d) if !d.is_empty() => PathBuf::from(d),
-        _ => Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("target")
-            .join("spinnet"),
-    }
-}
-
-/// The default export of `protocol`'s checkpoint.
-pub fn default_model_path(protocol: Protocol) -> PathBuf {
-    default_model_dir().join(protocol.onnx_file())
-}
+pub use super::{default_model_dir, default_model_path};
 
 #[derive(Debug)]
 pub struct SpinNet {
