@@ -72,7 +72,7 @@ impl clap::ValueEnum for GeoFeatureSource {
 }
 
 /// SpinNet's keypoints per scan by default (`docs/spinnet.md`: chosen on the development pairs).
-pub const SPINNET_DEFAULT_KEYPOINTS: usize = 1000;
+pub const SPINNET_DEFAULT_KEYPOINTS: usize = 128;
 
 impl GeoFeatureSource {
     /// SpinNet with `protocol`'s default export and keypoint count.
