@@ -122,8 +122,7 @@ impl PipelineArgs {
     /// The run's parameters; `manifest_preset` is the data set's own (`preset` in its
     /// manifest), used when `--preset` is not given.
     pub fn to_params(&self, image_branch: bool, manifest_preset: Option<Preset>) -> RegisterParams {
-        let mut p = RegisterParams::default();
-        p.geo_features = match (
+        let geo_features = match (
             &self.learned_source,
             &self.learned_target,
             &self.geotransformer_pkl,
@@ -134,6 +133,10 @@ impl PipelineArgs {
             },
             (_, _, Some(pkl)) => GeoFeatureSource::GeoTransformerPkl { path: pkl.clone() },
             _ => self.geo_features.clone().unwrap_or(GeoFeatureSource::Fpfh),
+        };
+        let mut p = RegisterParams {
+            geo_features,
+            ..RegisterParams::default()
         };
         if let GeoFeatureSource::Spinnet {
             model, keypoints, ..

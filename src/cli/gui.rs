@@ -71,7 +71,7 @@ pub fn apply_named(
         p.geo_features = given.geo_features.clone();
     }
     if has("reference") {
-        *f = g.clone();
+        *f = *g;
     }
     if has("calibration") || has("tau_img") {
         f.calibration_img = g.calibration_img;

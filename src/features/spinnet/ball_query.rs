@@ -192,7 +192,7 @@ mod tests {
                     [f(&mut rng), f(&mut rng), f(&mut rng)]
                 })
                 .collect();
-            local.extend_from_slice(&local[..40].to_vec());
+            local.extend_from_within(..40);
             local.extend(centres.iter().step_by(97).take(8));
             assert_eq!(group(&g, &local, &centres), brute(&g, &local, &centres));
         }
