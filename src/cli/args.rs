@@ -380,9 +380,12 @@ impl ImageArgs {
     ) -> crate::Result<(crate::pipeline::RegisterParams, Option<Cache>)> {
         let mut params = pipeline.to_params(self.wfm.is_some(), manifest_preset);
         params.image = self.to_image_params()?;
-        let cache = match params.image {
-            Some(_) => self.open_cache()?,
-            None => None,
+        // SpinNet (minutes per scan) is cached like the image branch's stages; FPFH alone is not
+        let spinnet = matches!(params.geo_features, GeoFeatureSource::Spinnet { .. });
+        let cache = if params.image.is_some() || spinnet {
+            self.open_cache()?
+        } else {
+            None
         };
         Ok((params, cache))
     }

@@ -275,3 +275,38 @@ fn geo_features_option_sets_the_pipelines_parameters() {
     assert!(Cli::try_parse_from(["x", "--geo-features", "spinnet"]).is_err());
     assert!(Cli::try_parse_from(["x", "--spinnet-keypoints", "5"]).is_err());
 }
+
+/// `register` and `bench` open the stage cache for SpinNet as for the image branch (FPFH alone
+/// runs in memory), so each scan is described once across the pairs of a run.
+#[test]
+fn spinnet_runs_open_the_stage_cache() {
+    use cgenreg::cli::args::{ImageArgs, PipelineArgs};
+    use clap::Parser;
+    #[derive(Parser)]
+    struct Cli {
+        #[command(flatten)]
+        p: PipelineArgs,
+        #[command(flatten)]
+        i: ImageArgs,
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path().to_str().unwrap();
+    let open = |args: &[&str]| {
+        let c = Cli::try_parse_from(args).unwrap();
+        c.i.params_and_cache(&c.p).unwrap().1.is_some()
+    };
+    assert!(open(&[
+        "x",
+        "--geo-features",
+        "spinnet-kitti",
+        "--cache-dir",
+        d
+    ]));
+    assert!(!open(&["x", "--cache-dir", d]));
+    assert!(!open(&[
+        "x",
+        "--geo-features",
+        "spinnet-kitti",
+        "--no-cache"
+    ]));
+}
