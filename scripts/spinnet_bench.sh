@@ -9,6 +9,7 @@
 # .json and .time are already in OUT is kept (delete them to rerun).
 #   CGENREG_BIN   the binary (default target/release/cgenreg, else target/debug/cgenreg)
 #   OUT           output folder (default target/spinnet-bench)
+#   PROBE=1       also KITTI 07 at 512 keypoints (a sensitivity figure, see below)
 # Needs the exports of scripts/spinnet_export.sh. Summary: scripts/spinnet_summary.py OUT.
 set -euo pipefail
 root="$(cd "$(dirname "$0")/.." && pwd)"
@@ -49,4 +50,9 @@ run kitti-fpfh "$m/kitti07.toml"
 run "kitti-spinnet-$n" "$m/kitti07.toml" --geo-features spinnet-kitti --spinnet-keypoints "$n"
 run staged-fpfh "$m/redkitchen-staged.toml"
 run "staged-spinnet-$n" "$m/redkitchen-staged.toml" --geo-features spinnet-3dmatch --spinnet-keypoints "$n"
+# 3. PROBE=1: how the outdoor result moves with the keypoint count (KITTI has no development set
+# here, so this is a sensitivity figure on evaluated pairs, not a choice: the default stays)
+if [ "${PROBE:-}" = 1 ]; then
+  run kitti-spinnet-512-probe "$m/kitti07.toml" --geo-features spinnet-kitti --spinnet-keypoints 512
+fi
 echo done

@@ -19,7 +19,7 @@ import sys
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 RUNS = ["dev-fpfh", "dev-spinnet-128", "dev-spinnet-256", "kitti-fpfh", "kitti-spinnet-128",
-        "staged-fpfh", "staged-spinnet-128"]
+        "staged-fpfh", "staged-spinnet-128", "kitti-spinnet-512-probe"]
 
 
 def relative(d):
@@ -55,7 +55,9 @@ def main():
                "work (wall) and the process's own CPU time (user)"}
     for name in RUNS:
         src = os.path.join(bench, name + ".json")
-        if not os.path.exists(src):
+        done = os.path.join(bench, name + ".time")
+        # a run still going has its .json (rewritten after every pair) but no timing yet
+        if not os.path.exists(src) or not os.path.exists(done) or os.path.getsize(done) == 0:
             continue
         d = relative(json.load(open(src)))
         with open(os.path.join(dest, name + ".json"), "w") as f:

@@ -58,6 +58,8 @@ TABLES = {
             ("FPFH + SC2-PCR (geometry only, NN)", "docs/results/spinnet/kitti-fpfh.json"),
             ("SpinNet KITTI, 128 keypoints + SC2-PCR (geometry only, NN)",
              "docs/results/spinnet/kitti-spinnet-128.json"),
+            ("SpinNet KITTI, 512 keypoints (a sensitivity probe, not a chosen setting)",
+             "docs/results/spinnet/kitti-spinnet-512-probe.json"),
         ],
     ),
 }
