@@ -141,6 +141,10 @@ fn study_pair(
     };
     let (u2s, u2t) = pts(&union(&[geo, and]));
     let (u3s, u3t) = pts(&union(&[geo, and, img]));
+    // Each branch's own set (distinct pairs), for the balanced score of the second round.
+    let (gs, gt_) = pts(&union(&[geo]));
+    let (as_, at) = pts(&union(&[and]));
+    let (is, it) = pts(&union(&[img]));
     let mut cands = serde_json::Map::new();
     for (name, corr) in [
         ("geometry", geo),
@@ -157,7 +161,10 @@ fn study_pair(
                 let f2 = fit(&t, &u2s, &u2t, theta);
                 let f3 = fit(&t, &u3s, &u3t, theta);
                 let gt_in = cgenreg::metrics::inlier_ratio(&sp, &tp, &gt, theta)?;
-                json!({"n": corr.len(), "est_inliers": e.inliers.len(), "method": e.method,
+                let fg = fit(&t, &gs, &gt_, theta).consensus;
+                let fa = fit(&t, &as_, &at, theta).consensus;
+                let fi = fit(&t, &is, &it, theta).consensus;
+                json!({"fit_g": fg, "fit_a": fa, "fit_i": fi,"n": corr.len(), "est_inliers": e.inliers.len(), "method": e.method,
                        "rre": r, "rte": tr, "ok": r <= 15.0 && tr <= 0.30,
                        "fit2": f2.consensus, "msac2": f2.msac,
                        "fit3": f3.consensus, "msac3": f3.msac, "gt_ir": gt_in})
@@ -168,7 +175,8 @@ fn study_pair(
     }
     Ok(
         json!({"n_src": src.keypoints.len(), "n_tgt": tgt.keypoints.len(),
-              "u2": u2s.len(), "u3": u3s.len(), "candidates": cands}),
+              "u2": u2s.len(), "u3": u3s.len(),
+              "n_g": gs.len(), "n_a": as_.len(), "n_i": is.len(), "candidates": cands}),
     )
 }
 

@@ -6,7 +6,7 @@
 # branch's stages are cached by the first run, so the others cost only the in-memory tail.
 # Tables: python3 scripts/fusion_tables.py OUT
 #
-#   bash scripts/fusion_eval.sh SET [OUT_DIR]   # SET: staged-clouds rgbd-3dlomatch lidar staged rgbd-3dmatch
+#   bash scripts/fusion_eval.sh SET [OUT_DIR]   # SET: staged-clouds rgbd-3dlomatch lidar staged rgbd-3dmatch kitti07
 #
 # Env: CGENREG_BIN (default target/debug/cgenreg), CGENREG_CACHE (stage cache folder),
 # CGENREG_DATA. A run cut short resumes (bench --json resumes).
@@ -24,6 +24,8 @@ case "$SET" in
     rgbd-3dmatch) M=assets/manifests/redkitchen-rgbd.toml; O=(--split 3DMatch --wfm oracle) ;;
     staged) M=assets/manifests/redkitchen-staged.toml; O=(--wfm oracle) ;;
     lidar) M=assets/manifests/small-gicp-lidar.toml; O=(--wfm builtin) ;;
+    # xyz-only LiDAR: `auto` would pick the pinhole trajectory (it looks for intensity)
+    kitti07) M=assets/manifests/kitti07.toml; O=(--virtual-camera ftheta --wfm builtin) ;;
     *) echo "unknown set $SET" >&2; exit 2 ;;
 esac
 run() { # mode name, then bench options
@@ -31,6 +33,8 @@ run() { # mode name, then bench options
     echo "== $name: cgenreg bench $M $* --json $OUT/$name.json" >&2
     nice -n 5 "$BIN" bench "$M" "$@" --cache-dir "$CACHE" --json "$OUT/$name.json" \
         > "$OUT/$name.txt" || echo "$name: exit $?" >&2
+    # the log names the cache folder; results are committed without machine paths
+    sed -i "s|$CACHE|CACHE|g" "$OUT/$name.txt"
 }
 run union "${O[@]}" --vfm alike
 run noisy-and "${O[@]}" --vfm alike --fusion noisy-and

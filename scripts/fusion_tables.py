@@ -14,7 +14,7 @@ import os
 import sys
 
 MODES = [("geometry", "geometry alone"), ("image", "image alone"), ("noisy-and", "Noisy-AND")]
-SETS = ["staged-clouds", "rgbd-3dlomatch", "lidar", "staged", "rgbd-3dmatch"]
+SETS = ["staged-clouds", "rgbd-3dlomatch", "lidar", "staged", "rgbd-3dmatch", "kitti07"]
 
 
 def load(path):

@@ -362,9 +362,8 @@ impl ImageArgs {
         }))
     }
 
-    /// The stage cache, None with --no-cache.
-    /// The run's parameters (pipeline options + this image branch) and, when the image branch
-    /// is on, its stage cache.
+    /// The run's parameters (pipeline options + this image branch) and the stage cache (None
+    /// with --no-cache; geometry alone uses it too, for `geo-fpfh`).
     pub fn params_and_cache(
         &self,
         pipeline: &PipelineArgs,
@@ -380,13 +379,8 @@ impl ImageArgs {
     ) -> crate::Result<(crate::pipeline::RegisterParams, Option<Cache>)> {
         let mut params = pipeline.to_params(self.wfm.is_some(), manifest_preset);
         params.image = self.to_image_params()?;
-        // SpinNet (minutes per scan) is cached like the image branch's stages; FPFH alone is not
-        let spinnet = matches!(params.geo_features, GeoFeatureSource::Spinnet { .. });
-        let cache = if params.image.is_some() || spinnet {
-            self.open_cache()?
-        } else {
-            None
-        };
+        // Geometry alone is cached too (stage `geo-fpfh`), so the cache opens either way.
+        let cache = self.open_cache()?;
         Ok((params, cache))
     }
 

@@ -133,6 +133,9 @@ pub struct SplitSummary {
     #[serde(flatten)]
     pub summary: Summary,
     pub time_per_pair_s: f64,
+    /// Pairs that ran with an error: failures in the recall and accuracies, left out of the
+    /// error means and medians (which are over the pairs with a pose).
+    pub errors: usize,
 }
 
 /// The rows of a run file's records, in order.
@@ -161,8 +164,9 @@ pub fn bench_json(f: &RunFile) -> Result<Vec<u8>> {
     serde_json::to_vec_pretty(&out).map_err(|e| Error::Invalid(format!("serialising results: {e}")))
 }
 
-/// Per-split summaries (splits sorted by name). A failed pair counts as a failure with
-/// infinite error, so recall stays honest.
+/// Per-split summaries (splits sorted by name). A pair that ran with an error counts as a
+/// failure with infinite error, so recall and accuracies stay honest; the error means and
+/// medians are over the pairs with a pose ([`Summary::from_pairs`]).
 pub fn summarise(rows: &[PairRow]) -> Vec<SplitSummary> {
     let mut splits: Vec<String> = rows.iter().map(|r| r.split.clone()).collect();
     splits.sort();
@@ -203,6 +207,7 @@ pub fn summarise(rows: &[PairRow]) -> Vec<SplitSummary> {
                 also,
                 summary: s,
                 time_per_pair_s: tpp,
+                errors: sel.iter().filter(|r| r.rre_deg.is_none()).count(),
             }
         })
         .collect()
@@ -225,6 +230,13 @@ pub fn print_table(summaries: &[SplitSummary]) {
         "|---|---|---|{}---|---|---|---|---|---|---|---|---|---|---|",
         if also.is_some() { "---|" } else { "" }
     );
+    let num = |v: f64, scale: f64| {
+        if v.is_finite() {
+            format!("{:.2}", scale * v)
+        } else {
+            "–".to_string()
+        }
+    };
     for x in summaries {
         let s = &x.summary;
         let also_cell = match (also, x.also) {
@@ -233,21 +245,28 @@ pub fn print_table(summaries: &[SplitSummary]) {
             (None, _) => String::new(),
         };
         outln!(
-            "| {} | {} | {:.1} |{also_cell} {:.1} | {:.1} | {:.1} | {:.2} | {:.2} | {:.1} | {:.1} | {:.1} | {:.2} | {:.2} | {:.3} |",
+            "| {} | {} | {:.1} |{also_cell} {:.1} | {:.1} | {:.1} | {} | {} | {:.1} | {:.1} | {:.1} | {} | {} | {:.3} |",
             x.split,
             s.n,
             100.0 * s.recall,
             100.0 * s.rot_acc_5,
             100.0 * s.rot_acc_10,
             100.0 * s.rot_acc_45,
-            s.rre_mean,
-            s.rre_median,
+            num(s.rre_mean, 1.0),
+            num(s.rre_median, 1.0),
             100.0 * s.trans_acc_5cm,
             100.0 * s.trans_acc_10cm,
             100.0 * s.trans_acc_25cm,
-            100.0 * s.rte_mean,
-            100.0 * s.rte_median,
+            num(s.rte_mean, 100.0),
+            num(s.rte_median, 100.0),
             x.time_per_pair_s
+        );
+    }
+    let errors: usize = summaries.iter().map(|x| x.errors).sum();
+    if errors > 0 {
+        outln!(
+            "{errors} pair(s) ran with an error: counted as failures in RR, RA and TA; the RRE and \
+             RTE means and medians are over the pairs with a pose"
         );
     }
 }

@@ -35,10 +35,10 @@ pub enum FusionMode {
     #[value(name = "geometry")]
     GeometryOnly,
     /// Fuse-then-match baseline: concatenate L2-normalised features, then one cosine
-    /// similarity calibrated like a single branch (see [`concat_features`]).
+    /// similarity calibrated like a single branch.
     Concat,
     /// The Noisy-AND correspondences and the geometric branch's own (row NN) ones, estimated
-    /// together ([`super::union`]): a weak image branch cannot veto the geometric matches.
+    /// together: a weak image branch cannot veto the geometric matches.
     /// Its posterior (inspector, export) is Noisy-AND's.
     Union,
 }

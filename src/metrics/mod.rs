@@ -188,8 +188,10 @@ impl PairMetrics {
 }
 
 /// Benchmark summary over pairs, as the reference prints it and the paper tabulates it.
-/// Accuracies and recall are fractions in [0, 1] (RRE ≤ 5/10/45°, RTE ≤ 5/10/25 cm). With no
-/// pairs, fractions are 0 and means/medians NaN (serialised as null).
+/// Accuracies and recall are fractions in [0, 1] (RRE ≤ 5/10/45°, RTE ≤ 5/10/25 cm). A pair
+/// with no pose (infinite error) counts in the fractions; the RRE / RTE means and medians are
+/// over the pairs with finite errors. With none, fractions are 0 and means/medians NaN
+/// (serialised as null).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Summary {
     pub n: usize,
@@ -205,6 +207,12 @@ pub struct Summary {
     pub rte_mean: f64,
     pub rte_median: f64,
     pub ir_mean: f64,
+}
+
+/// The finite values: a pair with no pose (infinite error) is a failure in the fractions, but
+/// an infinite mean or median says nothing about the pairs that have one.
+fn finite(v: &[f64]) -> Vec<f64> {
+    v.iter().copied().filter(|x| x.is_finite()).collect()
 }
 
 fn mean(v: &[f64]) -> f64 {
@@ -254,13 +262,13 @@ impl Summary {
             rot_acc_5: frac(&rre, 5.0),
             rot_acc_10: frac(&rre, 10.0),
             rot_acc_45: frac(&rre, 45.0),
-            rre_mean: mean(&rre),
-            rre_median: median(&rre),
+            rre_mean: mean(&finite(&rre)),
+            rre_median: median(&finite(&rre)),
             trans_acc_5cm: frac(&rte, 0.05),
             trans_acc_10cm: frac(&rte, 0.10),
             trans_acc_25cm: frac(&rte, 0.25),
-            rte_mean: mean(&rte),
-            rte_median: median(&rte),
+            rte_mean: mean(&finite(&rte)),
+            rte_median: median(&finite(&rte)),
             ir_mean: mean(&ir),
         }
     }
@@ -449,6 +457,20 @@ mod tests {
         assert_eq!(empty.n, 0);
         assert_eq!(empty.recall, 0.0);
         assert!(empty.rre_mean.is_nan());
+        // a pair that errored (infinite errors) fails the fractions, not the means
+        let ok = |rre: f64, rte: f64| PairMetrics {
+            rre_deg: rre,
+            rte_m: rte,
+            inlier_ratio: 0.0,
+            success: rre.is_finite(),
+            criterion: Default::default(),
+            also: None,
+        };
+        let s =
+            Summary::from_pairs(&[ok(2.0, 0.1), ok(4.0, 0.3), ok(f64::INFINITY, f64::INFINITY)]);
+        assert_eq!((s.rre_mean, s.rre_median), (3.0, 3.0));
+        assert!((s.rte_mean - 0.2).abs() < 1e-12 && (s.rte_median - 0.2).abs() < 1e-12);
+        assert!((s.rot_acc_5 - 2.0 / 3.0).abs() < 1e-12 && (s.recall - 2.0 / 3.0).abs() < 1e-12);
     }
 
     #[test]

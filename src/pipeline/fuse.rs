@@ -260,6 +260,17 @@ pub fn similarities(inputs: &FusionInputs) -> Result<Similarities> {
     Ok(Similarities::new(image, geo))
 }
 
+/// Whether a timing of a result names a step of the in-memory tail ([`fuse_and_finish`]:
+/// similarity, fusion, estimation), which a re-fusion recomputes, as opposed to a cached
+/// stage before it. Every name the tail records passes (the `union` mode's "fusion: noisy-and"
+/// and "fusion: geometry" included).
+pub fn is_tail_timing(name: &str) -> bool {
+    matches!(
+        name,
+        "similarity" | "fusion" | "estimate" | "similarity+fusion"
+    ) || name.starts_with("fusion: ")
+}
+
 /// Similarity, calibration, fusion, selection and estimation from [`FusionInputs`]: the tail
 /// of the image branch (image descriptors present) and of the geometric-only registration
 /// (image None: geometry-only fusion, streaming row-NN when the calibration allows it).

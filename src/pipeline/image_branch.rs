@@ -230,6 +230,7 @@ fn register_with_frames(
             links: tgt_links,
         },
     ];
+    let coverage = coverage_warnings(&image);
     let inputs = FusionInputs {
         source_geo: src_geo,
         target_geo: tgt_geo,
@@ -247,6 +248,7 @@ fn register_with_frames(
     res.timings = timings;
     res.total_ms = timer.t0.elapsed().as_secs_f64() * 1e3;
     res.warnings.extend(warnings);
+    res.warnings.extend(coverage);
     res.warnings.extend(gen.provenance.warnings.iter().cloned());
     res.image = Some(output);
     Ok((res, inputs))
@@ -303,6 +305,29 @@ fn describe_views(
         None => format!("{vfm_id} (descriptors from the cache)"),
     };
     Ok((src, tgt, label))
+}
+
+/// A side whose views give a pixel to fewer than 1 % of its keypoints: the image posterior says
+/// nothing there, Noisy-AND drops those keypoints and the union keeps only geometry's matches.
+/// The usual cause is a virtual camera that does not fit the scan (an xyz-only LiDAR scan gets
+/// the pinhole trajectory under `auto`).
+fn coverage_warnings(im: &ImageInputs) -> Vec<String> {
+    let (v_src, v_tgt) = im.validity();
+    [("source", &v_src), ("target", &v_tgt)]
+        .into_iter()
+        .filter_map(|(side, v)| {
+            let n = v.iter().filter(|v| **v).count();
+            (v.is_empty() || n * 100 < v.len()).then(|| {
+                format!(
+                    "the image branch links {n} of the {} {side} keypoints to a pixel: the \
+                     image posterior says nothing about the others (Noisy-AND drops them; the \
+                     union keeps geometry's matches). For a LiDAR scan stored without \
+                     intensity, choose the f-theta camera (--virtual-camera ftheta)",
+                    v.len()
+                )
+            })
+        })
+        .collect()
 }
 
 /// The image branch's label (the fusion mode is appended by [`fuse_and_finish`]).

@@ -524,8 +524,7 @@ pub enum LidarOrigin {
     #[default]
     ScanOrigin,
     /// At the sensor position estimated from the scan itself: the centre of its innermost
-    /// ground rings in x, y, the frame's z = 0 ([`crate::camera::sensor_origin`]). No pose or
-    /// ground truth is read.
+    /// ground rings in x, y, the frame's z = 0. No pose or ground truth is read.
     Estimated,
 }
 

@@ -4,10 +4,10 @@
 
 use super::cache::Cache;
 use super::fuse::{fuse_and_finish, FusionInputs};
-use super::geo::{cached_branch, geo_branches, spinnet_input};
+use super::geo::{cached_branch, geo_branches};
 use super::memo::Memo;
-use super::params::RegisterParams;
-use super::result::{RegistrationResult, Timer};
+use super::params::{GeoFeatureSource, RegisterParams};
+use super::result::RegistrationResult;
 use super::stages::Ctx;
 use crate::dataset::ScanPair;
 use crate::error::{Error, Result};
@@ -45,26 +45,23 @@ pub fn register_pair_cached_keep(
     }
 }
 
-/// The geometric branch alone: keypoints and features, then the shared tail
-/// ([`fuse_and_finish`] with no image descriptors).
+/// The geometric branch alone: keypoints and features (FPFH through the cached `geo-fpfh`
+/// stage, as with the image branch), then the shared tail ([`fuse_and_finish`] with no image
+/// descriptors).
 fn register_geometry(
     pair: &ScanPair,
     params: &RegisterParams,
     cache: Option<&Cache>,
     memo: &Memo,
 ) -> Result<(RegistrationResult, FusionInputs)> {
-    let mut timer = Timer::new();
-    let mut warnings = Vec::new();
-    // SpinNet (minutes per scan) goes through its cached stage; FPFH is computed in memory
-    let (src, tgt) = if spinnet_input(params).is_some() {
-        let mut ctx = Ctx::new(cache, memo);
-        let (s, _) = cached_branch(&mut ctx, "source", &pair.source, params)?;
-        let (t, _) = cached_branch(&mut ctx, "target", &pair.target, params)?;
-        timer.timings.append(&mut ctx.timer.timings);
-        warnings.append(&mut ctx.warnings);
-        (s, t)
-    } else {
-        geo_branches(pair, params, &mut timer)?
+    let mut ctx = Ctx::new(cache, memo);
+    // FPFH and SpinNet through their cached stages; features read from files have none
+    let (src, tgt) = match params.geo_features {
+        GeoFeatureSource::Fpfh | GeoFeatureSource::Spinnet { .. } => (
+            cached_branch(&mut ctx, "source", &pair.source, params)?.0,
+            cached_branch(&mut ctx, "target", &pair.target, params)?.0,
+        ),
+        _ => geo_branches(pair, params, &mut ctx.timer)?,
     };
     if src.features.dim != tgt.features.dim {
         return Err(Error::Invalid(format!(
@@ -79,10 +76,13 @@ fn register_geometry(
         image_label: None,
     };
     let mut res = fuse_and_finish(pair, params, &inputs, None)?;
-    res.warnings.splice(0..0, warnings);
+    let Ctx {
+        timer, warnings, ..
+    } = ctx;
     let mut timings = timer.timings;
     timings.append(&mut res.timings);
     res.timings = timings;
     res.total_ms = timer.t0.elapsed().as_secs_f64() * 1e3;
+    res.warnings.extend(warnings);
     Ok((res, inputs))
 }

@@ -311,6 +311,24 @@ fn worker_runs_the_image_branch_from_the_cache_and_refuses_from_memory() {
         .stages
         .iter()
         .any(|s| s.name == "vfm source views" && s.state == StageState::Cached));
+    // the default fusion with the image branch (union) records its own tail timings: a
+    // re-fusion lists each stage once, the kept tail not beside the new one
+    let mut u = s.clone();
+    u.fusion.mode = cgenreg::fusion::FusionMode::Union;
+    w.set_params(u.clone());
+    // a full run under the union (the image stages from the cache), then a re-fusion
+    w.run_pair(&id).unwrap();
+    *u.fusion.calibration_geo.tau_mut() = 0.07;
+    w.set_params(u);
+    let mu = w.refuse().expect("temperature change re-fuses").unwrap();
+    let mut names: Vec<&str> = mu.stages.iter().map(|s| s.name.as_str()).collect();
+    assert!(names.contains(&"fusion: noisy-and"), "{names:?}");
+    names.sort();
+    let n = names.len();
+    names.dedup();
+    assert_eq!(names.len(), n, "a stage listed twice after a re-fusion");
+    w.set_params(s.clone());
+    let m = w.refuse().expect("back to Noisy-AND").unwrap();
     // posterior with the image branch: image row and pixels in the views
     let src = m
         .matches

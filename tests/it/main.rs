@@ -18,6 +18,7 @@ mod docs_hygiene;
 mod export_corr;
 mod fusion_union;
 mod fuzz_smoke;
+mod geometry_cache;
 mod gui_compare;
 mod gui_pipeline;
 mod gui_run_all;

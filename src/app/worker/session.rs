@@ -348,10 +348,8 @@ impl PipelineWorker {
             .stages
             .iter()
             .filter(|s| {
-                !matches!(
-                    s.name.as_str(),
-                    "similarity" | "fusion" | "estimate" | "similarity+fusion"
-                ) && !s.name.starts_with("settings change")
+                !crate::pipeline::fuse::is_tail_timing(&s.name)
+                    && !s.name.starts_with("settings change")
             })
             .map(|s| StageInfo {
                 name: s.name.clone(),
