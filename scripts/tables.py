@@ -44,6 +44,24 @@ TABLES = {
             ("built-in shading (NOT a WFM) + XFeat, Noisy-AND", "docs/ablation/lidar/builtin-noisy-and.json"),
         ],
     ),
+    "spinnet-indoor": (
+        "3DMatch success: RRE <= 15 deg and RTE <= 30 cm",
+        [
+            ("FPFH + SC2-PCR (geometry only, NN)", "docs/results/spinnet/staged-fpfh.json"),
+            ("SpinNet 3DMatch, 128 keypoints + SC2-PCR (geometry only, NN)",
+             "docs/results/spinnet/staged-spinnet-128.json"),
+        ],
+    ),
+    "spinnet-outdoor": (
+        "success: RRE <= 5 deg and RTE <= 2 m (KITTI)",
+        [
+            ("FPFH + SC2-PCR (geometry only, NN)", "docs/results/spinnet/kitti-fpfh.json"),
+            ("SpinNet KITTI, 128 keypoints + SC2-PCR (geometry only, NN)",
+             "docs/results/spinnet/kitti-spinnet-128.json"),
+            ("SpinNet KITTI, 512 keypoints (a sensitivity probe, not a chosen setting)",
+             "docs/results/spinnet/kitti-spinnet-512-probe.json"),
+        ],
+    ),
 }
 
 # name -> (rows of (label, folder, file prefix), fusion columns): pairs registered per split, one row per VFM

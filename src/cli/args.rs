@@ -73,6 +73,19 @@ pub struct PipelineArgs {
     /// The authors' GeoTransformer pair feature file (.pkl, reference §5).
     #[arg(long, conflicts_with = "learned_source")]
     pub geotransformer_pkl: Option<PathBuf>,
+    /// The geometric branch's features (default fpfh). SpinNet needs an ONNX export of the
+    /// authors' checkpoint (scripts/spinnet_export.sh writes target/spinnet/; research-only
+    /// weights, not shipped) and runs at --spinnet-keypoints points per scan.
+    #[arg(long, value_enum, conflicts_with_all = ["learned_source", "geotransformer_pkl"])]
+    pub geo_features: Option<GeoFeatureSource>,
+    /// The SpinNet ONNX export (default: target/spinnet/spinnet-<protocol>.onnx, or
+    /// $CGENREG_SPINNET_DIR/spinnet-<protocol>.onnx).
+    #[arg(long, requires = "geo_features")]
+    pub spinnet_model: Option<PathBuf>,
+    /// SpinNet keypoints per scan, drawn from the voxel-downsampled cloud (default 128, chosen on
+    /// the development pair; docs/spinnet.md).
+    #[arg(long, requires = "geo_features", value_parser = clap::value_parser!(u64).range(1..=1_000_000))]
+    pub spinnet_keypoints: Option<u64>,
     /// Calibration of both branches (row: the paper's eq. 5; dual: the reference code's).
     #[arg(long, value_enum, default_value = "row")]
     pub calibration: Calibration,
@@ -109,8 +122,7 @@ impl PipelineArgs {
     /// The run's parameters; `manifest_preset` is the data set's own (`preset` in its
     /// manifest), used when `--preset` is not given.
     pub fn to_params(&self, image_branch: bool, manifest_preset: Option<Preset>) -> RegisterParams {
-        let mut p = RegisterParams::default();
-        p.geo_features = match (
+        let geo_features = match (
             &self.learned_source,
             &self.learned_target,
             &self.geotransformer_pkl,
@@ -120,8 +132,23 @@ impl PipelineArgs {
                 target: t.clone(),
             },
             (_, _, Some(pkl)) => GeoFeatureSource::GeoTransformerPkl { path: pkl.clone() },
-            _ => GeoFeatureSource::Fpfh,
+            _ => self.geo_features.clone().unwrap_or(GeoFeatureSource::Fpfh),
         };
+        let mut p = RegisterParams {
+            geo_features,
+            ..RegisterParams::default()
+        };
+        if let GeoFeatureSource::Spinnet {
+            model, keypoints, ..
+        } = &mut p.geo_features
+        {
+            if let Some(m) = &self.spinnet_model {
+                *model = m.clone();
+            }
+            if let Some(k) = self.spinnet_keypoints {
+                *keypoints = k as usize;
+            }
+        }
         // --reference: the authors' dual softmax and global top-8000 (temperatures and mode
         // still from their options); otherwise the paper's choices or the given ones.
         let (cal, sel) = if self.reference {

@@ -35,6 +35,13 @@ fn row_label(path: &Path, params: &Value) -> Result<(String, String, String)> {
         Some("fpfh") => "FPFH".to_string(),
         Some("files") => "learned (files)".to_string(),
         Some("geo-transformer-pkl") => "GeoTransformer (pkl)".to_string(),
+        Some("spinnet") => format!(
+            "SpinNet {} ({} keypoints)",
+            field(path, params, "/geo_features/protocol")?
+                .as_str()
+                .unwrap_or("?"),
+            field(path, params, "/geo_features/keypoints")?
+        ),
         other => format!("{other:?}"),
     };
     let mode = field(path, params, "/fusion/mode")?

@@ -3,6 +3,7 @@
 
 pub mod fpfh;
 pub mod learned;
+pub mod spinnet;
 
 /// Dense per-point features, row-major: row i is the feature of point i.
 #[derive(Clone, Debug, Default, PartialEq)]

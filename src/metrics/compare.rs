@@ -123,6 +123,7 @@ pub fn missing_files(p: &RegisterParams) -> Vec<std::path::PathBuf> {
             files.push((target, false));
         }
         GeoFeatureSource::GeoTransformerPkl { path } => files.push((path, false)),
+        GeoFeatureSource::Spinnet { model, .. } => files.push((model, false)),
     }
     if let Some(ib) = &p.image {
         files.push((ib.vfm.model(), false));
@@ -147,6 +148,11 @@ pub fn settings_summary(p: &RegisterParams) -> String {
         GeoFeatureSource::Fpfh => "FPFH".to_string(),
         GeoFeatureSource::Files { .. } => "learned features (files)".to_string(),
         GeoFeatureSource::GeoTransformerPkl { .. } => "GeoTransformer pkl".to_string(),
+        GeoFeatureSource::Spinnet {
+            protocol,
+            keypoints,
+            ..
+        } => format!("SpinNet {} ({keypoints} keypoints)", protocol.name()),
     };
     let mut parts = vec![format!(
         "{geo} (voxel {} cm)",

@@ -1,9 +1,12 @@
 //! The geometric branch of one scan: keypoints and features (FPFH computed here, or learned
 //! features read from files). The cached FPFH stage is `stages::geo`.
 
+use super::cache::CacheKey;
 use super::params::{GeoFeatureSource, RegisterParams};
 use super::result::Timer;
-use crate::dataset::ScanPair;
+use super::stages::geo_spinnet::{self, SpinNetInput};
+use super::stages::{geo, Ctx};
+use crate::dataset::{Scan, ScanPair};
 use crate::error::{Error, Result};
 use crate::features::fpfh::{compute_fpfh, FpfhParams};
 use crate::features::Features;
@@ -48,12 +51,53 @@ pub fn fpfh_branch(cloud: &PointCloud, voxel: f64) -> Result<GeoBranch> {
     })
 }
 
+/// What the `geo-spinnet` stage reads for `params`, when SpinNet is the geometric branch.
+pub(crate) fn spinnet_input(params: &RegisterParams) -> Option<SpinNetInput<'_>> {
+    match &params.geo_features {
+        GeoFeatureSource::Spinnet {
+            protocol,
+            model,
+            keypoints,
+        } => Some(SpinNetInput {
+            protocol: *protocol,
+            model,
+            keypoints: *keypoints,
+            voxel: params.voxel,
+        }),
+        _ => None,
+    }
+}
+
+/// One scan's geometric branch through its cached stage (`geo-fpfh` or `geo-spinnet`), with
+/// the stage's key; `side` is "source" or "target". Features read from files have no stage.
+pub(crate) fn cached_branch(
+    ctx: &mut Ctx,
+    side: &str,
+    scan: &Scan,
+    params: &RegisterParams,
+) -> Result<(GeoBranch, CacheKey)> {
+    if let Some(input) = spinnet_input(params) {
+        return geo_spinnet::run(ctx, &format!("spinnet {side}"), scan, &input);
+    }
+    match &params.geo_features {
+        GeoFeatureSource::Fpfh => geo::run(ctx, &format!("fpfh {side}"), scan, params.voxel),
+        other => Err(Error::Invalid(format!(
+            "geometric features `{}` have no cached stage; the image branch runs with FPFH or \
+             SpinNet",
+            other.name()
+        ))),
+    }
+}
+
 pub(crate) fn geo_branches(
     pair: &ScanPair,
     params: &RegisterParams,
     timer: &mut Timer,
 ) -> Result<(GeoBranch, GeoBranch)> {
     match &params.geo_features {
+        GeoFeatureSource::Spinnet { .. } => Err(Error::Invalid(
+            "SpinNet runs through its cached stage (pipeline::geo::cached_branch)".into(),
+        )),
         GeoFeatureSource::Fpfh => {
             let s = timer.stage("fpfh source", || {
                 fpfh_branch(&pair.source.cloud, params.voxel)

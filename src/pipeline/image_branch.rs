@@ -12,8 +12,9 @@ pub use super::stages::depth_video::depth_video_clip;
 
 use super::cache::{Cache, CacheKey};
 use super::fuse::{fuse_and_finish, FusionInputs, ImageInputs};
+use super::geo::cached_branch;
 use super::memo::Memo;
-use super::params::{GeoFeatureSource, ImageBranchParams, RegisterParams};
+use super::params::{ImageBranchParams, RegisterParams};
 use super::result::{ImageBranchOutput, RegistrationResult, ViewInfo};
 use super::stages::depth_video::frames_of;
 use super::stages::generation::{short_prompt, GenOut};
@@ -21,11 +22,9 @@ use super::stages::lift::LiftInput;
 use super::stages::pair_vfm::PairInput;
 use super::stages::vfm::SideViews;
 use super::stages::virtual_frames::{camera_coverage_warnings, framed_pair, FrameStore};
-use super::stages::{
-    depth_video, generation, geo, image_points, lift, pair_vfm, vfm, view_select, Ctx,
-};
+use super::stages::{depth_video, generation, image_points, lift, pair_vfm, vfm, view_select, Ctx};
 use crate::dataset::{FrameSet, ScanPair};
-use crate::error::{Error, Result};
+use crate::error::Result;
 use crate::vfm::lift::PixelLink;
 use crate::wfm::ViewSelection;
 use image::RgbImage;
@@ -45,7 +44,7 @@ pub fn register_with_image(
 
 /// [`register_with_image`] that also returns the [`FusionInputs`]. With `generate` false a
 /// generation missing from the cache is not produced: the call fails with
-/// [`Error::GenerationNotCached`] (the GUI then offers to run the generator). `memo` keeps
+/// [`crate::error::Error::GenerationNotCached`] (the GUI then offers to run the generator). `memo` keeps
 /// the loaded models and file hashes for the caller's next registration.
 pub fn register_with_image_keep(
     pair: &ScanPair,
@@ -136,13 +135,6 @@ fn register_with_frames(
     (cache, memo): (Option<&Cache>, &Memo),
     generate: bool,
 ) -> Result<(RegistrationResult, FusionInputs)> {
-    if !matches!(params.geo_features, GeoFeatureSource::Fpfh) {
-        return Err(Error::Invalid(
-            "the image branch is wired to the FPFH geometric branch; learned geometric \
-             features with the image branch are not supported yet"
-                .into(),
-        ));
-    }
     let mut ctx = Ctx::new(cache, memo);
     let l = ib.frames_per_fragment;
     let src_fs = frames_of(&pair.source, l)?;
@@ -152,8 +144,8 @@ fn register_with_frames(
     let vfm_id = vfm::vfm_id(memo, &ib.vfm)?;
 
     // Geometric branch (dense path: the image branch needs the N x M similarity).
-    let (src_geo, src_geo_key) = geo::run(&mut ctx, "fpfh source", &pair.source, params.voxel)?;
-    let (tgt_geo, tgt_geo_key) = geo::run(&mut ctx, "fpfh target", &pair.target, params.voxel)?;
+    let (src_geo, src_geo_key) = cached_branch(&mut ctx, "source", &pair.source, params)?;
+    let (tgt_geo, tgt_geo_key) = cached_branch(&mut ctx, "target", &pair.target, params)?;
 
     let mut video = depth_video::run(&mut ctx, pair, src_fs, tgt_fs, l)?;
     let (gen, gen_key) =

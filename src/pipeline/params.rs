@@ -19,6 +19,80 @@ pub enum GeoFeatureSource {
     /// The authors' GeoTransformer pair file (reference §5): GeoTransformer's `ref` is the
     /// C-GenReg source for 3DMatch.
     GeoTransformerPkl { path: PathBuf },
+    /// SpinNet descriptors (an ONNX export of the authors' `protocol` checkpoint, made by
+    /// `scripts/spinnet_export.sh`) at `keypoints` points drawn from the voxel-downsampled
+    /// cloud; cached as the `geo-spinnet` stage.
+    Spinnet {
+        protocol: crate::features::spinnet::Protocol,
+        #[serde(with = "crate::vfm::model_path_serde")]
+        model: PathBuf,
+        keypoints: usize,
+    },
+}
+
+/// `--geo-features fpfh|spinnet-3dmatch|spinnet-kitti`; a SpinNet export other than the default
+/// comes from `--spinnet-model`, the keypoint count from `--spinnet-keypoints`.
+impl clap::ValueEnum for GeoFeatureSource {
+    fn value_variants<'a>() -> &'a [Self] {
+        static V: std::sync::LazyLock<[GeoFeatureSource; 3]> = std::sync::LazyLock::new(|| {
+            use crate::features::spinnet::Protocol;
+            [
+                GeoFeatureSource::Fpfh,
+                GeoFeatureSource::spinnet(Protocol::ThreeDMatch),
+                GeoFeatureSource::spinnet(Protocol::Kitti),
+            ]
+        });
+        &*V
+    }
+
+    fn to_possible_value(&self) -> Option<clap::builder::PossibleValue> {
+        use clap::builder::PossibleValue;
+        match self {
+            GeoFeatureSource::Fpfh => {
+                Some(PossibleValue::new("fpfh").help("FPFH on the voxel-downsampled clouds"))
+            }
+            GeoFeatureSource::Spinnet { protocol, .. } => Some(
+                PossibleValue::new(match protocol {
+                    crate::features::spinnet::Protocol::ThreeDMatch => "spinnet-3dmatch",
+                    crate::features::spinnet::Protocol::Kitti => "spinnet-kitti",
+                })
+                .help(match protocol {
+                    crate::features::spinnet::Protocol::ThreeDMatch => {
+                        "SpinNet, the authors' 3DMatch checkpoint (indoor, 0.30 m patches)"
+                    }
+                    crate::features::spinnet::Protocol::Kitti => {
+                        "SpinNet, the authors' KITTI checkpoint (outdoor, 2 m patches)"
+                    }
+                }),
+            ),
+            // given by their own options (--learned-source/--learned-target, --geotransformer-pkl)
+            GeoFeatureSource::Files { .. } | GeoFeatureSource::GeoTransformerPkl { .. } => None,
+        }
+    }
+}
+
+/// SpinNet's keypoints per scan by default (`docs/spinnet.md`: chosen on the development pairs).
+pub const SPINNET_DEFAULT_KEYPOINTS: usize = 128;
+
+impl GeoFeatureSource {
+    /// SpinNet with `protocol`'s default export and keypoint count.
+    pub fn spinnet(protocol: crate::features::spinnet::Protocol) -> GeoFeatureSource {
+        GeoFeatureSource::Spinnet {
+            protocol,
+            model: crate::features::spinnet::default_model_path(protocol),
+            keypoints: SPINNET_DEFAULT_KEYPOINTS,
+        }
+    }
+
+    /// A short name: `fpfh`, `spinnet-3dmatch`, `spinnet-kitti`, `files`, `geo-transformer-pkl`.
+    pub fn name(&self) -> String {
+        match self {
+            GeoFeatureSource::Fpfh => "fpfh".into(),
+            GeoFeatureSource::Files { .. } => "files".into(),
+            GeoFeatureSource::GeoTransformerPkl { .. } => "geo-transformer-pkl".into(),
+            GeoFeatureSource::Spinnet { protocol, .. } => format!("spinnet-{}", protocol.name()),
+        }
+    }
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

@@ -4,11 +4,11 @@
 
 use super::cache::Cache;
 use super::fuse::{fuse_and_finish, FusionInputs};
-use super::geo::geo_branches;
+use super::geo::{cached_branch, geo_branches};
 use super::memo::Memo;
 use super::params::{GeoFeatureSource, RegisterParams};
 use super::result::RegistrationResult;
-use super::stages::{geo, Ctx};
+use super::stages::Ctx;
 use crate::dataset::ScanPair;
 use crate::error::{Error, Result};
 
@@ -55,10 +55,11 @@ fn register_geometry(
     memo: &Memo,
 ) -> Result<(RegistrationResult, FusionInputs)> {
     let mut ctx = Ctx::new(cache, memo);
+    // FPFH and SpinNet through their cached stages; features read from files have none
     let (src, tgt) = match params.geo_features {
-        GeoFeatureSource::Fpfh => (
-            geo::run(&mut ctx, "fpfh source", &pair.source, params.voxel)?.0,
-            geo::run(&mut ctx, "fpfh target", &pair.target, params.voxel)?.0,
+        GeoFeatureSource::Fpfh | GeoFeatureSource::Spinnet { .. } => (
+            cached_branch(&mut ctx, "source", &pair.source, params)?.0,
+            cached_branch(&mut ctx, "target", &pair.target, params)?.0,
         ),
         _ => geo_branches(pair, params, &mut ctx.timer)?,
     };

@@ -39,6 +39,7 @@ mod pipeline_image;
 mod properties;
 mod shard_cli;
 mod slurm;
+mod spinnet;
 mod study;
 mod validation;
 mod vfm_dense;

@@ -120,7 +120,7 @@ impl StageKeys {
             upstream: Some(upstream_params(params)),
             ..StageKeys::default()
         };
-        let geo = geo_keys(pair, params)?;
+        let geo = geo_keys(pair, params, memo)?;
         k.fusion_inputs = match &params.image {
             None => {
                 k.set(StageName::Geo, Some(geo.clone()));
@@ -244,9 +244,17 @@ pub fn invalidated(
     Ok(a.invalidated_by(&b))
 }
 
-/// Both scans' geometric-branch keys: the `geo-fpfh` key for FPFH; learned features are read
-/// from their files on every run (not cached), keyed here by the source and the voxel.
-fn geo_keys(pair: &ScanPair, params: &RegisterParams) -> Result<Vec<String>> {
+/// Both scans' geometric-branch keys: the `geo-fpfh` key for FPFH, the `geo-spinnet` key for
+/// SpinNet (hashing the export through `memo`); learned features are read from their files on
+/// every run (not cached), keyed here by the source and the voxel.
+fn geo_keys(pair: &ScanPair, params: &RegisterParams, memo: &Memo) -> Result<Vec<String>> {
+    if let Some(input) = crate::pipeline::geo::spinnet_input(params) {
+        let id = super::geo_spinnet::model_id(memo, &input)?;
+        return Ok(vec![
+            super::geo_spinnet::key(&pair.source, &input, &id)?.hash,
+            super::geo_spinnet::key(&pair.target, &input, &id)?.hash,
+        ]);
+    }
     match &params.geo_features {
         GeoFeatureSource::Fpfh => Ok(vec![
             geo::key(&pair.source, params.voxel)?.hash,

@@ -9,6 +9,7 @@
 //! | `fragments`            | `dataset/fragment_cache.rs` | raw RGB-D frames' bytes            |
 //! | `virtual-frames`       | `virtual_frames.rs`    | cloud (scans without sensor frames)     |
 //! | `geo-fpfh`             | `geo.rs`               | cloud                                   |
+//! | `geo-spinnet`          | `geo_spinnet.rs`       | cloud, SpinNet export                   |
 //! | `depth-video`          | `depth_video.rs`       | first L depth frames of both scans      |
 //! | `generation`           | `generation.rs`        | depth video (colour frames for oracle)  |
 //! | (in memory)            | `view_select.rs`       | video length, L, m, K                   |
@@ -24,6 +25,7 @@
 pub mod depth_video;
 pub mod generation;
 pub mod geo;
+pub mod geo_spinnet;
 pub mod image_points;
 pub mod keys;
 pub mod lift;

@@ -1,0 +1,58 @@
+#!/usr/bin/env bash
+# SpinNet alone vs FPFH alone (geometry only, SC2-PCR), each run with wall time, CPU time and
+# peak memory from /usr/bin/time. First the keypoint count on the development pair
+# (redkitchen-dev's first pair, never evaluated): 128 or 256 keypoints per scan, the smaller if
+# it registers the pair, else 256 (the rule is fixed before any evaluated row is run). Then, at
+# that count, every staged redkitchen pair (spinnet-3dmatch) and every KITTI 07 pair
+# (spinnet-kitti), with FPFH beside them in the same run. Each scan is described once (the
+# geo-spinnet stage's cache), so the time of a set is about scans x keypoints. A run whose
+# .json and .time are already in OUT is kept (delete them to rerun).
+#   CGENREG_BIN   the binary (default target/release/cgenreg, else target/debug/cgenreg)
+#   OUT           output folder (default target/spinnet-bench)
+#   PROBE=1       also KITTI 07 at 512 keypoints (a sensitivity figure, see below)
+# Needs the exports of scripts/spinnet_export.sh. Summary: scripts/spinnet_summary.py OUT.
+set -euo pipefail
+root="$(cd "$(dirname "$0")/.." && pwd)"
+bin="${CGENREG_BIN:-}"
+if [ -z "$bin" ]; then
+  if [ -x "$root/target/release/cgenreg" ]; then bin="$root/target/release/cgenreg"; else bin="$root/target/debug/cgenreg"; fi
+fi
+out="${OUT:-$root/target/spinnet-bench}"
+mkdir -p "$out"
+cache="$out/cache"
+cd "$root"
+m="assets/manifests"  # relative: run files name the manifest as the repository does
+
+run() { # name, then bench arguments
+  local name="$1"; shift
+  if [ -s "$out/$name.json" ] && [ -s "$out/$name.time" ]; then echo "== $name: kept"; return; fi
+  echo "== $name: $*"
+  /usr/bin/time -f '%e s wall, %U s user, %S s system, %M kB peak RSS' -o "$out/$name.time" \
+    timeout 3600 "$bin" bench "$@" --json "$out/$name.json" --no-resume --cache-dir "$cache" \
+    > "$out/$name.log" 2>&1 || echo "$name failed: see $out/$name.log"
+  cat "$out/$name.time"
+}
+
+success() { # run file -> number of successes
+  python3 -c 'import json,sys; print(sum(1 for p in json.load(open(sys.argv[1]))["pairs"] if p.get("success")))' "$1"
+}
+
+# 1. development pair: the keypoint count
+run dev-fpfh "$m/redkitchen-dev.toml" --limit 1
+for n in 128 256; do
+  run "dev-spinnet-$n" "$m/redkitchen-dev.toml" --limit 1 --geo-features spinnet-3dmatch --spinnet-keypoints "$n"
+done
+if [ "$(success "$out/dev-spinnet-128.json")" = 1 ]; then n=128; else n=256; fi
+echo "keypoints chosen on the development pair: $n" | tee "$out/chosen.txt"
+
+# 2. evaluated rows at that count
+run kitti-fpfh "$m/kitti07.toml"
+run "kitti-spinnet-$n" "$m/kitti07.toml" --geo-features spinnet-kitti --spinnet-keypoints "$n"
+run staged-fpfh "$m/redkitchen-staged.toml"
+run "staged-spinnet-$n" "$m/redkitchen-staged.toml" --geo-features spinnet-3dmatch --spinnet-keypoints "$n"
+# 3. PROBE=1: how the outdoor result moves with the keypoint count (KITTI has no development set
+# here, so this is a sensitivity figure on evaluated pairs, not a choice: the default stays)
+if [ "${PROBE:-}" = 1 ]; then
+  run kitti-spinnet-512-probe "$m/kitti07.toml" --geo-features spinnet-kitti --spinnet-keypoints 512
+fi
+echo done
