@@ -93,3 +93,18 @@ def test_gil_is_released_during_registration(data_root):
     assert done and elapsed > 0.05
     # with the GIL held this loop could not run while the extension computes
     assert ticks > 0.3 * elapsed / 0.001 * 0.1, (ticks, elapsed)
+
+
+def test_image_branch_pair_equals_cli(data_root, cli_binary, tmp_path):
+    """The full method (built-in frames + ALIKE-t, the default union fusion) on the bundled demo
+    pair: the package gives the command line's result, with the image branch's provenance."""
+    demo = STAGED.parents[1] / "demo" / "demo.toml"
+    opts = ["--wfm", "builtin", "--vfm", "alike", "--frames", "8", "--margin", "1", "--k", "2",
+            "--voxel", "0.05", "--cache-dir", str(tmp_path / "cache")]
+    cli = run_cli(cli_binary, ["register", "--manifest", str(demo), "--pair", "synth-room/0-1"] + opts)
+    res = cgenreg.register_pair(demo, "synth-room/0-1", wfm="builtin", vfm="alike", frames=8,
+                                margin=1, k=2, voxel=0.05, cache_dir=str(tmp_path / "cache"))
+    py = json.loads(res.to_json())
+    for key in ("target_from_source", "metrics", "n_correspondences", "n_inliers", "image_branch"):
+        assert close(py[key], cli[key]), key
+    assert "union" in py["image_branch"] and "builtin" in py["image_branch"]
