@@ -54,15 +54,22 @@ def rule_ok(rule, cands):
     return (ok(cands[n]) if n else False), n, why
 
 
-def main():
+def load_sets(args, end="\n"):
+    """{set name: rows with candidates} from NAME=PATH arguments; pairs that failed to run are
+    named on stdout."""
     sets = {}
-    for arg in sys.argv[1:]:
+    for arg in args:
         name, path = arg.split("=", 1)
         rows = [json.loads(l) for l in open(path) if l.strip()]
         sets[name] = [r for r in rows if "candidates" in r]
         bad = [r["id"] for r in rows if "candidates" not in r]
         if bad:
-            print(f"{name}: {len(bad)} pairs failed to run: {', '.join(bad)}")
+            print(f"{name}: {len(bad)} pairs failed to run: {', '.join(bad)}", end=end)
+    return sets
+
+
+def main():
+    sets = load_sets(sys.argv[1:])
     print("| set | pairs | " + " | ".join(SINGLE) + " | " + " | ".join(RULES) + " |")
     print("|---" * (2 + len(SINGLE) + len(RULES)) + "|")
     totals = {r: {"ok": 0, "lost": 0} for r in RULES}

@@ -5,10 +5,11 @@ apply the candidate rules b, a3, a4, n3, n4 and the frozen decision rule to the 
 
     python3 scripts/fusion_study2.py D1=docs/ablation/fusion/dev2-oracle.jsonl D2=docs/ablation/fusion/dev2-clouds.jsonl
 """
-import json
 import sys
 
-SINGLE = ["geometry", "image", "noisy-and"]
+# The first round's reader and success test (same JSON lines, same success criterion).
+from fusion_study import SINGLE, load_sets, ok
+
 RULES = ["b", "a3", "a4", "n3", "n4"]
 COST = {"b": 1, "a3": 3, "a4": 4, "n3": 3, "n4": 4}
 POSES = {
@@ -17,10 +18,6 @@ POSES = {
     "n3": ["geometry", "noisy-and", "image"],
     "n4": ["geometry", "union-b", "noisy-and", "image"],
 }
-
-
-def ok(c):
-    return bool(c and "error" not in c and c["ok"])
 
 
 def balanced(row, c):
@@ -56,14 +53,7 @@ def rule_ok(rule, row):
 
 
 def main():
-    sets = {}
-    for arg in sys.argv[1:]:
-        name, path = arg.split("=", 1)
-        rows = [json.loads(l) for l in open(path) if l.strip()]
-        sets[name] = [r for r in rows if "candidates" in r]
-        bad = [r["id"] for r in rows if "candidates" not in r]
-        if bad:
-            print(f"{name}: {len(bad)} pairs failed to run: {', '.join(bad)}\n")
+    sets = load_sets(sys.argv[1:], end="\n\n")
     print("| set | pairs | " + " | ".join(SINGLE) + " | " + " | ".join(RULES) + " |")
     print("|---" * (2 + len(SINGLE) + len(RULES)) + "|")
     totals = {r: {"ok": 0, "lost": []} for r in RULES}
