@@ -1,56 +1,70 @@
 #!/usr/bin/env bash
 # Candidate development fragments for redkitchen and the GT overlap of every pair among them:
-# fragments of 50 frames starting at frame 50k+25 (k = 0..8: frames 25-74, 75-124, ...,
-# 425-474), i.e. offset by half a fragment from the evaluated fragments of
-# assets/manifests/redkitchen-rgbd.toml (frames 50k..50k+49). GT from the frame poses
+# fragments of 50 frames starting at frame 50k+OFFSET (k = 0..8; OFFSET 25 by default: frames
+# 25-74, 75-124, ..., 425-474, i.e. offset by half a fragment from the evaluated fragments of
+# assets/manifests/redkitchen-rgbd.toml, frames 50k..50k+49). GT from the frame poses
 # (gt_poses = true). Writes the candidate manifest to $OUT/candidates.toml and the overlap
-# table to $OUT/overlap.tsv; assets/manifests/redkitchen-dev.toml keeps the pairs the rule in
+# table to $OUT/overlap.tsv; the development manifest keeps the pairs the rule in
 # docs/ablation.md picks.
 #
 #   bash scripts/devset_candidates.sh [OUT_DIR] [CACHE_DIR]
+#
+# Environment:
+#   OFFSETS       fragment start offsets, space-separated (default "25"); pairs are only formed
+#                 between fragments of the same offset
+#   DEV_NAME      the dataset name (default redkitchen-dev)
+#   DEV_MANIFEST  the manifest written (default assets/manifests/redkitchen-dev.toml)
+#   LOMATCH_ONLY  1: keep only 3DLoMatch-like pairs (10-30 % overlap); default: every pair >= 10 %
 set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT="${1:-target/devset}"
 CACHE="${2:-${CGENREG_CACHE:-$HOME/.cache/cgenreg}}"
 export CGENREG_DATA="${CGENREG_DATA:-$(cd .. && pwd)/shared/data}"
+OFFSETS="${OFFSETS:-25}"
+NAME="${DEV_NAME:-redkitchen-dev}"
+LOMATCH_ONLY="${LOMATCH_ONLY:-0}"
 mkdir -p "$OUT"
 M="$OUT/candidates.toml"
 {
-    echo 'name = "redkitchen-dev"'
+    printf 'name = "%s"\n' "$NAME"
     echo 'root = "$CGENREG_DATA"'
     echo
     echo '[fragment_options]'
     echo 'voxel = 0.01'
     echo 'max_depth = 4.0'
     echo 'crop = "3dmatch"'
-    for k in $(seq 0 8); do
-        f=$((50 * k + 25))
-        printf '\n[[fragments]]\nid = "f%03d"\nsequence = "7scenes-redkitchen-rgbd"\nfirst = %d\ncount = 50\n' "$f" "$f"
+    for o in $OFFSETS; do
+        for k in $(seq 0 8); do
+            f=$((50 * k + o))
+            printf '\n[[fragments]]\nid = "f%03d"\nsequence = "7scenes-redkitchen-rgbd"\nfirst = %d\ncount = 50\n' "$f" "$f"
+        done
     done
-    for i in $(seq 0 8); do
-        for j in $(seq $((i + 1)) 8); do
-            printf '\n[[pairs]]\ntarget = "f%03d"\nsource = "f%03d"\ngt_poses = true\n' \
-                $((50 * i + 25)) $((50 * j + 25))
+    for o in $OFFSETS; do
+        for i in $(seq 0 8); do
+            for j in $(seq $((i + 1)) 8); do
+                printf '\n[[pairs]]\ntarget = "f%03d"\nsource = "f%03d"\ngt_poses = true\n' \
+                    $((50 * i + o)) $((50 * j + o))
+            done
         done
     done
 } > "$M"
 nice -n 10 "${CGENREG_EXAMPLE_BIN:-target/debug/examples/pair_overlap}" "$M" "$CACHE" | tee "$OUT/overlap.tsv"
 
 # The rule: keep every candidate pair whose overlap (max of the two directions) is at least
-# 10 %; split "3DMatch-like" above 30 %, "3DLoMatch-like" from 10 to 30 % (3DLoMatch's range).
+# 10 % (with LOMATCH_ONLY=1: at most 30 % too); split "3DMatch-like" above 30 %,
+# "3DLoMatch-like" from 10 to 30 % (3DLoMatch's range).
 DEV="${DEV_MANIFEST:-assets/manifests/redkitchen-dev.toml}"
 {
     echo '# DEVELOPMENT SET (never evaluated; docs/ablation.md "Evaluation protocol"). Written by'
-    echo '# scripts/devset_candidates.sh. 7-Scenes redkitchen fragments of 50 raw frames starting at'
-    echo '# frame 50k+25 (k = 0..8), in the camera frame of their first frame; the evaluated'
-    echo '# fragments of redkitchen-rgbd.toml are frames 50k..50k+49. Every dev fragment therefore'
-    echo '# shares its first 25 frames with evaluated fragment k and its last 25 with fragment k+1:'
-    echo '# same room, same raw frames, different fragment boundaries and different pairs.'
+    echo "# scripts/devset_candidates.sh (OFFSETS=\"$OFFSETS\" LOMATCH_ONLY=$LOMATCH_ONLY). 7-Scenes"
+    echo "# redkitchen fragments of 50 raw frames starting at frame 50k+offset (k = 0..8), in the camera"
+    echo '# frame of their first frame; the evaluated fragments of redkitchen-rgbd.toml are frames'
+    echo '# 50k..50k+49: same room, same raw frames, different fragment boundaries and different pairs.'
     echo '# GT: gt_poses = true, target_from_source = inv(P_target_first) * P_source_first.'
-    echo '# Pairs: every pair of these fragments with GT overlap >= 10 % (metrics::overlap: 2.5 cm'
+    echo '# Pairs: fragments of the same offset with GT overlap >= 10 % (metrics::overlap: 2.5 cm'
     echo '# voxel, 3.75 cm radius, max of both directions); > 30 %: 3DMatch-like, 10-30 %: 3DLoMatch-like.'
     sed -n '1,/^\[\[pairs\]\]/p' "$M" | sed '$d'
-    awk -F'\t' '!/^#/ && $5 >= 10 {
+    awk -F'\t' -v lo="$LOMATCH_ONLY" '!/^#/ && $5 >= 10 && (lo != 1 || $5 <= 30) {
         split($1, a, "/"); split(a[2], b, "-");
         printf "\n[[pairs]]\n# overlap %s %% (source %s %%, target %s %%)\ntarget = \"%s\"\nsource = \"%s\"\nsplit = \"%s\"\ngt_poses = true\n",
             $5, $3, $4, b[1], b[2], ($5 > 30 ? "3DMatch-like" : "3DLoMatch-like")
