@@ -315,3 +315,31 @@ fn dev_manifest_is_disjoint_from_the_evaluated_pairs() {
         assert!(o.max() > lo && o.max() <= hi, "{id}: {o:?}");
     }
 }
+
+/// The third round's development pairs: fragments at offsets 12 and 37 (neither an evaluated
+/// boundary, 50k, nor the first development set's, 50k+25), pairs within one offset, all
+/// 3DLoMatch-like, GT from the frame poses.
+#[test]
+fn dev3_manifest_uses_other_fragment_boundaries() {
+    use cgenreg::dataset::manifest::FragmentSource;
+    let Some(_root) = cgenreg::testing::test_data_root() else {
+        return;
+    };
+    let dev3 = Dataset::load(&manifest("redkitchen-dev3.toml")).unwrap();
+    let first = |id: &str| match &dev3.fragment(id).unwrap().source {
+        FragmentSource::Rgbd { range, .. } => (range.first, range.count),
+        _ => panic!("{id}: not an RGB-D fragment"),
+    };
+    assert_eq!(dev3.fragments().len(), 18);
+    for f in dev3.fragments() {
+        let (s, n) = first(&f.id);
+        assert!([12, 37].contains(&(s % 50)) && n == 50, "{}: {s} {n}", f.id);
+    }
+    assert_eq!(dev3.pairs().len(), 14);
+    assert_eq!(dev3.pairs_in_split("3DLoMatch-like").count(), 14);
+    for p in dev3.pairs() {
+        let (t, s) = (first(&p.target).0, first(&p.source).0);
+        assert_eq!(t % 50, s % 50, "{}: pairs stay within one offset", p.id);
+        assert!(p.gt_target_from_source.is_some(), "{}", p.id);
+    }
+}

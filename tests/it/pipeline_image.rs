@@ -283,11 +283,9 @@ fn fuse_from_kept_similarities_equals_full_tail() {
                 v.sort_unstable();
                 v
             };
-            let a2 = fuse_and_finish(&pair, &q, inp, None).unwrap();
-            let same_order = a.correspondences == a2.correspondences;
             assert_eq!(pairs(&a), pairs(&b), "tau {tau} {mode:?} {sel:?}");
             eprintln!(
-                "tau {tau} {mode:?} {sel:?}: same order on a repeat: {same_order}; RRE a/b {:?} {:?}",
+                "tau {tau} {mode:?} {sel:?}: RRE a/b {:?} {:?}",
                 a.metrics.as_ref().map(|m| m.rre_deg),
                 b.metrics.as_ref().map(|m| m.rre_deg)
             );
