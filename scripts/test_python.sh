@@ -16,6 +16,8 @@ if [ ! -x "$venv/bin/python" ]; then
 fi
 "$venv/bin/python" -m pip install -q --disable-pip-version-check \
   "maturin==1.16.0" "numpy>=1.21" "pytest>=7" pandas
+# `--prepare`: only the venv (scripts/test.sh makes it in the background while the tests build).
+if [ "${1:-}" = "--prepare" ]; then exit 0; fi
 # maturin reads pyproject.toml (manifest python/Cargo.toml); `develop` installs into $VIRTUAL_ENV.
 # `--features gui`: the library with its default features, as the Rust build above compiled it,
 # so that build's artifacts are reused (without the GUI, crates such as `half` get other
