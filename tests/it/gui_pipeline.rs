@@ -762,3 +762,53 @@ fn a_temperature_change_under_nn_reuses_the_first_runs_estimate() {
     assert_eq!(pose(&kept), Some(lib.estimate.to_homogeneous()));
     assert_eq!(pose(&kept), pose(&first));
 }
+
+/// A manifest that names a preset opens under it in the inspector (as `gui MANIFEST` and `bench`
+/// do): KITTI 07 names `outdoor`, so the worker switches to voxel 0.3 m and the KITTI criterion,
+/// says so, sends the controls the new settings, and judges the first pair by them.
+#[test]
+fn opening_a_manifest_with_a_preset_applies_it() {
+    use cgenreg::pipeline::params::Preset;
+    let Some(_root) = cgenreg::testing::test_data_root() else {
+        return;
+    };
+    let kitti = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/manifests/kitti07.toml");
+    let worker =
+        PipelineWorker::open_manifest(&demo_manifest(), RegisterParams::default()).unwrap();
+    let handle = spawn_worker(Box::new(worker), None);
+    open(&handle, OpenKind::Manifest, vec![kitti]);
+    let t0 = Instant::now();
+    let (mut settings, mut logs, mut done) = (None, Vec::new(), None);
+    while done.is_none() && t0.elapsed() < Duration::from_secs(300) {
+        for e in handle.poll() {
+            match e {
+                WorkerEvent::Settings(s) => settings = Some(*s),
+                WorkerEvent::Log(l, t) => {
+                    assert_ne!(l, LogLevel::Error, "{t}");
+                    logs.push(t);
+                }
+                WorkerEvent::Model(m) => {
+                    let st = m.current_pair.map(|i| m.pairs[i].status.clone());
+                    if matches!(st, Some(PairStatus::Done) | Some(PairStatus::Failed(_))) {
+                        done = Some(m);
+                    }
+                }
+                _ => {}
+            }
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let m = done.unwrap_or_else(|| panic!("no result; log: {logs:?}"));
+    let s = settings.expect("the worker sent the preset's settings to the controls");
+    assert_eq!(Preset::of(&s), Some(Preset::Outdoor), "{s:?}");
+    assert_eq!(s.voxel, 0.3);
+    assert!(
+        logs.iter()
+            .any(|t| t.contains("outdoor") && t.contains("kitti07")),
+        "{logs:?}"
+    );
+    // the first pair (3 m apart) registers under the KITTI criterion
+    let row = &m.pairs[m.current_pair.unwrap()];
+    assert_eq!(row.status, PairStatus::Done, "{logs:?}");
+    assert!(row.success == Some(true), "{row:?}");
+}

@@ -38,7 +38,8 @@ pub struct PairEntry {
     pub rte_m: Option<f64>,
     /// The manifest's split ("3DMatch", "3DLoMatch", ...; empty when it gives none).
     pub split: String,
-    /// Registration recall's success (RRE <= 15 deg and RTE <= 30 cm); None without GT.
+    /// Success under the run's criterion (`RegisterParams::success`: 15° / 30 cm indoor, 5° / 2 m
+    /// outdoor); None without GT.
     pub success: Option<bool>,
     /// Fraction of the correspondences within 10 cm under GT.
     pub inlier_ratio: Option<f64>,

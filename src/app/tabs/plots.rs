@@ -217,6 +217,48 @@ const PROMPT_EMPTY: &str = "no prompt study yet: press “Run prompt study” ab
 const RRE_COLOR: egui::Color32 = egui::Color32::from_rgb(255, 170, 40);
 const RTE_COLOR: egui::Color32 = egui::Color32::from_rgb(80, 160, 255);
 
+/// Grid marks for a bar chart with one bar group per integer x: a mark at every bar, each
+/// with the largest of 1, 2, 5, 10, 20, ... that divides its index as its step, so that
+/// egui_plot labels every bar whose label fits ([`bar_axis`]) and, where they do not all fit,
+/// every 2nd, 5th or 10th.
+fn every_bar(input: egui_plot::GridInput) -> Vec<egui_plot::GridMark> {
+    let (lo, hi) = input.bounds;
+    let (first, last) = (lo.ceil().max(0.0) as i64, hi.floor() as i64);
+    if last < first || last - first > 10_000 {
+        return Vec::new();
+    }
+    (first..=last)
+        .map(|v| {
+            let mut step = 1i64;
+            for s in [2, 5, 10, 20, 50, 100, 200, 500, 1000] {
+                if v % s == 0 {
+                    step = s;
+                }
+            }
+            egui_plot::GridMark {
+                value: v as f64,
+                step_size: step as f64,
+            }
+        })
+        .collect()
+}
+
+/// The x axis of a bar chart: `label`, the bar names from `names`, and tick labels shown
+/// wherever they fit (egui_plot's default hides labels less than 60 px apart).
+fn bar_axis<'a>(label: &str, names: Vec<String>) -> egui_plot::AxisHints<'a> {
+    egui_plot::AxisHints::new_x()
+        .label(label.to_owned())
+        .label_spacing(12.0..=24.0)
+        .formatter(move |mark, _range| {
+            let i = mark.value.round();
+            if (mark.value - i).abs() < 1e-6 && i >= 0.0 {
+                names.get(i as usize).cloned().unwrap_or_default()
+            } else {
+                String::new()
+            }
+        })
+}
+
 fn plot(id: &str, title: &str, x: &str, y: &str, ui: &mut egui::Ui, h: f32) -> Plot<'static> {
     ui.strong(title);
     Plot::new(id.to_owned())
@@ -278,19 +320,14 @@ pub fn per_pair_plot(ui: &mut egui::Ui, model: &InspectorModel, h: f32) -> egui:
             " · {stale} stale rows of other settings not shown"
         ));
     }
+    let short: Vec<String> = names
+        .iter()
+        .map(|n| n.rsplit('/').next().unwrap_or(n).to_owned())
+        .collect();
     plot("per_pair", &title, "pair", "RRE (°) · RTE (cm)", ui, h)
         .include_y(0.0)
-        .x_axis_formatter(move |mark, _range| {
-            let i = mark.value.round();
-            if (mark.value - i).abs() < 1e-6 && i >= 0.0 {
-                names
-                    .get(i as usize)
-                    .map(|n| n.rsplit('/').next().unwrap_or(n).to_owned())
-                    .unwrap_or_default()
-            } else {
-                String::new()
-            }
-        })
+        .x_grid_spacer(every_bar)
+        .custom_x_axes(vec![bar_axis("pair", short)])
         .show(ui, |p| {
             p.bar_chart(BarChart::new("RRE (°)", rre).color(RRE_COLOR));
             p.bar_chart(BarChart::new("RTE (cm)", rte).color(RTE_COLOR));
@@ -488,14 +525,8 @@ pub fn prompt_plot(ui: &mut egui::Ui, model: &InspectorModel, h: f32) -> egui::R
     ui.small(counts);
     pl.include_y(0.0)
         .include_y(top * 1.25)
-        .x_axis_formatter(move |mark, _range| {
-            let i = mark.value.round();
-            if (mark.value - i).abs() < 1e-6 && i >= 0.0 {
-                names.get(i as usize).cloned().unwrap_or_default()
-            } else {
-                String::new()
-            }
-        })
+        .x_grid_spacer(every_bar)
+        .custom_x_axes(vec![bar_axis("prompt category", names)])
         .show(ui, |p| {
             p.bar_chart(BarChart::new("RRE (°)", rre).color(RRE_COLOR));
             p.bar_chart(BarChart::new("RTE (cm)", rte).color(RTE_COLOR));

@@ -149,6 +149,24 @@ impl PipelineWorker {
                 events.send(WorkerEvent::Settings(Box::new(self.params.clone())));
             }
         }
+        // a data set whose manifest names a preset opens under it, as `gui MANIFEST` and
+        // `bench MANIFEST` do (the Scale & success controls follow; edit them after)
+        if let Some(pr) = d.preset {
+            if crate::pipeline::params::Preset::of(&self.params) != Some(pr) {
+                pr.apply(&mut self.params);
+                events.log(
+                    LogLevel::Warn,
+                    format!(
+                        "{what} names the {} preset: voxel {} m, every distance following it, \
+                         success {} (Settings, “Scale & success”)",
+                        pr.label(),
+                        pr.voxel(),
+                        self.params.success.primary.label()
+                    ),
+                );
+                events.send(WorkerEvent::Settings(Box::new(self.params.clone())));
+            }
+        }
         let params = self.params.clone();
         let cache = self.cache.take();
         // the models and file hashes stay valid across datasets
