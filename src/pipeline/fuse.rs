@@ -134,7 +134,7 @@ impl Similarities {
     }
 }
 
-/// The last estimate [`fuse_and_finish_memo`] computed and what it was computed from: the
+/// The last estimate [`fuse_and_finish`] computed and what it was computed from: the
 /// estimate is a pure function of the correspondences' endpoints (in their order), the
 /// estimator's parameters and, for weighted SVD (chosen, or SC2-PCR's fallback), the scores.
 /// SC2-PCR depends on the set of correspondences it uses (the first `max_points`) alone
@@ -276,20 +276,10 @@ pub fn is_tail_timing(name: &str) -> bool {
 /// (image None: geometry-only fusion, streaming row-NN when the calibration allows it).
 /// `sims`: the similarity matrices computed before ([`similarities`]; the GUI keeps them),
 /// None computes them here; the result is the same. `res.image` is left None: the caller
-/// attaches the views.
-pub fn fuse_and_finish(
-    pair: &ScanPair,
-    params: &RegisterParams,
-    inputs: &FusionInputs,
-    sims: Option<&Similarities>,
-) -> Result<RegistrationResult> {
-    fuse_and_finish_memo(pair, params, inputs, sims, None)
-}
-
-/// [`fuse_and_finish`], the estimate from `memo` when the correspondences and the estimator
-/// are those of its last call (the result is the same; the estimate's timing row then says
-/// "cached").
-pub fn fuse_and_finish_memo(
+/// attaches the views. The estimate is taken from `memo` when the correspondences and the
+/// estimator are those of its last call (the result is the same; the estimate's timing row
+/// then says "cached"). [`super::Registration`] is the way in.
+pub(crate) fn fuse_and_finish(
     pair: &ScanPair,
     params: &RegisterParams,
     inputs: &FusionInputs,
@@ -514,6 +504,7 @@ pub(crate) fn finish(
         inliers: est.inliers,
         image: None,
         union: None,
+        inputs: None,
     })
 }
 

@@ -5,8 +5,8 @@
 //! returns, the stage timer), `cache` (the content-addressed store), `memo` (what a caller
 //! keeps in memory between registrations), `geo` (the geometric branch), `fuse` (the
 //! in-memory tail: similarity to evaluation), `stages` (one file per cached stage),
-//! `image_branch` (wires the stages), `register` (entry points), then `study` and `shard`
-//! (many pairs).
+//! `image_branch` (wires the stages), `register` (the entry point, [`Registration`]), then
+//! `study` and `shard` (many pairs).
 
 pub mod cache;
 pub mod export;
@@ -25,5 +25,5 @@ pub mod union;
 
 pub use memo::Memo;
 pub use params::{ImageBranchParams, RegisterParams, VfmSpec, WfmSpec};
-pub use register::{register_pair, register_pair_cached, register_pair_cached_keep};
+pub use register::Registration;
 pub use result::{ImageBranchOutput, RegistrationResult, StageTiming, ViewInfo};

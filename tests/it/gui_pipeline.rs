@@ -15,7 +15,7 @@ use cgenreg::app::worker::{
 };
 use cgenreg::app::{spawn_worker, Command, Panel, WorkerEvent};
 use cgenreg::dataset::manifest::Dataset;
-use cgenreg::pipeline::{register_pair, RegisterParams};
+use cgenreg::pipeline::{RegisterParams, Registration};
 use nalgebra::Point3;
 
 fn params() -> RegisterParams {
@@ -29,7 +29,7 @@ fn registration_result_becomes_a_consistent_model() {
     let ds = Dataset::load(&demo_manifest()).unwrap();
     let id = ds.pairs()[0].id.clone();
     let pair = ds.load_pair(&id).unwrap();
-    let res = register_pair(&pair, &params()).unwrap();
+    let res = Registration::new(&params()).run(&pair).unwrap();
     let model = result_to_model(
         &pair,
         &res,
@@ -662,7 +662,7 @@ fn open_an_rgbd_sequence() {
 }
 
 /// A re-fusion from memory (kept row maxima, the estimate memo) gives, bit for bit, what the
-/// library's `fuse_and_finish` gives from the kept similarities, and the registration a fresh
+/// library's `refuse_from_memory` gives from the kept similarities, and the registration a fresh
 /// run gives (same correspondences, same pose); repeating the settings reuses the estimate.
 #[test]
 fn refusion_from_memory_equals_the_library_and_a_fresh_run() {
@@ -676,10 +676,11 @@ fn refusion_from_memory_equals_the_library_and_a_fresh_run() {
 
     let ds = Dataset::load(&demo_manifest()).unwrap();
     let pair = ds.load_pair(&id).unwrap();
-    let (fresh, inputs) =
-        cgenreg::pipeline::register_pair_cached_keep(&pair, &s, None, &Default::default()).unwrap();
+    let reg = cgenreg::pipeline::Registration::new(&s).keep(true);
+    let mut fresh = reg.run(&pair).unwrap();
+    let inputs = fresh.inputs.take().unwrap();
     let sims = cgenreg::pipeline::fuse::similarities(&inputs).unwrap();
-    let lib = cgenreg::pipeline::fuse::fuse_and_finish(&pair, &s, &inputs, Some(&sims)).unwrap();
+    let lib = reg.refuse_from_memory(&pair, &inputs, Some(&sims)).unwrap();
     let lib = result_to_model(
         &pair,
         &lib,
@@ -757,7 +758,7 @@ fn a_temperature_change_under_nn_reuses_the_first_runs_estimate() {
         .unwrap()
         .load_pair(&id)
         .unwrap();
-    let lib = cgenreg::pipeline::register_pair(&pair, &s).unwrap();
+    let lib = cgenreg::pipeline::Registration::new(&s).run(&pair).unwrap();
     let pose = |m: &cgenreg::app::InspectorModel| m.estimated.map(|e| e.to_homogeneous());
     assert_eq!(pose(&kept), Some(lib.estimate.to_homogeneous()));
     assert_eq!(pose(&kept), pose(&first));

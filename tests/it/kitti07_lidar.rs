@@ -9,7 +9,7 @@
 use crate::common;
 use cgenreg::dataset::Dataset;
 use cgenreg::pipeline::params::Preset;
-use cgenreg::pipeline::{register_pair_cached, RegisterParams};
+use cgenreg::pipeline::{RegisterParams, Registration};
 use nalgebra::{Isometry3, Matrix4};
 use std::path::Path;
 
@@ -141,7 +141,7 @@ fn ladder(ids: &[&str], at_least: usize) {
         let preset = ds.preset_of(id).expect("the manifest names a preset");
         let params = RegisterParams::preset(preset);
         let pair = ds.load_pair(id).unwrap();
-        let r = register_pair_cached(&pair, &params, Some(&cache)).unwrap();
+        let r = Registration::new(&params).cache(&cache).run(&pair).unwrap();
         let m = r.metrics.unwrap();
         assert_eq!(m.criterion.max_rte_m, 2.0, "judged by KITTI's 5° / 2 m");
         println!(
