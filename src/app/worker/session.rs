@@ -127,10 +127,11 @@ impl PipelineWorker {
         Ok(self.with_default_posterior())
     }
 
-    /// Registers `pair` with the current parameters: the image branch through the stage
-    /// cache when a WFM is chosen (an error when it cannot run: never a geometry-only result
-    /// under its label), else the geometric branch from memory. The one registration of
-    /// the inspector: a single pair, "Run all" and the studies' rows all come from it.
+    /// Registers `pair` with the current parameters ([`Registration::run`] through the stage
+    /// cache): the image branch when a WFM is chosen (an error when it cannot run: never a
+    /// geometry-only result under its label), else the geometric branch alone, from memory
+    /// when this pair's FPFH branch is kept. The one registration of the inspector: a single
+    /// pair, "Run all" and the studies' rows all come from it.
     pub(super) fn register(
         &mut self,
         id: &str,
@@ -143,8 +144,6 @@ impl PipelineWorker {
         let estimates = EstimateMemo::default();
         let cache = self.cache.clone();
         let fpfh = params.geo_features == crate::pipeline::params::GeoFeatureSource::Fpfh;
-        let mut gp = params.clone();
-        gp.image = None;
         let kept = match (&params.image, fpfh) {
             (None, true) => self.kept_geometry(pair, params.voxel)?,
             _ => None,
@@ -152,7 +151,7 @@ impl PipelineWorker {
         let (result, inputs) = if let Some((g, row)) = kept {
             // geometry only, its branch kept from an earlier run of this pair: the tail alone
             let t0 = Instant::now();
-            let reg = Registration::new(&gp).estimates(&estimates);
+            let reg = Registration::new(&params).estimates(&estimates);
             let mut r = reg.refuse_from_memory(pair, &g, None)?;
             r.timings.insert(0, row);
             r.total_ms = t0.elapsed().as_secs_f64() * 1e3;
