@@ -50,7 +50,7 @@ struct Args {
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let a = Args::parse();
-    let cache = Some(cgenreg::pipeline::cache::Cache::open(&a.cache_dir)?);
+    let cache = Some(cgenreg::cache::Cache::open(&a.cache_dir)?);
     let ds = Dataset::load(&a.manifest)?.with_fragment_cache(cache.clone());
     let backend = match a.wfm.as_str() {
         "oracle" => WfmSpec::Oracle,
@@ -107,7 +107,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
 fn study_pair(
     pair: &cgenreg::dataset::ScanPair,
     params: &cgenreg::pipeline::RegisterParams,
-    cache: Option<&cgenreg::pipeline::cache::Cache>,
+    cache: Option<&cgenreg::cache::Cache>,
     memo: &Memo,
 ) -> cgenreg::Result<Value> {
     let r = Registration::new(params)

@@ -173,7 +173,7 @@ fn generate_batch(
     ds: &Dataset,
     ids: &[String],
     ib: &crate::pipeline::ImageBranchParams,
-    cache: &crate::pipeline::cache::Cache,
+    cache: &crate::cache::Cache,
 ) -> std::collections::HashMap<String, String> {
     use crate::pipeline::image_branch::{pending_generation, store_pending};
     let mut errors = std::collections::HashMap::new();

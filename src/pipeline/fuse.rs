@@ -25,8 +25,8 @@ pub const VERSION: u32 = 1;
 /// The tail's key: the keys of its inputs (both scans' geometric branch, then the image
 /// descriptors' stage) and every parameter [`fuse_and_finish`] reads: the fusion (similarity,
 /// calibrations, mode, selection), the estimator and the inlier threshold.
-pub fn key(params: &RegisterParams, inputs: &[&str]) -> Result<super::cache::CacheKey> {
-    super::cache::CacheKey::new(
+pub fn key(params: &RegisterParams, inputs: &[&str]) -> Result<crate::cache::CacheKey> {
+    crate::cache::CacheKey::new(
         STAGE,
         VERSION,
         inputs,

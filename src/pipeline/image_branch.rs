@@ -7,10 +7,8 @@
 //! memory every time (`fuse::fuse_and_finish`), so changing a temperature or the fusion mode
 //! recomputes only those.
 
-pub use super::cache::default_cache_dir;
 pub use super::stages::depth_video::depth_video_clip;
 
-use super::cache::{Cache, CacheKey};
 use super::fuse::{fuse_and_finish, FusionInputs, ImageInputs};
 use super::geo::cached_branch;
 use super::memo::Memo;
@@ -24,6 +22,7 @@ use super::stages::pair_vfm::PairInput;
 use super::stages::vfm::SideViews;
 use super::stages::virtual_frames::{camera_coverage_warnings, framed_pair, FrameStore};
 use super::stages::{depth_video, generation, image_points, lift, pair_vfm, vfm, view_select, Ctx};
+use crate::cache::{Cache, CacheKey};
 use crate::dataset::{FrameSet, ScanPair};
 use crate::error::Result;
 use crate::vfm::lift::PixelLink;

@@ -2,13 +2,11 @@
 //! keyed by content so the GUI and `bench` re-run only what changed.
 //!
 //! Modules, leaves first: `params` (the parameter types), `result` (what a registration
-//! returns, the stage timer), `cache` (the content-addressed store), `memo` (what a caller
-//! keeps in memory between registrations), `geo` (the geometric branch), `fuse` (the
+//! returns, the stage timer), `memo` (what a caller keeps in memory between registrations), `geo` (the geometric branch), `fuse` (the
 //! in-memory tail: similarity to evaluation), `stages` (one file per cached stage),
 //! `image_branch` (wires the stages), `register` (the entry point, [`Registration`]), then
 //! `study` and `shard` (many pairs).
 
-pub mod cache;
 pub mod export;
 pub mod fuse;
 pub mod geo;

@@ -658,7 +658,7 @@ mod tests {
         });
         assert_eq!(serde_json::to_value(p.estimator_resolved()).unwrap(), old);
         let key = crate::pipeline::fuse::key(&p, &["a", "b"]).unwrap();
-        let old_key = crate::pipeline::cache::CacheKey::new(
+        let old_key = crate::cache::CacheKey::new(
             crate::pipeline::fuse::STAGE,
             crate::pipeline::fuse::VERSION,
             &["a", "b"],

@@ -7,13 +7,13 @@
 
 use std::sync::Arc;
 
-use super::cache::Cache;
 use super::fuse::{fuse_and_finish, EstimateMemo, FusionInputs, Similarities};
 use super::geo::{cached_branch, geo_branches};
 use super::memo::Memo;
 use super::params::{GeoFeatureSource, RegisterParams};
 use super::result::RegistrationResult;
 use super::stages::Ctx;
+use crate::cache::Cache;
 use crate::dataset::ScanPair;
 use crate::error::{Error, Result};
 
@@ -22,7 +22,7 @@ use crate::error::{Error, Result};
 /// `params.image` is set, then similarity, fusion, estimation and evaluation.
 ///
 /// ```no_run
-/// # fn f(pair: &cgenreg::dataset::ScanPair, cache: &cgenreg::pipeline::cache::Cache)
+/// # fn f(pair: &cgenreg::dataset::ScanPair, cache: &cgenreg::cache::Cache)
 /// # -> cgenreg::Result<()> {
 /// use cgenreg::pipeline::{Registration, RegisterParams};
 /// let params = RegisterParams::default();

@@ -14,10 +14,10 @@
 //! over the pairs that ran plus those that failed with an error (a failure counts as
 //! unsuccessful, as in `bench`); skipped pairs enter no aggregate.
 
-use super::cache::Cache;
 use super::memo::Memo;
 use super::params::{ImageBranchParams, RegisterParams};
 use super::register::Registration;
+use crate::cache::Cache;
 use crate::dataset::manifest::Dataset;
 use crate::dataset::ScanPair;
 use crate::error::{Error, Result};

@@ -11,9 +11,9 @@
 
 use crate::common;
 
+use cgenreg::cache::Cache;
 use cgenreg::dataset::fragment_cache::FragmentCacheStatus;
 use cgenreg::dataset::Dataset;
-use cgenreg::pipeline::cache::Cache;
 use cgenreg::pipeline::{
     ImageBranchParams, RegisterParams, Registration, RegistrationResult, WfmSpec,
 };

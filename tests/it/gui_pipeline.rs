@@ -229,9 +229,7 @@ fn worker_runs_the_image_branch_from_the_cache_and_refuses_from_memory() {
     let dir = tempfile::tempdir().unwrap();
     let mut base = common::demo_params(WfmSpec::Oracle);
     let mut w = PipelineWorker::open_manifest(&demo_manifest(), base.clone()).unwrap();
-    w.set_cache(Some(
-        cgenreg::pipeline::cache::Cache::open(dir.path()).unwrap(),
-    ));
+    w.set_cache(Some(cgenreg::cache::Cache::open(dir.path()).unwrap()));
     assert_eq!(w.params().image.as_ref().unwrap().backend, WfmSpec::Oracle);
     let id = w.pair_ids()[0].clone();
     let m = w.run_pair(&id).unwrap();
@@ -614,14 +612,9 @@ fn open_an_rgbd_sequence() {
     let ds =
         cgenreg::dataset::open::open_dataset(OpenKind::RgbdSequence, std::slice::from_ref(&seq))
             .unwrap()
-            .with_fragment_cache(
-                Some(
-                    cgenreg::pipeline::cache::Cache::open(
-                        cgenreg::pipeline::cache::default_cache_dir(),
-                    )
-                    .unwrap(),
-                ),
-            );
+            .with_fragment_cache(Some(
+                cgenreg::cache::Cache::open(cgenreg::cache::default_cache_dir()).unwrap(),
+            ));
     let n = ds.pairs().len();
     assert_eq!(n, 9, "500 frames: 10 fragments, 9 neighbouring pairs");
     let spec = &ds.pairs()[0];

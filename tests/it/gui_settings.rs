@@ -12,8 +12,8 @@ use std::time::{Duration, Instant};
 use cgenreg::app::model::{InspectorModel, PairStatus, SettingsTag};
 use cgenreg::app::worker::PipelineWorker;
 use cgenreg::app::{paper_defaults, spawn_worker, Command, OpenKind, WorkerEvent, WorkerHandle};
+use cgenreg::cache::Cache;
 use cgenreg::dataset::manifest::Dataset;
-use cgenreg::pipeline::cache::Cache;
 use cgenreg::pipeline::{RegisterParams, Registration, WfmSpec};
 
 fn manifest(name: &str) -> PathBuf {

@@ -11,8 +11,8 @@ use std::time::{Duration, Instant};
 use cgenreg::app::model::InspectorModel;
 use cgenreg::app::worker::PipelineWorker;
 use cgenreg::app::{spawn_worker, Command, LogLevel, StudyRequest, WorkerEvent};
+use cgenreg::cache::Cache;
 use cgenreg::dataset::Dataset;
-use cgenreg::pipeline::cache::Cache;
 use cgenreg::pipeline::{RegisterParams, Registration, WfmSpec};
 
 fn base() -> RegisterParams {

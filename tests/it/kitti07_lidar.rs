@@ -134,7 +134,7 @@ fn ladder(ids: &[&str], at_least: usize) {
     let ds = Dataset::load(&manifest()).unwrap();
     // The pairs share scans: each scan's FPFH is computed once, through the stage cache.
     let dir = tempfile::tempdir().unwrap();
-    let cache = cgenreg::pipeline::cache::Cache::open(dir.path()).unwrap();
+    let cache = cgenreg::cache::Cache::open(dir.path()).unwrap();
     let t0 = std::time::Instant::now();
     let mut ok = 0;
     for id in ids {

@@ -5,9 +5,9 @@
 
 use crate::common;
 
+use cgenreg::cache::Cache;
 use cgenreg::dataset::Dataset;
 use cgenreg::fusion::Calibration;
-use cgenreg::pipeline::cache::Cache;
 use cgenreg::pipeline::stages::{invalidated, StageKeys, StageName};
 use cgenreg::pipeline::{ImageBranchParams, RegisterParams, Registration, WfmSpec};
 use std::path::Path;

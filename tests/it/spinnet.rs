@@ -152,8 +152,8 @@ fn a_missing_export_is_an_error_naming_the_file_and_the_script() {
 /// BENCHMARKS.md, not here.
 #[test]
 fn spinnet_geometry_is_a_cached_stage_with_its_provenance() {
+    use cgenreg::cache::Cache;
     use cgenreg::dataset::Dataset;
-    use cgenreg::pipeline::cache::Cache;
     use cgenreg::pipeline::params::{GeoFeatureSource, Preset};
     use cgenreg::pipeline::stages::geo_spinnet::{self, SpinNetInput};
     use cgenreg::pipeline::{Memo, RegisterParams, Registration};

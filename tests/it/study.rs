@@ -4,8 +4,8 @@
 
 use crate::common;
 
+use cgenreg::cache::Cache;
 use cgenreg::dataset::Dataset;
-use cgenreg::pipeline::cache::Cache;
 use cgenreg::pipeline::study::{
     k_settings, markdown_table, prompt_settings, run_study, StudyKind, StudyProgress,
 };

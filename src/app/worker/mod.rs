@@ -32,10 +32,10 @@ use std::time::Instant;
 use super::channel::{Command, EventSink, LogLevel, Worker, WorkerEvent};
 use super::model::StageRole;
 use super::model::{InspectorModel, PairEntry, PairStatus, StageInfo, StageState};
+use crate::cache::Cache;
 use crate::dataset::manifest::Dataset;
 use crate::dataset::ScanPair;
 use crate::fusion::fuse::FusionMode;
-use crate::pipeline::cache::Cache;
 use crate::pipeline::fuse::{FusionInputs, Similarities};
 use crate::pipeline::memo::{Lru, Memo};
 use crate::pipeline::stages::{StageKeys, StageName};
@@ -178,7 +178,7 @@ impl PipelineWorker {
     /// A worker on `dataset` with the default stage cache (`$CGENREG_CACHE` or
     /// `~/.cache/cgenreg`).
     pub fn new(dataset: Dataset, base: RegisterParams) -> Self {
-        let dir = crate::pipeline::image_branch::default_cache_dir();
+        let dir = crate::cache::default_cache_dir();
         let (cache, cache_note) = match Cache::open(&dir) {
             Ok(c) => (Some(Arc::new(c)), None),
             Err(e) => (

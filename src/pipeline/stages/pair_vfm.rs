@@ -5,8 +5,8 @@
 
 use super::vfm::load_pair_vfm;
 use super::Ctx;
+use crate::cache::{Cache, CacheKey, Entry};
 use crate::error::{Error, Result};
-use crate::pipeline::cache::{Cache, CacheKey, Entry};
 use crate::pipeline::params::VfmSpec;
 use crate::vfm::lift::PixelLink;
 use crate::vfm::pair_similarity::{pair_point_descriptors, PairPointDescriptors};

@@ -8,8 +8,8 @@
 
 use super::generation::GenOut;
 use super::Ctx;
+use crate::cache::{Cache, CacheKey, Entry};
 use crate::error::{Error, Result};
-use crate::pipeline::cache::{Cache, CacheKey, Entry};
 use crate::pipeline::memo::Memo;
 use crate::pipeline::params::{ImageBranchParams, VfmSpec};
 use crate::vfm::lift::PixelLink;
