@@ -11,9 +11,10 @@ use crate::fusion::calibrate::Calibration;
 use crate::fusion::fuse::FusionMode;
 use crate::fusion::select::Selection;
 use crate::pipeline::params::{
-    GeoFeatureSource, ImageBranchParams, LidarOrigin, Preset, RegisterParams, VfmSpec,
-    VirtualCamera, WfmSpec,
+    GeoFeatureSource, ImageBranchParams, LidarOrigin, Preset, RegisterParams, VirtualCamera,
+    WfmSpec,
 };
+use crate::vfm::VfmSpec;
 use crate::wfm::{Prompt, PromptPreset};
 use clap::Args;
 use std::path::PathBuf;

@@ -21,7 +21,8 @@ pub mod stages;
 pub mod study;
 pub mod union;
 
+pub use crate::vfm::VfmSpec;
 pub use memo::Memo;
-pub use params::{ImageBranchParams, RegisterParams, VfmSpec, WfmSpec};
+pub use params::{ImageBranchParams, RegisterParams, WfmSpec};
 pub use register::Registration;
 pub use result::{ImageBranchOutput, RegistrationResult, StageTiming, ViewInfo};
