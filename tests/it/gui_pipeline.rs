@@ -284,7 +284,7 @@ fn worker_runs_the_image_branch_from_the_cache_and_refuses_from_memory() {
     *s.fusion.calibration_geo.tau_mut() = 0.05;
     w.set_params(s.clone());
     let m = w
-        .refuse()
+        .refuse_from_memory()
         .expect("same image settings: re-fuse from memory")
         .unwrap();
     assert_eq!(m.source_views.len(), 2);
@@ -318,7 +318,10 @@ fn worker_runs_the_image_branch_from_the_cache_and_refuses_from_memory() {
     w.run_pair(&id).unwrap();
     *u.fusion.calibration_geo.tau_mut() = 0.07;
     w.set_params(u);
-    let mu = w.refuse().expect("temperature change re-fuses").unwrap();
+    let mu = w
+        .refuse_from_memory()
+        .expect("temperature change re-fuses")
+        .unwrap();
     let mut names: Vec<&str> = mu.stages.iter().map(|s| s.name.as_str()).collect();
     assert!(names.contains(&"fusion: noisy-and"), "{names:?}");
     names.sort();
@@ -326,7 +329,7 @@ fn worker_runs_the_image_branch_from_the_cache_and_refuses_from_memory() {
     names.dedup();
     assert_eq!(names.len(), n, "a stage listed twice after a re-fusion");
     w.set_params(s.clone());
-    let m = w.refuse().expect("back to Noisy-AND").unwrap();
+    let m = w.refuse_from_memory().expect("back to Noisy-AND").unwrap();
     // posterior with the image branch: image row and pixels in the views
     let src = m
         .matches
@@ -344,7 +347,10 @@ fn worker_runs_the_image_branch_from_the_cache_and_refuses_from_memory() {
     // a new prompt: not generated without asking, no views from the old prompt
     s.image.as_mut().unwrap().prompt.scene = "a snowy pine forest".into();
     w.set_params(s);
-    assert!(w.refuse().is_none(), "a new prompt needs the image stages");
+    assert!(
+        w.refuse_from_memory().is_none(),
+        "a new prompt needs the image stages"
+    );
     // the pair is an error until the generator runs, never a geometry-only result under
     // the image branch's label
     let e = w.run_pair_with(&id, false).unwrap_err();
@@ -665,7 +671,10 @@ fn refusion_from_memory_equals_the_library_and_a_fresh_run() {
     let mut s = w.params().clone();
     *s.fusion.calibration_geo.tau_mut() = 0.07;
     w.set_params(s.clone());
-    let kept = w.refuse().expect("a temperature change re-fuses").unwrap();
+    let kept = w
+        .refuse_from_memory()
+        .expect("a temperature change re-fuses")
+        .unwrap();
 
     let ds = Dataset::load(&demo_manifest()).unwrap();
     let pair = ds.load_pair(&id).unwrap();
@@ -721,7 +730,7 @@ fn refusion_from_memory_equals_the_library_and_a_fresh_run() {
     assert_eq!(estimate_row(&kept), Some(StageState::Done));
     // the same settings again: the same correspondences, so the estimate is remembered
     w.set_params(s);
-    let again = w.refuse().expect("re-fuse").unwrap();
+    let again = w.refuse_from_memory().expect("re-fuse").unwrap();
     assert_eq!(key(&again), key(&kept));
     assert_eq!(pose(&again), pose(&kept));
     assert_eq!(estimate_row(&again), Some(StageState::Cached));
@@ -743,7 +752,10 @@ fn a_temperature_change_under_nn_reuses_the_first_runs_estimate() {
     let mut s = w.params().clone();
     *s.fusion.calibration_geo.tau_mut() = 0.07;
     w.set_params(s.clone());
-    let kept = w.refuse().expect("a temperature change re-fuses").unwrap();
+    let kept = w
+        .refuse_from_memory()
+        .expect("a temperature change re-fuses")
+        .unwrap();
     let row = kept.stages.iter().find(|r| r.name == "estimate");
     assert_eq!(row.map(|r| r.state.clone()), Some(StageState::Cached));
     assert!(kept.matches.len() > 8000 && kept.matches.len() <= 20_000);
@@ -755,4 +767,61 @@ fn a_temperature_change_under_nn_reuses_the_first_runs_estimate() {
     let pose = |m: &cgenreg::app::InspectorModel| m.estimated.map(|e| e.to_homogeneous());
     assert_eq!(pose(&kept), Some(lib.estimate.to_homogeneous()));
     assert_eq!(pose(&kept), pose(&first));
+}
+
+/// The inspector's geometry-only run goes through the stage cache like `register` and
+/// `bench`: a worker writes both scans' `geo-fpfh` entries, another worker on the same cache
+/// loads them and gets the same pose, and a repeat on the first worker takes the kept branch
+/// from memory.
+#[test]
+fn the_inspectors_geometry_only_runs_use_the_fpfh_cache() {
+    use cgenreg::app::model::StageState;
+    let dir = tempfile::tempdir().unwrap();
+    let open = || {
+        let mut w = PipelineWorker::open_manifest(&demo_manifest(), params()).unwrap();
+        w.set_cache(Some(cgenreg::cache::Cache::open(dir.path()).unwrap()));
+        w
+    };
+    let fpfh = |m: &cgenreg::app::InspectorModel| -> Vec<(String, StageState)> {
+        m.stages
+            .iter()
+            .filter(|s| s.name.starts_with("fpfh "))
+            .map(|s| (s.name.clone(), s.state.clone()))
+            .collect()
+    };
+    let mut w = open();
+    let id = w.pair_ids()[0].clone();
+    assert!(w.params().image.is_none());
+    let a = w.run_pair(&id).unwrap();
+    assert_eq!(
+        fpfh(&a),
+        [
+            ("fpfh source".to_string(), StageState::Done),
+            ("fpfh target".to_string(), StageState::Done)
+        ]
+    );
+    assert_eq!(
+        std::fs::read_dir(dir.path().join("geo-fpfh"))
+            .unwrap()
+            .count(),
+        2
+    );
+    let b = open().run_pair(&id).unwrap();
+    assert_eq!(
+        fpfh(&b),
+        [
+            ("fpfh source".to_string(), StageState::Cached),
+            ("fpfh target".to_string(), StageState::Cached)
+        ]
+    );
+    assert_eq!(b.estimated, a.estimated);
+    let c = w.run_pair(&id).unwrap();
+    assert_eq!(
+        fpfh(&c),
+        [(
+            "fpfh source + target (in memory)".to_string(),
+            StageState::Cached
+        )]
+    );
+    assert_eq!(c.estimated, a.estimated);
 }

@@ -333,7 +333,7 @@ impl Worker for PipelineWorker {
                     return;
                 };
                 let t = Instant::now();
-                match self.refuse() {
+                match self.refuse_from_memory() {
                     Some(r) => self.report(&id, t, r, "re-fuse from memory", events),
                     None => self.run_and_report(&id, generate, events),
                 }

@@ -278,7 +278,7 @@ impl PipelineWorker {
     /// Re-runs similarity, fusion and estimation from memory when the current pair was run with
     /// the same image-branch settings (only calibration, fusion, selection or estimator
     /// changed). None: a full (cached) run is needed.
-    pub fn refuse(&mut self) -> Option<crate::Result<InspectorModel>> {
+    pub fn refuse_from_memory(&mut self) -> Option<crate::Result<InspectorModel>> {
         let params = self.params.clone();
         let label_settings = self.params.fusion.mode;
         let cache = self.cache.clone();
