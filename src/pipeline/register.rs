@@ -3,7 +3,7 @@
 //! in-memory tail from kept inputs with [`Registration::refuse_from_memory`]. The CLI
 //! (`register`, `bench`, `generate`), the studies, the inspector's worker and the Python
 //! binding all register through it. The stages are in `stages/`, their wiring in
-//! `image_branch` and [`register_geometry`] below, the in-memory tail in `fuse`.
+//! `image_branch` and `register_geometry` below, the in-memory tail in `fuse`.
 
 use std::sync::Arc;
 
@@ -21,14 +21,8 @@ use crate::error::{Error, Result};
 /// `pair.target` with [`Self::run`]: the geometric branch, plus the image branch when
 /// `params.image` is set, then similarity, fusion, estimation and evaluation.
 ///
-/// ```no_run
-/// # fn f(pair: &cgenreg::dataset::ScanPair, cache: &cgenreg::cache::Cache)
-/// # -> cgenreg::Result<()> {
-/// use cgenreg::pipeline::{Registration, RegisterParams};
-/// let params = RegisterParams::default();
-/// let result = Registration::new(&params).cache(cache).run(pair)?;
-/// # Ok(()) }
-/// ```
+/// For example `Registration::new(&params).cache(&cache).memo(&memo).run(&pair)?` (the
+/// builder methods set the public fields below).
 #[derive(Clone, Copy)]
 pub struct Registration<'a> {
     /// Everything the registration computes with (the image branch when `params.image` is set).

@@ -5,7 +5,8 @@
 //! What is kept in memory per pair: the geometric branch (keypoints + FPFH) and, after a run
 //! with the image branch, every input of the in-memory stages ([`FusionInputs`]) and the
 //! selected views. A change of temperature, calibration, fusion mode, selection or estimator
-//! then re-runs only similarity, fusion and estimation ([`crate::pipeline::fuse::fuse_and_finish`]); a change of
+//! then re-runs only similarity, fusion and estimation
+//! ([`crate::pipeline::Registration::refuse_from_memory`]); a change of
 //! prompt, seed, K, margin, VFM or backend re-runs the cached pipeline.
 //!
 //! Model conventions: `model.source` / `model.target` start with the registration keypoints
