@@ -22,7 +22,7 @@ use crate::pipeline::{Registration, RegistrationResult};
 /// generation is missing.
 pub(super) struct Registered {
     pub(super) result: RegistrationResult,
-    pub(super) inputs: Option<Arc<FusionInputs>>,
+    pub(super) inputs: Arc<FusionInputs>,
     pub(super) note: Option<String>,
     pub(super) missing: Option<String>,
     /// The estimate of this run with its inputs: the first re-fusion that keeps them (a
@@ -105,10 +105,8 @@ impl PipelineWorker {
         if let Some(row) = invalidated {
             model.stages.insert(0, row);
         }
-        let keys = inputs.as_ref().and_then(|_| {
-            StageKeys::compute(&pair, &params, self.cache.as_deref(), &self.memo).ok()
-        });
-        let kept = inputs.map(|inputs| Kept {
+        let keys = StageKeys::compute(&pair, &params, self.cache.as_deref(), &self.memo).ok();
+        let kept = Some(Kept {
             keys,
             sims: similarities(&inputs).ok().map(Arc::new),
             estimates,
@@ -194,7 +192,6 @@ impl PipelineWorker {
             }
             (r, inputs)
         };
-        let inputs = Some(inputs);
         if let Some(img) = &result.image {
             let asked = params
                 .image
