@@ -22,9 +22,7 @@ use cgenreg::fusion::{calibrate, fuse, select, Correspondence, FusionMode};
 use cgenreg::metrics::{rre_deg, rte_m};
 use cgenreg::pipeline::fuse::{endpoints, similarities, FusionInputs};
 use cgenreg::pipeline::union::{geometry_params, mode_correspondences, noisy_and_params};
-use cgenreg::pipeline::{
-    register_pair_cached_keep, ImageBranchParams, Memo, RegisterParams, VfmSpec, WfmSpec,
-};
+use cgenreg::pipeline::{ImageBranchParams, Memo, RegisterParams, Registration, VfmSpec, WfmSpec};
 use clap::Parser;
 use serde_json::{json, Value};
 use std::io::Write;
@@ -52,7 +50,7 @@ struct Args {
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let a = Args::parse();
-    let cache = Some(cgenreg::pipeline::cache::Cache::open(&a.cache_dir)?);
+    let cache = Some(cgenreg::cache::Cache::open(&a.cache_dir)?);
     let ds = Dataset::load(&a.manifest)?.with_fragment_cache(cache.clone());
     let backend = match a.wfm.as_str() {
         "oracle" => WfmSpec::Oracle,
@@ -109,10 +107,17 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
 fn study_pair(
     pair: &cgenreg::dataset::ScanPair,
     params: &cgenreg::pipeline::RegisterParams,
-    cache: Option<&cgenreg::pipeline::cache::Cache>,
+    cache: Option<&cgenreg::cache::Cache>,
     memo: &Memo,
 ) -> cgenreg::Result<Value> {
-    let (_, inputs) = register_pair_cached_keep(pair, params, cache, memo)?;
+    let r = Registration::new(params)
+        .cache(cache)
+        .memo(memo)
+        .keep(true)
+        .run(pair)?;
+    let inputs = r
+        .inputs
+        .ok_or_else(|| cgenreg::Error::Invalid("the registration kept no inputs".into()))?;
     let gt = pair
         .gt_target_from_source
         .ok_or_else(|| cgenreg::Error::Invalid("the study needs ground truth".into()))?;

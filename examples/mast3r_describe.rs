@@ -16,9 +16,7 @@
 // Benchmarks, examples and tests: a failed step is reported by the panic that ends them.
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 use cgenreg::dataset::Dataset;
-use cgenreg::pipeline::{
-    register_pair_cached, ImageBranchParams, RegisterParams, VfmSpec, WfmSpec,
-};
+use cgenreg::pipeline::{ImageBranchParams, RegisterParams, Registration, VfmSpec, WfmSpec};
 use cgenreg::vfm::mast3r::{self, Mast3r};
 use cgenreg::vfm::PairModel;
 use cgenreg::{Error, Result};
@@ -63,7 +61,7 @@ fn end_to_end(model: &Path, manifest: &Path, pair_id: &str, frames: usize) -> Re
         ..Default::default()
     };
     let t = std::time::Instant::now();
-    let r = register_pair_cached(&pair, &p, None)?;
+    let r = Registration::new(&p).run(&pair)?;
     let img = r
         .image
         .as_ref()

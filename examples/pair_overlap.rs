@@ -15,10 +15,7 @@ fn main() -> cgenreg::Result<()> {
             "usage: pair_overlap MANIFEST [CACHE_DIR]".into(),
         ));
     };
-    let cache = args
-        .get(1)
-        .map(cgenreg::pipeline::cache::Cache::open)
-        .transpose()?;
+    let cache = args.get(1).map(cgenreg::cache::Cache::open).transpose()?;
     let ds = Dataset::load(std::path::Path::new(manifest))?.with_fragment_cache(cache);
     println!(
         "# overlap at voxel {OVERLAP_VOXEL_M} m, radius {OVERLAP_RADIUS_M} m (GT target_from_source)"

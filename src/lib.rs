@@ -10,6 +10,7 @@
 // unwrap/expect/panic); the unit tests may fail by panicking.
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::expect_used, clippy::panic))]
 
+pub mod cache;
 pub mod camera;
 pub mod cli;
 pub mod dataset;

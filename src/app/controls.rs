@@ -12,7 +12,8 @@ use crate::estimate::scale::{
 };
 use crate::estimate::EstimatorKind;
 use crate::fusion::{Calibration, FusionMode, Selection};
-use crate::pipeline::params::{ImageBranchParams, Preset, RegisterParams, VfmSpec, WfmSpec};
+use crate::pipeline::params::{ImageBranchParams, Preset, RegisterParams, WfmSpec};
+use crate::vfm::VfmSpec;
 use crate::wfm::PromptPreset;
 
 /// k of top-k selection when the inspector switches to it (the reference's 8000).

@@ -4,16 +4,17 @@
 //! Every choice is the pipeline's own type (clap's `ValueEnum` is implemented on them), so
 //! an option means the same thing here, in the inspector and in a run's JSON.
 
+use crate::cache::Cache;
 use crate::estimate::scale::Scaled;
 use crate::estimate::EstimatorKind;
 use crate::fusion::calibrate::Calibration;
 use crate::fusion::fuse::FusionMode;
 use crate::fusion::select::Selection;
-use crate::pipeline::cache::Cache;
 use crate::pipeline::params::{
-    GeoFeatureSource, ImageBranchParams, LidarOrigin, Preset, RegisterParams, VfmSpec,
-    VirtualCamera, WfmSpec,
+    GeoFeatureSource, ImageBranchParams, LidarOrigin, Preset, RegisterParams, VirtualCamera,
+    WfmSpec,
 };
+use crate::vfm::VfmSpec;
 use crate::wfm::{Prompt, PromptPreset};
 use clap::Args;
 use std::path::PathBuf;
@@ -397,7 +398,7 @@ impl ImageArgs {
         let dir = self
             .cache_dir
             .clone()
-            .unwrap_or_else(crate::pipeline::cache::default_cache_dir);
+            .unwrap_or_else(crate::cache::default_cache_dir);
         Ok(Some(Cache::open(dir)?))
     }
 }

@@ -13,7 +13,7 @@ use crate::pipeline::shard::{
     run_pending, stage_totals, PairRecord, Progress, ResumeMode, RunFile, RunHeader, RunIdentity,
     Shard, StageTime, DONE, FAILED,
 };
-use crate::pipeline::{register_pair_cached_keep, Memo};
+use crate::pipeline::{Memo, Registration};
 use clap::Args;
 use serde::Serialize;
 use std::path::PathBuf;
@@ -438,7 +438,10 @@ pub fn run(a: BenchArgs) -> Result<()> {
             let loaded = hit == Some(true);
             let own = pair_params(spec)?;
             let p = own.as_ref().unwrap_or(&params);
-            let (mut r, _) = register_pair_cached_keep(&pair, p, cache.as_ref(), &memo)?;
+            let mut r = Registration::new(p)
+                .cache(cache.as_ref())
+                .memo(&memo)
+                .run(&pair)?;
             r.timings.insert(
                 0,
                 crate::pipeline::StageTiming {

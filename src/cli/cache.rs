@@ -3,8 +3,8 @@
 //! the cache's marker file (written when a cache is created; `cache init` marks an existing
 //! one) and only ever remove entry folders (`<stage>/<64 hex digits>`), nothing else.
 
+use crate::cache::Cache;
 use crate::error::{Error, Result};
-use crate::pipeline::cache::Cache;
 use clap::{Args, Subcommand};
 use std::path::PathBuf;
 
@@ -47,7 +47,7 @@ fn open(a: &CacheArgs) -> Cache {
     let dir = a
         .dir
         .clone()
-        .unwrap_or_else(crate::pipeline::cache::default_cache_dir);
+        .unwrap_or_else(crate::cache::default_cache_dir);
     Cache::at(dir)
 }
 
@@ -137,7 +137,7 @@ pub fn run(a: CacheArgs) -> Result<()> {
             if *remove_bad && !cache.is_marked() {
                 return Err(Error::NotACache {
                     dir: cache.root().to_path_buf(),
-                    marker: crate::pipeline::cache::MARKER.into(),
+                    marker: crate::cache::MARKER.into(),
                 });
             }
             let reports = cache.verify_all()?;

@@ -111,17 +111,14 @@ pub fn run(a: GenerateArgs) -> Result<()> {
         bar.set_message(id.to_string());
         let t = std::time::Instant::now();
         let res = ds.load_pair(&specs[pos].id).and_then(|pair| {
-            crate::pipeline::image_branch::register_with_image_keep(
-                &pair,
-                &params,
-                &ib,
-                cache.as_ref(),
-                &memo,
-                !batched,
-            )
+            crate::pipeline::Registration::new(&params)
+                .cache(cache.as_ref())
+                .memo(&memo)
+                .generate(!batched)
+                .run(&pair)
         });
         bar.inc(1);
-        let (r, _) = res?;
+        let r = res?;
         Ok(PairRecord {
             id: id.to_string(),
             status: DONE.into(),
@@ -176,7 +173,7 @@ fn generate_batch(
     ds: &Dataset,
     ids: &[String],
     ib: &crate::pipeline::ImageBranchParams,
-    cache: &crate::pipeline::cache::Cache,
+    cache: &crate::cache::Cache,
 ) -> std::collections::HashMap<String, String> {
     use crate::pipeline::image_branch::{pending_generation, store_pending};
     let mut errors = std::collections::HashMap::new();

@@ -5,7 +5,7 @@ use crate::dataset::ScanPair;
 use crate::error::{Error, Result};
 use crate::metrics::SuccessCriterion;
 use crate::pipeline::params::Preset;
-use crate::pipeline::{register_pair_cached_keep, RegistrationResult};
+use crate::pipeline::{Registration, RegistrationResult};
 use clap::Args;
 use std::path::PathBuf;
 
@@ -100,7 +100,16 @@ fn register_input(
     let (pair, load_hit, load_ms, preset) = load_pair(input, image)?;
     let (params, cache) = image.params_and_cache_for(pipeline, preset)?;
     let memo = crate::pipeline::Memo::default();
-    let (mut res, inputs) = register_pair_cached_keep(&pair, &params, cache.as_ref(), &memo)?;
+    let mut res = Registration::new(&params)
+        .cache(cache.as_ref())
+        .memo(&memo)
+        .keep(true)
+        .run(&pair)?;
+    let inputs = res
+        .inputs
+        .take()
+        .map(std::sync::Arc::unwrap_or_clone)
+        .ok_or_else(|| crate::Error::Invalid("the registration kept no fusion inputs".into()))?;
     res.timings.insert(
         0,
         crate::pipeline::StageTiming {

@@ -248,7 +248,7 @@ mod tests {
         );
         assert_eq!(selection_name(&v), "top-8000");
         let mut d = r.clone();
-        d.image.as_mut().unwrap().vfm = crate::pipeline::params::VfmSpec::Alike {
+        d.image.as_mut().unwrap().vfm = crate::vfm::VfmSpec::Alike {
             model: "models/alike-t.onnx".into(),
         };
         let mut v2 = serde_json::to_value(&d).unwrap();

@@ -9,10 +9,10 @@
 
 use super::fragment::{build_fragment_with, fragment_frames, FragmentOptions};
 use super::Scan;
+use crate::cache::{Cache, CacheKey, Entry};
 use crate::error::{Error, Result};
 use crate::geometry::cloud::PointCloud;
 use crate::io::rgbd_sequence::RgbdSequence;
-use crate::pipeline::cache::{Cache, CacheKey, Entry};
 use nalgebra::Point3;
 use rayon::prelude::*;
 use serde_json::json;

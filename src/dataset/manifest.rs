@@ -190,7 +190,7 @@ pub struct Dataset {
     pub(crate) pairs: Vec<PairSpec>,
     /// The stage cache that keeps fragments built from raw RGB-D frames (stage `fragments`;
     /// None: rebuilt every time).
-    pub fragment_cache: Option<crate::pipeline::cache::Cache>,
+    pub fragment_cache: Option<crate::cache::Cache>,
 }
 
 fn bad(
@@ -905,7 +905,7 @@ impl Dataset {
     }
 
     /// Cache fragments built from raw frames in `cache` (see [`super::fragment_cache`]).
-    pub fn with_fragment_cache(mut self, cache: Option<crate::pipeline::cache::Cache>) -> Self {
+    pub fn with_fragment_cache(mut self, cache: Option<crate::cache::Cache>) -> Self {
         self.fragment_cache = cache;
         self
     }

@@ -1,6 +1,6 @@
 //! The in-memory tail of every registration: similarity, calibration, Match-then-Fuse,
 //! selection, estimation and evaluation. Cheap next to the cached stages, so a change of
-//! temperature, fusion mode, selection or estimator re-runs only [`fuse_and_finish`].
+//! temperature, fusion mode, selection or estimator re-runs only `fuse_and_finish`.
 
 use super::geo::GeoBranch;
 use super::params::RegisterParams;
@@ -23,10 +23,10 @@ pub const STAGE: &str = "fusion";
 pub const VERSION: u32 = 1;
 
 /// The tail's key: the keys of its inputs (both scans' geometric branch, then the image
-/// descriptors' stage) and every parameter [`fuse_and_finish`] reads: the fusion (similarity,
+/// descriptors' stage) and every parameter `fuse_and_finish` reads: the fusion (similarity,
 /// calibrations, mode, selection), the estimator and the inlier threshold.
-pub fn key(params: &RegisterParams, inputs: &[&str]) -> Result<super::cache::CacheKey> {
-    super::cache::CacheKey::new(
+pub fn key(params: &RegisterParams, inputs: &[&str]) -> Result<crate::cache::CacheKey> {
+    crate::cache::CacheKey::new(
         STAGE,
         VERSION,
         inputs,
@@ -40,7 +40,7 @@ pub fn key(params: &RegisterParams, inputs: &[&str]) -> Result<super::cache::Cac
 }
 
 /// Inputs of the in-memory stages (similarity onward): with them, a change of temperature,
-/// fusion mode, selection or estimator re-runs only [`fuse_and_finish`] (the GUI keeps them).
+/// fusion mode, selection or estimator re-runs only `fuse_and_finish` (the GUI keeps them).
 #[derive(Clone, Debug)]
 pub struct FusionInputs {
     pub source_geo: GeoBranch,
@@ -134,7 +134,7 @@ impl Similarities {
     }
 }
 
-/// The last estimate [`fuse_and_finish_memo`] computed and what it was computed from: the
+/// The last estimate `fuse_and_finish` computed and what it was computed from: the
 /// estimate is a pure function of the correspondences' endpoints (in their order), the
 /// estimator's parameters and, for weighted SVD (chosen, or SC2-PCR's fallback), the scores.
 /// SC2-PCR depends on the set of correspondences it uses (the first `max_points`) alone
@@ -243,7 +243,7 @@ impl EstimateMemo {
 }
 
 /// Above this many source x target entries, a registration without kept similarities
-/// ([`fuse_and_finish`] with `sims` None) under the configuration the fused kernel handles
+/// (`fuse_and_finish` with `sims` None) under the configuration the fused kernel handles
 /// ([`crate::fusion::streams_from_features`]) forms the similarity rows band by band from the
 /// features instead of holding the two N x M matrices (same correspondences): 2^27 entries is
 /// 512 MiB per f32 matrix. An outdoor LiDAR pair at a 0.3 m voxel has about 45k x 45k
@@ -260,7 +260,7 @@ pub fn similarities(inputs: &FusionInputs) -> Result<Similarities> {
     Ok(Similarities::new(image, geo))
 }
 
-/// Whether a timing of a result names a step of the in-memory tail ([`fuse_and_finish`]:
+/// Whether a timing of a result names a step of the in-memory tail (`fuse_and_finish`:
 /// similarity, fusion, estimation), which a re-fusion recomputes, as opposed to a cached
 /// stage before it. Every name the tail records passes (the `union` mode's "fusion: noisy-and"
 /// and "fusion: geometry" included).
@@ -276,20 +276,10 @@ pub fn is_tail_timing(name: &str) -> bool {
 /// (image None: geometry-only fusion, streaming row-NN when the calibration allows it).
 /// `sims`: the similarity matrices computed before ([`similarities`]; the GUI keeps them),
 /// None computes them here; the result is the same. `res.image` is left None: the caller
-/// attaches the views.
-pub fn fuse_and_finish(
-    pair: &ScanPair,
-    params: &RegisterParams,
-    inputs: &FusionInputs,
-    sims: Option<&Similarities>,
-) -> Result<RegistrationResult> {
-    fuse_and_finish_memo(pair, params, inputs, sims, None)
-}
-
-/// [`fuse_and_finish`], the estimate from `memo` when the correspondences and the estimator
-/// are those of its last call (the result is the same; the estimate's timing row then says
-/// "cached").
-pub fn fuse_and_finish_memo(
+/// attaches the views. The estimate is taken from `memo` when the correspondences and the
+/// estimator are those of its last call (the result is the same; the estimate's timing row
+/// then says "cached"). [`super::Registration`] is the way in.
+pub(crate) fn fuse_and_finish(
     pair: &ScanPair,
     params: &RegisterParams,
     inputs: &FusionInputs,
@@ -514,6 +504,7 @@ pub(crate) fn finish(
         inliers: est.inliers,
         image: None,
         union: None,
+        inputs: None,
     })
 }
 

@@ -1,11 +1,11 @@
 //! The geometric branch of one scan: keypoints and features (FPFH computed here, or learned
 //! features read from files). The cached FPFH stage is `stages::geo`.
 
-use super::cache::CacheKey;
 use super::params::{GeoFeatureSource, RegisterParams};
 use super::result::Timer;
 use super::stages::geo_spinnet::{self, SpinNetInput};
 use super::stages::{geo, Ctx};
+use crate::cache::CacheKey;
 use crate::dataset::{Scan, ScanPair};
 use crate::error::{Error, Result};
 use crate::features::fpfh::{compute_fpfh, FpfhParams};

@@ -4,17 +4,16 @@
 //! `stages/mod.rs` and `docs/architecture.md`).
 //!
 //! Cosine similarities, calibration, fusion, selection and estimation are cheap and run in
-//! memory every time ([`fuse_and_finish`]), so changing a temperature or the fusion mode
+//! memory every time (`fuse::fuse_and_finish`), so changing a temperature or the fusion mode
 //! recomputes only those.
 
-pub use super::cache::default_cache_dir;
 pub use super::stages::depth_video::depth_video_clip;
 
-use super::cache::{Cache, CacheKey};
 use super::fuse::{fuse_and_finish, FusionInputs, ImageInputs};
 use super::geo::cached_branch;
 use super::memo::Memo;
-use super::params::{ImageBranchParams, RegisterParams};
+use super::params::ImageBranchParams;
+use super::register::Registration;
 use super::result::{ImageBranchOutput, RegistrationResult, ViewInfo};
 use super::stages::depth_video::frames_of;
 use super::stages::generation::{short_prompt, GenOut};
@@ -23,6 +22,7 @@ use super::stages::pair_vfm::PairInput;
 use super::stages::vfm::SideViews;
 use super::stages::virtual_frames::{camera_coverage_warnings, framed_pair, FrameStore};
 use super::stages::{depth_video, generation, image_points, lift, pair_vfm, vfm, view_select, Ctx};
+use crate::cache::{Cache, CacheKey};
 use crate::dataset::{FrameSet, ScanPair};
 use crate::error::Result;
 use crate::vfm::lift::PixelLink;
@@ -30,35 +30,20 @@ use crate::wfm::ViewSelection;
 use image::RgbImage;
 use std::borrow::Cow;
 
-/// The full method on one pair; `cache` None computes everything in memory. The models and
-/// file hashes are kept for this call only (a caller of many pairs passes its own [`Memo`]
-/// to [`register_with_image_keep`]).
-pub fn register_with_image(
+/// The full method on one pair (`ib`: `reg.params.image`), with the [`FusionInputs`] its
+/// tail ran on; [`Registration::run`] is the way in. `memo` is `reg.memo` or one for this
+/// call.
+pub(crate) fn register_with_image(
     pair: &ScanPair,
-    params: &RegisterParams,
+    reg: &Registration,
     ib: &ImageBranchParams,
-    cache: Option<&Cache>,
-) -> Result<RegistrationResult> {
-    register_with_image_keep(pair, params, ib, cache, &Memo::default(), true).map(|(r, _)| r)
-}
-
-/// [`register_with_image`] that also returns the [`FusionInputs`]. With `generate` false a
-/// generation missing from the cache is not produced: the call fails with
-/// [`crate::error::Error::GenerationNotCached`] (the GUI then offers to run the generator). `memo` keeps
-/// the loaded models and file hashes for the caller's next registration.
-pub fn register_with_image_keep(
-    pair: &ScanPair,
-    params: &RegisterParams,
-    ib: &ImageBranchParams,
-    cache: Option<&Cache>,
     memo: &Memo,
-    generate: bool,
 ) -> Result<(RegistrationResult, FusionInputs)> {
     // Point-cloud-only scans: depth frames from a virtual camera (stage `virtual-frames`).
     // Without a cache they live in a scratch folder until `store` is dropped, after the run.
-    let mut store = FrameStore::new(cache);
+    let mut store = FrameStore::new(reg.cache);
     let (framed, notes) = framed_pair(&mut store, pair, ib)?;
-    let (mut r, inputs) = register_with_frames(&framed, params, ib, (cache, memo), generate)?;
+    let (mut r, inputs) = register_with_frames(&framed, reg, ib, memo)?;
     if let Cow::Owned(_) = framed {
         r.warnings.extend(notes);
         r.warnings.append(&mut store.warnings);
@@ -130,12 +115,12 @@ struct Side<'a> {
 /// The image branch of a pair whose scans both have depth frames, then the fused tail.
 fn register_with_frames(
     pair: &ScanPair,
-    params: &RegisterParams,
+    reg: &Registration,
     ib: &ImageBranchParams,
-    (cache, memo): (Option<&Cache>, &Memo),
-    generate: bool,
+    memo: &Memo,
 ) -> Result<(RegistrationResult, FusionInputs)> {
-    let mut ctx = Ctx::new(cache, memo);
+    let (params, generate) = (reg.params, reg.generate);
+    let mut ctx = Ctx::new(reg.cache, memo);
     let l = ib.frames_per_fragment;
     let src_fs = frames_of(&pair.source, l)?;
     let tgt_fs = frames_of(&pair.target, l)?;
@@ -238,7 +223,7 @@ fn register_with_frames(
         image: Some(image),
     };
     let output = image_output(ib, &gen, &gen_key, sides, vfm_label);
-    let mut res = fuse_and_finish(pair, params, &inputs, None)?;
+    let mut res = fuse_and_finish(pair, params, &inputs, None, reg.estimates)?;
     // The cached stages' timings first, then the in-memory ones.
     let Ctx {
         timer, warnings, ..
@@ -330,7 +315,7 @@ fn coverage_warnings(im: &ImageInputs) -> Vec<String> {
         .collect()
 }
 
-/// The image branch's label (the fusion mode is appended by [`fuse_and_finish`]).
+/// The image branch's label (the fusion mode is appended by the in-memory tail).
 fn branch_label(ib: &ImageBranchParams, gen: &GenOut, vfm_id: &str, im: &ImageInputs) -> String {
     let (v_src, v_tgt) = im.validity();
     let n = |v: &[bool]| v.iter().filter(|v| **v).count();

@@ -152,13 +152,13 @@ impl Memo {
         }
     }
 
-    /// [`hash_file`](crate::pipeline::cache::hash_file) remembered by (path, length,
+    /// [`hash_file`](crate::cache::hash_file) remembered by (path, length,
     /// modification time). A file without a modification time cannot be told apart from a
     /// rewrite, so it is hashed every time.
     pub fn hash_file(&self, path: &Path) -> Result<String> {
         let meta = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
         let Ok(modified) = meta.modified() else {
-            return super::cache::hash_file(path);
+            return crate::cache::hash_file(path);
         };
         let stamp: Stamp = (meta.len(), modified);
         if let Ok(mut m) = self.files.lock() {
@@ -169,7 +169,7 @@ impl Memo {
             }
         }
         // hashed outside the lock: the key functions hash many files in parallel
-        let h = super::cache::hash_file(path)?;
+        let h = crate::cache::hash_file(path)?;
         if let Ok(mut m) = self.files.lock() {
             m.insert(path.to_path_buf(), (stamp, h.clone()));
         }
@@ -273,7 +273,7 @@ mod tests {
         let p = dir.path().join("a.bin");
         std::fs::write(&p, b"one").unwrap();
         let a = memo.hash_file(&p).unwrap();
-        assert_eq!(a, super::super::cache::hash_file(&p).unwrap());
+        assert_eq!(a, crate::cache::hash_file(&p).unwrap());
         assert_eq!(memo.hash_file(&p).unwrap(), a);
         // a rewrite with other content of the same length (a later time) is hashed again
         let f = std::fs::File::options().write(true).open(&p).unwrap();
@@ -283,12 +283,12 @@ mod tests {
         drop(f);
         let b = memo.hash_file(&p).unwrap();
         assert_ne!(a, b);
-        assert_eq!(b, super::super::cache::hash_file(&p).unwrap());
+        assert_eq!(b, crate::cache::hash_file(&p).unwrap());
         // and one with another length
         std::fs::write(&p, b"three").unwrap();
         assert_eq!(
             memo.hash_file(&p).unwrap(),
-            super::super::cache::hash_file(&p).unwrap()
+            crate::cache::hash_file(&p).unwrap()
         );
         for i in 0..5 {
             let q = dir.path().join(format!("{i}.bin"));

@@ -2,13 +2,11 @@
 //! keyed by content so the GUI and `bench` re-run only what changed.
 //!
 //! Modules, leaves first: `params` (the parameter types), `result` (what a registration
-//! returns, the stage timer), `cache` (the content-addressed store), `memo` (what a caller
-//! keeps in memory between registrations), `geo` (the geometric branch), `fuse` (the
+//! returns, the stage timer), `memo` (what a caller keeps in memory between registrations), `geo` (the geometric branch), `fuse` (the
 //! in-memory tail: similarity to evaluation), `stages` (one file per cached stage),
-//! `image_branch` (wires the stages), `register` (entry points), then `study` and `shard`
-//! (many pairs).
+//! `image_branch` (wires the stages), `register` (the entry point, [`Registration`]), then
+//! `study` and `shard` (many pairs).
 
-pub mod cache;
 pub mod export;
 pub mod fuse;
 pub mod geo;
@@ -23,7 +21,8 @@ pub mod stages;
 pub mod study;
 pub mod union;
 
+pub use crate::vfm::VfmSpec;
 pub use memo::Memo;
-pub use params::{ImageBranchParams, RegisterParams, VfmSpec, WfmSpec};
-pub use register::{register_pair, register_pair_cached, register_pair_cached_keep};
+pub use params::{ImageBranchParams, RegisterParams, WfmSpec};
+pub use register::Registration;
 pub use result::{ImageBranchOutput, RegistrationResult, StageTiming, ViewInfo};

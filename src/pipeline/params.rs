@@ -5,6 +5,7 @@ use crate::estimate::scale::{Scaled, LIFT_RADIUS_PER_VOXEL, THRESHOLD_PER_VOXEL}
 use crate::estimate::EstimatorKind;
 use crate::fusion::FusionParams;
 use crate::metrics::{SuccessCriteria, SuccessCriterion};
+use crate::vfm::VfmSpec;
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 
@@ -334,122 +335,6 @@ impl clap::ValueEnum for WfmSpec {
     }
 }
 
-/// `--vfm xfeat|disk|alike|mast3r`; the model file comes from `--vfm-model`.
-impl clap::ValueEnum for VfmSpec {
-    fn value_variants<'a>() -> &'a [Self] {
-        static V: std::sync::LazyLock<[VfmSpec; 4]> = std::sync::LazyLock::new(VfmSpec::all);
-        &*V
-    }
-
-    fn to_possible_value(&self) -> Option<clap::builder::PossibleValue> {
-        Some(clap::builder::PossibleValue::new(self.name()))
-    }
-}
-
-/// Which vision foundation model describes the selected views.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "kind", rename_all = "kebab-case")]
-pub enum VfmSpec {
-    /// XFeat through ONNX (default `models/xfeat.onnx`): one descriptor grid per view.
-    Xfeat {
-        #[serde(with = "crate::vfm::model_path_serde")]
-        model: PathBuf,
-    },
-    /// DISK through ONNX (default `models/disk.onnx`): dense 128-D descriptors at every pixel,
-    /// sampled at the lifted pixels.
-    Disk {
-        #[serde(with = "crate::vfm::model_path_serde")]
-        model: PathBuf,
-    },
-    /// ALIKE through ONNX (default `models/alike-t.onnx`, 64-D; `models/alike-n.onnx` is 128-D):
-    /// dense descriptors at every pixel, sampled at the lifted pixels.
-    Alike {
-        #[serde(with = "crate::vfm::model_path_serde")]
-        model: PathBuf,
-    },
-    /// A MASt3R ONNX export (reference §13 signature): descriptors of every ordered
-    /// (source view, target view) pair, compared pair-conditioned (reference §8.1).
-    Mast3r {
-        #[serde(with = "crate::vfm::model_path_serde")]
-        model: PathBuf,
-    },
-}
-
-impl VfmSpec {
-    /// Whether this VFM has a descriptor at every pixel (DISK, ALIKE): the one kind that reads
-    /// [`ImageBranchParams::dense_stride`].
-    pub fn is_dense(&self) -> bool {
-        matches!(self, VfmSpec::Disk { .. } | VfmSpec::Alike { .. })
-    }
-
-    pub fn model(&self) -> &std::path::Path {
-        match self {
-            VfmSpec::Xfeat { model }
-            | VfmSpec::Disk { model }
-            | VfmSpec::Alike { model }
-            | VfmSpec::Mast3r { model } => model,
-        }
-    }
-
-    /// The model file, for the field that edits it.
-    pub fn model_mut(&mut self) -> &mut PathBuf {
-        match self {
-            VfmSpec::Xfeat { model }
-            | VfmSpec::Disk { model }
-            | VfmSpec::Alike { model }
-            | VfmSpec::Mast3r { model } => model,
-        }
-    }
-
-    /// Every VFM with its default model file (MASt3R has none: no weights ship with cgenreg,
-    /// so its path is empty until the user gives an export).
-    pub fn all() -> [VfmSpec; 4] {
-        [
-            VfmSpec::default(),
-            VfmSpec::Disk {
-                model: crate::vfm::default_model_path("disk.onnx"),
-            },
-            VfmSpec::Alike {
-                model: crate::vfm::default_model_path("alike-t.onnx"),
-            },
-            VfmSpec::Mast3r {
-                model: PathBuf::new(),
-            },
-        ]
-    }
-
-    /// The inspector's choice text.
-    pub fn label(&self) -> &'static str {
-        match self {
-            VfmSpec::Xfeat { .. } => "xfeat",
-            VfmSpec::Disk { .. } => "disk (dense per pixel)",
-            VfmSpec::Alike { .. } => "alike (dense per pixel)",
-            VfmSpec::Mast3r { .. } => "mast3r (your ONNX export)",
-        }
-    }
-
-    pub fn same_kind(&self, other: &VfmSpec) -> bool {
-        std::mem::discriminant(self) == std::mem::discriminant(other)
-    }
-
-    pub fn name(&self) -> &'static str {
-        match self {
-            VfmSpec::Xfeat { .. } => "xfeat",
-            VfmSpec::Disk { .. } => "disk",
-            VfmSpec::Alike { .. } => "alike",
-            VfmSpec::Mast3r { .. } => "mast3r",
-        }
-    }
-}
-
-impl Default for VfmSpec {
-    fn default() -> Self {
-        VfmSpec::Xfeat {
-            model: crate::vfm::default_xfeat_path(),
-        }
-    }
-}
-
 /// The generated-RGB branch (reference §1-4, §7-8).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
@@ -658,7 +543,7 @@ mod tests {
         });
         assert_eq!(serde_json::to_value(p.estimator_resolved()).unwrap(), old);
         let key = crate::pipeline::fuse::key(&p, &["a", "b"]).unwrap();
-        let old_key = crate::pipeline::cache::CacheKey::new(
+        let old_key = crate::cache::CacheKey::new(
             crate::pipeline::fuse::STAGE,
             crate::pipeline::fuse::VERSION,
             &["a", "b"],

@@ -1,60 +1,146 @@
-//! One registration: geometric branch (and, when configured, the image branch), Match-then-Fuse,
-//! pose estimation and evaluation against ground truth. The entry points; the stages are in
-//! `stages/`, the shared in-memory tail in `fuse`.
+//! The registration entry point: a [`Registration`] (parameters, stage cache, the caller's
+//! memo, what to keep) registers one pair with [`Registration::run`], and re-runs the
+//! in-memory tail from kept inputs with [`Registration::refuse_from_memory`]. The CLI
+//! (`register`, `bench`, `generate`), the studies, the inspector's worker and the Python
+//! binding all register through it. The stages are in `stages/`, their wiring in
+//! `image_branch` and `register_geometry` below, the in-memory tail in `fuse`.
 
-use super::cache::Cache;
-use super::fuse::{fuse_and_finish, FusionInputs};
+use std::sync::Arc;
+
+use super::fuse::{fuse_and_finish, EstimateMemo, FusionInputs, Similarities};
 use super::geo::{cached_branch, geo_branches};
 use super::memo::Memo;
 use super::params::{GeoFeatureSource, RegisterParams};
 use super::result::RegistrationResult;
 use super::stages::Ctx;
+use crate::cache::Cache;
 use crate::dataset::ScanPair;
 use crate::error::{Error, Result};
 
-/// Register `pair.source` onto `pair.target`: the geometric branch, plus the image branch
-/// when `params.image` is set (everything computed in memory, no cache).
-pub fn register_pair(pair: &ScanPair, params: &RegisterParams) -> Result<RegistrationResult> {
-    register_pair_cached(pair, params, None)
+/// One registration's settings and what it may reuse: register `pair.source` onto
+/// `pair.target` with [`Self::run`]: the geometric branch, plus the image branch when
+/// `params.image` is set, then similarity, fusion, estimation and evaluation.
+///
+/// For example `Registration::new(&params).cache(&cache).memo(&memo).run(&pair)?` (the
+/// builder methods set the public fields below).
+#[derive(Clone, Copy)]
+pub struct Registration<'a> {
+    /// Everything the registration computes with (the image branch when `params.image` is set).
+    pub params: &'a RegisterParams,
+    /// The stage cache the cached stages (`geo-fpfh`, `geo-spinnet`, the image branch's)
+    /// read from and write to; None computes every stage in memory.
+    pub cache: Option<&'a Cache>,
+    /// The caller's memo (file hashes, loaded models): a caller of many pairs keeps one, so
+    /// each model loads once. None: a memo for this call only.
+    pub memo: Option<&'a Memo>,
+    /// The last estimate and its inputs: an estimate whose correspondences and estimator are
+    /// those of the memo's last one is taken from it (the same result; its timing row says
+    /// "cached"). The inspector keeps one per pair for its re-fusions. None: always estimated.
+    pub estimates: Option<&'a EstimateMemo>,
+    /// Keep the in-memory tail's inputs in the result ([`RegistrationResult::inputs`]): what
+    /// a re-fusion, the correspondence export and the posterior inspector recompute from.
+    pub keep: bool,
+    /// Produce a generation missing from the cache (the default). False: the run fails with
+    /// [`Error::GenerationNotCached`] instead (the inspector then offers to run the generator;
+    /// `cgenreg generate` produces them in batches first).
+    pub generate: bool,
 }
 
-/// [`register_pair`] with the image branch's stages read from / written to `cache` (models
-/// and file hashes kept for this call only; see [`register_pair_cached_keep`]).
-pub fn register_pair_cached(
-    pair: &ScanPair,
-    params: &RegisterParams,
-    cache: Option<&Cache>,
-) -> Result<RegistrationResult> {
-    register_pair_cached_keep(pair, params, cache, &Memo::default()).map(|(r, _)| r)
-}
-
-/// [`register_pair_cached`] that also returns the [`FusionInputs`] the result was computed
-/// from (what the correspondence export and the posterior inspector recompute from). `memo`
-/// is the caller's: a caller of many pairs keeps one, so each model loads once.
-pub fn register_pair_cached_keep(
-    pair: &ScanPair,
-    params: &RegisterParams,
-    cache: Option<&Cache>,
-    memo: &Memo,
-) -> Result<(RegistrationResult, FusionInputs)> {
-    match &params.image {
-        Some(ib) => {
-            super::image_branch::register_with_image_keep(pair, params, ib, cache, memo, true)
+impl<'a> Registration<'a> {
+    /// A registration under `params`, everything computed in memory, nothing kept.
+    pub fn new(params: &'a RegisterParams) -> Self {
+        Registration {
+            params,
+            cache: None,
+            memo: None,
+            estimates: None,
+            keep: false,
+            generate: true,
         }
-        None => register_geometry(pair, params, cache, memo),
+    }
+
+    /// With the stage cache `cache` (`&Cache` or `Option<&Cache>`).
+    pub fn cache(self, cache: impl Into<Option<&'a Cache>>) -> Self {
+        Registration {
+            cache: cache.into(),
+            ..self
+        }
+    }
+
+    /// With the caller's memo.
+    pub fn memo(self, memo: &'a Memo) -> Self {
+        Registration {
+            memo: Some(memo),
+            ..self
+        }
+    }
+
+    /// With the caller's estimate memo.
+    pub fn estimates(self, estimates: &'a EstimateMemo) -> Self {
+        Registration {
+            estimates: Some(estimates),
+            ..self
+        }
+    }
+
+    /// Keeping (true) the in-memory tail's inputs in the result.
+    pub fn keep(self, keep: bool) -> Self {
+        Registration { keep, ..self }
+    }
+
+    /// Producing (true) or refusing (false) a generation missing from the cache.
+    pub fn generate(self, generate: bool) -> Self {
+        Registration { generate, ..self }
+    }
+
+    /// Register `pair`: the geometric branch (FPFH and SpinNet through their cached stages;
+    /// features read from files have none), the image branch's stages when `params.image`
+    /// is set, then the in-memory tail. With `keep`, the result holds the tail's inputs.
+    pub fn run(&self, pair: &ScanPair) -> Result<RegistrationResult> {
+        let own;
+        let memo = match self.memo {
+            Some(m) => m,
+            None => {
+                own = Memo::default();
+                &own
+            }
+        };
+        let (mut result, inputs) = match &self.params.image {
+            Some(ib) => super::image_branch::register_with_image(pair, self, ib, memo)?,
+            None => register_geometry(pair, self, memo)?,
+        };
+        if self.keep {
+            result.inputs = Some(Arc::new(inputs));
+        }
+        Ok(result)
+    }
+
+    /// The in-memory tail alone, from `inputs` kept by an earlier [`Self::run`] (its
+    /// `result.inputs`): similarity, calibration, fusion, selection, estimation and
+    /// evaluation under `params`, with the kept similarity matrices `sims` when given
+    /// ([`super::fuse::similarities`]; None computes them, the result is the same). What a
+    /// change of temperature, fusion mode, selection or estimator re-runs. The result's
+    /// `image` is None (the caller keeps the views) and so are its `inputs` (the caller has
+    /// them).
+    pub fn refuse_from_memory(
+        &self,
+        pair: &ScanPair,
+        inputs: &FusionInputs,
+        sims: Option<&Similarities>,
+    ) -> Result<RegistrationResult> {
+        fuse_and_finish(pair, self.params, inputs, sims, self.estimates)
     }
 }
 
-/// The geometric branch alone: keypoints and features (FPFH through the cached `geo-fpfh`
-/// stage, as with the image branch), then the shared tail ([`fuse_and_finish`] with no image
-/// descriptors).
+/// The geometric branch alone: keypoints and features (FPFH and SpinNet through their cached
+/// stages, as with the image branch), then the shared tail with no image descriptors.
 fn register_geometry(
     pair: &ScanPair,
-    params: &RegisterParams,
-    cache: Option<&Cache>,
+    reg: &Registration,
     memo: &Memo,
 ) -> Result<(RegistrationResult, FusionInputs)> {
-    let mut ctx = Ctx::new(cache, memo);
+    let params = reg.params;
+    let mut ctx = Ctx::new(reg.cache, memo);
     // FPFH and SpinNet through their cached stages; features read from files have none
     let (src, tgt) = match params.geo_features {
         GeoFeatureSource::Fpfh | GeoFeatureSource::Spinnet { .. } => (
@@ -75,7 +161,7 @@ fn register_geometry(
         image: None,
         image_label: None,
     };
-    let mut res = fuse_and_finish(pair, params, &inputs, None)?;
+    let mut res = fuse_and_finish(pair, params, &inputs, None, reg.estimates)?;
     let Ctx {
         timer, warnings, ..
     } = ctx;

@@ -87,6 +87,11 @@ pub struct RegistrationResult {
     /// The `union` fusion's report: the sets it merged and where its inliers came from.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub union: Option<crate::fusion::union::UnionReport>,
+    /// The in-memory tail's inputs, when the registration kept them
+    /// ([`super::Registration::keep`]): what a re-fusion, the correspondence export and the
+    /// posterior inspector recompute from.
+    #[serde(skip)]
+    pub inputs: Option<std::sync::Arc<super::fuse::FusionInputs>>,
 }
 
 impl RegistrationResult {

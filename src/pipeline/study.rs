@@ -14,10 +14,10 @@
 //! over the pairs that ran plus those that failed with an error (a failure counts as
 //! unsuccessful, as in `bench`); skipped pairs enter no aggregate.
 
-use super::cache::Cache;
-use super::image_branch::register_with_image_keep;
 use super::memo::Memo;
 use super::params::{ImageBranchParams, RegisterParams};
+use super::register::Registration;
+use crate::cache::Cache;
 use crate::dataset::manifest::Dataset;
 use crate::dataset::ScanPair;
 use crate::error::{Error, Result};
@@ -490,11 +490,19 @@ fn run_one(
         return skipped("no ground truth: RRE/RTE cannot be measured".into());
     }
     let t = Instant::now();
-    let r = super::shard::catch_pair(|| {
-        register_with_image_keep(pair, params, ib, cache, memo, generate)
-    });
-    let r = match r {
-        Ok((r, _)) => r,
+    // the setting's image branch on the run's other parameters
+    let params = RegisterParams {
+        image: Some(ib.clone()),
+        ..params.clone()
+    };
+    let reg = Registration {
+        cache,
+        memo: Some(memo),
+        generate,
+        ..Registration::new(&params)
+    };
+    let r = match super::shard::catch_pair(|| reg.run(pair)) {
+        Ok(r) => r,
         Err(e @ Error::GenerationNotCached { .. }) => return skipped(e.to_string()),
         Err(e) => return failed(e.to_string()),
     };

@@ -134,8 +134,8 @@ impl DenseModel {
     }
 
     /// The model of a `VfmSpec::Disk` / `VfmSpec::Alike` (anything else is refused).
-    pub fn load_spec(spec: &crate::pipeline::VfmSpec, path: &Path) -> Result<DenseModel> {
-        use crate::pipeline::VfmSpec;
+    pub fn load_spec(spec: &super::VfmSpec, path: &Path) -> Result<DenseModel> {
+        use super::VfmSpec;
         match spec {
             VfmSpec::Disk { .. } => DenseModel::load(path, DenseKind::Disk),
             VfmSpec::Alike { .. } => DenseModel::load(path, DenseKind::Alike),

@@ -30,6 +30,9 @@ pub mod runtime;
 pub mod xfeat;
 
 pub mod preprocess;
+pub mod spec;
+
+pub use spec::VfmSpec;
 
 use crate::error::{Error, Result};
 use image::RgbImage;

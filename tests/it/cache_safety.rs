@@ -2,7 +2,7 @@
 //! --remove-bad`) refuse a directory that is not a cgenreg cache (no marker file) and, in a
 //! cache, remove only entry folders: a user's files next to the entries always survive.
 
-use cgenreg::pipeline::cache::{Cache, CacheKey, MARKER};
+use cgenreg::cache::{Cache, CacheKey, MARKER};
 use serde_json::json;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};

@@ -11,11 +11,11 @@
 
 use crate::common;
 
+use cgenreg::cache::Cache;
 use cgenreg::dataset::fragment_cache::FragmentCacheStatus;
 use cgenreg::dataset::Dataset;
-use cgenreg::pipeline::cache::Cache;
 use cgenreg::pipeline::{
-    register_pair_cached, ImageBranchParams, RegisterParams, RegistrationResult, WfmSpec,
+    ImageBranchParams, RegisterParams, Registration, RegistrationResult, WfmSpec,
 };
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -182,7 +182,7 @@ fn run(ds: &Dataset, id: &str, cloud_only: bool, p: &RegisterParams, cache: &Cac
         pair.source.frames = None;
         pair.target.frames = None;
     }
-    let result = register_pair_cached(&pair, p, Some(cache)).unwrap();
+    let result = Registration::new(p).cache(cache).run(&pair).unwrap();
     let mut messages = result.warnings.clone();
     for s in status.into_iter().flatten() {
         match s {

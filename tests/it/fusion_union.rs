@@ -6,11 +6,8 @@
 use cgenreg::dataset::Dataset;
 use cgenreg::fusion::union::merge;
 use cgenreg::fusion::{FusionMode, FusionParams, Selection};
-use cgenreg::pipeline::fuse::fuse_and_finish;
 use cgenreg::pipeline::union::{geometry_params, mode_correspondences, noisy_and_params};
-use cgenreg::pipeline::{
-    register_pair_cached_keep, ImageBranchParams, Memo, RegisterParams, VfmSpec, WfmSpec,
-};
+use cgenreg::pipeline::{ImageBranchParams, RegisterParams, Registration, VfmSpec, WfmSpec};
 use std::path::Path;
 
 /// A development pair (3DLoMatch-like) where geometry alone registers and Noisy-AND does not,
@@ -45,7 +42,8 @@ fn union_is_never_worse_than_its_best_branch_on_a_development_pair() {
     let ds = Dataset::load(&manifest).unwrap();
     let p = params(FusionMode::Union);
     let pair = ds.load_pair(DEV_PAIR).unwrap();
-    let (res, inputs) = register_pair_cached_keep(&pair, &p, None, &Memo::default()).unwrap();
+    let mut res = Registration::new(&p).keep(true).run(&pair).unwrap();
+    let inputs = res.inputs.take().unwrap();
     let ok = |r: &cgenreg::pipeline::RegistrationResult| r.metrics.as_ref().unwrap().success;
     // each branch alone, and the paper's Noisy-AND, from the same inputs
     let alone = |mode, sel: Option<Selection>| {
@@ -53,7 +51,9 @@ fn union_is_never_worse_than_its_best_branch_on_a_development_pair() {
         if let Some(s) = sel {
             q.fusion.selection = s;
         }
-        fuse_and_finish(&pair, &q, &inputs, None).unwrap()
+        Registration::new(&q)
+            .refuse_from_memory(&pair, &inputs, None)
+            .unwrap()
     };
     let geo = alone(FusionMode::GeometryOnly, Some(Selection::RowNn));
     let img = alone(FusionMode::ImageOnly, None);
@@ -74,7 +74,7 @@ fn union_is_never_worse_than_its_best_branch_on_a_development_pair() {
         },
         ..Default::default()
     };
-    let (g, _) = register_pair_cached_keep(&pair, &geo_only, None, &Memo::default()).unwrap();
+    let g = Registration::new(&geo_only).run(&pair).unwrap();
     assert_eq!(g.target_from_source, geo.target_from_source);
     // the estimator was given exactly Noisy-AND's set, then the geometric set's new pairs
     let a = mode_correspondences(&inputs, None, &noisy_and_params(&p.fusion)).unwrap();

@@ -73,3 +73,47 @@ fn a_second_geometry_only_bench_loads_fpfh_from_the_cache() {
     }
     assert!(cache.join("geo-fpfh").is_dir());
 }
+
+/// One entry point for geometry alone: `Registration::run` with a cache writes one `geo-fpfh`
+/// entry per scan and a second run loads both (the same pose); the inputs it keeps give,
+/// through `refuse_from_memory` under the same parameters, the run's correspondences and pose
+/// bit for bit.
+#[test]
+fn registration_caches_geometry_and_its_kept_inputs_refuse_to_the_same_result() {
+    use cgenreg::cache::Cache;
+    use cgenreg::dataset::Dataset;
+    use cgenreg::pipeline::{RegisterParams, Registration};
+    let ds = Dataset::load(&super::common::demo_manifest()).unwrap();
+    let pair = ds.load_pair(&ds.pairs()[0].id.clone()).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let cache = Cache::open(dir.path()).unwrap();
+    let p = RegisterParams::default();
+    let status = |r: &cgenreg::pipeline::RegistrationResult| -> Vec<(String, String)> {
+        r.timings
+            .iter()
+            .filter(|t| t.stage.starts_with("fpfh "))
+            .map(|t| (t.stage.clone(), t.status.clone()))
+            .collect()
+    };
+    let reg = Registration::new(&p).cache(&cache).keep(true);
+    let mut first = reg.run(&pair).unwrap();
+    let computed =
+        |s: &str| [("fpfh source", s), ("fpfh target", s)].map(|(a, b)| (a.into(), b.into()));
+    assert_eq!(status(&first), computed("computed"));
+    assert_eq!(
+        std::fs::read_dir(dir.path().join("geo-fpfh"))
+            .unwrap()
+            .count(),
+        2
+    );
+    let second = Registration::new(&p).cache(&cache).run(&pair).unwrap();
+    assert_eq!(status(&second), computed("cached"));
+    assert!(second.inputs.is_none(), "nothing kept without `keep`");
+    assert_eq!(second.target_from_source, first.target_from_source);
+    let inputs = first.inputs.take().expect("kept with `keep`");
+    assert!(inputs.image.is_none());
+    let again = reg.refuse_from_memory(&pair, &inputs, None).unwrap();
+    assert_eq!(again.correspondences, first.correspondences);
+    assert_eq!(again.target_from_source, first.target_from_source);
+    assert_eq!(again.n_inliers, first.n_inliers);
+}

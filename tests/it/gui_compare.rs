@@ -238,7 +238,7 @@ fn staged_worker(cache: &Path) -> PipelineWorker {
         Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/manifests/redkitchen-staged.toml");
     let mut w = PipelineWorker::open_manifest(&manifest, RegisterParams::default()).unwrap();
     assert!(w.params().image.is_none(), "the default runs geometry only");
-    w.set_cache(Some(cgenreg::pipeline::cache::Cache::open(cache).unwrap()));
+    w.set_cache(Some(cgenreg::cache::Cache::open(cache).unwrap()));
     w
 }
 

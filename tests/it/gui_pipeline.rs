@@ -15,7 +15,7 @@ use cgenreg::app::worker::{
 };
 use cgenreg::app::{spawn_worker, Command, Panel, WorkerEvent};
 use cgenreg::dataset::manifest::Dataset;
-use cgenreg::pipeline::{register_pair, RegisterParams};
+use cgenreg::pipeline::{RegisterParams, Registration};
 use nalgebra::Point3;
 
 fn params() -> RegisterParams {
@@ -29,7 +29,7 @@ fn registration_result_becomes_a_consistent_model() {
     let ds = Dataset::load(&demo_manifest()).unwrap();
     let id = ds.pairs()[0].id.clone();
     let pair = ds.load_pair(&id).unwrap();
-    let res = register_pair(&pair, &params()).unwrap();
+    let res = Registration::new(&params()).run(&pair).unwrap();
     let model = result_to_model(
         &pair,
         &res,
@@ -229,9 +229,7 @@ fn worker_runs_the_image_branch_from_the_cache_and_refuses_from_memory() {
     let dir = tempfile::tempdir().unwrap();
     let mut base = common::demo_params(WfmSpec::Oracle);
     let mut w = PipelineWorker::open_manifest(&demo_manifest(), base.clone()).unwrap();
-    w.set_cache(Some(
-        cgenreg::pipeline::cache::Cache::open(dir.path()).unwrap(),
-    ));
+    w.set_cache(Some(cgenreg::cache::Cache::open(dir.path()).unwrap()));
     assert_eq!(w.params().image.as_ref().unwrap().backend, WfmSpec::Oracle);
     let id = w.pair_ids()[0].clone();
     let m = w.run_pair(&id).unwrap();
@@ -286,7 +284,7 @@ fn worker_runs_the_image_branch_from_the_cache_and_refuses_from_memory() {
     *s.fusion.calibration_geo.tau_mut() = 0.05;
     w.set_params(s.clone());
     let m = w
-        .refuse()
+        .refuse_from_memory()
         .expect("same image settings: re-fuse from memory")
         .unwrap();
     assert_eq!(m.source_views.len(), 2);
@@ -320,7 +318,10 @@ fn worker_runs_the_image_branch_from_the_cache_and_refuses_from_memory() {
     w.run_pair(&id).unwrap();
     *u.fusion.calibration_geo.tau_mut() = 0.07;
     w.set_params(u);
-    let mu = w.refuse().expect("temperature change re-fuses").unwrap();
+    let mu = w
+        .refuse_from_memory()
+        .expect("temperature change re-fuses")
+        .unwrap();
     let mut names: Vec<&str> = mu.stages.iter().map(|s| s.name.as_str()).collect();
     assert!(names.contains(&"fusion: noisy-and"), "{names:?}");
     names.sort();
@@ -328,7 +329,7 @@ fn worker_runs_the_image_branch_from_the_cache_and_refuses_from_memory() {
     names.dedup();
     assert_eq!(names.len(), n, "a stage listed twice after a re-fusion");
     w.set_params(s.clone());
-    let m = w.refuse().expect("back to Noisy-AND").unwrap();
+    let m = w.refuse_from_memory().expect("back to Noisy-AND").unwrap();
     // posterior with the image branch: image row and pixels in the views
     let src = m
         .matches
@@ -346,7 +347,10 @@ fn worker_runs_the_image_branch_from_the_cache_and_refuses_from_memory() {
     // a new prompt: not generated without asking, no views from the old prompt
     s.image.as_mut().unwrap().prompt.scene = "a snowy pine forest".into();
     w.set_params(s);
-    assert!(w.refuse().is_none(), "a new prompt needs the image stages");
+    assert!(
+        w.refuse_from_memory().is_none(),
+        "a new prompt needs the image stages"
+    );
     // the pair is an error until the generator runs, never a geometry-only result under
     // the image branch's label
     let e = w.run_pair_with(&id, false).unwrap_err();
@@ -614,14 +618,9 @@ fn open_an_rgbd_sequence() {
     let ds =
         cgenreg::dataset::open::open_dataset(OpenKind::RgbdSequence, std::slice::from_ref(&seq))
             .unwrap()
-            .with_fragment_cache(
-                Some(
-                    cgenreg::pipeline::cache::Cache::open(
-                        cgenreg::pipeline::cache::default_cache_dir(),
-                    )
-                    .unwrap(),
-                ),
-            );
+            .with_fragment_cache(Some(
+                cgenreg::cache::Cache::open(cgenreg::cache::default_cache_dir()).unwrap(),
+            ));
     let n = ds.pairs().len();
     assert_eq!(n, 9, "500 frames: 10 fragments, 9 neighbouring pairs");
     let spec = &ds.pairs()[0];
@@ -662,7 +661,7 @@ fn open_an_rgbd_sequence() {
 }
 
 /// A re-fusion from memory (kept row maxima, the estimate memo) gives, bit for bit, what the
-/// library's `fuse_and_finish` gives from the kept similarities, and the registration a fresh
+/// library's `refuse_from_memory` gives from the kept similarities, and the registration a fresh
 /// run gives (same correspondences, same pose); repeating the settings reuses the estimate.
 #[test]
 fn refusion_from_memory_equals_the_library_and_a_fresh_run() {
@@ -672,14 +671,18 @@ fn refusion_from_memory_equals_the_library_and_a_fresh_run() {
     let mut s = w.params().clone();
     *s.fusion.calibration_geo.tau_mut() = 0.07;
     w.set_params(s.clone());
-    let kept = w.refuse().expect("a temperature change re-fuses").unwrap();
+    let kept = w
+        .refuse_from_memory()
+        .expect("a temperature change re-fuses")
+        .unwrap();
 
     let ds = Dataset::load(&demo_manifest()).unwrap();
     let pair = ds.load_pair(&id).unwrap();
-    let (fresh, inputs) =
-        cgenreg::pipeline::register_pair_cached_keep(&pair, &s, None, &Default::default()).unwrap();
+    let reg = cgenreg::pipeline::Registration::new(&s).keep(true);
+    let mut fresh = reg.run(&pair).unwrap();
+    let inputs = fresh.inputs.take().unwrap();
     let sims = cgenreg::pipeline::fuse::similarities(&inputs).unwrap();
-    let lib = cgenreg::pipeline::fuse::fuse_and_finish(&pair, &s, &inputs, Some(&sims)).unwrap();
+    let lib = reg.refuse_from_memory(&pair, &inputs, Some(&sims)).unwrap();
     let lib = result_to_model(
         &pair,
         &lib,
@@ -727,7 +730,7 @@ fn refusion_from_memory_equals_the_library_and_a_fresh_run() {
     assert_eq!(estimate_row(&kept), Some(StageState::Done));
     // the same settings again: the same correspondences, so the estimate is remembered
     w.set_params(s);
-    let again = w.refuse().expect("re-fuse").unwrap();
+    let again = w.refuse_from_memory().expect("re-fuse").unwrap();
     assert_eq!(key(&again), key(&kept));
     assert_eq!(pose(&again), pose(&kept));
     assert_eq!(estimate_row(&again), Some(StageState::Cached));
@@ -749,7 +752,10 @@ fn a_temperature_change_under_nn_reuses_the_first_runs_estimate() {
     let mut s = w.params().clone();
     *s.fusion.calibration_geo.tau_mut() = 0.07;
     w.set_params(s.clone());
-    let kept = w.refuse().expect("a temperature change re-fuses").unwrap();
+    let kept = w
+        .refuse_from_memory()
+        .expect("a temperature change re-fuses")
+        .unwrap();
     let row = kept.stages.iter().find(|r| r.name == "estimate");
     assert_eq!(row.map(|r| r.state.clone()), Some(StageState::Cached));
     assert!(kept.matches.len() > 8000 && kept.matches.len() <= 20_000);
@@ -757,7 +763,7 @@ fn a_temperature_change_under_nn_reuses_the_first_runs_estimate() {
         .unwrap()
         .load_pair(&id)
         .unwrap();
-    let lib = cgenreg::pipeline::register_pair(&pair, &s).unwrap();
+    let lib = cgenreg::pipeline::Registration::new(&s).run(&pair).unwrap();
     let pose = |m: &cgenreg::app::InspectorModel| m.estimated.map(|e| e.to_homogeneous());
     assert_eq!(pose(&kept), Some(lib.estimate.to_homogeneous()));
     assert_eq!(pose(&kept), pose(&first));
@@ -811,4 +817,61 @@ fn opening_a_manifest_with_a_preset_applies_it() {
     let row = &m.pairs[m.current_pair.unwrap()];
     assert_eq!(row.status, PairStatus::Done, "{logs:?}");
     assert!(row.success == Some(true), "{row:?}");
+}
+
+/// The inspector's geometry-only run goes through the stage cache like `register` and
+/// `bench`: a worker writes both scans' `geo-fpfh` entries, another worker on the same cache
+/// loads them and gets the same pose, and a repeat on the first worker takes the kept branch
+/// from memory.
+#[test]
+fn the_inspectors_geometry_only_runs_use_the_fpfh_cache() {
+    use cgenreg::app::model::StageState;
+    let dir = tempfile::tempdir().unwrap();
+    let open = || {
+        let mut w = PipelineWorker::open_manifest(&demo_manifest(), params()).unwrap();
+        w.set_cache(Some(cgenreg::cache::Cache::open(dir.path()).unwrap()));
+        w
+    };
+    let fpfh = |m: &cgenreg::app::InspectorModel| -> Vec<(String, StageState)> {
+        m.stages
+            .iter()
+            .filter(|s| s.name.starts_with("fpfh "))
+            .map(|s| (s.name.clone(), s.state.clone()))
+            .collect()
+    };
+    let mut w = open();
+    let id = w.pair_ids()[0].clone();
+    assert!(w.params().image.is_none());
+    let a = w.run_pair(&id).unwrap();
+    assert_eq!(
+        fpfh(&a),
+        [
+            ("fpfh source".to_string(), StageState::Done),
+            ("fpfh target".to_string(), StageState::Done)
+        ]
+    );
+    assert_eq!(
+        std::fs::read_dir(dir.path().join("geo-fpfh"))
+            .unwrap()
+            .count(),
+        2
+    );
+    let b = open().run_pair(&id).unwrap();
+    assert_eq!(
+        fpfh(&b),
+        [
+            ("fpfh source".to_string(), StageState::Cached),
+            ("fpfh target".to_string(), StageState::Cached)
+        ]
+    );
+    assert_eq!(b.estimated, a.estimated);
+    let c = w.run_pair(&id).unwrap();
+    assert_eq!(
+        fpfh(&c),
+        [(
+            "fpfh source + target (in memory)".to_string(),
+            StageState::Cached
+        )]
+    );
+    assert_eq!(c.estimated, a.estimated);
 }

@@ -11,7 +11,7 @@ use cgenreg::app::channel::{RunProgress, RunSelection};
 use cgenreg::app::model::{InspectorModel, PairEntry, PairStatus};
 use cgenreg::app::worker::PipelineWorker;
 use cgenreg::app::{spawn_worker, Command, WorkerEvent, WorkerHandle};
-use cgenreg::pipeline::cache::Cache;
+use cgenreg::cache::Cache;
 use cgenreg::pipeline::RegisterParams;
 
 /// The staged data, or None (skip) outside CI; under CI=true it must exist.

@@ -12,9 +12,9 @@ use std::time::{Duration, Instant};
 use cgenreg::app::model::{InspectorModel, PairStatus, SettingsTag};
 use cgenreg::app::worker::PipelineWorker;
 use cgenreg::app::{paper_defaults, spawn_worker, Command, OpenKind, WorkerEvent, WorkerHandle};
+use cgenreg::cache::Cache;
 use cgenreg::dataset::manifest::Dataset;
-use cgenreg::pipeline::cache::Cache;
-use cgenreg::pipeline::{register_pair_cached_keep, Memo, RegisterParams, WfmSpec};
+use cgenreg::pipeline::{RegisterParams, Registration, WfmSpec};
 
 fn manifest(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(format!("assets/manifests/{name}.toml"))
@@ -178,9 +178,7 @@ fn library_result(
     cache: &Cache,
 ) -> cgenreg::pipeline::RegistrationResult {
     let pair = Dataset::load(manifest).unwrap().load_pair(id).unwrap();
-    register_pair_cached_keep(&pair, params, Some(cache), &Memo::default())
-        .unwrap()
-        .0
+    Registration::new(params).cache(cache).run(&pair).unwrap()
 }
 
 fn assert_same_result(

@@ -11,10 +11,9 @@ use std::time::{Duration, Instant};
 use cgenreg::app::model::InspectorModel;
 use cgenreg::app::worker::PipelineWorker;
 use cgenreg::app::{spawn_worker, Command, LogLevel, StudyRequest, WorkerEvent};
+use cgenreg::cache::Cache;
 use cgenreg::dataset::Dataset;
-use cgenreg::pipeline::cache::Cache;
-use cgenreg::pipeline::image_branch::register_with_image;
-use cgenreg::pipeline::{RegisterParams, WfmSpec};
+use cgenreg::pipeline::{RegisterParams, Registration, WfmSpec};
 
 fn base() -> RegisterParams {
     common::demo_params(WfmSpec::Builtin)
@@ -69,7 +68,11 @@ fn k_sweep_button_fills_the_plot_from_the_worker() {
         assert_eq!((p.pairs, p.skipped), (1, 0));
         let mut ib = params.image.clone().unwrap();
         ib.k = p.k;
-        let r = register_with_image(&pair, &params, &ib, None).unwrap();
+        let q = RegisterParams {
+            image: Some(ib),
+            ..params.clone()
+        };
+        let r = Registration::new(&q).run(&pair).unwrap();
         let mm = r.metrics.unwrap();
         assert_eq!((p.rre_deg, p.rte_m), (mm.rre_deg, mm.rte_m), "K = {}", p.k);
         assert_eq!(p.recall, Some(if mm.success { 1.0 } else { 0.0 }));

@@ -6,7 +6,7 @@
 use cgenreg::dataset::pair_from_files;
 use cgenreg::estimate::{EstimatorKind, RansacParams};
 use cgenreg::pipeline::hypotheses::estimator_hypotheses;
-use cgenreg::pipeline::{register_pair, RegisterParams};
+use cgenreg::pipeline::{RegisterParams, Registration};
 
 fn check(estimator: EstimatorKind, seeds: bool) {
     let Some(root) = cgenreg::testing::test_data_root() else {
@@ -23,7 +23,7 @@ fn check(estimator: EstimatorKind, seeds: bool) {
         estimator,
         ..Default::default()
     };
-    let res = register_pair(&pair, &params).unwrap();
+    let res = Registration::new(&params).run(&pair).unwrap();
     let gt = pair.gt_target_from_source.unwrap();
     let r = estimator_hypotheses(&res, &params, Some(&gt), 20)
         .unwrap()

@@ -9,7 +9,7 @@
 use crate::common;
 use cgenreg::dataset::Dataset;
 use cgenreg::pipeline::params::Preset;
-use cgenreg::pipeline::{register_pair_cached, RegisterParams};
+use cgenreg::pipeline::{RegisterParams, Registration};
 use nalgebra::{Isometry3, Matrix4};
 use std::path::Path;
 
@@ -134,14 +134,14 @@ fn ladder(ids: &[&str], at_least: usize) {
     let ds = Dataset::load(&manifest()).unwrap();
     // The pairs share scans: each scan's FPFH is computed once, through the stage cache.
     let dir = tempfile::tempdir().unwrap();
-    let cache = cgenreg::pipeline::cache::Cache::open(dir.path()).unwrap();
+    let cache = cgenreg::cache::Cache::open(dir.path()).unwrap();
     let t0 = std::time::Instant::now();
     let mut ok = 0;
     for id in ids {
         let preset = ds.preset_of(id).expect("the manifest names a preset");
         let params = RegisterParams::preset(preset);
         let pair = ds.load_pair(id).unwrap();
-        let r = register_pair_cached(&pair, &params, Some(&cache)).unwrap();
+        let r = Registration::new(&params).cache(&cache).run(&pair).unwrap();
         let m = r.metrics.unwrap();
         assert_eq!(m.criterion.max_rte_m, 2.0, "judged by KITTI's 5° / 2 m");
         println!(

@@ -16,9 +16,7 @@
 #![cfg(feature = "onnx")]
 
 use cgenreg::dataset::Dataset;
-use cgenreg::pipeline::{
-    register_pair_cached, ImageBranchParams, RegisterParams, VfmSpec, WfmSpec,
-};
+use cgenreg::pipeline::{ImageBranchParams, RegisterParams, Registration, VfmSpec, WfmSpec};
 use cgenreg::vfm::mast3r::{self, Mast3r};
 use cgenreg::vfm::PairModel;
 use image::RgbImage;
@@ -301,7 +299,7 @@ fn real_mast3r_export_runs_in_cgenreg() {
         }),
         ..Default::default()
     };
-    let r = register_pair_cached(&pair, &p, None).unwrap();
+    let r = Registration::new(&p).run(&pair).unwrap();
     let img = r.image.as_ref().unwrap();
     println!(
         "end to end on {}: vfm {}, {} correspondences, metrics {:?} (random weights: the pose is not expected to be right)",

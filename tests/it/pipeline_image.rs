@@ -5,11 +5,11 @@
 
 use crate::common;
 
+use cgenreg::cache::Cache;
 use cgenreg::dataset::Dataset;
 use cgenreg::fusion::Calibration;
-use cgenreg::pipeline::cache::Cache;
 use cgenreg::pipeline::stages::{invalidated, StageKeys, StageName};
-use cgenreg::pipeline::{register_pair_cached, ImageBranchParams, RegisterParams, WfmSpec};
+use cgenreg::pipeline::{ImageBranchParams, RegisterParams, Registration, WfmSpec};
 use std::path::Path;
 
 /// Stages read from the cache on a repeat run (everything before the similarities).
@@ -63,7 +63,7 @@ fn full_method_on_demo_with_cache() {
     let p = params();
 
     // 1. End to end, everything computed.
-    let r1 = register_pair_cached(&pair, &p, Some(&cache)).unwrap();
+    let r1 = Registration::new(&p).cache(&cache).run(&pair).unwrap();
     for s in CACHED {
         assert_eq!(status(&r1, s), "computed", "{s}");
     }
@@ -109,7 +109,7 @@ fn full_method_on_demo_with_cache() {
     assert_stored(&keys, dir.path());
 
     // 2. Same parameters: every stage up to the similarities is a cache hit, same pose.
-    let r2 = register_pair_cached(&pair, &p, Some(&cache)).unwrap();
+    let r2 = Registration::new(&p).cache(&cache).run(&pair).unwrap();
     for s in CACHED {
         assert_eq!(status(&r2, s), "cached", "{s}");
     }
@@ -123,7 +123,7 @@ fn full_method_on_demo_with_cache() {
         invalidated(&pair, &p, &p3, Some(&cache), &Default::default()).unwrap(),
         [StageName::Fusion]
     );
-    let r3 = register_pair_cached(&pair, &p3, Some(&cache)).unwrap();
+    let r3 = Registration::new(&p3).cache(&cache).run(&pair).unwrap();
     for s in CACHED {
         assert_eq!(status(&r3, s), "cached", "{s}");
     }
@@ -155,7 +155,7 @@ fn full_method_on_demo_with_cache() {
         *b ^= 0x5a;
     }
     std::fs::write(&desc, bytes).unwrap();
-    let r4 = register_pair_cached(&pair, &p, Some(&cache)).unwrap();
+    let r4 = Registration::new(&p).cache(&cache).run(&pair).unwrap();
     assert!(
         r4.warnings
             .iter()
@@ -183,16 +183,12 @@ fn invalid_k_is_a_clear_error() {
     let pair = ds.load_pair(&ds.pairs()[0].id.clone()).unwrap();
     let mut p = params();
     p.image.as_mut().unwrap().k = 9;
-    let e = register_pair_cached(&pair, &p, None)
-        .unwrap_err()
-        .to_string();
+    let e = Registration::new(&p).run(&pair).unwrap_err().to_string();
     assert!(e.contains("K = 9"), "{e}");
     // L larger than the fragment's frames.
     let mut p = params();
     p.image.as_mut().unwrap().frames_per_fragment = 50;
-    let e = register_pair_cached(&pair, &p, None)
-        .unwrap_err()
-        .to_string();
+    let e = Registration::new(&p).run(&pair).unwrap_err().to_string();
     assert!(e.contains("L = 50"), "{e}");
 }
 
@@ -210,7 +206,7 @@ fn pair_conditioned_vfm_end_to_end() {
     p.image.as_mut().unwrap().vfm = cgenreg::pipeline::VfmSpec::Mast3r {
         model: root.join("tests/fixtures/tiny_mast3r.onnx"),
     };
-    let r1 = register_pair_cached(&pair, &p, Some(&cache)).unwrap();
+    let r1 = Registration::new(&p).cache(&cache).run(&pair).unwrap();
     let stage = "vfm view pairs + point features";
     assert_eq!(status(&r1, stage), "computed");
     assert!(r1.timings.iter().all(|t| t.stage != "vfm source views"));
@@ -221,7 +217,7 @@ fn pair_conditioned_vfm_end_to_end() {
     let keys = StageKeys::compute(&pair, &p, Some(&cache), &Default::default()).unwrap();
     assert!(keys.is_known(StageName::PairVfm) && !keys.is_known(StageName::Vfm));
     assert_stored(&keys, dir.path());
-    let r2 = register_pair_cached(&pair, &p, Some(&cache)).unwrap();
+    let r2 = Registration::new(&p).cache(&cache).run(&pair).unwrap();
     assert_eq!(status(&r2, stage), "cached");
     assert_eq!(r1.correspondences, r2.correspondences);
     assert_eq!(r1.target_from_source, r2.target_from_source);
@@ -229,9 +225,7 @@ fn pair_conditioned_vfm_end_to_end() {
     p.image.as_mut().unwrap().vfm = cgenreg::pipeline::VfmSpec::Mast3r {
         model: root.join("models/xfeat.onnx"),
     };
-    let e = register_pair_cached(&pair, &p, None)
-        .unwrap_err()
-        .to_string();
+    let e = Registration::new(&p).run(&pair).unwrap_err().to_string();
     assert!(e.contains("xfeat.onnx"), "{e}");
 }
 
@@ -240,8 +234,7 @@ fn pair_conditioned_vfm_end_to_end() {
 #[test]
 fn fuse_from_kept_similarities_equals_full_tail() {
     use cgenreg::fusion::{FusionMode, Selection};
-    use cgenreg::pipeline::fuse::{fuse_and_finish, similarities, FusionInputs};
-    use cgenreg::pipeline::image_branch::register_with_image_keep;
+    use cgenreg::pipeline::fuse::{similarities, FusionInputs};
     let manifest = common::demo_manifest();
     let ds = Dataset::load(&manifest).unwrap();
     let pair = ds.load_pair(&ds.pairs()[0].id.clone()).unwrap();
@@ -252,15 +245,13 @@ fn fuse_from_kept_similarities_equals_full_tail() {
         voxel: 0.1,
         ..params()
     };
-    let (_, inputs) = register_with_image_keep(
-        &pair,
-        &p,
-        p.image.as_ref().unwrap(),
-        None,
-        &Default::default(),
-        true,
-    )
-    .unwrap();
+    let inputs = Registration::new(&p)
+        .keep(true)
+        .run(&pair)
+        .unwrap()
+        .inputs
+        .unwrap();
+    let inputs = FusionInputs::clone(&inputs);
     let geo_only = FusionInputs {
         image: None,
         image_label: None,
@@ -278,8 +269,9 @@ fn fuse_from_kept_similarities_equals_full_tail() {
             q.fusion.calibration_geo = Calibration::RowSoftmax { tau };
             q.fusion.mode = mode;
             q.fusion.selection = sel;
-            let a = fuse_and_finish(&pair, &q, inp, None).unwrap();
-            let b = fuse_and_finish(&pair, &q, inp, Some(&sims)).unwrap();
+            let tail = Registration::new(&q);
+            let a = tail.refuse_from_memory(&pair, inp, None).unwrap();
+            let b = tail.refuse_from_memory(&pair, inp, Some(&sims)).unwrap();
             let pairs = |r: &cgenreg::pipeline::RegistrationResult| {
                 let mut v = r
                     .correspondences
@@ -313,7 +305,7 @@ fn cloud_only_pair_renders_virtual_depth_frames() {
     let dir = tempfile::tempdir().unwrap();
     let cache = Cache::open(dir.path()).unwrap();
     let p = params();
-    let r = register_pair_cached(&pair, &p, Some(&cache)).unwrap();
+    let r = Registration::new(&p).cache(&cache).run(&pair).unwrap();
     assert!(
         r.warnings.iter().any(|w| w.contains("virtual pinhole")),
         "{:?}",
@@ -335,7 +327,7 @@ fn cloud_only_pair_renders_virtual_depth_frames() {
     // Second run: same frames from the cache, same pose, and every cached stage a hit (the
     // poses read back from the virtual-frames entry are bit for bit those computed, so the
     // lift and image-point keys repeat: no duplicate entries).
-    let r2 = register_pair_cached(&pair, &p, Some(&cache)).unwrap();
+    let r2 = Registration::new(&p).cache(&cache).run(&pair).unwrap();
     assert_eq!(r.target_from_source, r2.target_from_source);
     for s in [
         "lift source",
@@ -362,7 +354,7 @@ fn cloud_only_pair_renders_virtual_depth_frames() {
     let png = vf.dir.join("frame-000000.depth.png");
     let bytes = std::fs::read(&png).unwrap();
     std::fs::write(&png, &bytes[..bytes.len() / 2]).unwrap();
-    let r3 = register_pair_cached(&pair, &p, Some(&cache)).unwrap();
+    let r3 = Registration::new(&p).cache(&cache).run(&pair).unwrap();
     assert!(
         r3.warnings
             .iter()
@@ -408,7 +400,7 @@ fn lidar_pair_goes_through_the_ftheta_camera() {
         }),
         ..Default::default()
     };
-    let r = register_pair_cached(&pair, &p, Some(&cache)).unwrap();
+    let r = Registration::new(&p).cache(&cache).run(&pair).unwrap();
     assert!(
         r.warnings.iter().any(|w| w.contains("virtual f-theta")),
         "{:?}",
@@ -447,7 +439,7 @@ fn lidar_pair_goes_through_the_ftheta_camera() {
         ib.lidar_cameras = 2;
         ib.k = 2;
     }
-    let r2 = register_pair_cached(&pair, &p2, Some(&cache)).unwrap();
+    let r2 = Registration::new(&p2).cache(&cache).run(&pair).unwrap();
     assert!(r2.warnings.iter().any(|w| w.contains("2 such cameras")));
     assert!(
         !r2.warnings
@@ -505,7 +497,7 @@ fn cloud_only_pair_without_cache_leaves_no_virtual_frames() {
             .filter(|n| n.starts_with(&mine))
             .collect()
     };
-    let r = register_pair_cached(&pair, &params(), None).unwrap();
+    let r = Registration::new(&params()).run(&pair).unwrap();
     assert!(r.warnings.iter().any(|w| w.contains("virtual pinhole")));
     assert_eq!(leftovers(), Vec::<String>::new());
 }
@@ -515,22 +507,22 @@ fn cloud_only_pair_without_cache_leaves_no_virtual_frames() {
 /// gives the same result (the bound changes only what is recomputed).
 #[test]
 fn a_callers_memo_loads_the_model_once_and_its_bound_changes_no_result() {
-    use cgenreg::pipeline::{memo::Memo, register_pair_cached_keep};
+    use cgenreg::pipeline::memo::Memo;
     let ds = Dataset::load(&common::demo_manifest()).unwrap();
     let pair = ds.load_pair(&ds.pairs()[0].id.clone()).unwrap();
     let p = params();
     let memo = Memo::default();
     assert_eq!(memo.sizes().models, 0);
-    let (a, _) = register_pair_cached_keep(&pair, &p, None, &memo).unwrap();
+    let a = Registration::new(&p).memo(&memo).run(&pair).unwrap();
     let after_one = memo.sizes();
     assert_eq!(after_one.models, 1, "{after_one:?}");
     let l = p.image.as_ref().unwrap().frames_per_fragment;
     // the model file and (at least) the 2L depth frames of the depth video
     assert!(after_one.file_hashes > 2 * l, "{after_one:?}");
-    let (b, _) = register_pair_cached_keep(&pair, &p, None, &memo).unwrap();
+    let b = Registration::new(&p).memo(&memo).run(&pair).unwrap();
     assert_eq!(memo.sizes(), after_one, "a second run adds nothing");
     let tiny = Memo::with_capacity(1, 1, 1);
-    let (c, _) = register_pair_cached_keep(&pair, &p, None, &tiny).unwrap();
+    let c = Registration::new(&p).memo(&tiny).run(&pair).unwrap();
     assert_eq!(tiny.sizes().file_hashes, 1);
     for r in [&b, &c] {
         assert_eq!(r.estimate, a.estimate);

@@ -252,7 +252,7 @@ fn demo_generate(cache: &Path) -> Command {
 
 /// Every entry as (stage/hash, [(file, blake3)]), from `cache list`-independent reading.
 fn entries(cache: &Path) -> Vec<(String, Vec<(String, String)>)> {
-    let c = cgenreg::pipeline::cache::Cache::open(cache).unwrap();
+    let c = cgenreg::cache::Cache::open(cache).unwrap();
     let mut v: Vec<_> = c
         .list()
         .unwrap()

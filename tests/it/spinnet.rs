@@ -152,11 +152,11 @@ fn a_missing_export_is_an_error_naming_the_file_and_the_script() {
 /// BENCHMARKS.md, not here.
 #[test]
 fn spinnet_geometry_is_a_cached_stage_with_its_provenance() {
+    use cgenreg::cache::Cache;
     use cgenreg::dataset::Dataset;
-    use cgenreg::pipeline::cache::Cache;
     use cgenreg::pipeline::params::{GeoFeatureSource, Preset};
     use cgenreg::pipeline::stages::geo_spinnet::{self, SpinNetInput};
-    use cgenreg::pipeline::{register_pair_cached, Memo, RegisterParams};
+    use cgenreg::pipeline::{Memo, RegisterParams, Registration};
     let Some((onnx, _)) = artefacts(Protocol::Kitti) else {
         return;
     };
@@ -174,7 +174,7 @@ fn spinnet_geometry_is_a_cached_stage_with_its_provenance() {
     };
     let dir = tempfile::tempdir().unwrap();
     let cache = Cache::open(dir.path()).unwrap();
-    let first = register_pair_cached(&pair, &p, Some(&cache)).unwrap();
+    let first = Registration::new(&p).cache(&cache).run(&pair).unwrap();
     assert!(
         first.geo_features.starts_with("spinnet-kitti@"),
         "{}",
@@ -194,7 +194,7 @@ fn spinnet_geometry_is_a_cached_stage_with_its_provenance() {
         .unwrap()
         .count();
     assert_eq!(entries, 2, "one entry per scan");
-    let second = register_pair_cached(&pair, &p, Some(&cache)).unwrap();
+    let second = Registration::new(&p).cache(&cache).run(&pair).unwrap();
     assert_eq!(status(&second, "spinnet source"), "cached");
     assert_eq!(status(&second, "spinnet target"), "cached");
     assert_eq!(second.target_from_source, first.target_from_source);

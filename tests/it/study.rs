@@ -4,13 +4,12 @@
 
 use crate::common;
 
+use cgenreg::cache::Cache;
 use cgenreg::dataset::Dataset;
-use cgenreg::pipeline::cache::Cache;
-use cgenreg::pipeline::image_branch::register_with_image;
 use cgenreg::pipeline::study::{
     k_settings, markdown_table, prompt_settings, run_study, StudyKind, StudyProgress,
 };
-use cgenreg::pipeline::{RegisterParams, WfmSpec};
+use cgenreg::pipeline::{RegisterParams, Registration, WfmSpec};
 
 fn params() -> RegisterParams {
     common::demo_params(WfmSpec::Builtin)
@@ -70,7 +69,11 @@ fn k_sweep_matches_direct_runs_and_skips_invalid_k() {
         // Same numbers as the pipeline run directly at this K (in memory, no cache).
         let mut ib = p.image.clone().unwrap();
         ib.k = k;
-        let direct = register_with_image(&pair, &p, &ib, None).unwrap();
+        let q = RegisterParams {
+            image: Some(ib),
+            ..p.clone()
+        };
+        let direct = Registration::new(&q).run(&pair).unwrap();
         let m = direct.metrics.unwrap();
         let got = &row.per_pair[0];
         assert_eq!((got.rre_deg, got.rte_m), (m.rre_deg, m.rte_m), "K = {k}");

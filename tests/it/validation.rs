@@ -4,7 +4,7 @@
 
 use cgenreg::dataset::pair_from_files;
 use cgenreg::geometry::PointCloud;
-use cgenreg::pipeline::{register_pair, RegisterParams};
+use cgenreg::pipeline::{RegisterParams, Registration};
 use nalgebra::Point3;
 use std::path::Path;
 
@@ -59,7 +59,8 @@ fn too_small_scans_are_named_by_side_and_file() {
         write_xyz(&small, pts);
         for (side, src, tgt) in [("source", &small, &big), ("target", &big, &small)] {
             let pair = pair_from_files(src, tgt, None).unwrap();
-            let e = register_pair(&pair, &RegisterParams::default())
+            let e = Registration::new(&RegisterParams::default())
+                .run(&pair)
                 .unwrap_err()
                 .to_string();
             assert!(
@@ -106,8 +107,8 @@ fn nan_rows_and_a_far_outlier_are_reported_and_change_nothing() {
     let dirty = pair_from_files(&d.join("src.npy"), &tgt, Some(&d.join("gt.npy"))).unwrap();
     assert_eq!(dirty.target.cloud.len(), n + 1);
     let p = RegisterParams::default();
-    let a = register_pair(&clean, &p).unwrap();
-    let b = register_pair(&dirty, &p).unwrap();
+    let a = Registration::new(&p).run(&clean).unwrap();
+    let b = Registration::new(&p).run(&dirty).unwrap();
     let w = b.warnings.join("\n");
     assert!(
         w.contains(&format!("{nans} of {} points", nans + n + 1)) && w.contains("NaN"),
@@ -155,7 +156,9 @@ fn a_cloud_against_its_mirror_image_is_flagged() {
     let m = dir.path().join("mirror.ply");
     cgenreg::io::ply::write_ply(&m, &PointCloud::from_points(mirrored)).unwrap();
     let pair = pair_from_files(&src, &m, None).unwrap();
-    let r = register_pair(&pair, &RegisterParams::default()).unwrap();
+    let r = Registration::new(&RegisterParams::default())
+        .run(&pair)
+        .unwrap();
     assert!(
         r.warnings
             .iter()

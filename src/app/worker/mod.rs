@@ -5,7 +5,8 @@
 //! What is kept in memory per pair: the geometric branch (keypoints + FPFH) and, after a run
 //! with the image branch, every input of the in-memory stages ([`FusionInputs`]) and the
 //! selected views. A change of temperature, calibration, fusion mode, selection or estimator
-//! then re-runs only similarity, fusion and estimation ([`crate::pipeline::fuse::fuse_and_finish`]); a change of
+//! then re-runs only similarity, fusion and estimation
+//! ([`crate::pipeline::Registration::refuse_from_memory`]); a change of
 //! prompt, seed, K, margin, VFM or backend re-runs the cached pipeline.
 //!
 //! Model conventions: `model.source` / `model.target` start with the registration keypoints
@@ -32,10 +33,10 @@ use std::time::Instant;
 use super::channel::{Command, EventSink, LogLevel, Worker, WorkerEvent};
 use super::model::StageRole;
 use super::model::{InspectorModel, PairEntry, PairStatus, StageInfo, StageState};
+use crate::cache::Cache;
 use crate::dataset::manifest::Dataset;
 use crate::dataset::ScanPair;
 use crate::fusion::fuse::FusionMode;
-use crate::pipeline::cache::Cache;
 use crate::pipeline::fuse::{FusionInputs, Similarities};
 use crate::pipeline::memo::{Lru, Memo};
 use crate::pipeline::stages::{StageKeys, StageName};
@@ -178,7 +179,7 @@ impl PipelineWorker {
     /// A worker on `dataset` with the default stage cache (`$CGENREG_CACHE` or
     /// `~/.cache/cgenreg`).
     pub fn new(dataset: Dataset, base: RegisterParams) -> Self {
-        let dir = crate::pipeline::image_branch::default_cache_dir();
+        let dir = crate::cache::default_cache_dir();
         let (cache, cache_note) = match Cache::open(&dir) {
             Ok(c) => (Some(Arc::new(c)), None),
             Err(e) => (
@@ -333,7 +334,7 @@ impl Worker for PipelineWorker {
                     return;
                 };
                 let t = Instant::now();
-                match self.refuse() {
+                match self.refuse_from_memory() {
                     Some(r) => self.report(&id, t, r, "re-fuse from memory", events),
                     None => self.run_and_report(&id, generate, events),
                 }

@@ -8,9 +8,9 @@ use std::time::Instant;
 use super::PipelineWorker;
 use crate::app::channel::OpenKind;
 use crate::app::channel::{EventSink, LogLevel, WorkerEvent};
+use crate::cache::Cache;
 use crate::dataset::manifest::Dataset;
 use crate::dataset::ScanPair;
-use crate::pipeline::cache::Cache;
 use crate::pipeline::params::cosmos_output_settings;
 use crate::pipeline::WfmSpec;
 
@@ -34,9 +34,7 @@ impl PipelineWorker {
         let t = Instant::now();
         match crate::dataset::open::open_dataset(kind, &paths) {
             Ok(d) => {
-                let d = d.with_fragment_cache(
-                    Cache::open(crate::pipeline::cache::default_cache_dir()).ok(),
-                );
+                let d = d.with_fragment_cache(Cache::open(crate::cache::default_cache_dir()).ok());
                 let first = d.pairs().first().map(|p| p.id.clone());
                 let pre = match &first {
                     Some(id) => match d.load_pair(id) {

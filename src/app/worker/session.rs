@@ -13,18 +13,16 @@ use crate::app::model::{
     InspectorModel, PairEntry, PairStatus, SettingsTag, StageInfo, StageState,
 };
 use crate::dataset::ScanPair;
-use crate::pipeline::fuse::{fuse_and_finish_memo, similarities, EstimateMemo, FusionInputs};
-use crate::pipeline::geo::{fpfh_branch, GeoBranch};
-use crate::pipeline::image_branch::register_with_image_keep;
+use crate::pipeline::fuse::{similarities, EstimateMemo, FusionInputs};
 use crate::pipeline::stages::{StageKeys, StageName};
-use crate::pipeline::RegistrationResult;
+use crate::pipeline::{Registration, RegistrationResult};
 
 /// What [`PipelineWorker::register`] gives: the result, the in-memory stages' inputs (for
 /// re-fusion and posteriors), a note for the image-branch panel and the prompt whose
 /// generation is missing.
 pub(super) struct Registered {
     pub(super) result: RegistrationResult,
-    pub(super) inputs: Option<Arc<FusionInputs>>,
+    pub(super) inputs: Arc<FusionInputs>,
     pub(super) note: Option<String>,
     pub(super) missing: Option<String>,
     /// The estimate of this run with its inputs: the first re-fusion that keeps them (a
@@ -39,42 +37,39 @@ impl PipelineWorker {
         self.run_pair_with(id, true)
     }
 
-    /// The geometric branch of `pair` from memory, or computed (FPFH) and kept.
-    fn geometry(
+    /// The kept geometric branch of `pair` (FPFH at `voxel`), from a run of this pair with
+    /// the same clouds and voxel, and its timing row.
+    fn kept_geometry(
         &mut self,
         pair: &ScanPair,
         voxel: f64,
-    ) -> crate::Result<(Arc<FusionInputs>, Vec<crate::pipeline::StageTiming>)> {
+    ) -> crate::Result<Option<(Arc<FusionInputs>, crate::pipeline::StageTiming)>> {
         let key = geo_memo_key(pair, voxel)?;
-        if let Some(g) = self.geo.get(&key) {
+        Ok(self.geo.get(&key).map(|g| {
             let t = crate::pipeline::StageTiming {
                 stage: "fpfh source + target (in memory)".into(),
                 ms: 0.0,
                 status: "cached".into(),
             };
-            return Ok((g.clone(), vec![t]));
-        }
-        let mut timings = Vec::new();
-        let mut branch = |name: &str, cloud| -> crate::Result<GeoBranch> {
-            let t = Instant::now();
-            let b = fpfh_branch(cloud, voxel)?;
-            timings.push(crate::pipeline::StageTiming {
-                stage: name.into(),
-                ms: t.elapsed().as_secs_f64() * 1e3,
-                status: "computed".into(),
-            });
-            Ok(b)
+            (g.clone(), t)
+        }))
+    }
+
+    /// Keeps the geometric branch of `inputs` (FPFH at `voxel`) for geometry-only runs of
+    /// `pair`.
+    fn keep_geometry(&mut self, pair: &ScanPair, voxel: f64, inputs: &FusionInputs) {
+        let Ok(key) = geo_memo_key(pair, voxel) else {
+            return;
         };
-        let s = branch("fpfh source", &pair.source.cloud)?;
-        let t = branch("fpfh target", &pair.target.cloud)?;
-        let g = Arc::new(FusionInputs {
-            source_geo: s,
-            target_geo: t,
-            image: None,
-            image_label: None,
-        });
-        self.geo.insert(key, g.clone());
-        Ok((g, timings))
+        if !self.geo.contains_key(&key) {
+            let g = Arc::new(FusionInputs {
+                source_geo: inputs.source_geo.clone(),
+                target_geo: inputs.target_geo.clone(),
+                image: None,
+                image_label: None,
+            });
+            self.geo.insert(key, g);
+        }
     }
 
     /// [`run_pair`](Self::run_pair); with `generate` false a generation missing from the cache
@@ -110,10 +105,8 @@ impl PipelineWorker {
         if let Some(row) = invalidated {
             model.stages.insert(0, row);
         }
-        let keys = inputs.as_ref().and_then(|_| {
-            StageKeys::compute(&pair, &params, self.cache.as_deref(), &self.memo).ok()
-        });
-        let kept = inputs.map(|inputs| Kept {
+        let keys = StageKeys::compute(&pair, &params, self.cache.as_deref(), &self.memo).ok();
+        let kept = Some(Kept {
             keys,
             sims: similarities(&inputs).ok().map(Arc::new),
             estimates,
@@ -132,10 +125,11 @@ impl PipelineWorker {
         Ok(self.with_default_posterior())
     }
 
-    /// Registers `pair` with the current parameters: the image branch through the stage
-    /// cache when a WFM is chosen (an error when it cannot run: never a geometry-only result
-    /// under its label), else the geometric branch from memory. The one registration of
-    /// the inspector: a single pair, "Run all" and the studies' rows all come from it.
+    /// Registers `pair` with the current parameters ([`Registration::run`] through the stage
+    /// cache): the image branch when a WFM is chosen (an error when it cannot run: never a
+    /// geometry-only result under its label), else the geometric branch alone, from memory
+    /// when this pair's FPFH branch is kept. The one registration of the inspector: a single
+    /// pair, "Run all" and the studies' rows all come from it.
     pub(super) fn register(
         &mut self,
         id: &str,
@@ -145,68 +139,58 @@ impl PipelineWorker {
         let params = self.params.clone();
         let mut note: Option<String> = None;
         let missing: Option<String> = None;
-        let mut with_image: Option<(RegistrationResult, FusionInputs)> = None;
         let estimates = EstimateMemo::default();
-        if let Some(ib) = &params.image {
-            if let Some(n) = self.cache_note.take() {
-                note = Some(n);
+        let cache = self.cache.clone();
+        let fpfh = params.geo_features == crate::pipeline::params::GeoFeatureSource::Fpfh;
+        let kept = match (&params.image, fpfh) {
+            (None, true) => self.kept_geometry(pair, params.voxel)?,
+            _ => None,
+        };
+        let (result, inputs) = if let Some((g, row)) = kept {
+            // geometry only, its branch kept from an earlier run of this pair: the tail alone
+            let t0 = Instant::now();
+            let reg = Registration::new(&params).estimates(&estimates);
+            let mut r = reg.refuse_from_memory(pair, &g, None)?;
+            r.timings.insert(0, row);
+            r.total_ms = t0.elapsed().as_secs_f64() * 1e3;
+            (r, g)
+        } else {
+            if params.image.is_some() {
+                if let Some(n) = self.cache_note.take() {
+                    note = Some(n);
+                }
             }
-            let cache = self.cache.clone();
+            // the image branch through the stage cache when a WFM is chosen, else the
+            // geometric branch alone (FPFH and SpinNet through their cached stages)
+            let reg = Registration::new(&params)
+                .cache(cache.as_deref())
+                .memo(&self.memo)
+                .estimates(&estimates)
+                .keep(true)
+                .generate(generate);
             // A panic here reaches the worker thread's guard (`spawn_worker`), which reports it.
-            match register_with_image_keep(
-                pair,
-                &params,
-                ib,
-                cache.as_deref(),
-                &self.memo,
-                generate,
-            ) {
-                Ok(x) => with_image = Some(x),
+            let mut r = match (reg.run(pair), &params.image) {
+                (Ok(r), _) => r,
+                (Err(e), None) => return Err(e),
                 // never a geometry-only result under an image-branch label: the pair is an
                 // error with its reason (the UI offers the generator, or geometry alone)
-                Err(e @ crate::Error::GenerationNotCached { .. }) => return Err(e),
-                Err(e) => {
+                (Err(e @ crate::Error::GenerationNotCached { .. }), Some(_)) => return Err(e),
+                (Err(e), Some(ib)) => {
                     return Err(crate::Error::Invalid(format!(
                         "the image branch cannot run for {id} (WFM: {}): {e}; nothing \
                          was registered (“Run geometry only” runs the geometric branch alone)",
                         ib.backend.label()
                     )))
                 }
+            };
+            let inputs = r.inputs.take().ok_or_else(|| {
+                crate::Error::Invalid("the registration kept no fusion inputs".into())
+            })?;
+            if fpfh {
+                // its geometric branch serves later geometry-only runs of this pair
+                self.keep_geometry(pair, params.voxel, &inputs);
             }
-        }
-        let (result, inputs) = match with_image {
-            Some((r, i)) => {
-                // keep its geometric branch for geometry-only runs of this pair
-                let key = geo_memo_key(pair, params.voxel)?;
-                if !self.geo.contains_key(&key) {
-                    let g = Arc::new(FusionInputs {
-                        source_geo: i.source_geo.clone(),
-                        target_geo: i.target_geo.clone(),
-                        image: None,
-                        image_label: None,
-                    });
-                    self.geo.insert(key, g);
-                }
-                (r, Some(Arc::new(i)))
-            }
-            None => {
-                let mut gp = params.clone();
-                gp.image = None;
-                if gp.geo_features == crate::pipeline::params::GeoFeatureSource::Fpfh {
-                    let t0 = Instant::now();
-                    let (g, mut timings) = self.geometry(pair, gp.voxel)?;
-                    let mut r = fuse_and_finish_memo(pair, &gp, &g, None, Some(&estimates))?;
-                    timings.append(&mut r.timings);
-                    r.timings = timings;
-                    r.total_ms = t0.elapsed().as_secs_f64() * 1e3;
-                    (r, Some(g))
-                } else {
-                    // learned features: keep the inputs too (posteriors, export)
-                    let (r, i) =
-                        crate::pipeline::register_pair_cached_keep(pair, &gp, None, &self.memo)?;
-                    (r, Some(Arc::new(i)))
-                }
-            }
+            (r, inputs)
         };
         if let Some(img) = &result.image {
             let asked = params
@@ -291,7 +275,7 @@ impl PipelineWorker {
     /// Re-runs similarity, fusion and estimation from memory when the current pair was run with
     /// the same image-branch settings (only calibration, fusion, selection or estimator
     /// changed). None: a full (cached) run is needed.
-    pub fn refuse(&mut self) -> Option<crate::Result<InspectorModel>> {
+    pub fn refuse_from_memory(&mut self) -> Option<crate::Result<InspectorModel>> {
         let params = self.params.clone();
         let label_settings = self.params.fusion.mode;
         let cache = self.cache.clone();
@@ -317,13 +301,9 @@ impl PipelineWorker {
         }
         // the re-fuse row times the re-fuse alone (the key comparison has its own row)
         let t0 = Instant::now();
-        let run = fuse_and_finish_memo(
-            &cur.pair,
-            &params,
-            &kept.inputs,
-            kept.sims.as_deref(),
-            Some(&kept.estimates),
-        );
+        let run = Registration::new(&params)
+            .estimates(&kept.estimates)
+            .refuse_from_memory(&cur.pair, &kept.inputs, kept.sims.as_deref());
         let mut result = match run {
             Ok(r) => r,
             Err(e) => return Some(Err(e)),

@@ -126,10 +126,10 @@ impl RunIdentity {
         Ok(RunIdentity {
             command: command.to_string(),
             manifest: manifest.display().to_string(),
-            manifest_blake3: super::cache::hash_file(manifest)?,
+            manifest_blake3: crate::cache::hash_file(manifest)?,
             split: split.map(str::to_string),
             limit,
-            params: super::cache::canonical(&params),
+            params: crate::cache::canonical(&params),
             shard_count,
             code_version: code_version(),
             binary_blake3: binary_hash()?,
@@ -158,7 +158,7 @@ pub fn binary_hash() -> Result<String> {
         std::sync::OnceLock::new();
     HASH.get_or_init(|| {
         let exe = std::env::current_exe().map_err(|e| format!("the running executable: {e}"))?;
-        super::cache::hash_file(&exe).map_err(|e| e.to_string())
+        crate::cache::hash_file(&exe).map_err(|e| e.to_string())
     })
     .clone()
     .map_err(Error::Invalid)

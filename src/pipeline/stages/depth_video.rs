@@ -4,10 +4,10 @@
 //! hash of the encoded frames only: the frames are rebuilt in memory when generation misses.
 
 use super::Ctx;
+use crate::cache::{Cache, CacheKey};
 use crate::camera::CameraModel;
 use crate::dataset::{FrameSet, Scan, ScanPair};
 use crate::error::{Error, Result};
-use crate::pipeline::cache::{Cache, CacheKey};
 use crate::pipeline::memo::Memo;
 use image::RgbImage;
 use rayon::prelude::*;

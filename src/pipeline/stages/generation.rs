@@ -5,9 +5,9 @@
 
 use super::depth_video::DepthVideo;
 use super::Ctx;
+use crate::cache::{Cache, CacheKey, Entry};
 use crate::dataset::{FrameSet, ScanPair};
 use crate::error::{Error, Result};
-use crate::pipeline::cache::{Cache, CacheKey, Entry};
 use crate::pipeline::memo::Memo;
 use crate::pipeline::params::{ImageBranchParams, WfmSpec};
 use crate::wfm::backend::{GenerateRequest, Generation, Provenance, WfmBackend};

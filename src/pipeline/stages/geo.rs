@@ -3,10 +3,10 @@
 //! voxel size and the point count.
 
 use super::{cloud_hash, points_flat, points_from, Ctx};
+use crate::cache::{Cache, CacheKey, Entry};
 use crate::dataset::Scan;
 use crate::error::{Error, Result};
 use crate::geometry::PointCloud;
-use crate::pipeline::cache::{Cache, CacheKey, Entry};
 use crate::pipeline::geo::{fpfh_branch, GeoBranch};
 use nalgebra::Point3;
 use serde_json::json;

@@ -4,11 +4,11 @@
 //! draws, and the model (the export's content hash).
 
 use super::{cloud_hash, points_flat, points_from, Ctx};
+use crate::cache::{Cache, CacheKey, Entry};
 use crate::dataset::Scan;
 use crate::error::{Error, Result};
 use crate::features::spinnet::{keypoints, Protocol};
 use crate::geometry::PointCloud;
-use crate::pipeline::cache::{Cache, CacheKey, Entry};
 use crate::pipeline::geo::GeoBranch;
 use crate::pipeline::memo::Memo;
 use serde_json::json;

@@ -5,9 +5,9 @@
 
 use super::vfm::ViewPoints;
 use super::Ctx;
+use crate::cache::{Cache, CacheKey, Entry};
 use crate::error::{Error, Result};
 use crate::features::Features;
-use crate::pipeline::cache::{Cache, CacheKey, Entry};
 use crate::vfm::lift::PixelLink;
 use rayon::prelude::*;
 use serde_json::json;

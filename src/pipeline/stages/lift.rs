@@ -5,10 +5,10 @@
 
 use super::depth_video::LIDAR_MAX_RANGE;
 use super::Ctx;
+use crate::cache::{Cache, CacheKey, Entry};
 use crate::camera::CameraModel;
 use crate::dataset::FrameSet;
 use crate::error::{Error, Result};
-use crate::pipeline::cache::{Cache, CacheKey, Entry};
 use crate::pipeline::memo::Memo;
 use crate::vfm::lift::{lift_views, LiftView, PixelLink};
 use nalgebra::Point3;

@@ -36,9 +36,9 @@ pub mod virtual_frames;
 
 pub use keys::{invalidated, StageKeys, StageName};
 
-use super::cache::{Cache, CacheKey, Entry};
 use super::memo::Memo;
 use super::result::Timer;
+use crate::cache::{Cache, CacheKey, Entry};
 use crate::error::{Error, Result};
 use crate::geometry::PointCloud;
 use nalgebra::Point3;

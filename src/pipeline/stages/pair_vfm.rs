@@ -5,11 +5,11 @@
 
 use super::vfm::load_pair_vfm;
 use super::Ctx;
+use crate::cache::{Cache, CacheKey, Entry};
 use crate::error::{Error, Result};
-use crate::pipeline::cache::{Cache, CacheKey, Entry};
-use crate::pipeline::params::VfmSpec;
 use crate::vfm::lift::PixelLink;
 use crate::vfm::pair_similarity::{pair_point_descriptors, PairPointDescriptors};
+use crate::vfm::VfmSpec;
 use crate::wfm::ViewSelection;
 use image::RgbImage;
 use serde_json::json;

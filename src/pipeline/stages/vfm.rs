@@ -8,11 +8,12 @@
 
 use super::generation::GenOut;
 use super::Ctx;
+use crate::cache::{Cache, CacheKey, Entry};
 use crate::error::{Error, Result};
-use crate::pipeline::cache::{Cache, CacheKey, Entry};
 use crate::pipeline::memo::Memo;
-use crate::pipeline::params::{ImageBranchParams, VfmSpec};
+use crate::pipeline::params::ImageBranchParams;
 use crate::vfm::lift::PixelLink;
+use crate::vfm::VfmSpec;
 use crate::vfm::{PairModel, PerImageModel, PointDescriptors};
 use image::RgbImage;
 use serde_json::json;

@@ -3,8 +3,8 @@
 //! length.
 
 use super::Ctx;
+use crate::cache::CacheKey;
 use crate::error::Result;
-use crate::pipeline::cache::CacheKey;
 use crate::pipeline::params::ImageBranchParams;
 use crate::wfm::ViewSelection;
 use serde_json::json;

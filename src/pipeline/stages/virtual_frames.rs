@@ -16,6 +16,7 @@
 //! and a pose that went through decimal text would give a second run other keys.
 
 use super::{cloud_hash, load_or_discard};
+use crate::cache::{Cache, CacheKey, Entry};
 use crate::camera::ftheta::{
     lidar_camera_from_scan_at, lidar_front_camera_from_scan, FThetaCamera,
 };
@@ -23,7 +24,6 @@ use crate::camera::CameraModel;
 use crate::dataset::{FrameSet, RgbdFrame, Scan};
 use crate::error::{Error, Result};
 use crate::io::limits::ScratchDir;
-use crate::pipeline::cache::{Cache, CacheKey, Entry};
 use crate::pipeline::params::{ImageBranchParams, LidarOrigin, VirtualCamera};
 use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion};
 use rayon::prelude::*;

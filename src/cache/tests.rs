@@ -1,4 +1,4 @@
-//! Tests of `pipeline::cache` (kept apart so the module stays readable).
+//! Tests of `cache` (kept apart so the module stays readable).
 
 use super::*;
 use serde_json::json;
