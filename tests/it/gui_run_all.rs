@@ -157,9 +157,10 @@ fn run_all_fills_every_row_as_running_the_pair_alone_and_keeps_the_current_pair(
     assert_eq!(after.matches.len(), before.matches.len());
     assert_eq!(after.pairs.len(), ids.len());
 
-    // each row equals a run of that pair alone, in a fresh worker
-    let dir2 = tempfile::tempdir().unwrap();
-    let mut alone = worker(dir2.path());
+    // each row equals a run of that pair alone, in a fresh worker on the same stage cache (it
+    // loads the FPFH features the run wrote, as a second session would; the cache's own
+    // correctness is tested in geometry_cache and cache_safety)
+    let mut alone = worker(dir.path());
     let mut rows_ok = 0;
     for (id, row) in ids.iter().zip(&after.pairs) {
         assert_eq!(&row.id, id);
