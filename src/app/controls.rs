@@ -11,8 +11,11 @@ use crate::estimate::scale::{
     Metres, Scaled, LIFT_RADIUS_PER_VOXEL, RANSAC_PER_VOXEL, THRESHOLD_PER_VOXEL,
 };
 use crate::estimate::EstimatorKind;
+use crate::features::spinnet::Protocol;
 use crate::fusion::{Calibration, FusionMode, Selection};
-use crate::pipeline::params::{ImageBranchParams, Preset, RegisterParams, WfmSpec};
+use crate::pipeline::params::{
+    GeoFeatureSource, ImageBranchParams, Preset, RegisterParams, WfmSpec,
+};
 use crate::vfm::VfmSpec;
 use crate::wfm::PromptPreset;
 
@@ -246,8 +249,11 @@ pub fn clamp_views(ib: &mut ImageBranchParams) {
     ib.k = ib.k.clamp(1, ib.frames_per_fragment - ib.margin);
 }
 
-/// The Noisy-AND prior (the keypoint voxel and the distances are in "Scale & success").
+/// The geometric branch's features (FPFH or SpinNet, as `--geo-features`; SpinNet's keypoint
+/// count as `--spinnet-keypoints`) and the Noisy-AND prior (the keypoint voxel and the
+/// distances are in "Scale & success").
 fn geometry_controls(ui: &mut egui::Ui, params: &mut RegisterParams) {
+    geo_feature_control(ui, &mut params.geo_features);
     let mut auto = params.fusion.prior.is_none();
     ui.horizontal(|ui| {
         ui.checkbox(&mut auto, "Noisy-AND prior 1/(N·M)");
@@ -266,6 +272,45 @@ fn geometry_controls(ui: &mut egui::Ui, params: &mut RegisterParams) {
         _ => {}
     }
     // the keypoint voxel and the inlier threshold are in "Scale & success"
+}
+
+/// The features of the geometric branch: FPFH, or SpinNet with one of the authors' two
+/// checkpoints (their ONNX exports, `docs/spinnet.md`) at a number of keypoints per scan.
+/// Features read from files (`--learned-source`, `--geotransformer-pkl`) are shown, not offered.
+fn geo_feature_control(ui: &mut egui::Ui, geo: &mut GeoFeatureSource) {
+    let label = |g: &GeoFeatureSource| match g {
+        GeoFeatureSource::Fpfh => "FPFH",
+        GeoFeatureSource::Spinnet {
+            protocol: Protocol::ThreeDMatch,
+            ..
+        } => "SpinNet (3DMatch checkpoint)",
+        GeoFeatureSource::Spinnet {
+            protocol: Protocol::Kitti,
+            ..
+        } => "SpinNet (KITTI checkpoint)",
+        GeoFeatureSource::Files { .. } => "learned features from files",
+        GeoFeatureSource::GeoTransformerPkl { .. } => "GeoTransformer pair file",
+    };
+    let options = [
+        GeoFeatureSource::Fpfh,
+        GeoFeatureSource::spinnet(Protocol::ThreeDMatch),
+        GeoFeatureSource::spinnet(Protocol::Kitti),
+    ];
+    let same = |a: &GeoFeatureSource, b: &GeoFeatureSource| match (a, b) {
+        (
+            GeoFeatureSource::Spinnet { protocol: p, .. },
+            GeoFeatureSource::Spinnet { protocol: q, .. },
+        ) => p == q,
+        _ => same_variant(a, b),
+    };
+    choice(ui, "Geometric features", geo, options, same, label);
+    if let GeoFeatureSource::Spinnet { keypoints, .. } = geo {
+        ui.add(
+            egui::Slider::new(keypoints, 16..=5000)
+                .logarithmic(true)
+                .text("SpinNet keypoints per scan"),
+        );
+    }
 }
 
 /// Each branch's calibration and temperature, the fusion mode, the selection (with top-k)

@@ -369,17 +369,28 @@ impl ImageArgs {
         &self,
         pipeline: &PipelineArgs,
     ) -> crate::Result<(crate::pipeline::RegisterParams, Option<Cache>)> {
-        self.params_and_cache_for(pipeline, None)
+        self.params_and_cache_for(pipeline, None, None)
     }
 
-    /// [`Self::params_and_cache`] for a data set whose manifest names `manifest_preset`.
+    /// [`Self::params_and_cache`] for a data set whose manifest names `manifest_preset` and,
+    /// as `scene_prompt`, its own scene description: the scene-specific prompt (the default)
+    /// describes that scene unless `--prompt` gives one.
     pub fn params_and_cache_for(
         &self,
         pipeline: &PipelineArgs,
         manifest_preset: Option<Preset>,
+        scene_prompt: Option<&str>,
     ) -> crate::Result<(crate::pipeline::RegisterParams, Option<Cache>)> {
         let mut params = pipeline.to_params(self.wfm.is_some(), manifest_preset);
         params.image = self.to_image_params()?;
+        if let (Some(ib), Some(scene), None, PromptPreset::SceneSpecific) = (
+            params.image.as_mut(),
+            scene_prompt,
+            &self.prompt,
+            self.prompt_preset,
+        ) {
+            ib.prompt.scene = scene.to_owned();
+        }
         // Geometry alone is cached too (stage `geo-fpfh`), so the cache opens either way.
         let cache = self.open_cache()?;
         Ok((params, cache))

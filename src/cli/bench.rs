@@ -370,13 +370,15 @@ pub fn run(a: BenchArgs) -> Result<()> {
     }
     a.run.check_output(a.json.as_deref())?;
     let specs = a.pairs.select(&ds)?;
-    let (params, cache) = a.image.params_and_cache_for(&a.pipeline, ds.preset)?;
+    let (params, cache) =
+        a.image
+            .params_and_cache_for(&a.pipeline, ds.preset, ds.scene_prompt.as_deref())?;
     // a pair that names a preset other than the data set's runs under it (unless --preset)
     let pair_params = |spec: &PairSpec| -> Result<Option<crate::pipeline::RegisterParams>> {
         match spec.preset {
             Some(pp) if a.pipeline.preset.is_none() && Some(pp) != ds.preset => a
                 .image
-                .params_and_cache_for(&a.pipeline, Some(pp))
+                .params_and_cache_for(&a.pipeline, Some(pp), ds.scene_prompt.as_deref())
                 .map(|(p, _)| Some(p)),
             _ => Ok(None),
         }

@@ -66,7 +66,9 @@ pub fn run(a: GenerateArgs) -> Result<()> {
     a.run.check_output(a.json.as_deref())?;
     let ds = a.pairs.dataset(&a.image)?;
     let specs = a.pairs.select(&ds)?;
-    let (params, cache) = a.image.params_and_cache_for(&a.pipeline, ds.preset)?;
+    let (params, cache) =
+        a.image
+            .params_and_cache_for(&a.pipeline, ds.preset, ds.scene_prompt.as_deref())?;
     let Some(ib) = params.image.clone() else {
         return Err(Error::Invalid("no image branch".into()));
     };

@@ -330,13 +330,15 @@ fn open(
     pipeline: &PipelineArgs,
     image: &ImageArgs,
 ) -> Result<(PipelineWorker, String)> {
-    // the preset the manifest names, unless --preset
-    let preset = match manifest {
-        Some(m) => crate::dataset::manifest::Dataset::load(m)?.preset,
-        None => None,
+    // the preset and scene description the manifest names, unless --preset / --prompt
+    let (preset, scene) = match manifest {
+        Some(m) => {
+            let d = crate::dataset::manifest::Dataset::load(m)?;
+            (d.preset, d.scene_prompt)
+        }
+        None => (None, None),
     };
-    let mut params = pipeline.to_params(image.wfm.is_some(), preset);
-    params.image = image.to_image_params()?;
+    let (params, _) = image.params_and_cache_for(pipeline, preset, scene.as_deref())?;
     open_with(manifest, pair, params, image)
 }
 

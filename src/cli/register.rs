@@ -65,18 +65,19 @@ pub struct Registered {
     pub inputs: crate::pipeline::fuse::FusionInputs,
 }
 
+/// A loaded pair, whether its fragments came from the cache, the load time (ms), and what its
+/// data set names: the preset and the scene description of the scene-specific prompt.
+type LoadedPair = (ScanPair, Option<bool>, f64, Option<Preset>, Option<String>);
+
 /// The pair, whether its clouds came from the fragment cache (None: no cache involved), the
-/// time it took (ms) and the preset its manifest names for it.
-fn load_pair(
-    input: PairInput,
-    image: &ImageArgs,
-) -> Result<(ScanPair, Option<bool>, f64, Option<Preset>)> {
+/// time it took (ms), and the preset and scene description its manifest names for it.
+fn load_pair(input: PairInput, image: &ImageArgs) -> Result<LoadedPair> {
     let t0 = std::time::Instant::now();
     let ms = |t: std::time::Instant| t.elapsed().as_secs_f64() * 1e3;
     match input {
         PairInput::Files { source, target, gt } => {
             crate::dataset::pair_from_files(&source, &target, gt.as_deref())
-                .map(|p| (p, None, ms(t0), None))
+                .map(|p| (p, None, ms(t0), None, None))
         }
         PairInput::Manifest { manifest, pair } => {
             let ds = Dataset::load(&manifest)?.with_fragment_cache(image.fragment_cache()?);
@@ -85,9 +86,9 @@ fn load_pair(
             for why in rebuilt {
                 eprintln!("warning: fragment cache: {why}");
             }
-            Ok((p, hit, ms(t0), ds.preset_of(&pair)))
+            Ok((p, hit, ms(t0), ds.preset_of(&pair), ds.scene_prompt.clone()))
         }
-        PairInput::Loaded { pair, load_ms } => Ok((*pair, None, load_ms, None)),
+        PairInput::Loaded { pair, load_ms } => Ok((*pair, None, load_ms, None, None)),
     }
 }
 
@@ -97,8 +98,8 @@ fn register_input(
     pipeline: &PipelineArgs,
     image: &ImageArgs,
 ) -> Result<Registered> {
-    let (pair, load_hit, load_ms, preset) = load_pair(input, image)?;
-    let (params, cache) = image.params_and_cache_for(pipeline, preset)?;
+    let (pair, load_hit, load_ms, preset, scene) = load_pair(input, image)?;
+    let (params, cache) = image.params_and_cache_for(pipeline, preset, scene.as_deref())?;
     let memo = crate::pipeline::Memo::default();
     let mut res = Registration::new(&params)
         .cache(cache.as_ref())

@@ -80,7 +80,10 @@ pub fn run(a: StudyArgs) -> Result<()> {
         StudyCommand::Prompt(p) => {
             // The prompt study varies the scene description only: the prefix stays as given.
             let prefix = crate::wfm::prompt::DEFAULT_PREFIX;
-            let settings = prompt_settings(prefix, p.custom_scene.as_deref());
+            // the scene-specific category describes the data set's own scene when it names one
+            let scene =
+                crate::dataset::manifest::Dataset::load(&p.common.pairs.manifest)?.scene_prompt;
+            let settings = prompt_settings(prefix, scene.as_deref(), p.custom_scene.as_deref());
             run_common(&p.common, settings, "study prompt")
         }
     }
@@ -189,7 +192,9 @@ fn run_common(a: &CommonArgs, settings: Vec<StudySetting>, command: &str) -> Res
     a.run.check_output(a.json.as_deref())?;
     let ds = a.pairs.dataset(&a.image)?;
     let specs = a.pairs.select(&ds)?;
-    let (params, cache) = a.image.params_and_cache_for(&a.pipeline, ds.preset)?;
+    let (params, cache) =
+        a.image
+            .params_and_cache_for(&a.pipeline, ds.preset, ds.scene_prompt.as_deref())?;
     let generate = a.generate
         || !matches!(
             params.image.as_ref().map(|i| &i.backend),

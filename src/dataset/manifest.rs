@@ -5,6 +5,8 @@
 //! preset = "indoor"              # optional: the protocol its pairs are run and judged by,
 //!                                # "indoor" (3DMatch, the default) or "outdoor" (KITTI); a
 //!                                # pair may name its own. `--preset` overrides both.
+//! scene_prompt = "a kitchen ..." # optional: the scene-specific prompt's description of this
+//!                                # data set's scene (the WFM prompt's scene part; see wfm::prompt)
 //! root = "$CGENREG_DATA"         # paths below are relative to this; "." (the default) is the
 //!                                # manifest's folder; $VAR / ${VAR} are expanded
 //! # allow_outside_root = true    # paths must stay inside root (symlinks resolved) unless
@@ -71,6 +73,7 @@ struct RawManifest {
     /// Paths may lead outside `root` (`..`, absolute paths, symlinks).
     allow_outside_root: Option<bool>,
     preset: Option<String>,
+    scene_prompt: Option<String>,
     fragment_options: Option<RawOptions>,
     #[serde(default)]
     fragments: Vec<RawFragment>,
@@ -186,6 +189,9 @@ pub struct Dataset {
     /// The protocol its pairs are run and judged by (`preset` in the manifest; None: indoor,
     /// unless a pair or the command line names one).
     pub preset: Option<Preset>,
+    /// The scene-specific prompt's description of its scene (`scene_prompt` in the manifest;
+    /// None: the pipeline's own text, written for the redkitchen data).
+    pub scene_prompt: Option<String>,
     pub(crate) fragments: Vec<FragmentSpec>,
     pub(crate) pairs: Vec<PairSpec>,
     /// The stage cache that keeps fragments built from raw RGB-D frames (stage `fragments`;
@@ -707,8 +713,20 @@ impl Dataset {
                 preset: pair_preset,
             });
         }
+        let scene_prompt = match raw.scene_prompt {
+            Some(t) if t.trim().is_empty() => {
+                return Err(bad(
+                    path,
+                    "scene_prompt",
+                    "a description of the scene (or no scene_prompt field)",
+                    "an empty text",
+                ))
+            }
+            t => t.map(|t| t.trim().to_owned()),
+        };
         Ok(Dataset {
             preset: preset_field(path, "preset", raw.preset.as_deref())?,
+            scene_prompt,
             name: raw.name,
             manifest: Some(path.to_path_buf()),
             root,
@@ -761,6 +779,7 @@ impl Dataset {
         };
         Ok(Dataset {
             preset: None,
+            scene_prompt: None,
             name: "files".into(),
             manifest: None,
             root: target
@@ -851,6 +870,7 @@ impl Dataset {
         }
         Ok(Dataset {
             preset: None,
+            scene_prompt: None,
             name,
             manifest: None,
             root: dir.to_path_buf(),

@@ -112,6 +112,7 @@ pub fn open_folder(dir: &Path) -> Result<Dataset> {
     }
     Ok(Dataset {
         preset: None,
+        scene_prompt: None,
         fragment_cache: None,
         name: scene,
         manifest: None,

@@ -67,14 +67,20 @@ pub fn k_settings(ks: &[usize]) -> Vec<StudySetting> {
     ks.iter().map(|&k| StudySetting::K(k)).collect()
 }
 
-/// The paper's four prompt categories (presets, with `prefix` as the shared prefix), plus an
-/// optional custom scene description labelled "custom".
-pub fn prompt_settings(prefix: &str, custom_scene: Option<&str>) -> Vec<StudySetting> {
+/// The paper's four prompt categories (presets, with `prefix` as the shared prefix; the
+/// scene-specific one describes `scene_specific`, the data set's own scene, when it names one),
+/// plus an optional custom scene description labelled "custom".
+pub fn prompt_settings(
+    prefix: &str,
+    scene_specific: Option<&str>,
+    custom_scene: Option<&str>,
+) -> Vec<StudySetting> {
+    let scene_specific = scene_specific.unwrap_or_default();
     let mut v: Vec<StudySetting> = PromptPreset::ALL
         .into_iter()
         .map(|p| StudySetting::Prompt {
             label: p.name().to_string(),
-            prompt: Prompt::new(prefix, p.default_scene()),
+            prompt: Prompt::new(prefix, p.scene_text(scene_specific)),
         })
         .collect();
     if let Some(s) = custom_scene.filter(|s| !s.trim().is_empty()) {
@@ -621,7 +627,7 @@ mod tests {
 
     #[test]
     fn prompt_settings_are_the_four_categories_plus_custom() {
-        let s = prompt_settings("P:", Some("a barn"));
+        let s = prompt_settings("P:", None, Some("a barn"));
         let labels: Vec<String> = s.iter().map(|x| x.label()).collect();
         assert_eq!(
             labels,
@@ -637,7 +643,17 @@ mod tests {
             StudySetting::Prompt { prompt, .. } => assert_eq!(prompt.text(), "P: a barn"),
             _ => unreachable!(),
         }
-        assert_eq!(prompt_settings("P:", Some("  ")).len(), 4);
+        assert_eq!(prompt_settings("P:", None, Some("  ")).len(), 4);
+        // a data set's own scene is its scene-specific category
+        match &prompt_settings("P:", Some("a red barn"), None)[0] {
+            StudySetting::Prompt { prompt, label } => {
+                assert_eq!(
+                    (label.as_str(), prompt.text().as_str()),
+                    ("scene-specific", "P: a red barn")
+                )
+            }
+            _ => unreachable!(),
+        }
     }
 
     #[test]
@@ -661,7 +677,7 @@ mod tests {
             ..Default::default()
         };
         let mut mixed = k_settings(&[1]);
-        mixed.extend(prompt_settings("", None));
+        mixed.extend(prompt_settings("", None, None));
         let e = run_study_with(
             &[],
             &mut |_| unreachable!(),

@@ -875,3 +875,73 @@ fn the_inspectors_geometry_only_runs_use_the_fpfh_cache() {
     );
     assert_eq!(c.estimated, a.estimated);
 }
+
+/// A manifest's `scene_prompt` is its scene-specific prompt: opening it in the inspector with
+/// the scene-specific prompt on switches the prompt to that description (the controls follow,
+/// the log says so) and every model carries it for the "Scene-specific" button; an empty one
+/// is an error naming the field.
+#[test]
+fn a_manifests_scene_prompt_is_the_scene_specific_prompt() {
+    use cgenreg::wfm::PromptPreset;
+    let demo_dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/demo");
+    let text = std::fs::read_to_string(demo_dir.join("demo.toml")).unwrap();
+    let scene = "a small synthetic room with two boxes on a floor";
+    let dir = tempfile::tempdir().unwrap();
+    let with_scene = |scene_line: &str| {
+        text.replace(
+            "root = \".\"",
+            &format!("{scene_line}\nroot = {:?}", demo_dir.display().to_string()),
+        )
+    };
+    let m = dir.path().join("scene.toml");
+    std::fs::write(&m, with_scene(&format!("scene_prompt = {scene:?}"))).unwrap();
+    let empty = dir.path().join("empty.toml");
+    std::fs::write(&empty, with_scene("scene_prompt = \"  \"")).unwrap();
+    let err = Dataset::load(&empty).unwrap_err().to_string();
+    assert!(
+        err.contains("scene_prompt") && err.contains("empty.toml"),
+        "{err}"
+    );
+    assert_eq!(
+        Dataset::load(&m).unwrap().scene_prompt.as_deref(),
+        Some(scene)
+    );
+
+    let p = common::demo_params(cgenreg::pipeline::WfmSpec::Builtin);
+    assert_eq!(
+        p.image.as_ref().unwrap().prompt.scene,
+        PromptPreset::SceneSpecific.default_scene()
+    );
+    let worker = PipelineWorker::open_manifest(&demo_manifest(), p).unwrap();
+    let handle = spawn_worker(Box::new(worker), None);
+    open(&handle, OpenKind::Manifest, vec![m]);
+    let t0 = Instant::now();
+    let (mut settings, mut logs, mut done) = (None, Vec::new(), None);
+    while done.is_none() && t0.elapsed() < Duration::from_secs(300) {
+        for e in handle.poll() {
+            match e {
+                WorkerEvent::Settings(s) => settings = Some(*s),
+                WorkerEvent::Log(l, t) => {
+                    assert_ne!(l, LogLevel::Error, "{t}");
+                    logs.push(t);
+                }
+                WorkerEvent::Model(m) => {
+                    let st = m.current_pair.map(|i| m.pairs[i].status.clone());
+                    if matches!(st, Some(PairStatus::Done) | Some(PairStatus::Failed(_))) {
+                        done = Some(m);
+                    }
+                }
+                _ => {}
+            }
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let m = done.unwrap_or_else(|| panic!("no result; log: {logs:?}"));
+    let s = settings.expect("the worker sent the new prompt to the controls");
+    assert_eq!(s.image.as_ref().unwrap().prompt.scene, scene);
+    assert_eq!(m.scene_prompt.as_deref(), Some(scene));
+    assert!(
+        logs.iter().any(|t| t.contains("scene-specific prompt")),
+        "{logs:?}"
+    );
+}

@@ -712,3 +712,45 @@ fn cpu_splatting_draws_a_still_view_complete_at_once() {
         "the first frame of the moved pose is not its complete view"
     );
 }
+
+/// The geometric branch's features are a control: picking SpinNet (KITTI checkpoint) sends the
+/// pipeline's own parameters with `GeoFeatureSource::Spinnet` (the default export and keypoint
+/// count, as `--geo-features spinnet-kitti`), and its keypoint count is then editable. A tall
+/// window keeps every control of the side panel in view (no renderer needed: no snapshot).
+#[test]
+fn the_geometric_features_control_picks_spinnet() {
+    use cgenreg::features::spinnet::Protocol;
+    use cgenreg::pipeline::params::GeoFeatureSource;
+    let seen = Arc::new(Mutex::new(Vec::new()));
+    let handle = spawn_worker(Box::new(Recorder(seen.clone())), None);
+    let mut app = App::new(InspectorModel::demo(), Some(handle), None);
+    app.allow_dialogs = false;
+    let mut h = Harness::builder()
+        .with_size(egui::vec2(1280.0, 3000.0))
+        .with_pixels_per_point(1.0)
+        .build_ui_state(|ui, app: &mut App| app.show(ui), app);
+    h.run_steps(2);
+    assert_eq!(h.state().params.geo_features, GeoFeatureSource::Fpfh);
+    assert!(h
+        .query_all_by_label("SpinNet keypoints per scan")
+        .next()
+        .is_none());
+    h.get_by_label("Geometric features").click();
+    h.run_steps(2);
+    h.get_by_label("SpinNet (KITTI checkpoint)").click();
+    h.run_steps(3);
+    let want = GeoFeatureSource::spinnet(Protocol::Kitti);
+    assert_eq!(h.state().params.geo_features, want);
+    assert!(
+        seen.lock()
+            .unwrap()
+            .iter()
+            .any(|c| matches!(c, Command::ApplySettings(p) if p.geo_features == want)),
+        "{:?}",
+        seen.lock().unwrap()
+    );
+    assert!(h
+        .query_all_by_label("SpinNet keypoints per scan")
+        .next()
+        .is_some());
+}

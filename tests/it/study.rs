@@ -91,7 +91,7 @@ fn prompt_study_has_four_categories_and_never_fakes_missing_generations() {
     let dir = tempfile::tempdir().unwrap();
     let cache = Cache::open(dir.path()).unwrap();
     let p = params();
-    let settings = prompt_settings(cgenreg::wfm::prompt::DEFAULT_PREFIX, None);
+    let settings = prompt_settings(cgenreg::wfm::prompt::DEFAULT_PREFIX, None, None);
 
     // Nothing cached and generation not allowed: every pair is skipped, with the reason.
     let rep = run_study(&ds, &ids, &p, &settings, Some(&cache), false, &mut |_| {}).unwrap();

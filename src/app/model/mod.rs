@@ -401,6 +401,9 @@ pub struct InspectorModel {
     pub settings: Option<SettingsTag>,
     /// Set while the bundled demo runs under its own protocol (what it is, for the controls).
     pub demo_protocol: Option<String>,
+    /// The open data set's own scene description (its manifest's `scene_prompt`): what the
+    /// "Scene-specific" prompt button puts in the editor. None: the pipeline's text.
+    pub scene_prompt: Option<String>,
 }
 
 impl Default for InspectorModel {
@@ -428,6 +431,7 @@ impl Default for InspectorModel {
             branches_ran: None,
             settings: None,
             demo_protocol: None,
+            scene_prompt: None,
         }
     }
 }

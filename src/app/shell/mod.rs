@@ -290,11 +290,10 @@ impl App {
         self.views.pair = pair;
     }
 
-    /// The pair's own scene description, when known. The views' labels carry full prompts
-    /// (prefix included), not descriptions, so none is known yet: the scene-specific preset
-    /// then uses the pipeline's text.
+    /// The open data set's own scene description (its manifest's `scene_prompt`), or "" when
+    /// it names none: the scene-specific preset then uses the pipeline's text.
     fn scene_specific_prompt(&self) -> String {
-        String::new()
+        self.model.scene_prompt.clone().unwrap_or_default()
     }
 
     pub fn push_log(&mut self, level: LogLevel, text: impl Into<String>) {

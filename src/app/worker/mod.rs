@@ -252,6 +252,7 @@ impl PipelineWorker {
         InspectorModel {
             pairs,
             current_pair: current,
+            scene_prompt: self.dataset.scene_prompt.clone(),
             stages: vec![StageInfo {
                 name: "load + register".into(),
                 state: StageState::Running,

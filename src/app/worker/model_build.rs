@@ -252,6 +252,7 @@ pub fn result_to_model(
         branches_ran: None,
         settings: None,
         demo_protocol: None,
+        scene_prompt: None,
     }
 }
 

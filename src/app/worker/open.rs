@@ -13,6 +13,7 @@ use crate::dataset::manifest::Dataset;
 use crate::dataset::ScanPair;
 use crate::pipeline::params::cosmos_output_settings;
 use crate::pipeline::WfmSpec;
+use crate::wfm::PromptPreset;
 
 impl PipelineWorker {
     /// Turns what was opened into a dataset, loads its first pair (so a bad file fails here,
@@ -161,6 +162,27 @@ impl PipelineWorker {
                         pr.voxel(),
                         self.params.success.primary.label()
                     ),
+                );
+                events.send(WorkerEvent::Settings(Box::new(self.params.clone())));
+            }
+        }
+        // "scene-specific" means this data set's scene: a prompt that is the previous data
+        // set's scene-specific text (or the pipeline's) follows the new data set's
+        let old_scene = self
+            .dataset
+            .scene_prompt
+            .clone()
+            .unwrap_or_else(|| PromptPreset::SceneSpecific.default_scene().to_owned());
+        let new_scene = d
+            .scene_prompt
+            .clone()
+            .unwrap_or_else(|| PromptPreset::SceneSpecific.default_scene().to_owned());
+        if let Some(ib) = self.params.image.as_mut() {
+            if ib.prompt.scene.trim() == old_scene.trim() && old_scene != new_scene {
+                ib.prompt.scene = new_scene;
+                events.log(
+                    LogLevel::Info,
+                    format!("{what}: the scene-specific prompt now describes its scene"),
                 );
                 events.send(WorkerEvent::Settings(Box::new(self.params.clone())));
             }

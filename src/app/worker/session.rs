@@ -376,6 +376,7 @@ impl PipelineWorker {
             Ok(mut model) => {
                 self.studies.fill(&mut model.plots);
                 model.plots.figure7_pending = self.figure7_possible();
+                model.scene_prompt = self.dataset.scene_prompt.clone();
                 let ms = t.elapsed().as_secs_f64() * 1e3;
                 if model.stages.first().is_none_or(|s| s.name != stage) {
                     model.stages.insert(

@@ -94,10 +94,11 @@ impl PipelineWorker {
                     .map(|ib| ib.prompt.clone())
                     .unwrap_or_else(|| ImageBranchParams::default().prompt);
                 let scene = prompt.scene.trim();
-                let custom = crate::wfm::PromptPreset::of_scene(scene)
-                    .is_none()
-                    .then_some(scene);
-                prompt_settings(prompt.prefix.trim(), custom)
+                let own = self.dataset.scene_prompt.as_deref();
+                let custom = (crate::wfm::PromptPreset::of_scene(scene).is_none()
+                    && own.is_none_or(|o| o.trim() != scene))
+                .then_some(scene);
+                prompt_settings(prompt.prefix.trim(), own, custom)
             }
         }
     }
