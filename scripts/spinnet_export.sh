@@ -11,7 +11,8 @@ root="$(cd "$(dirname "$0")/.." && pwd)"
 venv="${SPINNET_VENV:-$root/target/spinnet-venv}"
 if [ ! -x "$venv/bin/python" ] || ! "$venv/bin/python" -c 'import torch, onnx, onnxruntime' 2>/dev/null; then
     python3 -m venv "$venv"
-    "$venv/bin/pip" install --disable-pip-version-check \
+    # --no-compile: torch's thousands of modules are byte-compiled on first import instead
+    "$venv/bin/pip" install --disable-pip-version-check --no-compile \
         'torch==2.15.0' 'onnx==1.23.2' 'onnxruntime==1.31.1' numpy
 fi
 out="${SPINNET_OUT:-$root/target/spinnet}"

@@ -11,7 +11,9 @@ status=0
 # Python tests' venv) is made in the background while the tests compile on every core.
 mkdir -p target
 prep_log=target/test-prepare.log
-(bash scripts/spinnet_prepare.sh && bash scripts/test_python.sh --prepare) >"$prep_log" 2>&1 &
+# At a lower priority: the build is the critical path, the download mostly waits on the network.
+(nice -n 10 bash scripts/spinnet_prepare.sh && nice -n 10 bash scripts/test_python.sh --prepare) \
+  >"$prep_log" 2>&1 &
 prep_pid=$!
 # Test targets only: the crate has no doc tests, and the examples (built by a bare `cargo test`
 # only to see that they compile; clippy --all-targets does that) cost a link each.
