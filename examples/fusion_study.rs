@@ -20,7 +20,7 @@ use cgenreg::estimate::estimate_pose;
 use cgenreg::fusion::union::merge;
 use cgenreg::fusion::{calibrate, fuse, select, Correspondence, FusionMode};
 use cgenreg::metrics::{rre_deg, rte_m};
-use cgenreg::pipeline::fuse::{endpoints, similarities, FusionInputs};
+use cgenreg::pipeline::tail::{endpoints, similarities, FusionInputs};
 use cgenreg::pipeline::union::{geometry_params, mode_correspondences, noisy_and_params};
 use cgenreg::pipeline::{ImageBranchParams, Memo, RegisterParams, Registration, VfmSpec, WfmSpec};
 use clap::Parser;
@@ -226,7 +226,7 @@ fn union(sets: &[&[Correspondence]]) -> Vec<(u32, u32)> {
 fn neutral_unseen(
     params: &cgenreg::pipeline::RegisterParams,
     inputs: &FusionInputs,
-    sims: &cgenreg::pipeline::fuse::Similarities,
+    sims: &cgenreg::pipeline::tail::Similarities,
 ) -> cgenreg::Result<Vec<Correspondence>> {
     let _ = inputs;
     let (s_img, vs, vt) = sims

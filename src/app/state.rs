@@ -85,6 +85,29 @@ impl MatchColorMode {
     }
 }
 
+/// How the Views tab draws a correspondence: line width (points; the end points grow with it)
+/// and opacity (1 opaque). The hovered and selected matches are highlighted over it as before.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct LineStyle {
+    pub width: f32,
+    pub alpha: f32,
+}
+
+impl LineStyle {
+    pub const WIDTH: std::ops::RangeInclusive<f32> = 0.5..=6.0;
+    pub const ALPHA: std::ops::RangeInclusive<f32> = 0.05..=1.0;
+}
+
+impl Default for LineStyle {
+    fn default() -> Self {
+        Self {
+            width: 1.2,
+            alpha: 1.0,
+        }
+    }
+}
+
 /// Selection and display state shared by the panels.
 #[derive(Debug)]
 pub struct UiState {
@@ -92,6 +115,7 @@ pub struct UiState {
     pub match_mode: MatchColorMode,
     /// Number of matches drawn (highest fused score first).
     pub match_count: usize,
+    pub line_style: LineStyle,
     pub selected_match: Option<usize>,
     /// Set by whichever widget the pointer is over this frame.
     pub hovered_match: Option<usize>,
@@ -121,6 +145,7 @@ impl Default for UiState {
             // one set of view defaults for the window and `cgenreg screenshot`
             match_mode: MatchColorMode::InlierOutlier,
             match_count: 150,
+            line_style: LineStyle::default(),
             selected_match: None,
             hovered_match: None,
             prev_hovered: None,

@@ -62,7 +62,7 @@ pub struct Registered {
     pub pair: ScanPair,
     pub params: crate::pipeline::RegisterParams,
     pub result: RegistrationResult,
-    pub inputs: crate::pipeline::fuse::FusionInputs,
+    pub inputs: crate::pipeline::tail::FusionInputs,
 }
 
 /// A loaded pair, whether its fragments came from the cache, the load time (ms), and what its

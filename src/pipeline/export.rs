@@ -22,9 +22,9 @@
 //! `meta.json` (a zip member that is not an array: `np.load(f)["meta.json"]` gives its bytes)
 //! holds the pair, the parameters, the code version, the threshold and the codes above.
 
-use super::fuse::{similarities, FusionInputs, Similarities};
 use super::params::RegisterParams;
 use super::result::RegistrationResult;
+use super::tail::{similarities, FusionInputs, Similarities};
 use crate::dataset::ScanPair;
 use crate::error::{Error, Result};
 use crate::fusion::{FusionMode, PosteriorRows};

@@ -4,12 +4,11 @@
 //! `stages/mod.rs` and `docs/architecture.md`).
 //!
 //! Cosine similarities, calibration, fusion, selection and estimation are cheap and run in
-//! memory every time (`fuse::fuse_and_finish`), so changing a temperature or the fusion mode
+//! memory every time (`tail::fuse_and_finish`), so changing a temperature or the fusion mode
 //! recomputes only those.
 
 pub use super::stages::depth_video::depth_video_clip;
 
-use super::fuse::{fuse_and_finish, FusionInputs, ImageInputs};
 use super::geo::cached_branch;
 use super::memo::Memo;
 use super::params::ImageBranchParams;
@@ -22,6 +21,7 @@ use super::stages::pair_vfm::PairInput;
 use super::stages::vfm::SideViews;
 use super::stages::virtual_frames::{camera_coverage_warnings, framed_pair, FrameStore};
 use super::stages::{depth_video, generation, image_points, lift, pair_vfm, vfm, view_select, Ctx};
+use super::tail::{fuse_and_finish, FusionInputs, ImageInputs};
 use crate::cache::{Cache, CacheKey};
 use crate::dataset::{FrameSet, ScanPair};
 use crate::error::Result;

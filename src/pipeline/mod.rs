@@ -2,13 +2,12 @@
 //! keyed by content so the GUI and `bench` re-run only what changed.
 //!
 //! Modules, leaves first: `params` (the parameter types), `result` (what a registration
-//! returns, the stage timer), `memo` (what a caller keeps in memory between registrations), `geo` (the geometric branch), `fuse` (the
+//! returns, the stage timer), `memo` (what a caller keeps in memory between registrations), `geo` (the geometric branch), `tail` (the
 //! in-memory tail: similarity to evaluation), `stages` (one file per cached stage),
 //! `image_branch` (wires the stages), `register` (the entry point, [`Registration`]), then
 //! `study` and `shard` (many pairs).
 
 pub mod export;
-pub mod fuse;
 pub mod geo;
 pub mod hypotheses;
 pub mod image_branch;
@@ -19,6 +18,7 @@ pub mod result;
 pub mod shard;
 pub mod stages;
 pub mod study;
+pub mod tail;
 pub mod union;
 
 pub use crate::vfm::VfmSpec;

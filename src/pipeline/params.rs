@@ -542,10 +542,10 @@ mod tests {
                        "k2": 20, "refine_iterations": 20}
         });
         assert_eq!(serde_json::to_value(p.estimator_resolved()).unwrap(), old);
-        let key = crate::pipeline::fuse::key(&p, &["a", "b"]).unwrap();
+        let key = crate::pipeline::tail::key(&p, &["a", "b"]).unwrap();
         let old_key = crate::cache::CacheKey::new(
-            crate::pipeline::fuse::STAGE,
-            crate::pipeline::fuse::VERSION,
+            crate::pipeline::tail::STAGE,
+            crate::pipeline::tail::VERSION,
             &["a", "b"],
             &serde_json::json!({"fusion": p.fusion, "estimator": old, "inlier_threshold": 0.1}),
         )

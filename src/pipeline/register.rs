@@ -7,12 +7,12 @@
 
 use std::sync::Arc;
 
-use super::fuse::{fuse_and_finish, EstimateMemo, FusionInputs, Similarities};
 use super::geo::{cached_branch, geo_branches};
 use super::memo::Memo;
 use super::params::{GeoFeatureSource, RegisterParams};
 use super::result::RegistrationResult;
 use super::stages::Ctx;
+use super::tail::{fuse_and_finish, EstimateMemo, FusionInputs, Similarities};
 use crate::cache::Cache;
 use crate::dataset::ScanPair;
 use crate::error::{Error, Result};
@@ -118,7 +118,7 @@ impl<'a> Registration<'a> {
     /// The in-memory tail alone, from `inputs` kept by an earlier [`Self::run`] (its
     /// `result.inputs`): similarity, calibration, fusion, selection, estimation and
     /// evaluation under `params`, with the kept similarity matrices `sims` when given
-    /// ([`super::fuse::similarities`]; None computes them, the result is the same). What a
+    /// ([`super::tail::similarities`]; None computes them, the result is the same). What a
     /// change of temperature, fusion mode, selection or estimator re-runs. The result's
     /// `image` is None (the caller keeps the views) and so are its `inputs` (the caller has
     /// them).

@@ -91,7 +91,7 @@ pub struct RegistrationResult {
     /// ([`super::Registration::keep`]): what a re-fusion, the correspondence export and the
     /// posterior inspector recompute from.
     #[serde(skip)]
-    pub inputs: Option<std::sync::Arc<super::fuse::FusionInputs>>,
+    pub inputs: Option<std::sync::Arc<super::tail::FusionInputs>>,
 }
 
 impl RegistrationResult {
@@ -99,6 +99,21 @@ impl RegistrationResult {
     /// for the `union` mode; None for the other modes (their label says the mode).
     pub fn fusion_provenance(&self) -> Option<String> {
         self.union.as_ref().map(|d| d.provenance())
+    }
+
+    /// The image branch's label without the fusion the tail appended to it (`; fusion ...`):
+    /// what ran, for a header that shows the fusion and its provenance on their own.
+    pub fn image_branch_source(&self) -> Option<String> {
+        self.image_branch.as_deref().map(without_fusion)
+    }
+}
+
+/// `label` up to its `; fusion` suffix, its parenthesis closed (the tail writes
+/// "GEN + VFM (K=.., ...; fusion MODE)" and the union "...; fusion: union (...))").
+fn without_fusion(label: &str) -> String {
+    match label.find("; fusion") {
+        Some(i) => format!("{})", &label[..i]),
+        None => label.to_owned(),
     }
 }
 
@@ -155,4 +170,22 @@ pub fn status_word(hit: bool) -> &'static str {
 /// Whether a [`StageTiming::status`] says the stage was served from the cache.
 pub fn is_cached(status: &str) -> bool {
     status == status_word(true)
+}
+
+#[cfg(test)]
+mod label_tests {
+    use super::without_fusion;
+
+    #[test]
+    fn the_image_label_loses_its_fusion_suffix_once() {
+        let base = "builtin + alike (K=2, m=1, L=8; 5 / 6 source / target keypoints with a pixel";
+        let want = format!("{base})");
+        assert_eq!(without_fusion(&format!("{base}; fusion NoisyAnd)")), want);
+        let union = format!(
+            "{base}; fusion: union (2 Noisy-AND + 3 geometry correspondences, 4 distinct; \
+             inliers 3: 1 geometry only, 2 Noisy-AND only, 0 both))"
+        );
+        assert_eq!(without_fusion(&union), want);
+        assert_eq!(without_fusion("oracle"), "oracle");
+    }
 }

@@ -2,12 +2,12 @@
 //! geometric branch's own (row NN) correspondences from the same inputs, merged
 //! ([`crate::fusion::union::merge`]), one estimate, and the result with its provenance.
 
-use super::fuse::{
+use super::params::RegisterParams;
+use super::result::{RegistrationResult, Timer};
+use super::tail::{
     finish, geometry_correspondences, image_correspondences, similarities, EstimateMemo,
     FusionInputs, ImageInputs, Similarities, STREAM_ENTRIES,
 };
-use super::params::RegisterParams;
-use super::result::{RegistrationResult, Timer};
 use crate::dataset::ScanPair;
 use crate::error::{Error, Result};
 use crate::fusion::union::{merge, UnionReport};

@@ -681,7 +681,7 @@ fn refusion_from_memory_equals_the_library_and_a_fresh_run() {
     let reg = cgenreg::pipeline::Registration::new(&s).keep(true);
     let mut fresh = reg.run(&pair).unwrap();
     let inputs = fresh.inputs.take().unwrap();
-    let sims = cgenreg::pipeline::fuse::similarities(&inputs).unwrap();
+    let sims = cgenreg::pipeline::tail::similarities(&inputs).unwrap();
     let lib = reg.refuse_from_memory(&pair, &inputs, Some(&sims)).unwrap();
     let lib = result_to_model(
         &pair,

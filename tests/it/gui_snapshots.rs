@@ -754,3 +754,29 @@ fn the_geometric_features_control_picks_spinnet() {
         .next()
         .is_some());
 }
+
+/// The correspondence lines follow the "line width" and "line opacity" controls: wider lines
+/// cover more pixels of the inlier colour, fainter ones fewer.
+#[test]
+fn match_lines_follow_the_line_width_and_opacity_controls() {
+    use cgenreg::app::colormap::INLIER_RGB;
+    if renderer().is_none() {
+        return;
+    }
+    let green = |width: f32, alpha: f32| {
+        let mut app = demo_app();
+        app.ui_state.tab = Panel::Views;
+        app.ui_state.line_style.width = width;
+        app.ui_state.line_style.alpha = alpha;
+        let mut h = harness(app).unwrap();
+        h.run_steps(4);
+        assert!(h.query_all_by_label("line width").next().is_some());
+        assert!(h.query_all_by_label("line opacity").next().is_some());
+        count_near(&h.render().unwrap(), INLIER_RGB, 12)
+    };
+    let (thin, wide, faint) = (green(1.2, 1.0), green(4.0, 1.0), green(1.2, 0.2));
+    eprintln!("inlier-coloured pixels: default {thin}, width 4 {wide}, opacity 0.2 {faint}");
+    assert!(thin > 0, "no inlier line drawn");
+    assert!(wide as f64 > 1.5 * thin as f64, "{wide} vs {thin}");
+    assert!((faint as f64) < 0.5 * thin as f64, "{faint} vs {thin}");
+}

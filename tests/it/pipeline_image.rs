@@ -127,7 +127,7 @@ fn full_method_on_demo_with_cache() {
     for s in CACHED {
         assert_eq!(status(&r3, s), "cached", "{s}");
     }
-    // The demo's 16k x 13.5k keypoints are above `fuse::STREAM_ENTRIES`: similarity and fusion
+    // The demo's 16k x 13.5k keypoints are above `tail::STREAM_ENTRIES`: similarity and fusion
     // then run as one streamed stage.
     let streamed = r3.timings.iter().any(|t| t.stage == "similarity+fusion");
     let tail: &[&str] = if streamed {
@@ -234,7 +234,7 @@ fn pair_conditioned_vfm_end_to_end() {
 #[test]
 fn fuse_from_kept_similarities_equals_full_tail() {
     use cgenreg::fusion::{FusionMode, Selection};
-    use cgenreg::pipeline::fuse::{similarities, FusionInputs};
+    use cgenreg::pipeline::tail::{similarities, FusionInputs};
     let manifest = common::demo_manifest();
     let ds = Dataset::load(&manifest).unwrap();
     let pair = ds.load_pair(&ds.pairs()[0].id.clone()).unwrap();

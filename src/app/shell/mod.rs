@@ -25,7 +25,7 @@ use super::channel::{
 };
 use super::model::{self, InspectorModel};
 use super::pair_order::PairSort;
-use super::state::{MatchColorMode, Panel, Shared, UiState};
+use super::state::{LineStyle, MatchColorMode, Panel, Shared, UiState};
 use super::tabs::{self, TabContext, Tabs};
 use super::{controls, file_browser, render3d, view3d};
 pub use persist::{
@@ -172,6 +172,7 @@ impl App {
         self.view3d.prefs = p.view3d;
         self.ui_state.match_mode = p.match_mode;
         self.ui_state.match_count = p.match_count;
+        self.ui_state.line_style = p.line_style;
         self.ui_state.tab = p.tab;
         self.ui_state.pair_sort = p.pair_sort;
         self.last_opened = p.last_opened;
@@ -190,6 +191,7 @@ impl App {
             view3d: self.view3d.prefs.clone(),
             match_mode: self.ui_state.match_mode,
             match_count: self.ui_state.match_count,
+            line_style: self.ui_state.line_style,
             tab: self.ui_state.tab,
             pair_sort: self.ui_state.pair_sort,
             last_opened: self.last_opened.clone(),
@@ -221,6 +223,7 @@ impl App {
         let ui = UiState::default();
         self.ui_state.match_mode = ui.match_mode;
         self.ui_state.match_count = ui.match_count;
+        self.ui_state.line_style = ui.line_style;
         self.ui_state.only_survivors = ui.only_survivors;
         self.ui_state.show_3d_below_views = ui.show_3d_below_views;
         commands.push(Command::ApplySettings(self.params.clone()));

@@ -170,6 +170,9 @@ impl App {
             .max(self.ui_state.match_count)
             .max(1);
         ui.add(egui::Slider::new(&mut self.ui_state.match_count, 0..=n).text("matches shown"));
+        let style = &mut self.ui_state.line_style;
+        ui.add(egui::Slider::new(&mut style.width, LineStyle::WIDTH).text("line width"));
+        ui.add(egui::Slider::new(&mut style.alpha, LineStyle::ALPHA).text("line opacity"));
         let kept = self.kept_matches();
         ui.checkbox(
             &mut self.ui_state.only_survivors,

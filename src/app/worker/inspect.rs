@@ -10,7 +10,7 @@ use super::PipelineWorker;
 use crate::app::channel::{EventSink, WorkerEvent};
 use crate::app::model::{Branch, HypothesisList, InspectorModel, MatchInfo, PrCurve};
 use crate::fusion::fuse::FusionMode;
-use crate::pipeline::fuse::similarities;
+use crate::pipeline::tail::similarities;
 
 impl PipelineWorker {
     /// Adds the branch posteriors of source keypoint `src` to the current model.

@@ -37,9 +37,9 @@ use crate::cache::Cache;
 use crate::dataset::manifest::Dataset;
 use crate::dataset::ScanPair;
 use crate::fusion::fuse::FusionMode;
-use crate::pipeline::fuse::{FusionInputs, Similarities};
 use crate::pipeline::memo::{Lru, Memo};
 use crate::pipeline::stages::{StageKeys, StageName};
+use crate::pipeline::tail::{FusionInputs, Similarities};
 use crate::pipeline::{ImageBranchOutput, RegisterParams, RegistrationResult};
 
 pub use model_build::{
@@ -65,7 +65,7 @@ struct Kept {
     /// a temperature change then costs fusion + estimate only.
     sims: Option<Arc<Similarities>>,
     /// The last re-fusion's estimate and its inputs (skipped when they repeat).
-    estimates: crate::pipeline::fuse::EstimateMemo,
+    estimates: crate::pipeline::tail::EstimateMemo,
     image: Option<ImageBranchOutput>,
     /// Stages of that run (shown as cached when only fusion onward re-runs).
     stages: Vec<StageInfo>,

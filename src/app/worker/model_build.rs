@@ -13,8 +13,8 @@ use crate::app::model::{
 };
 use crate::dataset::ScanPair;
 use crate::fusion::fuse::FusionMode;
-use crate::pipeline::fuse::{FusionInputs, Similarities};
 use crate::pipeline::memo::Lru;
+use crate::pipeline::tail::{FusionInputs, Similarities};
 use crate::pipeline::{ImageBranchOutput, RegistrationResult};
 
 /// Inlier threshold of the GT flags on correspondences (metres).

@@ -13,8 +13,8 @@ use crate::app::model::{
     InspectorModel, PairEntry, PairStatus, SettingsTag, StageInfo, StageState,
 };
 use crate::dataset::ScanPair;
-use crate::pipeline::fuse::{similarities, EstimateMemo, FusionInputs};
 use crate::pipeline::stages::{StageKeys, StageName};
+use crate::pipeline::tail::{similarities, EstimateMemo, FusionInputs};
 use crate::pipeline::{Registration, RegistrationResult};
 
 /// What [`PipelineWorker::register`] gives: the result, the in-memory stages' inputs (for
@@ -324,7 +324,7 @@ impl PipelineWorker {
             .stages
             .iter()
             .filter(|s| {
-                !crate::pipeline::fuse::is_tail_timing(&s.name)
+                !crate::pipeline::tail::is_tail_timing(&s.name)
                     && !s.name.starts_with("settings change")
             })
             .map(|s| StageInfo {
@@ -490,7 +490,7 @@ pub fn branches_ran(
     result: &RegistrationResult,
 ) -> String {
     let geo = format!("geometry ({})", result.geo_features);
-    match (&result.image_branch, &params.image) {
+    match (result.image_branch_source(), &params.image) {
         (Some(img), _) => format!(
             "ran: {geo} + image ({img}), fused by {}",
             params.fusion.mode.label()

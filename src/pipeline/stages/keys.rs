@@ -3,7 +3,7 @@
 //! [`StageKeys::compute`] evaluates every stage's key for one pair and one parameter set with
 //! the functions the stages run with (`geo::key`, `depth_video::plan`, `generation::plan`,
 //! `view_select::key`, `vfm::key`, `lift::key_for`, `image_points::key`, `pair_vfm::key`,
-//! `virtual_frames::keys`, `fuse::key`), without computing any stage: it hashes input files
+//! `virtual_frames::keys`, `tail::key`), without computing any stage: it hashes input files
 //! (the depth frames, the model file) and reads what the cache already holds.
 //! [`StageKeys::invalidated_by`] lists the stages whose keys differ between two parameter sets,
 //! earliest first; [`invalidated`] does both.
@@ -22,9 +22,9 @@ use super::{generation, geo, image_points, lift, pair_vfm, vfm, view_select};
 use crate::cache::{Cache, CacheKey};
 use crate::dataset::{FrameSet, Scan, ScanPair};
 use crate::error::Result;
-use crate::pipeline::fuse;
 use crate::pipeline::memo::Memo;
 use crate::pipeline::params::{GeoFeatureSource, ImageBranchParams, RegisterParams};
+use crate::pipeline::tail;
 
 /// The stages of one registration, in the order they run.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
@@ -74,7 +74,7 @@ impl StageName {
             StageName::Lift => lift::STAGE,
             StageName::ImagePoints => image_points::STAGE,
             StageName::PairVfm => pair_vfm::STAGE,
-            StageName::Fusion => fuse::STAGE,
+            StageName::Fusion => tail::STAGE,
         }
     }
 
@@ -159,7 +159,7 @@ impl StageKeys {
         let fusion = match &self.fusion_inputs {
             Some(inputs) => {
                 let inputs: Vec<&str> = inputs.iter().map(String::as_str).collect();
-                Some(vec![fuse::key(params, &inputs)?.hash])
+                Some(vec![tail::key(params, &inputs)?.hash])
             }
             None => None,
         };
@@ -218,7 +218,7 @@ impl StageKeys {
     }
 }
 
-/// `params` without what only the fusion stage's key reads ([`fuse::key`]: fusion, estimator,
+/// `params` without what only the fusion stage's key reads ([`tail::key`]: fusion, estimator,
 /// inlier threshold): two parameter sets equal in it give the same keys before fusion.
 fn upstream_params(params: &RegisterParams) -> RegisterParams {
     RegisterParams {

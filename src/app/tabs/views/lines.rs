@@ -81,6 +81,8 @@ pub(super) fn match_lines(
     let (rs, rt) = (layout.rs, layout.rt);
     let mut segs = Vec::with_capacity(in_pair.len());
     let quantiles = shared.model.score_quantiles();
+    let style = shared.ui.line_style;
+    let dot = (style.width + 1.0).max(2.2);
     for &(rank, mi, a, b) in in_pair {
         let (pa, pb) = (
             to_screen_win(rs, win, &sv.rgb, a),
@@ -96,9 +98,10 @@ pub(super) fn match_lines(
             shared.ui.match_mode,
             &quantiles,
         ));
-        painter.line_segment([pa, pb], egui::Stroke::new(1.2, c));
-        painter.circle_filled(pa, 2.2, c);
-        painter.circle_filled(pb, 2.2, c);
+        let c = c.linear_multiply(style.alpha);
+        painter.line_segment([pa, pb], egui::Stroke::new(style.width, c));
+        painter.circle_filled(pa, dot, c);
+        painter.circle_filled(pb, dot, c);
         segs.push((mi, pa, pb));
     }
     segs
