@@ -769,20 +769,11 @@ fn a_temperature_change_under_nn_reuses_the_first_runs_estimate() {
     assert_eq!(pose(&kept), pose(&first));
 }
 
-/// A manifest that names a preset opens under it in the inspector (as `gui MANIFEST` and `bench`
-/// do): KITTI 07 names `outdoor`, so the worker switches to voxel 0.3 m and the KITTI criterion,
-/// says so, sends the controls the new settings, and judges the first pair by them.
-#[test]
-fn opening_a_manifest_with_a_preset_applies_it() {
-    use cgenreg::pipeline::params::Preset;
-    let Some(_root) = cgenreg::testing::test_data_root() else {
-        return;
-    };
-    let kitti = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/manifests/kitti07.toml");
-    let worker =
-        PipelineWorker::open_manifest(&demo_manifest(), RegisterParams::default()).unwrap();
-    let handle = spawn_worker(Box::new(worker), None);
-    open(&handle, OpenKind::Manifest, vec![kitti]);
+/// After an open: the last settings the worker sent the controls, every log line (an error
+/// fails the test) and the model of the first pair once it finished.
+fn settings_logs_and_result(
+    handle: &WorkerHandle,
+) -> (Option<RegisterParams>, Vec<String>, Box<InspectorModel>) {
     let t0 = Instant::now();
     let (mut settings, mut logs, mut done) = (None, Vec::new(), None);
     while done.is_none() && t0.elapsed() < Duration::from_secs(300) {
@@ -805,6 +796,24 @@ fn opening_a_manifest_with_a_preset_applies_it() {
         std::thread::sleep(Duration::from_millis(10));
     }
     let m = done.unwrap_or_else(|| panic!("no result; log: {logs:?}"));
+    (settings, logs, m)
+}
+
+/// A manifest that names a preset opens under it in the inspector (as `gui MANIFEST` and `bench`
+/// do): KITTI 07 names `outdoor`, so the worker switches to voxel 0.3 m and the KITTI criterion,
+/// says so, sends the controls the new settings, and judges the first pair by them.
+#[test]
+fn opening_a_manifest_with_a_preset_applies_it() {
+    use cgenreg::pipeline::params::Preset;
+    let Some(_root) = cgenreg::testing::test_data_root() else {
+        return;
+    };
+    let kitti = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/manifests/kitti07.toml");
+    let worker =
+        PipelineWorker::open_manifest(&demo_manifest(), RegisterParams::default()).unwrap();
+    let handle = spawn_worker(Box::new(worker), None);
+    open(&handle, OpenKind::Manifest, vec![kitti]);
+    let (settings, logs, m) = settings_logs_and_result(&handle);
     let s = settings.expect("the worker sent the preset's settings to the controls");
     assert_eq!(Preset::of(&s), Some(Preset::Outdoor), "{s:?}");
     assert_eq!(s.voxel, 0.3);
@@ -915,28 +924,7 @@ fn a_manifests_scene_prompt_is_the_scene_specific_prompt() {
     let worker = PipelineWorker::open_manifest(&demo_manifest(), p).unwrap();
     let handle = spawn_worker(Box::new(worker), None);
     open(&handle, OpenKind::Manifest, vec![m]);
-    let t0 = Instant::now();
-    let (mut settings, mut logs, mut done) = (None, Vec::new(), None);
-    while done.is_none() && t0.elapsed() < Duration::from_secs(300) {
-        for e in handle.poll() {
-            match e {
-                WorkerEvent::Settings(s) => settings = Some(*s),
-                WorkerEvent::Log(l, t) => {
-                    assert_ne!(l, LogLevel::Error, "{t}");
-                    logs.push(t);
-                }
-                WorkerEvent::Model(m) => {
-                    let st = m.current_pair.map(|i| m.pairs[i].status.clone());
-                    if matches!(st, Some(PairStatus::Done) | Some(PairStatus::Failed(_))) {
-                        done = Some(m);
-                    }
-                }
-                _ => {}
-            }
-        }
-        std::thread::sleep(Duration::from_millis(10));
-    }
-    let m = done.unwrap_or_else(|| panic!("no result; log: {logs:?}"));
+    let (settings, logs, m) = settings_logs_and_result(&handle);
     let s = settings.expect("the worker sent the new prompt to the controls");
     assert_eq!(s.image.as_ref().unwrap().prompt.scene, scene);
     assert_eq!(m.scene_prompt.as_deref(), Some(scene));
