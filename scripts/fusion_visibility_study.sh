@@ -3,10 +3,10 @@
 # (D4), then run the study example on D4, D4c, D3, D3c, D1, D2 in that order (each pair's line is
 # appended as it finishes; pairs already in a file are skipped), then the tables.
 #
-#   bash scripts/fusion_round4.sh CACHE_DIR
+#   bash scripts/fusion_visibility_study.sh CACHE_DIR
 set -euo pipefail
 cd "$(dirname "$0")/.."
-CACHE="${1:?usage: fusion_round4.sh CACHE_DIR}"
+CACHE="${1:?usage: fusion_visibility_study.sh CACHE_DIR}"
 O=docs/ablation/fusion
 BIN="${CGENREG_EXAMPLE_BIN:-target/debug/examples/fusion_study}"
 if [ ! -e assets/manifests/redkitchen-dev4.toml ]; then
