@@ -62,6 +62,29 @@ TABLES = {
              "docs/results/spinnet/kitti-spinnet-512-probe.json"),
         ],
     ),
+    "spinnet-fused-indoor": (
+        "3DMatch success: RRE <= 15 deg and RTE <= 30 cm",
+        [
+            ("staged: FPFH, oracle RGB + ALIKE-t, visibility fusion", "docs/results/spinnet/staged-fpfh-oracle.json"),
+            ("staged: SpinNet 3DMatch 128, oracle RGB + ALIKE-t, visibility fusion",
+             "docs/results/spinnet/staged-spinnet-128-oracle.json"),
+            ("redkitchen-rgbd: FPFH + SC2-PCR (geometry only, NN)", "docs/results/spinnet/rgbd-fpfh.json"),
+            ("redkitchen-rgbd: SpinNet 3DMatch 128 + SC2-PCR (geometry only, NN)",
+             "docs/results/spinnet/rgbd-spinnet-128.json"),
+            ("redkitchen-rgbd: FPFH, oracle RGB + ALIKE-t, visibility fusion", "docs/results/spinnet/rgbd-fpfh-oracle.json"),
+            ("redkitchen-rgbd: SpinNet 3DMatch 128, oracle RGB + ALIKE-t, visibility fusion",
+             "docs/results/spinnet/rgbd-spinnet-128-oracle.json"),
+        ],
+    ),
+    "spinnet-fused-outdoor": (
+        "success: RRE <= 5 deg and RTE <= 2 m (KITTI)",
+        [
+            ("FPFH, built-in f-theta frames (NOT a WFM) + ALIKE-t, visibility fusion",
+             "docs/results/spinnet/kitti-fpfh-builtin.json"),
+            ("SpinNet KITTI 128, built-in f-theta frames (NOT a WFM) + ALIKE-t, visibility fusion",
+             "docs/results/spinnet/kitti-spinnet-128-builtin.json"),
+        ],
+    ),
 }
 
 # name -> (rows of (label, folder, file prefix), fusion columns): pairs registered per split, one row per VFM
