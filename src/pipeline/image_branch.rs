@@ -129,7 +129,7 @@ fn register_with_frames(
 ) -> Result<(RegistrationResult, FusionInputs)> {
     let (params, generate) = (reg.params, reg.generate);
     let mut ctx = Ctx::new(reg.cache, memo);
-    let l = ib.frames_per_fragment;
+    let l = depth_video::settings(ib);
     let src_fs = frames_of(&pair.source, l)?;
     let tgt_fs = frames_of(&pair.target, l)?;
     // Fail early on bad K / m (before anything expensive).

@@ -309,11 +309,20 @@ fn upstream_params(params: &RegisterParams) -> RegisterParams {
 /// The key of learned features read from files (not cached: read on every run), by their
 /// source and the voxel, for both scans.
 pub(crate) fn learned_geo_keys(params: &RegisterParams) -> Result<Vec<String>> {
+    let RegisterParams {
+        voxel,
+        geo_features,
+        fusion: _,
+        estimator: _,
+        inlier_threshold: _,
+        image: _,
+        success: _,
+    } = params;
     let k = CacheKey::new(
         "geo-learned",
         1,
         &[],
-        &serde_json::json!({ "features": params.geo_features, "voxel": params.voxel }),
+        &serde_json::json!({ "features": geo_features, "voxel": voxel }),
     )?;
     Ok(vec![k.hash.clone(), k.hash])
 }
@@ -373,7 +382,7 @@ fn image_keys(
             _ => return Ok(()),
         }
     };
-    let l = ib.frames_per_fragment;
+    let l = depth_video::settings(ib);
     let (src_fs, tgt_fs) = (frames_of(&pair.source, l)?, frames_of(&pair.target, l)?);
     let planned = view_select::planned(ib)?;
     let vfm_id = vfm::vfm_id(memo, &ib.vfm)?;
