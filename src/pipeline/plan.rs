@@ -561,6 +561,29 @@ mod tests {
         p.voxel = 0.04;
         assert_eq!(inv(&p), [Geo, Lift, Vfm, ImagePoints, Fusion]);
 
+        // The VFM: its views and the point features (the lift keeps its pixels); the cell
+        // size only for a dense model; a pair model replaces both with its own step.
+        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+        let mut p = old.clone();
+        p.image.as_mut().unwrap().vfm = crate::vfm::VfmSpec::Alike {
+            model: root.join("models/alike-t.onnx"),
+        };
+        assert_eq!(inv(&p), [Vfm, ImagePoints, Fusion]);
+        let mut q = p.clone();
+        q.image.as_mut().unwrap().dense_stride = 3;
+        assert_eq!(
+            invalidated(&pair, &p, &q, Some(&cache), &memo).unwrap(),
+            [Vfm, ImagePoints, Fusion]
+        );
+        let mut q = old.clone();
+        q.image.as_mut().unwrap().dense_stride = 3;
+        assert_eq!(inv(&q), [], "XFeat does not read the cell size");
+        let mut p = old.clone();
+        p.image.as_mut().unwrap().vfm = crate::vfm::VfmSpec::Mast3r {
+            model: root.join("tests/fixtures/tiny_mast3r.onnx"),
+        };
+        assert_eq!(inv(&p), [PairVfm, Fusion]);
+
         // The lift radius: the lift onward.
         let mut p = old.clone();
         p.image.as_mut().unwrap().lift_radius = crate::estimate::scale::Scaled::Set(0.1);
