@@ -110,11 +110,20 @@ pub struct Step {
 }
 
 /// The ordered steps of one registration of a pair under one parameter set, with their keys.
-#[derive(Clone, Debug, PartialEq)]
+/// Two plans are equal when their steps (with their keys) and parameters are.
+#[derive(Clone, Debug)]
 pub struct Plan {
     steps: Vec<Step>,
     /// The parameters the plan was made for.
     params: RegisterParams,
+    /// The steps a run has executed (the next one must be `steps[ran]`).
+    ran: usize,
+}
+
+impl PartialEq for Plan {
+    fn eq(&self, other: &Plan) -> bool {
+        self.steps == other.steps && self.params == other.params
+    }
 }
 
 /// The plan of `pair` under `params`: every step with its key where it is known now; `cache`
@@ -130,7 +139,7 @@ pub fn plan(
 ) -> Result<Plan> {
     let mut p = Plan::skeleton(pair, params);
     let geo = geo_keys(pair, params, memo)?;
-    p.fill(StageName::Geo, geo);
+    p.set(StageName::Geo, geo);
     if let Some(ib) = &params.image {
         image_keys(&mut p, pair, params, ib, (cache, memo))?;
     }
@@ -184,6 +193,7 @@ impl Plan {
                 .map(|stage| Step { stage, keys: None })
                 .collect(),
             params: params.clone(),
+            ran: 0,
         }
     }
 
@@ -248,19 +258,40 @@ impl Plan {
         }
         let mut p = self.clone();
         p.params = params.clone();
+        p.ran = 0;
         p.fill_fusion()?;
         Ok(p)
     }
 
-    /// Sets `stage`'s keys (a step not in the plan is left out: the run of a stage the
-    /// skeleton does not name is a bug the plan tests catch). A key the plan knew must be the
-    /// one the step ran with.
+    /// A run executed the step of `stage` with `keys`. The run takes the plan's steps in
+    /// order, each once: in debug builds (the tests) a step run out of order, twice, or not in
+    /// the plan, and a key other than the one planned, are caught here.
     pub(crate) fn fill(&mut self, stage: StageName, keys: Vec<String>) {
+        let next = self.steps.get(self.ran).map(|s| s.stage);
+        debug_assert_eq!(next, Some(stage), "the run left the plan's order: {self:?}");
         if let Some(s) = self.steps.iter_mut().find(|s| s.stage == stage) {
             debug_assert!(
                 s.keys.as_ref().is_none_or(|k| *k == keys),
                 "{stage:?}: the step ran with another key than planned"
             );
+            s.keys = Some(keys);
+        }
+        self.ran += 1;
+    }
+
+    /// A run starts: no step executed yet.
+    pub(crate) fn start_run(&mut self) {
+        self.ran = 0;
+    }
+
+    /// Whether a run has executed every step before the in-memory tail (the last step).
+    pub(crate) fn ran_all_but_the_tail(&self) -> bool {
+        self.ran + 1 == self.steps.len()
+    }
+
+    /// Sets a key known before the run ([`plan`]).
+    fn set(&mut self, stage: StageName, keys: Vec<String>) {
+        if let Some(s) = self.steps.iter_mut().find(|s| s.stage == stage) {
             s.keys = Some(keys);
         }
     }
@@ -368,7 +399,7 @@ fn image_keys(
             let (l, camera, cameras, origin) = virtual_frames::settings(ib, s);
             keys.extend(virtual_frames::keys(s, l, camera, cameras, origin)?);
         }
-        p.fill(
+        p.set(
             StageName::VirtualFrames,
             keys.iter().map(|k| k.hash.clone()).collect(),
         );
@@ -387,18 +418,18 @@ fn image_keys(
     let planned = view_select::planned(ib)?;
     let vfm_id = vfm::vfm_id(memo, &ib.vfm)?;
     let video = depth_video::plan(memo, src_fs, tgt_fs, l)?;
-    p.fill(StageName::DepthVideo, vec![video.key.hash.clone()]);
+    p.set(StageName::DepthVideo, vec![video.key.hash.clone()]);
     let Some(video_hash) = cache.and_then(|c| depth_video::cached_hash(c, &video.key)) else {
         return Ok(());
     };
     let lidar = video.lidar();
     let gen = generation::plan(memo, pair, ib, (&video_hash, lidar), src_fs, tgt_fs, l)?.key;
-    p.fill(StageName::Generation, vec![gen.hash.clone()]);
+    p.set(StageName::Generation, vec![gen.hash.clone()]);
     let Some(meta) = cache.and_then(|c| generation::cached_meta(c, &gen)) else {
         return Ok(());
     };
     let sel = view_select::select(planned, meta.frames, ib)?;
-    p.fill(
+    p.set(
         StageName::ViewSelect,
         vec![view_select::key(ib, meta.frames)?.hash],
     );
@@ -419,14 +450,14 @@ fn image_keys(
     };
     let src_lift = lift_key(&pair.source, src_fs, &sel.src_depth)?;
     let tgt_lift = lift_key(&pair.target, tgt_fs, &sel.tgt_depth)?;
-    p.fill(
+    p.set(
         StageName::Lift,
         vec![src_lift.hash.clone(), tgt_lift.hash.clone()],
     );
     let lifts = (&src_lift, &tgt_lift);
     if vfm::is_pair_conditioned(&ib.vfm) {
         let key = pair_vfm::key(lifts, &gen, &vfm_id, &sel)?;
-        p.fill(StageName::PairVfm, vec![key.hash]);
+        p.set(StageName::PairVfm, vec![key.hash]);
         return Ok(());
     }
     let (_, cell) = vfm::settings(ib);
@@ -440,12 +471,12 @@ fn image_keys(
         views(&sel.src_generated, &src_lift)?,
         views(&sel.tgt_generated, &tgt_lift)?,
     );
-    p.fill(
+    p.set(
         StageName::Vfm,
         src_views.iter().chain(&tgt_views).cloned().collect(),
     );
     let key = image_points::key(lifts, (&src_views, &tgt_views))?;
-    p.fill(StageName::ImagePoints, vec![key.hash]);
+    p.set(StageName::ImagePoints, vec![key.hash]);
     Ok(())
 }
 
@@ -807,6 +838,17 @@ mod tests {
             "one pinhole entry per scan"
         );
         assert!(!v.is_known(DepthVideo));
+    }
+
+    /// The run takes the plan's steps in order: a step run before the one the plan has next
+    /// is caught (debug builds, as the tests run).
+    #[test]
+    #[cfg(debug_assertions)]
+    #[should_panic(expected = "left the plan's order")]
+    fn a_step_out_of_the_plans_order_is_caught() {
+        let mut p = Plan::skeleton(&demo_pair(), &demo_params());
+        p.fill(Geo, vec!["a".into(), "b".into()]);
+        p.fill(Generation, vec!["c".into()]);
     }
 
     /// A cloud-only pair's run fills the virtual frames' keys as the plan gives them, and

@@ -120,6 +120,7 @@ impl<'a> Registration<'a> {
                 "the plan was made for other parameters than the registration's".into(),
             ));
         }
+        plan.start_run();
         let own;
         let memo = match self.memo {
             Some(m) => m,
@@ -132,6 +133,7 @@ impl<'a> Registration<'a> {
             Some(ib) => super::image_branch::register_with_image(pair, self, ib, memo, &mut plan)?,
             None => register_geometry(pair, self, memo, &mut plan)?,
         };
+        debug_assert!(plan.ran_all_but_the_tail(), "a step did not run: {plan:?}");
         plan.fill_fusion()?;
         debug_assert!(plan.is_complete(), "a step left its key unfilled: {plan:?}");
         result.plan = Some(plan);
