@@ -1,6 +1,6 @@
 //! The stage graph of one registration, declared once: [`plan`] gives the ordered steps of a
 //! pair under a parameter set, each with its key when it is known before anything runs;
-//! [`super::Registration::run_plan`] executes the steps in that order and fills every key as
+//! [`super::Registration::run`] executes the steps in that order and fills every key as
 //! its step runs (the result carries the filled plan, [`RegistrationResult::plan`]); and
 //! [`Plan::invalidated_by`] compares two plans: the stages a settings change must run again.
 //!

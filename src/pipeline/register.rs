@@ -1,6 +1,6 @@
 //! The registration entry point: a [`Registration`] (parameters, stage cache, the caller's
 //! memo, what to keep) registers one pair with [`Registration::run`] (plan, then run the
-//! plan: [`Registration::plan`], [`Registration::run_plan`]), and re-runs the in-memory tail
+//! plan's steps; [`Registration::plan`] gives the plan ahead), and re-runs the in-memory tail
 //! from kept inputs with [`Registration::refuse_from_memory`]. The CLI (`register`, `bench`,
 //! `generate`), the studies, the inspector's worker and the Python binding all register
 //! through it. The stages are in `stages/`, which steps a registration has and their keys in
@@ -100,7 +100,7 @@ impl<'a> Registration<'a> {
     /// features read from files have none), the image branch's stages when `params.image`
     /// is set, then the in-memory tail. With `keep`, the result holds the tail's inputs; it
     /// always holds the plan it ran with every key filled ([`RegistrationResult::plan`]).
-    /// [`Self::run_plan`] of the plan's skeleton (no key is computed twice).
+    /// It runs the steps of [`Plan::skeleton`] (no key is computed twice).
     pub fn run(&self, pair: &ScanPair) -> Result<RegistrationResult> {
         self.run_plan(Plan::skeleton(pair, self.params), pair)
     }
@@ -114,7 +114,9 @@ impl<'a> Registration<'a> {
 
     /// Runs the steps of `plan` (made for `pair` under these parameters, by [`Self::plan`] or
     /// [`Plan::skeleton`]) in order, each filling its key; the result carries the filled plan.
-    pub fn run_plan(&self, mut plan: Plan, pair: &ScanPair) -> Result<RegistrationResult> {
+    /// Crate-internal: [`Self::run`] is the public way in (the inspector's worker runs the plan
+    /// it made to find its kept geometric branch).
+    pub(crate) fn run_plan(&self, mut plan: Plan, pair: &ScanPair) -> Result<RegistrationResult> {
         if plan.params() != self.params {
             return Err(Error::Invalid(
                 "the plan was made for other parameters than the registration's".into(),
