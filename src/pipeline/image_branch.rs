@@ -150,11 +150,8 @@ fn register_with_frames(
         generation::run(&mut ctx, pair, ib, &mut video, src_fs, tgt_fs, l, generate)?;
     plan.fill(StageName::Generation, vec![gen_key.hash.clone()]);
     let image_size = (gen.meta.width, gen.meta.height);
-    let sel = view_select::run(&mut ctx, planned, gen.meta.frames, ib)?;
-    plan.fill(
-        StageName::ViewSelect,
-        vec![view_select::key(ib, gen.meta.frames)?.hash],
-    );
+    let (sel, sel_key) = view_select::run(&mut ctx, planned, gen.meta.frames, ib)?;
+    plan.fill(StageName::ViewSelect, vec![sel_key.hash]);
 
     let pair_conditioned = vfm::is_pair_conditioned(&ib.vfm);
 
@@ -213,15 +210,8 @@ fn register_with_frames(
         vfm_label = label;
         ImageInputs::PairConditioned(d)
     } else {
-        plan.fill(
-            StageName::Vfm,
-            src_views
-                .keys
-                .iter()
-                .chain(&tgt_views.keys)
-                .cloned()
-                .collect(),
-        );
+        let view_keys = [src_views.keys.clone(), tgt_views.keys.clone()].concat();
+        plan.fill(StageName::Vfm, view_keys);
         let ((fs, vs, ft, vt), key) = image_points::run(
             &mut ctx,
             lift_keys,

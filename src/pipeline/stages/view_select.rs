@@ -61,16 +61,16 @@ pub(crate) fn planned(ib: &ImageBranchParams) -> Result<ViewSelection> {
 }
 
 /// The selection on the generated video's actual length (a backend may return more than 2L
-/// frames), timed as "view selection".
+/// frames), timed as "view selection"; with its key.
 pub(crate) fn run(
     ctx: &mut Ctx,
     planned: ViewSelection,
     n_generated: usize,
     ib: &ImageBranchParams,
-) -> Result<ViewSelection> {
+) -> Result<(ViewSelection, CacheKey)> {
     let t = Instant::now();
     let sel = select(planned, n_generated, ib)?;
     ctx.timer
         .record_as(NAME, "view selection", t.elapsed(), false);
-    Ok(sel)
+    Ok((sel, key(ib, n_generated)?))
 }
