@@ -3,9 +3,11 @@
 //! computed once (through the stage cache), then every candidate of the protocol is estimated
 //! from them and written to one JSON line per pair:
 //! the geometry-alone, Noisy-AND and image-alone poses with their fit on the union of
-//! {geometry, Noisy-AND} and of all three sets (rules a2, a3, a2-msac), SC2-PCR on the union of
-//! the Noisy-AND and geometry sets (b), and Noisy-AND with unseen points neutral (c).
-//! `scripts/fusion_study.py` applies the rules and the decision rule to these lines.
+//! {geometry, Noisy-AND} and of all three sets, on each branch's own set, SC2-PCR on the union
+//! of the Noisy-AND and geometry sets (b, the `union` mode), and each pose's free-space
+//! (visibility) consistency with both scans' depth views (fourth round). The first round's
+//! candidate (c) is no longer computed. `scripts/fusion_study2.py` (counts) and
+//! `scripts/fusion_study4.py` (visibility) apply the rules and the decision rule to these lines.
 //!
 //! ```sh
 //! cargo run --example fusion_study -- assets/manifests/redkitchen-dev.toml --wfm oracle \
@@ -15,12 +17,15 @@
 //! Every option not named is the default of the parameter types (ALIKE-t, K = 4, row softmax
 //! τ 0.1, mutual NN for the fused sets, SC2-PCR), as `cgenreg bench --vfm alike` runs it.
 
+use cgenreg::camera::visibility::{visibility, DepthView};
 use cgenreg::dataset::manifest::Dataset;
 use cgenreg::estimate::estimate_pose;
 use cgenreg::fusion::union::merge;
-use cgenreg::fusion::{calibrate, fuse, select, Correspondence, FusionMode};
+use cgenreg::fusion::{Correspondence, FusionMode};
+use cgenreg::io::depth_png::{read_depth_png, DepthImage};
 use cgenreg::metrics::{rre_deg, rte_m};
-use cgenreg::pipeline::tail::{endpoints, similarities, FusionInputs};
+use cgenreg::pipeline::stages::virtual_frames::{with_virtual_frames, FrameStore};
+use cgenreg::pipeline::tail::{endpoints, similarities};
 use cgenreg::pipeline::union::{geometry_params, mode_correspondences, noisy_and_params};
 use cgenreg::pipeline::{ImageBranchParams, Memo, RegisterParams, Registration, VfmSpec, WfmSpec};
 use clap::Parser;
@@ -130,7 +135,17 @@ fn study_pair(
     let img = &set(image)?;
     // (b): Noisy-AND's set, then the geometry set's pairs not in it (the `union` mode's merge)
     let b: Vec<Correspondence> = merge(and, geo).0;
-    let c = neutral_unseen(params, &inputs, &sims)?;
+    // The depth views of each side (the sensor's frames, or the virtual frames the image branch
+    // rendered for a cloud-only scan), for the visibility score of the fourth round.
+    let ib = params
+        .image
+        .as_ref()
+        .ok_or_else(|| cgenreg::Error::Invalid("the study needs the image branch".into()))?;
+    let (framed, _) = with_virtual_frames(&mut FrameStore::new(cache), pair, ib)?;
+    let src_depths = load_depths(&framed.source)?;
+    let tgt_depths = load_depths(&framed.target)?;
+    let src_views = views(&framed.source, &src_depths);
+    let tgt_views = views(&framed.target, &tgt_depths);
     let theta = params.inlier_threshold_m();
     let (src, tgt) = (&inputs.source_geo, &inputs.target_geo);
     let pts = |u: &[(u32, u32)]| {
@@ -156,7 +171,6 @@ fn study_pair(
         ("noisy-and", and),
         ("image", img),
         ("union-b", &b),
-        ("neutral-c", &c),
     ] {
         let (sp, tp, w) = endpoints((src, tgt), corr);
         let v = match estimate_pose(&sp, &tp, &w, &params.estimator) {
@@ -169,7 +183,15 @@ fn study_pair(
                 let fg = fit(&t, &gs, &gt_, theta).consensus;
                 let fa = fit(&t, &as_, &at, theta).consensus;
                 let fi = fit(&t, &is, &it, theta).consensus;
-                json!({"fit_g": fg, "fit_a": fa, "fit_i": fi,"n": corr.len(), "est_inliers": e.inliers.len(), "method": e.method,
+                // Source keypoints against the target's views, target keypoints against the
+                // source's views (under the inverse pose).
+                let vst = visibility(&src.keypoints.points, &t, &tgt_views, theta);
+                let vts = visibility(&tgt.keypoints.points, &t.inverse(), &src_views, theta);
+                json!({"fit_g": fg, "fit_a": fa, "fit_i": fi,
+                       "vis_st": [vst.consistent, vst.conflict, vst.unseen],
+                       "vis_ts": [vts.consistent, vts.conflict, vts.unseen],
+                       "vis": (vst + vts).score(),
+                       "n": corr.len(), "est_inliers": e.inliers.len(), "method": e.method,
                        "rre": r, "rte": tr, "ok": r <= 15.0 && tr <= 0.30,
                        "fit2": f2.consensus, "msac2": f2.msac,
                        "fit3": f3.consensus, "msac3": f3.msac, "gt_ir": gt_in})
@@ -221,32 +243,24 @@ fn union(sets: &[&[Correspondence]]) -> Vec<(u32, u32)> {
         .collect()
 }
 
-/// Candidate (c): Noisy-AND in which an entry whose source or target point has no pixel takes
-/// the image posterior π (Noisy-AND's neutral value) instead of 0; mutual NN.
-fn neutral_unseen(
-    params: &cgenreg::pipeline::RegisterParams,
-    inputs: &FusionInputs,
-    sims: &cgenreg::pipeline::tail::Similarities,
-) -> cgenreg::Result<Vec<Correspondence>> {
-    let _ = inputs;
-    let (s_img, vs, vt) = sims
-        .image
-        .as_ref()
-        .ok_or_else(|| cgenreg::Error::Invalid("no image similarity".into()))?;
-    let mut p_img = calibrate(s_img, Some(vs), Some(vt), params.fusion.calibration_img)?;
-    let p_geo = calibrate(&sims.geo, None, None, params.fusion.calibration_geo)?;
-    let prior = params
-        .fusion
-        .prior
-        .unwrap_or_else(|| fuse::default_prior(p_img.rows, p_img.cols)) as f32;
-    for (i, &seen) in vs.iter().enumerate().take(p_img.rows) {
-        let row = p_img.row_mut(i);
-        for (j, v) in row.iter_mut().enumerate() {
-            if !seen || !vt[j] {
-                *v = prior;
-            }
-        }
-    }
-    let keys = fuse::noisy_and_rank_keys(&p_img, &p_geo)?;
-    Ok(select(&keys, params.fusion.selection))
+/// Every depth frame of a scan, read once.
+fn load_depths(scan: &cgenreg::dataset::Scan) -> cgenreg::Result<Vec<DepthImage>> {
+    scan.frames
+        .iter()
+        .flat_map(|f| f.frames.iter())
+        .map(|f| read_depth_png(&f.depth_path))
+        .collect()
+}
+
+fn views<'a>(scan: &'a cgenreg::dataset::Scan, depths: &'a [DepthImage]) -> Vec<DepthView<'a>> {
+    scan.frames
+        .iter()
+        .flat_map(|f| f.frames.iter().map(move |fr| (&f.camera, fr)))
+        .zip(depths)
+        .map(|((camera, fr), depth)| DepthView {
+            camera,
+            scan_from_camera: fr.scan_from_camera,
+            depth,
+        })
+        .collect()
 }

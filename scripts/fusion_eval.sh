@@ -1,9 +1,10 @@
 #!/usr/bin/env bash
-# The evaluated rows of the union fusion (docs/ablation.md, "A fusion that never loses to its
+# The evaluated rows of the fusion study (docs/ablation.md, "A fusion that never loses to its
 # best branch"): for every evaluated set, with ALIKE-t and oracle RGB where the data has colour
-# (built-in frames otherwise), four runs: the default fusion (union), the paper's Noisy-AND,
-# the image branch alone and the geometric branch alone (no image branch: FPFH, NN). The image
-# branch's stages are cached by the first run, so the others cost only the in-memory tail.
+# (built-in frames otherwise), five runs: the default fusion (visibility), the union, the
+# paper's Noisy-AND, the image branch alone and the geometric branch alone (no image branch:
+# FPFH, NN). The image branch's stages are cached by the first run, so the others cost only the
+# in-memory tail. MODES (default "visibility union noisy-and image geometry") picks the runs.
 # Tables: python3 scripts/fusion_tables.py OUT
 #
 #   bash scripts/fusion_eval.sh SET [OUT_DIR]   # SET: staged-clouds rgbd-3dlomatch lidar staged rgbd-3dmatch kitti07
@@ -36,8 +37,13 @@ run() { # mode name, then bench options
     # the log names the cache folder; results are committed without machine paths
     sed -i "s|$CACHE|CACHE|g" "$OUT/$name.txt"
 }
-run union "${O[@]}" --vfm alike
-run noisy-and "${O[@]}" --vfm alike --fusion noisy-and
-run image "${O[@]}" --vfm alike --fusion image
-# geometry alone: the same pairs without the image branch (--wfm dropped)
-run geometry "${O[@]:0:${#O[@]}-2}"
+MODES="${MODES:-visibility union noisy-and image geometry}"
+for m in $MODES; do
+    case "$m" in
+        visibility) run visibility "${O[@]}" --vfm alike ;;
+        union | noisy-and | image) run "$m" "${O[@]}" --vfm alike --fusion "$m" ;;
+        # geometry alone: the same pairs without the image branch (--wfm dropped)
+        geometry) run geometry "${O[@]:0:${#O[@]}-2}" ;;
+        *) echo "unknown mode $m" >&2; exit 2 ;;
+    esac
+done

@@ -10,6 +10,7 @@
 #   CGENREG_BIN   the binary (default target/release/cgenreg, else target/debug/cgenreg)
 #   OUT           output folder (default target/spinnet-bench)
 #   PROBE=1       also KITTI 07 at 512 keypoints (a sensitivity figure, see below)
+#   FUSED=1       also the rows fused with the image branch, and redkitchen-rgbd (step 4)
 # Needs the exports of scripts/spinnet_export.sh. Summary: scripts/spinnet_summary.py OUT.
 set -euo pipefail
 root="$(cd "$(dirname "$0")/.." && pwd)"
@@ -54,5 +55,21 @@ run "staged-spinnet-$n" "$m/redkitchen-staged.toml" --geo-features spinnet-3dmat
 # here, so this is a sensitivity figure on evaluated pairs, not a choice: the default stays)
 if [ "${PROBE:-}" = 1 ]; then
   run kitti-spinnet-512-probe "$m/kitti07.toml" --geo-features spinnet-kitti --spinnet-keypoints 512
+fi
+# 4. FUSED=1: the image branch with each geometric branch, the default fusion (visibility), FPFH
+# beside SpinNet in the same run: oracle RGB + ALIKE-t on the staged and redkitchen-rgbd pairs
+# (colour frames), built-in f-theta frames + ALIKE-t on KITTI 07 (xyz only); and the
+# redkitchen-rgbd pairs with each branch alone.
+if [ "${FUSED:-}" = 1 ]; then
+  img=(--wfm oracle --vfm alike)
+  run staged-fpfh-oracle "$m/redkitchen-staged.toml" "${img[@]}"
+  run "staged-spinnet-$n-oracle" "$m/redkitchen-staged.toml" "${img[@]}" --geo-features spinnet-3dmatch --spinnet-keypoints "$n"
+  run rgbd-fpfh "$m/redkitchen-rgbd.toml"
+  run "rgbd-spinnet-$n" "$m/redkitchen-rgbd.toml" --geo-features spinnet-3dmatch --spinnet-keypoints "$n"
+  run rgbd-fpfh-oracle "$m/redkitchen-rgbd.toml" "${img[@]}"
+  run "rgbd-spinnet-$n-oracle" "$m/redkitchen-rgbd.toml" "${img[@]}" --geo-features spinnet-3dmatch --spinnet-keypoints "$n"
+  lidar=(--wfm builtin --vfm alike --virtual-camera ftheta)
+  run kitti-fpfh-builtin "$m/kitti07.toml" "${lidar[@]}"
+  run "kitti-spinnet-$n-builtin" "$m/kitti07.toml" "${lidar[@]}" --geo-features spinnet-kitti --spinnet-keypoints "$n"
 fi
 echo done

@@ -19,7 +19,9 @@ import sys
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 RUNS = ["dev-fpfh", "dev-spinnet-128", "dev-spinnet-256", "kitti-fpfh", "kitti-spinnet-128",
-        "staged-fpfh", "staged-spinnet-128", "kitti-spinnet-512-probe"]
+        "staged-fpfh", "staged-spinnet-128", "kitti-spinnet-512-probe",
+        "staged-fpfh-oracle", "staged-spinnet-128-oracle", "rgbd-fpfh", "rgbd-spinnet-128",
+        "rgbd-fpfh-oracle", "rgbd-spinnet-128-oracle", "kitti-fpfh-builtin", "kitti-spinnet-128-builtin"]
 
 
 def relative(d):
@@ -50,14 +52,20 @@ def main():
     bench = sys.argv[1] if len(sys.argv) > 1 else os.path.join(ROOT, "target", "spinnet-bench")
     dest = os.path.join(ROOT, "docs", "results", "spinnet")
     os.makedirs(dest, exist_ok=True)
-    summary = {"runs": {}, "note": "geometry only, SC2-PCR, nearest-neighbour selection; SpinNet at the "
+    summary = {"runs": {}, "note": "geometry only (SC2-PCR, nearest-neighbour selection) unless a run's name ends "
+               "in -oracle or -builtin (the image branch with ALIKE-t and the default fusion); SpinNet at the "
                "keypoint count chosen on the development pair; times on a 2-core machine shared with other "
                "work (wall) and the process's own CPU time (user)"}
+    # runs of an earlier bench folder that this one does not hold keep their committed entry
+    old_path = os.path.join(dest, "summary.json")
+    old = json.load(open(old_path)).get("runs", {}) if os.path.exists(old_path) else {}
     for name in RUNS:
         src = os.path.join(bench, name + ".json")
         done = os.path.join(bench, name + ".time")
         # a run still going has its .json (rewritten after every pair) but no timing yet
         if not os.path.exists(src) or not os.path.exists(done) or os.path.getsize(done) == 0:
+            if name in old:
+                summary["runs"][name] = old[name]
             continue
         d = relative(json.load(open(src)))
         with open(os.path.join(dest, name + ".json"), "w") as f:
@@ -86,6 +94,11 @@ def main():
     chosen = os.path.join(bench, "chosen.txt")
     if os.path.exists(chosen):
         summary["keypoints_chosen"] = open(chosen).read().strip()
+    elif os.path.exists(old_path):
+        prev = json.load(open(old_path))
+        for key in ("keypoints_chosen", "export"):
+            if key in prev:
+                summary[key] = prev[key]
     report = os.path.join(ROOT, "target", "spinnet", "report.json")
     if os.path.exists(report):
         r = json.load(open(report))

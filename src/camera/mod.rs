@@ -5,6 +5,7 @@ pub mod ftheta;
 pub mod render;
 pub mod sensor_origin;
 pub mod trajectory;
+pub mod visibility;
 
 use serde::{Deserialize, Serialize};
 

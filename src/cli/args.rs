@@ -96,9 +96,9 @@ pub struct PipelineArgs {
     /// Softmax temperature of the geometric branch.
     #[arg(long, default_value_t = 0.1)]
     pub tau_geo: f32,
-    /// Fusion of the two branches. Default: `union` when the image branch runs (Noisy-AND's
-    /// correspondences and the geometric branch's own, estimated together), Noisy-AND with
-    /// `--reference` (the authors' code).
+    /// Fusion of the two branches. Default: `visibility` when the image branch runs (the
+    /// union's, the geometric branch's and Noisy-AND's poses; the one most consistent with both
+    /// scans' depth views is kept), Noisy-AND with `--reference` (the authors' code).
     #[arg(long, value_enum)]
     pub fusion: Option<FusionMode>,
     /// Noisy-AND prior; default 1/(N*M).

@@ -94,6 +94,7 @@ fn fusion_name(mode: &str) -> String {
         "NoisyOr" => "Noisy-OR".into(),
         "Concat" => "Concat.".into(),
         "Union" => "union".into(),
+        "Visibility" => "visibility".into(),
         m => m.into(),
     }
 }

@@ -41,15 +41,20 @@ pub enum FusionMode {
     /// together: a weak image branch cannot veto the geometric matches.
     /// Its posterior (inspector, export) is Noisy-AND's.
     Union,
+    /// The union's, the geometric branch's and Noisy-AND's poses, of which the one most
+    /// consistent with both scans' depth views is kept (fewest points put into the space a
+    /// sensor saw through; `camera::visibility`). Its posterior is Noisy-AND's.
+    Visibility,
 }
 
 impl FusionMode {
     /// The mode the CLI and the inspector use when the image branch runs and none is chosen
     /// (`FusionParams::default()` stays the paper's Noisy-AND).
-    pub const DEFAULT_WITH_IMAGE: FusionMode = FusionMode::Union;
+    pub const DEFAULT_WITH_IMAGE: FusionMode = FusionMode::Visibility;
 
     /// Every mode, in the order the inspector lists them.
-    pub const ALL: [FusionMode; 6] = [
+    pub const ALL: [FusionMode; 7] = [
+        FusionMode::Visibility,
         FusionMode::Union,
         FusionMode::NoisyAnd,
         FusionMode::NoisyOr,
@@ -66,14 +71,16 @@ impl FusionMode {
             FusionMode::ImageOnly => "Image only",
             FusionMode::GeometryOnly => "Geometry only",
             FusionMode::Union => "Union (Noisy-AND + geometry correspondences)",
+            FusionMode::Visibility => "Visibility (union, geometry or Noisy-AND pose)",
         }
     }
 
     /// The mode whose posterior matrix this mode shows and selects from: Noisy-AND for
-    /// `Union` (a union of two selections, not a matrix), the mode itself otherwise.
+    /// `Union` and `Visibility` (selections and poses, not a matrix), the mode itself
+    /// otherwise.
     pub fn matrix_mode(self) -> FusionMode {
         match self {
-            FusionMode::Union => FusionMode::NoisyAnd,
+            FusionMode::Union | FusionMode::Visibility => FusionMode::NoisyAnd,
             m => m,
         }
     }
@@ -275,7 +282,7 @@ pub fn fuse(
              concat_similarity, then calibrate that one similarity"
                 .into(),
         )),
-        FusionMode::NoisyAnd | FusionMode::NoisyOr | FusionMode::Union => {
+        FusionMode::NoisyAnd | FusionMode::NoisyOr | FusionMode::Union | FusionMode::Visibility => {
             let (a, b) = (need(p_img, mode, "image")?, need(p_geo, mode, "geometric")?);
             same_shape(a, b)?;
             let mut out = DenseMatrix::zeros(a.rows, a.cols)?;

@@ -206,7 +206,9 @@ impl<'a> PosteriorRows<'a> {
         let fused = match params.mode {
             FusionMode::ImageOnly => need(&image, "image")?,
             FusionMode::GeometryOnly => need(&geometric, "geometric")?,
-            FusionMode::NoisyAnd | FusionMode::Union if !params.exact_reference => {
+            FusionMode::NoisyAnd | FusionMode::Union | FusionMode::Visibility
+                if !params.exact_reference =>
+            {
                 let (a, b) = (
                     as_row(need(&image, "image")?)?,
                     as_row(need(&geometric, "geometric")?)?,
@@ -215,7 +217,10 @@ impl<'a> PosteriorRows<'a> {
                 rank_keys_to_posteriors(&mut keys, Some(prior))?;
                 keys.data
             }
-            mode @ (FusionMode::NoisyAnd | FusionMode::NoisyOr | FusionMode::Union) => {
+            mode @ (FusionMode::NoisyAnd
+            | FusionMode::NoisyOr
+            | FusionMode::Union
+            | FusionMode::Visibility) => {
                 let (a, b) = (
                     as_row(need(&image, "image")?)?,
                     as_row(need(&geometric, "geometric")?)?,

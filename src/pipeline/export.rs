@@ -142,7 +142,7 @@ pub fn correspondence_table(
         // as fuse_and_finish: without image descriptors only geometry-only fusion runs
         fusion.mode = FusionMode::GeometryOnly;
     }
-    if fusion.mode == FusionMode::Union && inputs.image.is_some() {
+    if matches!(fusion.mode, FusionMode::Union | FusionMode::Visibility) && inputs.image.is_some() {
         // the union's pairs carry Noisy-AND's posterior (those only in the geometric set: 0)
         fusion.mode = FusionMode::NoisyAnd;
     }

@@ -24,13 +24,16 @@ use super::stages::vfm::SideViews;
 use super::stages::virtual_frames::{camera_coverage_warnings, framed_pair, FrameStore};
 use super::stages::{depth_video, generation, image_points, lift, pair_vfm, vfm, view_select, Ctx};
 use super::tail::{fuse_and_finish, FusionInputs, ImageInputs};
+use super::visibility::PairViews;
 use crate::cache::{Cache, CacheKey};
 use crate::dataset::{FrameSet, ScanPair};
 use crate::error::Result;
+use crate::fusion::FusionMode;
 use crate::vfm::lift::PixelLink;
 use crate::wfm::ViewSelection;
 use image::RgbImage;
 use std::borrow::Cow;
+use std::sync::Arc;
 
 /// The full method on one pair (`ib`: `reg.params.image`), with the [`FusionInputs`] its
 /// tail ran on; the steps of `plan` run in order and fill their keys.
@@ -239,11 +242,17 @@ fn register_with_frames(
         },
     ];
     let coverage = coverage_warnings(&image);
+    let views = PairViews::new(src_fs.clone(), tgt_fs.clone());
+    if params.fusion.mode == FusionMode::Visibility {
+        // now: virtual frames of a run without a cache are gone after it
+        views.load()?;
+    }
     let inputs = FusionInputs {
         source_geo: src_geo,
         target_geo: tgt_geo,
         image_label: Some(branch_label(ib, &gen, &vfm_id, &image)),
         image: Some(image),
+        views: Some(Arc::new(views)),
     };
     let output = image_output(ib, &gen, &gen_key, sides, vfm_label);
     let mut res = fuse_and_finish(pair, params, &inputs, None, reg.estimates)?;

@@ -23,6 +23,7 @@ pub mod stages;
 pub mod study;
 pub mod tail;
 pub mod union;
+pub mod visibility;
 
 pub use crate::vfm::VfmSpec;
 pub use memo::Memo;

@@ -196,6 +196,7 @@ fn register_geometry(
         target_geo: tgt,
         image: None,
         image_label: None,
+        views: None,
     };
     let mut res = fuse_and_finish(pair, params, &inputs, None, reg.estimates)?;
     let Ctx {

@@ -93,6 +93,9 @@ pub struct RegistrationResult {
     /// The `union` fusion's report: the sets it merged and where its inliers came from.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub union: Option<crate::fusion::union::UnionReport>,
+    /// The `visibility` fusion's report: every candidate pose's score and the one kept.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub visibility: Option<super::visibility::VisibilityReport>,
     /// The in-memory tail's inputs, when the registration kept them
     /// ([`super::Registration::keep`]): what a re-fusion, the correspondence export and the
     /// posterior inspector recompute from.
@@ -106,10 +109,15 @@ pub struct RegistrationResult {
 }
 
 impl RegistrationResult {
-    /// The fusion's provenance line ("fusion: union (1030 Noisy-AND + 6256 geometry ...)"),
-    /// for the `union` mode; None for the other modes (their label says the mode).
+    /// The fusion's provenance line ("fusion: union (1030 Noisy-AND + 6256 geometry ...)",
+    /// "fusion: visibility (kept the ... pose; ...)"), for the `union` and `visibility` modes;
+    /// None for the other modes (their label says the mode).
     pub fn fusion_provenance(&self) -> Option<String> {
-        self.union.as_ref().map(|d| d.provenance())
+        match (&self.visibility, &self.union) {
+            (Some(v), Some(u)) => Some(format!("{}; {}", v.provenance(), u.provenance())),
+            (Some(v), None) => Some(v.provenance()),
+            (None, u) => u.as_ref().map(|d| d.provenance()),
+        }
     }
 
     /// The image branch's label without the fusion the tail appended to it (`; fusion ...`):

@@ -12,6 +12,7 @@ use crate::features::Features;
 use crate::fusion::matrix::DenseMatrix;
 use crate::fusion::{cosine_similarity, match_then_fuse_select, Calibration, Correspondence};
 use crate::fusion::{FusionMode, Selection};
+use std::sync::Arc;
 
 use crate::metrics::PairMetrics;
 use crate::vfm::pair_similarity::PairPointDescriptors;
@@ -62,6 +63,8 @@ pub struct FusionInputs {
     pub image: Option<ImageInputs>,
     /// Label of the image branch, as in `RegistrationResult::image_branch` (fusion mode aside).
     pub image_label: Option<String>,
+    /// Both scans' depth frames, for the `visibility` fusion mode (None: geometry only).
+    pub views: Option<Arc<super::visibility::PairViews>>,
 }
 
 /// Per-point image descriptors, as the image similarity needs them.
@@ -293,6 +296,9 @@ pub(crate) fn fuse_and_finish(
     if inputs.image.is_some() && params.fusion.mode == FusionMode::Union {
         return super::union::register(pair, params, inputs, sims, timer, memo);
     }
+    if inputs.image.is_some() && params.fusion.mode == FusionMode::Visibility {
+        return super::visibility::register(pair, params, inputs, sims, timer, memo);
+    }
     let corr = match &inputs.image {
         Some(_) => image_correspondences(inputs, sims, &params.fusion, &mut timer)?,
         None => {
@@ -506,6 +512,7 @@ pub(crate) fn finish(
         inliers: est.inliers,
         image: None,
         union: None,
+        visibility: None,
         inputs: None,
         plan: None,
     })

@@ -47,7 +47,7 @@ pub fn mode_correspondences(
 /// The union's two sets (Noisy-AND, geometry) from `inputs` (image descriptors required). The
 /// similarity matrices are formed once (or taken from `sims`), except for a large pair whose
 /// Noisy-AND streams from the features.
-fn member_sets(
+pub(crate) fn member_sets(
     params: &RegisterParams,
     inputs: &FusionInputs,
     sims: Option<&Similarities>,
@@ -96,7 +96,19 @@ pub(crate) fn register(
     memo: Option<&EstimateMemo>,
 ) -> Result<RegistrationResult> {
     let (and, geo) = member_sets(params, inputs, sims, &mut timer)?;
-    let (corr, origin) = merge(&and, &geo);
+    from_sets(pair, params, inputs, (&and, &geo), timer, memo)
+}
+
+/// The `union` registration from its two sets (Noisy-AND, geometry).
+pub(crate) fn from_sets(
+    pair: &ScanPair,
+    params: &RegisterParams,
+    inputs: &FusionInputs,
+    (and, geo): (&[Correspondence], &[Correspondence]),
+    timer: Timer,
+    memo: Option<&EstimateMemo>,
+) -> Result<RegistrationResult> {
+    let (corr, origin) = merge(and, geo);
     let label = inputs.image_label.clone();
     let src_tgt = (&inputs.source_geo, &inputs.target_geo);
     let mut res = finish(pair, params, timer, src_tgt, corr, label, memo)?;

@@ -321,23 +321,33 @@ fn dev_manifest_is_disjoint_from_the_evaluated_pairs() {
 /// 3DLoMatch-like, GT from the frame poses.
 #[test]
 fn dev3_manifest_uses_other_fragment_boundaries() {
+    dev_manifest_uses_other_fragment_boundaries("redkitchen-dev3.toml", [12, 37], 14);
+}
+
+/// The fourth development set (fusion study, fourth round): fragments at 50k+6 and 50k+31.
+#[test]
+fn dev4_manifest_uses_other_fragment_boundaries() {
+    dev_manifest_uses_other_fragment_boundaries("redkitchen-dev4.toml", [6, 31], 15);
+}
+
+fn dev_manifest_uses_other_fragment_boundaries(file: &str, offsets: [usize; 2], pairs: usize) {
     use cgenreg::dataset::manifest::FragmentSource;
     let Some(_root) = cgenreg::testing::test_data_root() else {
         return;
     };
-    let dev3 = Dataset::load(&manifest("redkitchen-dev3.toml")).unwrap();
-    let first = |id: &str| match &dev3.fragment(id).unwrap().source {
+    let dev = Dataset::load(&manifest(file)).unwrap();
+    let first = |id: &str| match &dev.fragment(id).unwrap().source {
         FragmentSource::Rgbd { range, .. } => (range.first, range.count),
         _ => panic!("{id}: not an RGB-D fragment"),
     };
-    assert_eq!(dev3.fragments().len(), 18);
-    for f in dev3.fragments() {
+    assert_eq!(dev.fragments().len(), 18);
+    for f in dev.fragments() {
         let (s, n) = first(&f.id);
-        assert!([12, 37].contains(&(s % 50)) && n == 50, "{}: {s} {n}", f.id);
+        assert!(offsets.contains(&(s % 50)) && n == 50, "{}: {s} {n}", f.id);
     }
-    assert_eq!(dev3.pairs().len(), 14);
-    assert_eq!(dev3.pairs_in_split("3DLoMatch-like").count(), 14);
-    for p in dev3.pairs() {
+    assert_eq!(dev.pairs().len(), pairs);
+    assert_eq!(dev.pairs_in_split("3DLoMatch-like").count(), pairs);
+    for p in dev.pairs() {
         let (t, s) = (first(&p.target).0, first(&p.source).0);
         assert_eq!(t % 50, s % 50, "{}: pairs stay within one offset", p.id);
         assert!(p.gt_target_from_source.is_some(), "{}", p.id);

@@ -1,12 +1,13 @@
-//! The `union` fusion on a development pair (never an evaluated pair): the registration is
-//! never worse than its best branch, it estimates on exactly the Noisy-AND and geometric sets
-//! merged, and the result says what it merged and where its inliers came from. Skipped
-//! without the real data, failing under CI=true.
+//! The `union` and `visibility` fusions on development pairs (never evaluated pairs): the
+//! registration is never worse than its best branch; the union estimates on exactly the
+//! Noisy-AND and geometric sets merged; each result says what it compared or merged and
+//! where its inliers came from. Skipped without the real data, failing under CI=true.
 
 use cgenreg::dataset::Dataset;
 use cgenreg::fusion::union::merge;
 use cgenreg::fusion::{FusionMode, FusionParams, Selection};
 use cgenreg::pipeline::union::{geometry_params, mode_correspondences, noisy_and_params};
+use cgenreg::pipeline::visibility::Candidate;
 use cgenreg::pipeline::{ImageBranchParams, RegisterParams, Registration, VfmSpec, WfmSpec};
 use std::path::Path;
 
@@ -97,4 +98,65 @@ fn union_is_never_worse_than_its_best_branch_on_a_development_pair() {
     assert!(res.image_branch.as_deref().unwrap().contains(&line));
     let json = serde_json::to_value(&res).unwrap();
     assert_eq!(json["union"]["n_union"], u.len());
+
+    // the default with images, `visibility`, from the same inputs: it keeps the geometric pose
+    // here (the union's also registers; the geometric one is more consistent with the views)
+    let v = alone(FusionMode::Visibility, None);
+    assert_eq!(FusionMode::DEFAULT_WITH_IMAGE, FusionMode::Visibility);
+    let rep = v.visibility.as_ref().unwrap();
+    assert!(ok(&v), "{:?}", v.fusion_provenance());
+    assert_eq!(
+        rep.chosen,
+        Candidate::Geometry,
+        "{:?}",
+        v.fusion_provenance()
+    );
+    assert_eq!(v.target_from_source, geo.target_from_source);
+    assert_eq!((rep.source_views, rep.target_views), (50, 50));
+    let scores: Vec<i64> = rep.candidates.iter().map(|c| c.score).collect();
+    assert_eq!(scores.iter().max(), Some(&rep.candidates[1].score));
+    assert!(v
+        .fusion_provenance()
+        .unwrap()
+        .starts_with("fusion: visibility (kept the geometry pose"));
+}
+
+/// A development pair (3DLoMatch-like, fragments at 50k+37) where Noisy-AND alone registers and
+/// the union and geometry alone do not: a wrong but consistent cluster of the geometric set
+/// outvotes Noisy-AND's correct one. The visibility fusion keeps Noisy-AND's pose.
+#[test]
+fn visibility_keeps_the_small_correct_cluster_the_union_outvotes() {
+    let Some(_) = cgenreg::testing::test_data_root() else {
+        return;
+    };
+    let manifest =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/manifests/redkitchen-dev3.toml");
+    let ds = Dataset::load(&manifest).unwrap();
+    let pair = ds.load_pair("redkitchen-dev3/f137-f287").unwrap();
+    let p = params(FusionMode::Visibility);
+    let mut v = Registration::new(&p).keep(true).run(&pair).unwrap();
+    let inputs = v.inputs.take().unwrap();
+    let ok = |r: &cgenreg::pipeline::RegistrationResult| r.metrics.as_ref().unwrap().success;
+    let other = |mode| {
+        Registration::new(&params(mode))
+            .refuse_from_memory(&pair, &inputs, None)
+            .unwrap()
+    };
+    let (union, and) = (other(FusionMode::Union), other(FusionMode::NoisyAnd));
+    assert!(
+        ok(&and) && !ok(&union),
+        "{:?} {:?}",
+        and.metrics,
+        union.metrics
+    );
+    assert!(ok(&v), "{:?}", v.fusion_provenance());
+    let rep = v.visibility.as_ref().unwrap();
+    assert_eq!(rep.chosen, Candidate::NoisyAnd);
+    assert_eq!(v.target_from_source, and.target_from_source);
+    assert!(rep.candidates[2].score > rep.candidates[0].score);
+    // the provenance in the label and the JSON
+    let line = v.fusion_provenance().unwrap();
+    assert!(v.image_branch.as_deref().unwrap().contains(&line), "{line}");
+    let json = serde_json::to_value(&v).unwrap();
+    assert_eq!(json["visibility"]["chosen"], "noisy-and");
 }

@@ -165,3 +165,44 @@ fn ladder(ids: &[&str], at_least: usize) {
         ids.len()
     );
 }
+
+/// With built-in f-theta frames (depth shading, not a WFM: image alone and Noisy-AND register
+/// none of the far pairs) the default `visibility` fusion keeps the geometric pose on pair 2-4
+/// (17 m apart), which the `union` fusion loses: a wrong image-led pose puts the scan into
+/// space the other scan's range view saw through.
+#[test]
+fn kitti07_visibility_fusion_keeps_the_geometric_pose_the_union_loses() {
+    use cgenreg::fusion::{FusionMode, Selection};
+    use cgenreg::pipeline::params::VirtualCamera;
+    use cgenreg::pipeline::visibility::Candidate;
+    use cgenreg::pipeline::{ImageBranchParams, VfmSpec, WfmSpec};
+    let Some(_root) = cgenreg::testing::test_data_root() else {
+        return;
+    };
+    let ds = Dataset::load(&manifest()).unwrap();
+    let id = "kitti07/2-4";
+    let mut params = RegisterParams::preset(ds.preset_of(id).unwrap());
+    params.image = Some(ImageBranchParams {
+        backend: WfmSpec::Builtin,
+        vfm: VfmSpec::Alike {
+            model: cgenreg::vfm::default_model_path("alike-t.onnx"),
+        },
+        virtual_camera: VirtualCamera::Ftheta,
+        ..Default::default()
+    });
+    params.fusion.mode = FusionMode::DEFAULT_WITH_IMAGE;
+    params.fusion.selection = Selection::MutualNn;
+    let pair = ds.load_pair(id).unwrap();
+    let mut v = Registration::new(&params).keep(true).run(&pair).unwrap();
+    let inputs = v.inputs.take().unwrap();
+    let mut u = params.clone();
+    u.fusion.mode = FusionMode::Union;
+    let union = Registration::new(&u)
+        .refuse_from_memory(&pair, &inputs, None)
+        .unwrap();
+    let ok = |r: &cgenreg::pipeline::RegistrationResult| r.metrics.as_ref().unwrap().success;
+    let rep = v.visibility.as_ref().unwrap();
+    println!("{}", v.fusion_provenance().unwrap());
+    assert!(ok(&v) && !ok(&union), "{:?} {:?}", v.metrics, union.metrics);
+    assert_eq!(rep.chosen, Candidate::Geometry);
+}

@@ -96,7 +96,7 @@ def test_gil_is_released_during_registration(data_root):
 
 
 def test_image_branch_pair_equals_cli(data_root, cli_binary, tmp_path):
-    """The full method (built-in frames + ALIKE-t, the default union fusion) on the bundled demo
+    """The full method (built-in frames + ALIKE-t, the default visibility fusion) on the bundled demo
     pair: the package gives the command line's result, with the image branch's provenance."""
     demo = STAGED.parents[1] / "demo" / "demo.toml"
     opts = ["--wfm", "builtin", "--vfm", "alike", "--frames", "8", "--margin", "1", "--k", "2",
@@ -107,4 +107,4 @@ def test_image_branch_pair_equals_cli(data_root, cli_binary, tmp_path):
     py = json.loads(res.to_json())
     for key in ("target_from_source", "metrics", "n_correspondences", "n_inliers", "image_branch"):
         assert close(py[key], cli[key]), key
-    assert "union" in py["image_branch"] and "builtin" in py["image_branch"]
+    assert "fusion: visibility" in py["image_branch"] and "builtin" in py["image_branch"]

@@ -67,6 +67,7 @@ impl PipelineWorker {
                 target_geo: inputs.target_geo.clone(),
                 image: None,
                 image_label: None,
+                views: None,
             });
             self.geo.insert(key, g);
         }

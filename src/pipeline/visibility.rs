@@ -1,0 +1,298 @@
+//! The `visibility` fusion mode in the in-memory tail: the `union` pose, the geometric
+//! branch's pose (its row-NN set) and Noisy-AND's pose, each estimated by the run's estimator;
+//! the one most consistent with both scans' depth views is kept ([`crate::camera::visibility`]:
+//! consistent minus conflicting keypoints, both directions; ties in the order union,
+//! geometry, Noisy-AND).
+//!
+//! Chosen on development pairs by the written protocol (docs/ablation.md, "The fusion study,
+//! fourth round"): counts of correspondences cannot tell a correct small Noisy-AND cluster
+//! from a wrong but consistent large geometric one; whether a pose puts one scan into the
+//! space the other's sensor saw through can.
+
+use super::params::RegisterParams;
+use super::result::{RegistrationResult, StageTiming, Timer};
+use super::tail::{finish, EstimateMemo, FusionInputs, Similarities};
+use super::union::{from_sets, member_sets};
+use crate::camera::visibility::{visibility, DepthView, Visibility};
+use crate::dataset::{FrameSet, ScanPair};
+use crate::error::{Error, Result};
+use crate::io::depth_png::{read_depth_png, DepthImage};
+use serde::{Deserialize, Serialize};
+use std::sync::OnceLock;
+use std::time::Instant;
+
+/// A pose the visibility mode chooses among.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Candidate {
+    Union,
+    Geometry,
+    NoisyAnd,
+}
+
+impl Candidate {
+    /// The tie order.
+    pub const ALL: [Candidate; 3] = [Candidate::Union, Candidate::Geometry, Candidate::NoisyAnd];
+
+    pub fn label(self) -> &'static str {
+        match self {
+            Candidate::Union => "union",
+            Candidate::Geometry => "geometry",
+            Candidate::NoisyAnd => "Noisy-AND",
+        }
+    }
+}
+
+/// One candidate pose's visibility (source keypoints in the target's views plus target
+/// keypoints in the source's views).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CandidateScore {
+    pub pose: Candidate,
+    pub consistent: usize,
+    pub conflict: usize,
+    /// consistent - conflict.
+    pub score: i64,
+    /// The estimator's inliers of this pose on its own correspondences.
+    pub inliers: usize,
+}
+
+/// What the visibility mode compared and kept: the result's provenance.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct VisibilityReport {
+    pub chosen: Candidate,
+    /// Every candidate, in the tie order.
+    pub candidates: Vec<CandidateScore>,
+    /// The depth views each side was checked against.
+    pub source_views: usize,
+    pub target_views: usize,
+}
+
+impl VisibilityReport {
+    /// "fusion: visibility (kept the Noisy-AND pose; V = consistent - conflicting keypoints:
+    /// union -399, geometry -323, Noisy-AND 2056)".
+    pub fn provenance(&self) -> String {
+        let v: Vec<String> = self
+            .candidates
+            .iter()
+            .map(|c| format!("{} {}", c.pose.label(), c.score))
+            .collect();
+        format!(
+            "fusion: visibility (kept the {} pose; V = consistent - conflicting keypoints in \
+             {} + {} depth views: {})",
+            self.chosen.label(),
+            self.source_views,
+            self.target_views,
+            v.join(", ")
+        )
+    }
+}
+
+/// The index of the largest score; ties go to the earliest. None for no scores.
+pub fn choose(scores: &[i64]) -> Option<usize> {
+    let best = *scores.iter().max()?;
+    scores.iter().position(|&s| s == best)
+}
+
+/// The depth frames of both scans of a pair (every frame the image branch has: the sensor's, or
+/// the virtual frames rendered for a cloud-only scan), read once, on first use.
+#[derive(Debug)]
+pub struct PairViews {
+    source: FrameSet,
+    target: FrameSet,
+    loaded: OnceLock<std::result::Result<[Vec<DepthImage>; 2], String>>,
+}
+
+impl PairViews {
+    pub fn new(source: FrameSet, target: FrameSet) -> Self {
+        PairViews {
+            source,
+            target,
+            loaded: OnceLock::new(),
+        }
+    }
+
+    /// Read every depth frame now (the virtual frames of a run without a cache live in a
+    /// scratch folder only until the run ends).
+    pub fn load(&self) -> Result<()> {
+        self.depths().map(|_| ())
+    }
+
+    fn depths(&self) -> Result<&[Vec<DepthImage>; 2]> {
+        let read = |fs: &FrameSet| -> Result<Vec<DepthImage>> {
+            fs.frames
+                .iter()
+                .map(|f| read_depth_png(&f.depth_path))
+                .collect()
+        };
+        self.loaded
+            .get_or_init(|| {
+                let both = || -> Result<[Vec<DepthImage>; 2]> {
+                    Ok([read(&self.source)?, read(&self.target)?])
+                };
+                both().map_err(|e| e.to_string())
+            })
+            .as_ref()
+            .map_err(|m| Error::Invalid(format!("fusion visibility: {m}")))
+    }
+
+    /// (source views, target views).
+    fn views(&self) -> Result<[Vec<DepthView<'_>>; 2]> {
+        let [sd, td] = self.depths()?;
+        Ok([side(&self.source, sd), side(&self.target, td)])
+    }
+}
+
+fn side<'a>(fs: &'a FrameSet, depths: &'a [DepthImage]) -> Vec<DepthView<'a>> {
+    fs.frames
+        .iter()
+        .zip(depths)
+        .map(|(f, depth)| DepthView {
+            camera: &fs.camera,
+            scan_from_camera: f.scan_from_camera,
+            depth,
+        })
+        .collect()
+}
+
+/// The `visibility` registration of `pair` from `inputs` (image descriptors and depth views
+/// present).
+pub(crate) fn register(
+    pair: &ScanPair,
+    params: &RegisterParams,
+    inputs: &FusionInputs,
+    sims: Option<&Similarities>,
+    mut timer: Timer,
+    memo: Option<&EstimateMemo>,
+) -> Result<RegistrationResult> {
+    let t0 = timer.t0;
+    let views = inputs.views.as_ref().ok_or_else(|| {
+        Error::Invalid(
+            "fusion visibility: the scans' depth views are missing (the image branch did not \
+             run on this pair)"
+                .into(),
+        )
+    })?;
+    let t = Instant::now();
+    let [src_views, tgt_views] = views.views()?;
+    timer.record("visibility: depth views", t.elapsed(), false);
+    let (and, geo) = member_sets(params, inputs, sims, &mut timer)?;
+    let union = from_sets(pair, params, inputs, (&and, &geo), timer, memo)?;
+    let src_tgt = (&inputs.source_geo, &inputs.target_geo);
+    let label = inputs.image_label.clone();
+    let g = finish(
+        pair,
+        params,
+        Timer::new(),
+        src_tgt,
+        geo,
+        label.clone(),
+        None,
+    )?;
+    let a = finish(pair, params, Timer::new(), src_tgt, and, label, None)?;
+
+    let t = Instant::now();
+    let theta = params.inlier_threshold_m();
+    let (src_pts, tgt_pts) = (
+        &inputs.source_geo.keypoints.points,
+        &inputs.target_geo.keypoints.points,
+    );
+    let results = [union, g, a];
+    let candidates: Vec<CandidateScore> = Candidate::ALL
+        .iter()
+        .zip(&results)
+        .map(|(&pose, r)| {
+            let v: Visibility = visibility(src_pts, &r.estimate, &tgt_views, theta)
+                + visibility(tgt_pts, &r.estimate.inverse(), &src_views, theta);
+            CandidateScore {
+                pose,
+                consistent: v.consistent,
+                conflict: v.conflict,
+                score: v.score(),
+                inliers: r.n_inliers,
+            }
+        })
+        .collect();
+    let scores: Vec<i64> = candidates.iter().map(|c| c.score).collect();
+    let k = choose(&scores).unwrap_or(0);
+    let vis_elapsed = t.elapsed();
+    let report = VisibilityReport {
+        chosen: Candidate::ALL[k],
+        candidates,
+        source_views: src_views.len(),
+        target_views: tgt_views.len(),
+    };
+
+    let [union, g, a] = results;
+    let mut timings = union.timings.clone();
+    for (name, r) in [
+        ("estimate: geometry pose", &g),
+        ("estimate: Noisy-AND pose", &a),
+    ] {
+        timings.extend(r.timings.iter().map(|t| StageTiming {
+            stage: name.to_string(),
+            ..t.clone()
+        }));
+    }
+    timings.push(StageTiming {
+        stage: "visibility".into(),
+        name: Some(super::plan::StageName::Fusion),
+        ms: vis_elapsed.as_secs_f64() * 1e3,
+        status: super::result::status_word(false).into(),
+    });
+    let mut res = match report.chosen {
+        Candidate::Union => union,
+        Candidate::Geometry => g,
+        Candidate::NoisyAnd => a,
+    };
+    res.timings = timings;
+    res.total_ms = t0.elapsed().as_secs_f64() * 1e3;
+    res.image_branch = inputs.image_label.as_ref().map(|l| {
+        let union = res.union.as_ref().map(|u| format!("; {}", u.provenance()));
+        format!("{l}; {}{})", report.provenance(), union.unwrap_or_default())
+    });
+    res.visibility = Some(report);
+    Ok(res)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_largest_score_wins_and_ties_go_to_the_earliest() {
+        assert_eq!(choose(&[-399, -323, 2056]), Some(2));
+        assert_eq!(choose(&[5, 5, 4]), Some(0));
+        assert_eq!(choose(&[1, 7, 7]), Some(1));
+        assert_eq!(choose(&[]), None);
+    }
+
+    #[test]
+    fn the_provenance_names_the_kept_pose_and_every_score() {
+        let c = |pose, score| CandidateScore {
+            pose,
+            consistent: 10,
+            conflict: 3,
+            score,
+            inliers: 4,
+        };
+        let r = VisibilityReport {
+            chosen: Candidate::NoisyAnd,
+            candidates: vec![
+                c(Candidate::Union, -399),
+                c(Candidate::Geometry, -323),
+                c(Candidate::NoisyAnd, 2056),
+            ],
+            source_views: 50,
+            target_views: 50,
+        };
+        let p = r.provenance();
+        assert!(
+            p.starts_with("fusion: visibility (kept the Noisy-AND pose"),
+            "{p}"
+        );
+        assert!(
+            p.contains("union -399, geometry -323, Noisy-AND 2056"),
+            "{p}"
+        );
+    }
+}
