@@ -7,6 +7,7 @@
 use crate::cache::Cache;
 use crate::estimate::scale::Scaled;
 use crate::estimate::EstimatorKind;
+use crate::features::DescriptorName;
 use crate::fusion::calibrate::Calibration;
 use crate::fusion::fuse::FusionMode;
 use crate::fusion::select::Selection;
@@ -120,10 +121,11 @@ pub struct PipelineArgs {
 }
 
 impl PipelineArgs {
-    /// The run's parameters; `manifest_preset` is the data set's own (`preset` in its
-    /// manifest), used when `--preset` is not given.
-    pub fn to_params(&self, image_branch: bool, manifest_preset: Option<Preset>) -> RegisterParams {
-        let geo_features = match (
+    /// The geometric features these options name: learned feature files, else
+    /// `--geo-features`, else `manifest` (a data set's `geo_features`), else FPFH; a SpinNet
+    /// choice takes `--spinnet-model` and `--spinnet-keypoints`.
+    pub fn geo_features_or(&self, manifest: Option<DescriptorName>) -> GeoFeatureSource {
+        let mut g = match (
             &self.learned_source,
             &self.learned_target,
             &self.geotransformer_pkl,
@@ -133,15 +135,15 @@ impl PipelineArgs {
                 target: t.clone(),
             },
             (_, _, Some(pkl)) => GeoFeatureSource::GeoTransformerPkl { path: pkl.clone() },
-            _ => self.geo_features.clone().unwrap_or(GeoFeatureSource::Fpfh),
-        };
-        let mut p = RegisterParams {
-            geo_features,
-            ..RegisterParams::default()
+            _ => match (&self.geo_features, manifest) {
+                (Some(g), _) => g.clone(),
+                (None, Some(d)) => GeoFeatureSource::from(d),
+                (None, None) => GeoFeatureSource::Fpfh,
+            },
         };
         if let GeoFeatureSource::Spinnet {
             model, keypoints, ..
-        } = &mut p.geo_features
+        } = &mut g
         {
             if let Some(m) = &self.spinnet_model {
                 *model = m.clone();
@@ -150,6 +152,16 @@ impl PipelineArgs {
                 *keypoints = k as usize;
             }
         }
+        g
+    }
+
+    /// The run's parameters; `manifest_preset` is the data set's own (`preset` in its
+    /// manifest), used when `--preset` is not given.
+    pub fn to_params(&self, image_branch: bool, manifest_preset: Option<Preset>) -> RegisterParams {
+        let mut p = RegisterParams {
+            geo_features: self.geo_features_or(None),
+            ..RegisterParams::default()
+        };
         // --reference: the authors' dual softmax and global top-8000 (temperatures and mode
         // still from their options); otherwise the paper's choices or the given ones.
         let (cal, sel) = if self.reference {
@@ -369,7 +381,7 @@ impl ImageArgs {
         &self,
         pipeline: &PipelineArgs,
     ) -> crate::Result<(crate::pipeline::RegisterParams, Option<Cache>)> {
-        self.params_and_cache_for(pipeline, None, None)
+        self.params_and_cache_for(pipeline, &ManifestSettings::default())
     }
 
     /// [`Self::params_and_cache`] for a data set whose manifest names `manifest_preset` and,
@@ -378,10 +390,16 @@ impl ImageArgs {
     pub fn params_and_cache_for(
         &self,
         pipeline: &PipelineArgs,
-        manifest_preset: Option<Preset>,
-        scene_prompt: Option<&str>,
+        manifest: &ManifestSettings,
     ) -> crate::Result<(crate::pipeline::RegisterParams, Option<Cache>)> {
-        let mut params = pipeline.to_params(self.wfm.is_some(), manifest_preset);
+        let ManifestSettings {
+            preset: manifest_preset,
+            scene_prompt,
+            geo_features,
+        } = manifest;
+        let scene_prompt = scene_prompt.as_deref();
+        let mut params = pipeline.to_params(self.wfm.is_some(), *manifest_preset);
+        params.geo_features = pipeline.geo_features_or(*geo_features);
         params.image = self.to_image_params()?;
         if let (Some(ib), Some(scene), None, PromptPreset::SceneSpecific) = (
             params.image.as_mut(),
@@ -414,6 +432,35 @@ impl ImageArgs {
     }
 }
 
+/// What a data set's manifest sets for its runs unless an option does: its protocol
+/// (`preset`), its scene description (`scene_prompt`) and its geometric features
+/// (`geo_features`).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ManifestSettings {
+    pub preset: Option<Preset>,
+    pub scene_prompt: Option<String>,
+    pub geo_features: Option<DescriptorName>,
+}
+
+impl ManifestSettings {
+    /// The data set's settings.
+    pub fn of(ds: &crate::dataset::manifest::Dataset) -> Self {
+        ManifestSettings {
+            preset: ds.preset,
+            scene_prompt: ds.scene_prompt.clone(),
+            geo_features: ds.geo_features,
+        }
+    }
+
+    /// The settings of pair `id` (its own preset, else the data set's).
+    pub fn of_pair(ds: &crate::dataset::manifest::Dataset, id: &str) -> Self {
+        ManifestSettings {
+            preset: ds.preset_of(id),
+            ..Self::of(ds)
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -430,6 +477,45 @@ mod tests {
         match cli.p.to_params(false, None).estimator {
             EstimatorKind::Sc2Pcr(p) => Some(p),
             _ => None,
+        }
+    }
+
+    /// A manifest's `geo_features` applies unless an option names the features.
+    #[test]
+    fn a_manifests_geo_features_apply_unless_an_option_names_them() {
+        use crate::features::spinnet::Protocol;
+        let geo = |args: &[&str], m: Option<DescriptorName>| {
+            let cli =
+                Cli::try_parse_from(std::iter::once("x").chain(args.iter().copied())).unwrap();
+            cli.p.geo_features_or(m)
+        };
+        let kitti = Some(DescriptorName::Spinnet(Protocol::Kitti));
+        assert_eq!(geo(&[], None), GeoFeatureSource::Fpfh);
+        assert_eq!(geo(&[], kitti), GeoFeatureSource::spinnet(Protocol::Kitti));
+        assert_eq!(
+            geo(&["--geo-features", "fpfh"], kitti),
+            GeoFeatureSource::Fpfh
+        );
+        // SpinNet's own options need --geo-features (they would be ignored with FPFH)
+        match geo(
+            &[
+                "--geo-features",
+                "spinnet-kitti",
+                "--spinnet-keypoints",
+                "64",
+            ],
+            None,
+        ) {
+            GeoFeatureSource::Spinnet {
+                protocol,
+                keypoints,
+                ..
+            } => assert_eq!((protocol, keypoints), (Protocol::Kitti, 64)),
+            g => panic!("{g:?}"),
+        }
+        for d in DescriptorName::ALL {
+            assert_eq!(GeoFeatureSource::from(d).descriptor(), Some(d));
+            assert_eq!(DescriptorName::parse(d.name()), Some(d));
         }
     }
 

@@ -4,6 +4,7 @@
 //! and the run goes on.
 
 use super::args::{ImageArgs, PipelineArgs};
+use crate::cli::args::ManifestSettings;
 use crate::dataset::fragment_cache::pair_summary;
 use crate::dataset::manifest::{Dataset, PairSpec};
 use crate::dataset::repose::repose_motion;
@@ -370,15 +371,21 @@ pub fn run(a: BenchArgs) -> Result<()> {
     }
     a.run.check_output(a.json.as_deref())?;
     let specs = a.pairs.select(&ds)?;
-    let (params, cache) =
-        a.image
-            .params_and_cache_for(&a.pipeline, ds.preset, ds.scene_prompt.as_deref())?;
+    let (params, cache) = a
+        .image
+        .params_and_cache_for(&a.pipeline, &ManifestSettings::of(&ds))?;
     // a pair that names a preset other than the data set's runs under it (unless --preset)
     let pair_params = |spec: &PairSpec| -> Result<Option<crate::pipeline::RegisterParams>> {
         match spec.preset {
             Some(pp) if a.pipeline.preset.is_none() && Some(pp) != ds.preset => a
                 .image
-                .params_and_cache_for(&a.pipeline, Some(pp), ds.scene_prompt.as_deref())
+                .params_and_cache_for(
+                    &a.pipeline,
+                    &ManifestSettings {
+                        preset: Some(pp),
+                        ..ManifestSettings::of(&ds)
+                    },
+                )
                 .map(|(p, _)| Some(p)),
             _ => Ok(None),
         }

@@ -10,6 +10,7 @@
 
 use super::args::{ImageArgs, PipelineArgs};
 use super::bench::{log_line, progress_bar, PairsArgs, RunArgs};
+use crate::cli::args::ManifestSettings;
 use crate::dataset::manifest::Dataset;
 use crate::error::{Error, Result};
 use crate::pipeline::shard::{
@@ -66,9 +67,9 @@ pub fn run(a: GenerateArgs) -> Result<()> {
     a.run.check_output(a.json.as_deref())?;
     let ds = a.pairs.dataset(&a.image)?;
     let specs = a.pairs.select(&ds)?;
-    let (params, cache) =
-        a.image
-            .params_and_cache_for(&a.pipeline, ds.preset, ds.scene_prompt.as_deref())?;
+    let (params, cache) = a
+        .image
+        .params_and_cache_for(&a.pipeline, &ManifestSettings::of(&ds))?;
     let Some(ib) = params.image.clone() else {
         return Err(Error::Invalid("no image branch".into()));
     };

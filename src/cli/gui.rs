@@ -6,6 +6,7 @@ use crate::app::channel::RunSelection;
 use crate::app::pair_order::PairSort;
 use crate::app::worker::PipelineWorker;
 use crate::app::{Command, MatchColorMode, Panel};
+use crate::cli::args::ManifestSettings;
 use crate::error::{Error, Result};
 use crate::pipeline::RegisterParams;
 use clap::Args;
@@ -330,15 +331,13 @@ fn open(
     pipeline: &PipelineArgs,
     image: &ImageArgs,
 ) -> Result<(PipelineWorker, String)> {
-    // the preset and scene description the manifest names, unless --preset / --prompt
-    let (preset, scene) = match manifest {
-        Some(m) => {
-            let d = crate::dataset::manifest::Dataset::load(m)?;
-            (d.preset, d.scene_prompt)
-        }
-        None => (None, None),
+    // what the manifest names (preset, scene description, geometric features), unless an
+    // option names its own
+    let settings = match manifest {
+        Some(m) => ManifestSettings::of(&crate::dataset::manifest::Dataset::load(m)?),
+        None => ManifestSettings::default(),
     };
-    let (params, _) = image.params_and_cache_for(pipeline, preset, scene.as_deref())?;
+    let (params, _) = image.params_and_cache_for(pipeline, &settings)?;
     open_with(manifest, pair, params, image)
 }
 

@@ -1,10 +1,10 @@
 use super::args::{ImageArgs, PipelineArgs};
+use crate::cli::args::ManifestSettings;
 use crate::dataset::fragment_cache::pair_summary;
 use crate::dataset::manifest::Dataset;
 use crate::dataset::ScanPair;
 use crate::error::{Error, Result};
 use crate::metrics::SuccessCriterion;
-use crate::pipeline::params::Preset;
 use crate::pipeline::{Registration, RegistrationResult};
 use clap::Args;
 use std::path::PathBuf;
@@ -66,18 +66,18 @@ pub struct Registered {
 }
 
 /// A loaded pair, whether its fragments came from the cache, the load time (ms), and what its
-/// data set names: the preset and the scene description of the scene-specific prompt.
-type LoadedPair = (ScanPair, Option<bool>, f64, Option<Preset>, Option<String>);
+/// data set names for it (preset, scene description, geometric features).
+type LoadedPair = (ScanPair, Option<bool>, f64, ManifestSettings);
 
 /// The pair, whether its clouds came from the fragment cache (None: no cache involved), the
-/// time it took (ms), and the preset and scene description its manifest names for it.
+/// time it took (ms), and what its manifest names for it.
 fn load_pair(input: PairInput, image: &ImageArgs) -> Result<LoadedPair> {
     let t0 = std::time::Instant::now();
     let ms = |t: std::time::Instant| t.elapsed().as_secs_f64() * 1e3;
     match input {
         PairInput::Files { source, target, gt } => {
             crate::dataset::pair_from_files(&source, &target, gt.as_deref())
-                .map(|p| (p, None, ms(t0), None, None))
+                .map(|p| (p, None, ms(t0), ManifestSettings::default()))
         }
         PairInput::Manifest { manifest, pair } => {
             let ds = Dataset::load(&manifest)?.with_fragment_cache(image.fragment_cache()?);
@@ -86,9 +86,11 @@ fn load_pair(input: PairInput, image: &ImageArgs) -> Result<LoadedPair> {
             for why in rebuilt {
                 eprintln!("warning: fragment cache: {why}");
             }
-            Ok((p, hit, ms(t0), ds.preset_of(&pair), ds.scene_prompt.clone()))
+            Ok((p, hit, ms(t0), ManifestSettings::of_pair(&ds, &pair)))
         }
-        PairInput::Loaded { pair, load_ms } => Ok((*pair, None, load_ms, None, None)),
+        PairInput::Loaded { pair, load_ms } => {
+            Ok((*pair, None, load_ms, ManifestSettings::default()))
+        }
     }
 }
 
@@ -98,8 +100,8 @@ fn register_input(
     pipeline: &PipelineArgs,
     image: &ImageArgs,
 ) -> Result<Registered> {
-    let (pair, load_hit, load_ms, preset, scene) = load_pair(input, image)?;
-    let (params, cache) = image.params_and_cache_for(pipeline, preset, scene.as_deref())?;
+    let (pair, load_hit, load_ms, settings) = load_pair(input, image)?;
+    let (params, cache) = image.params_and_cache_for(pipeline, &settings)?;
     let memo = crate::pipeline::Memo::default();
     let mut res = Registration::new(&params)
         .cache(cache.as_ref())

@@ -3,6 +3,7 @@
 
 use super::args::{ImageArgs, PipelineArgs};
 use super::bench::{log_line, progress_bar, PairsArgs, RunArgs};
+use crate::cli::args::ManifestSettings;
 use crate::error::{Error, Result};
 use crate::pipeline::params::WfmSpec;
 use crate::pipeline::shard::{
@@ -192,9 +193,9 @@ fn run_common(a: &CommonArgs, settings: Vec<StudySetting>, command: &str) -> Res
     a.run.check_output(a.json.as_deref())?;
     let ds = a.pairs.dataset(&a.image)?;
     let specs = a.pairs.select(&ds)?;
-    let (params, cache) =
-        a.image
-            .params_and_cache_for(&a.pipeline, ds.preset, ds.scene_prompt.as_deref())?;
+    let (params, cache) = a
+        .image
+        .params_and_cache_for(&a.pipeline, &ManifestSettings::of(&ds))?;
     let generate = a.generate
         || !matches!(
             params.image.as_ref().map(|i| &i.backend),

@@ -7,6 +7,9 @@
 //!                                # pair may name its own. `--preset` overrides both.
 //! scene_prompt = "a kitchen ..." # optional: the scene-specific prompt's description of this
 //!                                # data set's scene (the WFM prompt's scene part; see wfm::prompt)
+//! geo_features = "fpfh"          # optional: the geometric descriptor its pairs are run with,
+//!                                # "fpfh" (the default), "spinnet-3dmatch" or "spinnet-kitti";
+//!                                # `--geo-features` (or learned feature files) override it
 //! root = "$CGENREG_DATA"         # paths below are relative to this; "." (the default) is the
 //!                                # manifest's folder; $VAR / ${VAR} are expanded
 //! # allow_outside_root = true    # paths must stay inside root (symlinks resolved) unless
@@ -74,6 +77,7 @@ struct RawManifest {
     allow_outside_root: Option<bool>,
     preset: Option<String>,
     scene_prompt: Option<String>,
+    geo_features: Option<String>,
     fragment_options: Option<RawOptions>,
     #[serde(default)]
     fragments: Vec<RawFragment>,
@@ -192,6 +196,9 @@ pub struct Dataset {
     /// The scene-specific prompt's description of its scene (`scene_prompt` in the manifest;
     /// None: the pipeline's own text, written for the redkitchen data).
     pub scene_prompt: Option<String>,
+    /// The geometric descriptor its pairs are run with (`geo_features` in the manifest; None:
+    /// FPFH, unless the command line names one).
+    pub geo_features: Option<crate::features::DescriptorName>,
     pub(crate) fragments: Vec<FragmentSpec>,
     pub(crate) pairs: Vec<PairSpec>,
     /// The stage cache that keeps fragments built from raw RGB-D frames (stage `fragments`;
@@ -724,9 +731,20 @@ impl Dataset {
             }
             t => t.map(|t| t.trim().to_owned()),
         };
+        let geo_features = match raw.geo_features.as_deref() {
+            None => None,
+            Some(s) => Some(crate::features::DescriptorName::parse(s).ok_or_else(|| {
+                let names: Vec<String> = crate::features::DescriptorName::ALL
+                    .iter()
+                    .map(|d| format!("{:?}", d.name()))
+                    .collect();
+                bad(path, "geo_features", names.join(", "), format!("{s:?}"))
+            })?),
+        };
         Ok(Dataset {
             preset: preset_field(path, "preset", raw.preset.as_deref())?,
             scene_prompt,
+            geo_features,
             name: raw.name,
             manifest: Some(path.to_path_buf()),
             root,
@@ -780,6 +798,7 @@ impl Dataset {
         Ok(Dataset {
             preset: None,
             scene_prompt: None,
+            geo_features: None,
             name: "files".into(),
             manifest: None,
             root: target
@@ -871,6 +890,7 @@ impl Dataset {
         Ok(Dataset {
             preset: None,
             scene_prompt: None,
+            geo_features: None,
             name,
             manifest: None,
             root: dir.to_path_buf(),

@@ -113,6 +113,7 @@ pub fn open_folder(dir: &Path) -> Result<Dataset> {
     Ok(Dataset {
         preset: None,
         scene_prompt: None,
+        geo_features: None,
         fragment_cache: None,
         name: scene,
         manifest: None,

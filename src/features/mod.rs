@@ -5,6 +5,35 @@ pub mod fpfh;
 pub mod learned;
 pub mod spinnet;
 
+/// A geometric descriptor a data set's manifest or a run names by its name: `fpfh`,
+/// `spinnet-3dmatch` or `spinnet-kitti` (the names of `--geo-features`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum DescriptorName {
+    Fpfh,
+    Spinnet(spinnet::Protocol),
+}
+
+impl DescriptorName {
+    pub const ALL: [DescriptorName; 3] = [
+        DescriptorName::Fpfh,
+        DescriptorName::Spinnet(spinnet::Protocol::ThreeDMatch),
+        DescriptorName::Spinnet(spinnet::Protocol::Kitti),
+    ];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            DescriptorName::Fpfh => "fpfh",
+            DescriptorName::Spinnet(spinnet::Protocol::ThreeDMatch) => "spinnet-3dmatch",
+            DescriptorName::Spinnet(spinnet::Protocol::Kitti) => "spinnet-kitti",
+        }
+    }
+
+    /// The descriptor of `name`, None for another text.
+    pub fn parse(name: &str) -> Option<DescriptorName> {
+        Self::ALL.into_iter().find(|d| d.name() == name)
+    }
+}
+
 /// Dense per-point features, row-major: row i is the feature of point i.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Features {

@@ -75,7 +75,27 @@ impl clap::ValueEnum for GeoFeatureSource {
 /// SpinNet's keypoints per scan by default (`docs/spinnet.md`: chosen on the development pairs).
 pub const SPINNET_DEFAULT_KEYPOINTS: usize = 128;
 
+impl From<crate::features::DescriptorName> for GeoFeatureSource {
+    fn from(d: crate::features::DescriptorName) -> Self {
+        match d {
+            crate::features::DescriptorName::Fpfh => GeoFeatureSource::Fpfh,
+            crate::features::DescriptorName::Spinnet(p) => GeoFeatureSource::spinnet(p),
+        }
+    }
+}
+
 impl GeoFeatureSource {
+    /// The named descriptor these features are (None for features read from files).
+    pub fn descriptor(&self) -> Option<crate::features::DescriptorName> {
+        match self {
+            GeoFeatureSource::Fpfh => Some(crate::features::DescriptorName::Fpfh),
+            GeoFeatureSource::Spinnet { protocol, .. } => {
+                Some(crate::features::DescriptorName::Spinnet(*protocol))
+            }
+            GeoFeatureSource::Files { .. } | GeoFeatureSource::GeoTransformerPkl { .. } => None,
+        }
+    }
+
     /// SpinNet with `protocol`'s default export and keypoint count.
     pub fn spinnet(protocol: crate::features::spinnet::Protocol) -> GeoFeatureSource {
         GeoFeatureSource::Spinnet {

@@ -933,6 +933,40 @@ fn the_inspectors_geometry_only_runs_use_the_fpfh_cache() {
     assert_eq!(c.estimated, a.estimated);
 }
 
+/// A manifest's `geo_features` names the descriptor its pairs run with; another value is an
+/// error naming the file, the field and the names it takes.
+#[test]
+fn a_manifests_geo_features_field_is_read_and_checked() {
+    use cgenreg::features::{spinnet::Protocol, DescriptorName};
+    let demo_dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/demo");
+    let text = std::fs::read_to_string(demo_dir.join("demo.toml")).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let with = |line: &str, name: &str| {
+        let m = dir.path().join(name);
+        let t = text.replace(
+            "root = \".\"",
+            &format!("{line}\nroot = {:?}", demo_dir.display().to_string()),
+        );
+        std::fs::write(&m, t).unwrap();
+        m
+    };
+    let ok = with("geo_features = \"spinnet-kitti\"", "kitti.toml");
+    assert_eq!(
+        Dataset::load(&ok).unwrap().geo_features,
+        Some(DescriptorName::Spinnet(Protocol::Kitti))
+    );
+    assert_eq!(Dataset::load(&demo_manifest()).unwrap().geo_features, None);
+    let bad = with("geo_features = \"shot\"", "bad.toml");
+    let err = Dataset::load(&bad).unwrap_err().to_string();
+    assert!(
+        err.contains("bad.toml")
+            && err.contains("geo_features")
+            && err.contains("spinnet-3dmatch")
+            && err.contains("shot"),
+        "{err}"
+    );
+}
+
 /// A manifest's `scene_prompt` is its scene-specific prompt: opening it in the inspector with
 /// the scene-specific prompt on switches the prompt to that description (the controls follow,
 /// the log says so) and every model carries it for the "Scene-specific" button; an empty one

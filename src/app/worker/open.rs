@@ -166,6 +166,22 @@ impl PipelineWorker {
                 events.send(WorkerEvent::Settings(Box::new(self.params.clone())));
             }
         }
+        // a data set whose manifest names its geometric features opens with them, as
+        // `gui MANIFEST` and `bench MANIFEST` do (the Geometric features control follows)
+        if let Some(g) = d.geo_features {
+            if self.params.geo_features.descriptor() != Some(g) {
+                self.params.geo_features = crate::pipeline::params::GeoFeatureSource::from(g);
+                events.log(
+                    LogLevel::Warn,
+                    format!(
+                        "{what} names its geometric features: {} (Settings, \u{201c}Geometric \
+                         features\u{201d})",
+                        g.name()
+                    ),
+                );
+                events.send(WorkerEvent::Settings(Box::new(self.params.clone())));
+            }
+        }
         // "scene-specific" means this data set's scene: a prompt that is the previous data
         // set's scene-specific text (or the pipeline's) follows the new data set's
         let old_scene = self
