@@ -454,6 +454,7 @@ pub fn run(a: BenchArgs) -> Result<()> {
             r.timings.insert(
                 0,
                 crate::pipeline::StageTiming {
+                    name: None,
                     stage: "load pair".into(),
                     ms: load_ms,
                     status: if loaded { "cached" } else { "computed" }.into(),

@@ -116,6 +116,7 @@ fn register_input(
     res.timings.insert(
         0,
         crate::pipeline::StageTiming {
+            name: None,
             stage: "load pair".into(),
             ms: load_ms,
             status: match load_hit {

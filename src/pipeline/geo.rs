@@ -51,9 +51,19 @@ pub fn fpfh_branch(cloud: &PointCloud, voxel: f64) -> Result<GeoBranch> {
     })
 }
 
-/// What the `geo-spinnet` stage reads for `params`, when SpinNet is the geometric branch.
+/// What the `geo-spinnet` stage reads for `params` (its settings), when SpinNet is the
+/// geometric branch.
 pub(crate) fn spinnet_input(params: &RegisterParams) -> Option<SpinNetInput<'_>> {
-    match &params.geo_features {
+    let RegisterParams {
+        voxel,
+        geo_features,
+        fusion: _,
+        estimator: _,
+        inlier_threshold: _,
+        image: _,
+        success: _,
+    } = params;
+    match geo_features {
         GeoFeatureSource::Spinnet {
             protocol,
             model,
@@ -62,7 +72,7 @@ pub(crate) fn spinnet_input(params: &RegisterParams) -> Option<SpinNetInput<'_>>
             protocol: *protocol,
             model,
             keypoints: *keypoints,
-            voxel: params.voxel,
+            voxel: *voxel,
         }),
         _ => None,
     }
@@ -80,7 +90,9 @@ pub(crate) fn cached_branch(
         return geo_spinnet::run(ctx, &format!("spinnet {side}"), scan, &input);
     }
     match &params.geo_features {
-        GeoFeatureSource::Fpfh => geo::run(ctx, &format!("fpfh {side}"), scan, params.voxel),
+        GeoFeatureSource::Fpfh => {
+            geo::run(ctx, &format!("fpfh {side}"), scan, geo::settings(params))
+        }
         other => Err(Error::Invalid(format!(
             "geometric features `{}` have no cached stage; the image branch runs with FPFH or \
              SpinNet",
@@ -99,45 +111,49 @@ pub(crate) fn geo_branches(
             "SpinNet runs through its cached stage (pipeline::geo::cached_branch)".into(),
         )),
         GeoFeatureSource::Fpfh => {
-            let s = timer.stage("fpfh source", || {
+            let s = timer.stage_as(geo::NAME, "fpfh source", || {
                 fpfh_branch(&pair.source.cloud, params.voxel)
             })?;
-            let t = timer.stage("fpfh target", || {
+            let t = timer.stage_as(geo::NAME, "fpfh target", || {
                 fpfh_branch(&pair.target.cloud, params.voxel)
             })?;
             Ok((s, t))
         }
-        GeoFeatureSource::Files { source, target } => timer.stage("load learned features", || {
-            let s = crate::features::learned::load_learned_features(source)?;
-            let t = crate::features::learned::load_learned_features(target)?;
-            Ok((
-                GeoBranch {
-                    keypoints: s.points,
-                    features: s.feats,
-                    label: s.source,
-                },
-                GeoBranch {
-                    keypoints: t.points,
-                    features: t.feats,
-                    label: t.source,
-                },
-            ))
-        }),
-        GeoFeatureSource::GeoTransformerPkl { path } => timer.stage("load geotransformer", || {
-            let (r, s) = crate::features::learned::load_geotransformer_pkl(path)?;
-            // Reference §5 (3DMatch): GeoTransformer's ref is C-GenReg's source.
-            Ok((
-                GeoBranch {
-                    keypoints: r.points,
-                    features: r.feats,
-                    label: r.source,
-                },
-                GeoBranch {
-                    keypoints: s.points,
-                    features: s.feats,
-                    label: s.source,
-                },
-            ))
-        }),
+        GeoFeatureSource::Files { source, target } => {
+            timer.stage_as(geo::NAME, "load learned features", || {
+                let s = crate::features::learned::load_learned_features(source)?;
+                let t = crate::features::learned::load_learned_features(target)?;
+                Ok((
+                    GeoBranch {
+                        keypoints: s.points,
+                        features: s.feats,
+                        label: s.source,
+                    },
+                    GeoBranch {
+                        keypoints: t.points,
+                        features: t.feats,
+                        label: t.source,
+                    },
+                ))
+            })
+        }
+        GeoFeatureSource::GeoTransformerPkl { path } => {
+            timer.stage_as(geo::NAME, "load geotransformer", || {
+                let (r, s) = crate::features::learned::load_geotransformer_pkl(path)?;
+                // Reference §5 (3DMatch): GeoTransformer's ref is C-GenReg's source.
+                Ok((
+                    GeoBranch {
+                        keypoints: r.points,
+                        features: r.feats,
+                        label: r.source,
+                    },
+                    GeoBranch {
+                        keypoints: s.points,
+                        features: s.feats,
+                        label: s.source,
+                    },
+                ))
+            })
+        }
     }
 }

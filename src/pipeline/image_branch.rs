@@ -1,7 +1,8 @@
 //! The full method on one pair: the geometric branch (dense) and the generated-RGB image
-//! branch, Match-then-Fuse. This file wires the stages of `stages/` together; each stage's
-//! key, version, compute, load and store are in its own file there (the table is in
-//! `stages/mod.rs` and `docs/architecture.md`).
+//! branch, Match-then-Fuse. This file runs the steps of a [`Plan`] with the image branch, in
+//! the plan's order, filling each step's key as it runs; each stage's key, version, compute,
+//! load and store are in its own file in `stages/` (the table is in `stages/mod.rs` and
+//! `docs/architecture.md`), and which steps a registration has is `plan.rs`.
 //!
 //! Cosine similarities, calibration, fusion, selection and estimation are cheap and run in
 //! memory every time (`tail::fuse_and_finish`), so changing a temperature or the fusion mode
@@ -12,6 +13,7 @@ pub use super::stages::depth_video::depth_video_clip;
 use super::geo::cached_branch;
 use super::memo::Memo;
 use super::params::ImageBranchParams;
+use super::plan::{Plan, StageName};
 use super::register::Registration;
 use super::result::{ImageBranchOutput, RegistrationResult, ViewInfo};
 use super::stages::depth_video::frames_of;
@@ -34,19 +36,23 @@ use std::borrow::Cow;
 use std::sync::Arc;
 
 /// The full method on one pair (`ib`: `reg.params.image`), with the [`FusionInputs`] its
-/// tail ran on; [`Registration::run`] is the way in. `memo` is `reg.memo` or one for this
-/// call.
+/// tail ran on; the steps of `plan` run in order and fill their keys.
+/// [`Registration::run`] is the way in. `memo` is `reg.memo` or one for this call.
 pub(crate) fn register_with_image(
     pair: &ScanPair,
     reg: &Registration,
     ib: &ImageBranchParams,
     memo: &Memo,
+    plan: &mut Plan,
 ) -> Result<(RegistrationResult, FusionInputs)> {
     // Point-cloud-only scans: depth frames from a virtual camera (stage `virtual-frames`).
     // Without a cache they live in a scratch folder until `store` is dropped, after the run.
     let mut store = FrameStore::new(reg.cache);
     let (framed, notes) = framed_pair(&mut store, pair, ib)?;
-    let (mut r, inputs) = register_with_frames(&framed, reg, ib, memo)?;
+    if let Cow::Owned(_) = framed {
+        plan.fill(StageName::VirtualFrames, std::mem::take(&mut store.keys));
+    }
+    let (mut r, inputs) = register_with_frames(&framed, reg, ib, memo, plan)?;
     if let Cow::Owned(_) = framed {
         r.warnings.extend(notes);
         r.warnings.append(&mut store.warnings);
@@ -115,16 +121,18 @@ struct Side<'a> {
     links: Vec<Option<PixelLink>>,
 }
 
-/// The image branch of a pair whose scans both have depth frames, then the fused tail.
+/// The image branch of a pair whose scans both have depth frames, then the fused tail; each
+/// step fills its key in `plan`.
 fn register_with_frames(
     pair: &ScanPair,
     reg: &Registration,
     ib: &ImageBranchParams,
     memo: &Memo,
+    plan: &mut Plan,
 ) -> Result<(RegistrationResult, FusionInputs)> {
     let (params, generate) = (reg.params, reg.generate);
     let mut ctx = Ctx::new(reg.cache, memo);
-    let l = ib.frames_per_fragment;
+    let l = depth_video::settings(ib);
     let src_fs = frames_of(&pair.source, l)?;
     let tgt_fs = frames_of(&pair.target, l)?;
     // Fail early on bad K / m (before anything expensive).
@@ -134,12 +142,19 @@ fn register_with_frames(
     // Geometric branch (dense path: the image branch needs the N x M similarity).
     let (src_geo, src_geo_key) = cached_branch(&mut ctx, "source", &pair.source, params)?;
     let (tgt_geo, tgt_geo_key) = cached_branch(&mut ctx, "target", &pair.target, params)?;
+    plan.fill(
+        StageName::Geo,
+        vec![src_geo_key.hash.clone(), tgt_geo_key.hash.clone()],
+    );
 
     let mut video = depth_video::run(&mut ctx, pair, src_fs, tgt_fs, l)?;
+    plan.fill(StageName::DepthVideo, vec![video.key.clone()]);
     let (gen, gen_key) =
         generation::run(&mut ctx, pair, ib, &mut video, src_fs, tgt_fs, l, generate)?;
+    plan.fill(StageName::Generation, vec![gen_key.hash.clone()]);
     let image_size = (gen.meta.width, gen.meta.height);
-    let sel = view_select::run(&mut ctx, planned, gen.meta.frames, ib)?;
+    let (sel, sel_key) = view_select::run(&mut ctx, planned, gen.meta.frames, ib)?;
+    plan.fill(StageName::ViewSelect, vec![sel_key.hash]);
 
     let pair_conditioned = vfm::is_pair_conditioned(&ib.vfm);
 
@@ -153,7 +168,7 @@ fn register_with_frames(
             frames: src_fs,
             depth_idx: &sel.src_depth,
         },
-        ib.lift_radius_at(params.voxel),
+        lift::settings(params),
         image_size,
     )?;
     let (tgt_links, tgt_lift_key) = lift::run(
@@ -165,9 +180,13 @@ fn register_with_frames(
             frames: tgt_fs,
             depth_idx: &sel.tgt_depth,
         },
-        ib.lift_radius_at(params.voxel),
+        lift::settings(params),
         image_size,
     )?;
+    plan.fill(
+        StageName::Lift,
+        vec![src_lift_key.hash.clone(), tgt_lift_key.hash.clone()],
+    );
     let lift_keys = (&src_lift_key, &tgt_lift_key);
     // Per-image models describe each view at the pixels just linked to it.
     let (src_views, tgt_views, mut vfm_label) = describe_views(
@@ -190,16 +209,20 @@ fn register_with_frames(
             tgt_links: &tgt_links,
         };
         let (d, label) = pair_vfm::run(&mut ctx, &key, &inp, &ib.vfm, &vfm_id)?;
+        plan.fill(StageName::PairVfm, vec![key.hash]);
         vfm_label = label;
         ImageInputs::PairConditioned(d)
     } else {
-        let (fs, vs, ft, vt) = image_points::run(
+        let view_keys = [src_views.keys.clone(), tgt_views.keys.clone()].concat();
+        plan.fill(StageName::Vfm, view_keys);
+        let ((fs, vs, ft, vt), key) = image_points::run(
             &mut ctx,
             lift_keys,
             (&src_views.keys, &tgt_views.keys),
             (&src_links, &tgt_links),
             (&src_views.points, &tgt_views.points),
         )?;
+        plan.fill(StageName::ImagePoints, vec![key.hash]);
         ImageInputs::PerImage(fs, vs, ft, vt)
     };
     let sides = [

@@ -4,7 +4,9 @@
 //! Modules, leaves first: `params` (the parameter types), `result` (what a registration
 //! returns, the stage timer), `memo` (what a caller keeps in memory between registrations), `geo` (the geometric branch), `tail` (the
 //! in-memory tail: similarity to evaluation), `stages` (one file per cached stage),
-//! `image_branch` (wires the stages), `register` (the entry point, [`Registration`]), then
+//! `plan` (the stage graph: the ordered steps of a registration with their keys, and what a
+//! change invalidates), `image_branch` (runs the image branch's steps), `register` (the entry
+//! point, [`Registration`]: plan, then run), then
 //! `study` and `shard` (many pairs).
 
 pub mod export;
@@ -13,6 +15,7 @@ pub mod hypotheses;
 pub mod image_branch;
 pub mod memo;
 pub mod params;
+pub mod plan;
 pub mod register;
 pub mod result;
 pub mod shard;
@@ -25,5 +28,6 @@ pub mod visibility;
 pub use crate::vfm::VfmSpec;
 pub use memo::Memo;
 pub use params::{ImageBranchParams, RegisterParams, WfmSpec};
+pub use plan::{plan, Plan, StageName, Step};
 pub use register::Registration;
 pub use result::{ImageBranchOutput, RegistrationResult, StageTiming, ViewInfo};

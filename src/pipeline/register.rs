@@ -1,15 +1,18 @@
 //! The registration entry point: a [`Registration`] (parameters, stage cache, the caller's
-//! memo, what to keep) registers one pair with [`Registration::run`], and re-runs the
-//! in-memory tail from kept inputs with [`Registration::refuse_from_memory`]. The CLI
-//! (`register`, `bench`, `generate`), the studies, the inspector's worker and the Python
-//! binding all register through it. The stages are in `stages/`, their wiring in
-//! `image_branch` and `register_geometry` below, the in-memory tail in `fuse`.
+//! memo, what to keep) registers one pair with [`Registration::run`] (plan, then run the
+//! plan's steps; [`Registration::plan`] gives the plan ahead), and re-runs the in-memory tail
+//! from kept inputs with [`Registration::refuse_from_memory`]. The CLI (`register`, `bench`,
+//! `generate`), the studies, the inspector's worker and the Python binding all register
+//! through it. The stages are in `stages/`, which steps a registration has and their keys in
+//! `plan`, the steps' execution in `image_branch` and `register_geometry` below, the
+//! in-memory tail in `tail`.
 
 use std::sync::Arc;
 
 use super::geo::{cached_branch, geo_branches};
 use super::memo::Memo;
 use super::params::{GeoFeatureSource, RegisterParams};
+use super::plan::{Plan, StageName};
 use super::result::RegistrationResult;
 use super::stages::Ctx;
 use super::tail::{fuse_and_finish, EstimateMemo, FusionInputs, Similarities};
@@ -95,8 +98,31 @@ impl<'a> Registration<'a> {
 
     /// Register `pair`: the geometric branch (FPFH and SpinNet through their cached stages;
     /// features read from files have none), the image branch's stages when `params.image`
-    /// is set, then the in-memory tail. With `keep`, the result holds the tail's inputs.
+    /// is set, then the in-memory tail. With `keep`, the result holds the tail's inputs; it
+    /// always holds the plan it ran with every key filled ([`RegistrationResult::plan`]).
+    /// It runs the steps of [`Plan::skeleton`] (no key is computed twice).
     pub fn run(&self, pair: &ScanPair) -> Result<RegistrationResult> {
+        self.run_plan(Plan::skeleton(pair, self.params), pair)
+    }
+
+    /// The plan of `pair` under these parameters: the steps [`Self::run`] takes, each with its
+    /// key where it is known before anything runs (reads the cache, computes no stage).
+    pub fn plan(&self, pair: &ScanPair) -> Result<Plan> {
+        let own = Memo::default();
+        super::plan::plan(pair, self.params, self.cache, self.memo.unwrap_or(&own))
+    }
+
+    /// Runs the steps of `plan` (made for `pair` under these parameters, by [`Self::plan`] or
+    /// [`Plan::skeleton`]) in order, each filling its key; the result carries the filled plan.
+    /// Crate-internal: [`Self::run`] is the public way in (the inspector's worker runs the plan
+    /// it made to find its kept geometric branch).
+    pub(crate) fn run_plan(&self, mut plan: Plan, pair: &ScanPair) -> Result<RegistrationResult> {
+        if plan.params() != self.params {
+            return Err(Error::Invalid(
+                "the plan was made for other parameters than the registration's".into(),
+            ));
+        }
+        plan.start_run();
         let own;
         let memo = match self.memo {
             Some(m) => m,
@@ -106,9 +132,13 @@ impl<'a> Registration<'a> {
             }
         };
         let (mut result, inputs) = match &self.params.image {
-            Some(ib) => super::image_branch::register_with_image(pair, self, ib, memo)?,
-            None => register_geometry(pair, self, memo)?,
+            Some(ib) => super::image_branch::register_with_image(pair, self, ib, memo, &mut plan)?,
+            None => register_geometry(pair, self, memo, &mut plan)?,
         };
+        debug_assert!(plan.ran_all_but_the_tail(), "a step did not run: {plan:?}");
+        plan.fill_fusion()?;
+        debug_assert!(plan.is_complete(), "a step left its key unfilled: {plan:?}");
+        result.plan = Some(plan);
         if self.keep {
             result.inputs = Some(Arc::new(inputs));
         }
@@ -138,16 +168,22 @@ fn register_geometry(
     pair: &ScanPair,
     reg: &Registration,
     memo: &Memo,
+    plan: &mut Plan,
 ) -> Result<(RegistrationResult, FusionInputs)> {
     let params = reg.params;
     let mut ctx = Ctx::new(reg.cache, memo);
     // FPFH and SpinNet through their cached stages; features read from files have none
     let (src, tgt) = match params.geo_features {
-        GeoFeatureSource::Fpfh | GeoFeatureSource::Spinnet { .. } => (
-            cached_branch(&mut ctx, "source", &pair.source, params)?.0,
-            cached_branch(&mut ctx, "target", &pair.target, params)?.0,
-        ),
-        _ => geo_branches(pair, params, &mut ctx.timer)?,
+        GeoFeatureSource::Fpfh | GeoFeatureSource::Spinnet { .. } => {
+            let (s, sk) = cached_branch(&mut ctx, "source", &pair.source, params)?;
+            let (t, tk) = cached_branch(&mut ctx, "target", &pair.target, params)?;
+            plan.fill(StageName::Geo, vec![sk.hash, tk.hash]);
+            (s, t)
+        }
+        _ => {
+            plan.fill(StageName::Geo, super::plan::learned_geo_keys(params)?);
+            geo_branches(pair, params, &mut ctx.timer)?
+        }
     };
     if src.features.dim != tgt.features.dim {
         return Err(Error::Invalid(format!(

@@ -1,6 +1,7 @@
 //! What a registration produces (result, views, stage timings) and the timer that records
 //! the stages. A leaf module: the stages and the registration entry points all use it.
 
+use super::plan::StageName;
 use crate::error::Result;
 use crate::fusion::Correspondence;
 use crate::metrics::PairMetrics;
@@ -10,7 +11,12 @@ use std::time::Instant;
 
 #[derive(Clone, Debug, Serialize)]
 pub struct StageTiming {
+    /// The step as people read it ("fpfh source", "lift target", "estimate"): the JSON's name.
     pub stage: String,
+    /// The graph stage it belongs to (None: outside the graph, e.g. loading the pair); what
+    /// code matches on.
+    #[serde(skip)]
+    pub name: Option<StageName>,
     pub ms: f64,
     /// "computed" or "cached".
     pub status: String,
@@ -95,6 +101,11 @@ pub struct RegistrationResult {
     /// posterior inspector recompute from.
     #[serde(skip)]
     pub inputs: Option<std::sync::Arc<super::tail::FusionInputs>>,
+    /// The plan this registration ran, every key filled as its step ran (None for a re-fusion
+    /// from memory, whose caller keeps the plan): what a later settings change is compared
+    /// with ([`super::plan::Plan::invalidated_by`]).
+    #[serde(skip)]
+    pub plan: Option<super::plan::Plan>,
 }
 
 impl RegistrationResult {
@@ -136,6 +147,10 @@ pub fn matrix_rows(t: &Isometry3<f64>) -> [[f64; 4]; 4] {
     out
 }
 
+/// Records the steps of a registration by stage ([`StageName`]) with their labels. The cached
+/// stages record under their own name ([`Self::record_as`], `stages::Ctx::stage`); `record` and
+/// `stage` record a step of the in-memory tail ([`StageName::Fusion`]: similarity, fusion,
+/// estimate).
 pub(crate) struct Timer {
     pub(crate) timings: Vec<StageTiming>,
     pub(crate) t0: Instant,
@@ -148,19 +163,40 @@ impl Timer {
             t0: Instant::now(),
         }
     }
-    /// Record a stage that ran (or was read from the cache) outside `stage`.
-    pub(crate) fn record(&mut self, name: &str, elapsed: std::time::Duration, cached: bool) {
+    /// Record a step of the in-memory tail that ran (or was kept) outside `stage`.
+    pub(crate) fn record(&mut self, label: &str, elapsed: std::time::Duration, cached: bool) {
+        self.record_as(StageName::Fusion, label, elapsed, cached);
+    }
+    /// Run `f` as a step of the in-memory tail and record its time.
+    pub(crate) fn stage<T>(&mut self, label: &str, f: impl FnOnce() -> Result<T>) -> Result<T> {
+        self.stage_as(StageName::Fusion, label, f)
+    }
+    /// Record a step of the stage `name` (shown as `label`) that ran (or was read from the
+    /// cache) outside `stage_as`.
+    pub(crate) fn record_as(
+        &mut self,
+        name: StageName,
+        label: &str,
+        elapsed: std::time::Duration,
+        cached: bool,
+    ) {
         self.timings.push(StageTiming {
-            stage: name.to_string(),
+            stage: label.to_string(),
+            name: Some(name),
             ms: elapsed.as_secs_f64() * 1e3,
             status: status_word(cached).into(),
         });
     }
-    /// Run `f` as the in-memory stage `name` and record its time.
-    pub(crate) fn stage<T>(&mut self, name: &str, f: impl FnOnce() -> Result<T>) -> Result<T> {
+    /// Run `f` as an in-memory step of the stage `name` (shown as `label`) and record its time.
+    pub(crate) fn stage_as<T>(
+        &mut self,
+        name: StageName,
+        label: &str,
+        f: impl FnOnce() -> Result<T>,
+    ) -> Result<T> {
         let t = Instant::now();
         let out = f()?;
-        self.record(name, t.elapsed(), false);
+        self.record_as(name, label, t.elapsed(), false);
         Ok(out)
     }
 }

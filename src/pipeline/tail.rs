@@ -22,20 +22,33 @@ use std::time::{Duration, Instant};
 /// The in-memory tail's name in key comparisons (not cached: no folder of that name).
 pub const STAGE: &str = "fusion";
 pub const VERSION: u32 = 1;
+pub const NAME: super::plan::StageName = super::plan::StageName::Fusion;
 
 /// The tail's key: the keys of its inputs (both scans' geometric branch, then the image
 /// descriptors' stage) and every parameter `fuse_and_finish` reads: the fusion (similarity,
 /// calibrations, mode, selection), the estimator and the inlier threshold.
 pub fn key(params: &RegisterParams, inputs: &[&str]) -> Result<crate::cache::CacheKey> {
+    let RegisterParams {
+        voxel,
+        // the geometric inputs' keys carry these
+        geo_features: _,
+        fusion,
+        estimator,
+        inlier_threshold,
+        // the image descriptors' key carries it
+        image: _,
+        // judges the result after the estimate; does not change it
+        success: _,
+    } = params;
     crate::cache::CacheKey::new(
         STAGE,
         VERSION,
         inputs,
         &serde_json::json!({
-            "fusion": params.fusion,
+            "fusion": fusion,
             // the resolved values: a threshold that follows the voxel keys as the number it is
-            "estimator": params.estimator_resolved(),
-            "inlier_threshold": params.inlier_threshold_m(),
+            "estimator": estimator.resolved(*voxel),
+            "inlier_threshold": inlier_threshold.at(*voxel, crate::estimate::scale::THRESHOLD_PER_VOXEL),
         }),
     )
 }
@@ -261,17 +274,6 @@ pub fn similarities(inputs: &FusionInputs) -> Result<Similarities> {
         None => None,
     };
     Ok(Similarities::new(image, geo))
-}
-
-/// Whether a timing of a result names a step of the in-memory tail (`fuse_and_finish`:
-/// similarity, fusion, estimation), which a re-fusion recomputes, as opposed to a cached
-/// stage before it. Every name the tail records passes (the `union` mode's "fusion: noisy-and"
-/// and "fusion: geometry" included).
-pub fn is_tail_timing(name: &str) -> bool {
-    matches!(
-        name,
-        "similarity" | "fusion" | "estimate" | "similarity+fusion"
-    ) || name.starts_with("fusion: ")
 }
 
 /// Similarity, calibration, fusion, selection and estimation from [`FusionInputs`]: the tail
@@ -512,6 +514,7 @@ pub(crate) fn finish(
         union: None,
         visibility: None,
         inputs: None,
+        plan: None,
     })
 }
 

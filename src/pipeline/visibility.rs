@@ -235,6 +235,7 @@ pub(crate) fn register(
     }
     timings.push(StageTiming {
         stage: "visibility".into(),
+        name: Some(super::plan::StageName::Fusion),
         ms: vis_elapsed.as_secs_f64() * 1e3,
         status: super::result::status_word(false).into(),
     });

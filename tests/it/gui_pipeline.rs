@@ -223,6 +223,54 @@ fn worker_registers_on_the_worker_thread_and_reports_posteriors() {
 /// a temperature change re-runs only fusion onward from memory; a new prompt whose generation
 /// is not cached shows no views and asks for the generator; a pair without enough frames falls
 /// back to the geometric branch with the reason.
+/// The worker keeps the plan its run filled (every key known, even without a stage cache) and
+/// compares a settings change with it: a temperature re-fuses from memory, K needs a run.
+#[test]
+fn worker_without_a_cache_compares_changes_with_the_plan_its_run_filled() {
+    use cgenreg::pipeline::{StageName, WfmSpec};
+    let mut w =
+        PipelineWorker::open_manifest(&demo_manifest(), common::demo_params(WfmSpec::Builtin))
+            .unwrap();
+    w.set_cache(None);
+    let id = w.pair_ids()[0].clone();
+    let m = w.run_pair(&id).unwrap();
+    // every stage row of the run names its stage; the tail's rows are the fusion stage's
+    let typed: Vec<_> = m.stages.iter().filter_map(|s| s.stage).collect();
+    assert!(typed.contains(&StageName::Generation) && typed.contains(&StageName::Fusion));
+    assert!(m
+        .stages
+        .iter()
+        .filter(|s| s.name == "estimate" || s.name == "generation")
+        .all(|s| s.stage.is_some()));
+    let mut s = w.params().clone();
+    *s.fusion.calibration_img.tau_mut() = 0.05;
+    w.set_params(s.clone());
+    let m = w
+        .refuse_from_memory()
+        .expect("only the fusion key changed: re-fuse from memory")
+        .unwrap();
+    assert_eq!(m.stages[0].name, "re-fuse from memory");
+    assert_eq!(
+        m.stages[1].name,
+        "settings change invalidated: similarity, fusion and estimation"
+    );
+    // the kept stages before the tail are shown as cached, the tail's ran again
+    assert!(m
+        .stages
+        .iter()
+        .any(|r| r.stage == Some(StageName::Generation) && r.state == StageState::Cached));
+    assert!(m
+        .stages
+        .iter()
+        .any(|r| r.stage == Some(StageName::Fusion) && r.state == StageState::Done));
+    s.image.as_mut().unwrap().k = 1;
+    w.set_params(s);
+    assert!(
+        w.refuse_from_memory().is_none(),
+        "K re-runs the image branch"
+    );
+}
+
 #[test]
 fn worker_runs_the_image_branch_from_the_cache_and_refuses_from_memory() {
     use cgenreg::pipeline::WfmSpec;

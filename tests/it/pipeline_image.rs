@@ -8,7 +8,7 @@ use crate::common;
 use cgenreg::cache::Cache;
 use cgenreg::dataset::Dataset;
 use cgenreg::fusion::Calibration;
-use cgenreg::pipeline::stages::{invalidated, StageKeys, StageName};
+use cgenreg::pipeline::plan::{invalidated, plan, Plan, StageName};
 use cgenreg::pipeline::{ImageBranchParams, RegisterParams, Registration, WfmSpec};
 use std::path::Path;
 
@@ -39,7 +39,7 @@ fn status(r: &cgenreg::pipeline::RegistrationResult, stage: &str) -> String {
 }
 
 /// Every cached stage's keys in `keys` name entries of the cache at `dir`.
-fn assert_stored(keys: &StageKeys, dir: &Path) {
+fn assert_stored(keys: &Plan, dir: &Path) {
     for s in keys.stages() {
         if matches!(s, StageName::ViewSelect | StageName::Fusion) {
             continue; // in memory
@@ -104,9 +104,11 @@ fn full_method_on_demo_with_cache() {
     // the headline accuracy: the full method within 1° / 5 cm of the demo's exact GT
     assert!(m.rre_deg < 1.0 && m.rte_m < 0.05, "demo: {m:?}");
 
-    // The stage keys computed without running anything are the ones the run stored under.
-    let keys = StageKeys::compute(&pair, &p, Some(&cache), &Default::default()).unwrap();
+    // The stage keys planned without running anything are the ones the run stored under and
+    // filled in the plan its result carries.
+    let keys = plan(&pair, &p, Some(&cache), &Default::default()).unwrap();
     assert_stored(&keys, dir.path());
+    assert_eq!(r1.plan.as_ref(), Some(&keys));
 
     // 2. Same parameters: every stage up to the similarities is a cache hit, same pose.
     let r2 = Registration::new(&p).cache(&cache).run(&pair).unwrap();
@@ -214,7 +216,8 @@ fn pair_conditioned_vfm_end_to_end() {
     assert!(img.vfm.starts_with("mast3r@"), "{}", img.vfm);
     assert!(img.vfm.contains("2x2 view pairs"), "{}", img.vfm);
     assert!(r1.n_correspondences > 0);
-    let keys = StageKeys::compute(&pair, &p, Some(&cache), &Default::default()).unwrap();
+    let keys = plan(&pair, &p, Some(&cache), &Default::default()).unwrap();
+    assert_eq!(r1.plan.as_ref(), Some(&keys));
     assert!(keys.is_known(StageName::PairVfm) && !keys.is_known(StageName::Vfm));
     assert_stored(&keys, dir.path());
     let r2 = Registration::new(&p).cache(&cache).run(&pair).unwrap();

@@ -356,6 +356,7 @@ fn stage_rows() -> Vec<StageInfo> {
     .into_iter()
     .map(|(n, s, t)| StageInfo {
         name: n.into(),
+        stage: None,
         state: s,
         time_ms: t,
         role: StageRole::Stage,

@@ -308,6 +308,9 @@ pub enum StageRole {
 #[derive(Clone, Debug, PartialEq)]
 pub struct StageInfo {
     pub name: String,
+    /// The pipeline stage the row times (None: the worker's own rows, e.g. "load + register",
+    /// "re-fuse from memory", the settings change's key comparison).
+    pub stage: Option<crate::pipeline::plan::StageName>,
     pub state: StageState,
     pub time_ms: Option<f64>,
     /// Whether the total adds it (see [`StageRole`]).

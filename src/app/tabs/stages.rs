@@ -176,6 +176,7 @@ mod tests {
     fn row(name: &str, ms: Option<f64>, role: StageRole) -> StageInfo {
         StageInfo {
             name: name.into(),
+            stage: None,
             state: StageState::Done,
             time_ms: ms,
             role,

@@ -38,7 +38,7 @@ use crate::dataset::manifest::Dataset;
 use crate::dataset::ScanPair;
 use crate::fusion::fuse::FusionMode;
 use crate::pipeline::memo::{Lru, Memo};
-use crate::pipeline::stages::{StageKeys, StageName};
+use crate::pipeline::plan::{Plan, StageName};
 use crate::pipeline::tail::{FusionInputs, Similarities};
 use crate::pipeline::{ImageBranchOutput, RegisterParams, RegistrationResult};
 
@@ -56,10 +56,10 @@ pub const GEO_BRANCHES: usize = 8;
 
 /// What a run left in memory for fast re-runs of the stages after it.
 struct Kept {
-    /// Every stage's cache key for the run that produced `inputs`: a settings change re-uses
-    /// `inputs` only when it changes no key but the fusion stage's (None: keys not computed,
-    /// so any change re-runs through the cache).
-    keys: Option<StageKeys>,
+    /// The plan of the run that produced `inputs`, its keys filled by the run (then by each
+    /// re-fusion's settings): a settings change re-uses `inputs` only when it changes no key
+    /// but the fusion stage's (None: any change re-runs through the cache).
+    plan: Option<Plan>,
     inputs: Arc<FusionInputs>,
     /// Both similarity matrices (about 2 x 200 MB at 7k keypoints, for the current pair only):
     /// a temperature change then costs fusion + estimate only.
@@ -96,6 +96,7 @@ fn invalidated_row(stages: &[StageName], ms: f64) -> StageInfo {
     };
     StageInfo {
         name,
+        stage: None,
         state: StageState::Done,
         time_ms: Some(ms),
         role: StageRole::Stage,
@@ -255,6 +256,7 @@ impl PipelineWorker {
             scene_prompt: self.dataset.scene_prompt.clone(),
             stages: vec![StageInfo {
                 name: "load + register".into(),
+                stage: None,
                 state: StageState::Running,
                 time_ms: None,
                 role: StageRole::Container,

@@ -205,6 +205,7 @@ pub fn result_to_model(
         .iter()
         .map(|t| StageInfo {
             name: t.stage.clone(),
+            stage: t.name,
             state: if t.status == "cached" {
                 StageState::Cached
             } else {

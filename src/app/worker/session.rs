@@ -13,7 +13,7 @@ use crate::app::model::{
     InspectorModel, PairEntry, PairStatus, SettingsTag, StageInfo, StageState,
 };
 use crate::dataset::ScanPair;
-use crate::pipeline::stages::{StageKeys, StageName};
+use crate::pipeline::plan::{Plan, StageName};
 use crate::pipeline::tail::{similarities, EstimateMemo, FusionInputs};
 use crate::pipeline::{Registration, RegistrationResult};
 
@@ -37,28 +37,28 @@ impl PipelineWorker {
         self.run_pair_with(id, true)
     }
 
-    /// The kept geometric branch of `pair` (FPFH at `voxel`), from a run of this pair with
-    /// the same clouds and voxel, and its timing row.
+    /// The kept geometric branch of a plan's pair (FPFH), from a run of this pair with the
+    /// same clouds and voxel, and its timing row.
     fn kept_geometry(
         &mut self,
-        pair: &ScanPair,
-        voxel: f64,
-    ) -> crate::Result<Option<(Arc<FusionInputs>, crate::pipeline::StageTiming)>> {
-        let key = geo_memo_key(pair, voxel)?;
-        Ok(self.geo.get(&key).map(|g| {
+        plan: &Plan,
+    ) -> Option<(Arc<FusionInputs>, crate::pipeline::StageTiming)> {
+        let key = geo_memo_key(plan)?;
+        self.geo.get(&key).map(|g| {
             let t = crate::pipeline::StageTiming {
                 stage: "fpfh source + target (in memory)".into(),
+                name: Some(StageName::Geo),
                 ms: 0.0,
                 status: "cached".into(),
             };
             (g.clone(), t)
-        }))
+        })
     }
 
-    /// Keeps the geometric branch of `inputs` (FPFH at `voxel`) for geometry-only runs of
-    /// `pair`.
-    fn keep_geometry(&mut self, pair: &ScanPair, voxel: f64, inputs: &FusionInputs) {
-        let Ok(key) = geo_memo_key(pair, voxel) else {
+    /// Keeps the geometric branch of `inputs` (FPFH) for geometry-only runs of the pair that
+    /// `plan` ran.
+    fn keep_geometry(&mut self, plan: Option<&Plan>, inputs: &FusionInputs) {
+        let Some(key) = plan.and_then(geo_memo_key) else {
             return;
         };
         if !self.geo.contains_key(&key) {
@@ -106,9 +106,9 @@ impl PipelineWorker {
         if let Some(row) = invalidated {
             model.stages.insert(0, row);
         }
-        let keys = StageKeys::compute(&pair, &params, self.cache.as_deref(), &self.memo).ok();
+        // the plan the run filled: no key is computed again
         let kept = Some(Kept {
-            keys,
+            plan: result.plan.clone(),
             sims: similarities(&inputs).ok().map(Arc::new),
             estimates,
             inputs,
@@ -143,17 +143,20 @@ impl PipelineWorker {
         let estimates = EstimateMemo::default();
         let cache = self.cache.clone();
         let fpfh = params.geo_features == crate::pipeline::params::GeoFeatureSource::Fpfh;
-        let kept = match (&params.image, fpfh) {
-            (None, true) => self.kept_geometry(pair, params.voxel)?,
+        // geometry only with FPFH: the plan (both scans' keys) says whether the branch is kept
+        let geo_plan = match (&params.image, fpfh) {
+            (None, true) => Some(Registration::new(&params).memo(&self.memo).plan(pair)?),
             _ => None,
         };
-        let (result, inputs) = if let Some((g, row)) = kept {
+        let kept = geo_plan.as_ref().and_then(|p| self.kept_geometry(p));
+        let (result, inputs) = if let (Some((g, row)), Some(plan)) = (kept, geo_plan.clone()) {
             // geometry only, its branch kept from an earlier run of this pair: the tail alone
             let t0 = Instant::now();
             let reg = Registration::new(&params).estimates(&estimates);
             let mut r = reg.refuse_from_memory(pair, &g, None)?;
             r.timings.insert(0, row);
             r.total_ms = t0.elapsed().as_secs_f64() * 1e3;
+            r.plan = Some(plan);
             (r, g)
         } else {
             if params.image.is_some() {
@@ -170,7 +173,11 @@ impl PipelineWorker {
                 .keep(true)
                 .generate(generate);
             // A panic here reaches the worker thread's guard (`spawn_worker`), which reports it.
-            let mut r = match (reg.run(pair), &params.image) {
+            let run = match geo_plan {
+                Some(plan) => reg.run_plan(plan, pair),
+                None => reg.run(pair),
+            };
+            let mut r = match (run, &params.image) {
                 (Ok(r), _) => r,
                 (Err(e), None) => return Err(e),
                 // never a geometry-only result under an image-branch label: the pair is an
@@ -189,7 +196,7 @@ impl PipelineWorker {
             })?;
             if fpfh {
                 // its geometric branch serves later geometry-only runs of this pair
-                self.keep_geometry(pair, params.voxel, &inputs);
+                self.keep_geometry(r.plan.as_ref(), &inputs);
             }
             (r, inputs)
         };
@@ -285,13 +292,14 @@ impl PipelineWorker {
         // Compare every stage's key under the new settings with the kept run's: the inputs in
         // memory serve only when nothing before fusion changed.
         let t0 = Instant::now();
-        // From the kept keys when only fusion-stage settings changed (no cloud or frame hashed).
-        let new = match &kept.keys {
-            Some(k) => k.refreshed(&cur.pair, &params, cache.as_deref(), &self.memo),
-            None => StageKeys::compute(&cur.pair, &params, cache.as_deref(), &self.memo),
+        // From the kept plan when only fusion-stage settings changed (no cloud or frame hashed),
+        // else one plan of the new settings.
+        let new = match &kept.plan {
+            Some(k) => k.replan(&cur.pair, &params, cache.as_deref(), &self.memo),
+            None => crate::pipeline::plan(&cur.pair, &params, cache.as_deref(), &self.memo),
         }
         .ok();
-        let changed = match (&kept.keys, &new) {
+        let changed = match (&kept.plan, &new) {
             (Some(old), Some(new)) => old.invalidated_by(new),
             _ => StageName::ALL.to_vec(),
         };
@@ -324,12 +332,11 @@ impl PipelineWorker {
         let mut stages: Vec<StageInfo> = kept
             .stages
             .iter()
-            .filter(|s| {
-                !crate::pipeline::tail::is_tail_timing(&s.name)
-                    && !s.name.starts_with("settings change")
-            })
+            // the stages before the tail (not the tail's steps, nor the worker's own rows)
+            .filter(|s| s.stage.is_some_and(|n| n != StageName::Fusion))
             .map(|s| StageInfo {
                 name: s.name.clone(),
+                stage: s.stage,
                 state: StageState::Cached,
                 time_ms: Some(0.0),
                 role: StageRole::Part,
@@ -341,6 +348,7 @@ impl PipelineWorker {
             0,
             StageInfo {
                 name: "re-fuse from memory".into(),
+                stage: None,
                 state: StageState::Done,
                 time_ms: Some(t0.elapsed().as_secs_f64() * 1e3),
                 role: StageRole::Container,
@@ -360,7 +368,7 @@ impl PipelineWorker {
         cur.result = result;
         // the next change is compared with these settings, not the first run's
         if let Some(k) = cur.kept.as_mut() {
-            k.keys = new;
+            k.plan = new;
         }
         Some(Ok(self.with_default_posterior()))
     }
@@ -384,6 +392,7 @@ impl PipelineWorker {
                         0,
                         StageInfo {
                             name: stage.into(),
+                            stage: None,
                             state: StageState::Done,
                             time_ms: Some(ms),
                             role: StageRole::Container,
@@ -438,6 +447,7 @@ impl PipelineWorker {
                 }
                 model.stages = vec![StageInfo {
                     name: stage.into(),
+                    stage: None,
                     state: StageState::Failed(e.to_string()),
                     time_ms: Some(t.elapsed().as_secs_f64() * 1e3),
                     role: StageRole::Container,
@@ -462,6 +472,7 @@ impl PipelineWorker {
     pub(super) fn run_and_report(&mut self, id: &str, generate: bool, events: &EventSink) {
         events.send(WorkerEvent::Stage(StageInfo {
             name: "load + register".into(),
+            stage: None,
             state: StageState::Running,
             time_ms: None,
             role: StageRole::Container,
@@ -502,9 +513,8 @@ pub fn branches_ran(
 }
 
 /// The worker's key of a pair's geometric branch: both scans' `geo-fpfh` stage keys (the
-/// clouds' content and the voxel size), so a reloaded pair with other points is not served
-/// another's features.
-fn geo_memo_key(pair: &ScanPair, voxel: f64) -> crate::Result<String> {
-    let key = |s| crate::pipeline::stages::geo::key(s, voxel).map(|k| k.hash);
-    Ok(format!("{}+{}", key(&pair.source)?, key(&pair.target)?))
+/// clouds' content and the voxel size) from the plan, so a reloaded pair with other points
+/// is not served another's features.
+fn geo_memo_key(plan: &Plan) -> Option<String> {
+    plan.get(StageName::Geo).map(|k| k.join("+"))
 }

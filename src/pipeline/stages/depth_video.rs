@@ -18,6 +18,28 @@ use std::time::Instant;
 
 pub const STAGE: &str = "depth-video";
 pub const VERSION: u32 = 1;
+pub const NAME: crate::pipeline::plan::StageName = crate::pipeline::plan::StageName::DepthVideo;
+
+/// What the stage reads of the settings: L, the frames per fragment.
+pub fn settings(ib: &crate::pipeline::params::ImageBranchParams) -> usize {
+    use crate::pipeline::params::ImageBranchParams;
+    let ImageBranchParams {
+        backend: _,
+        prompt: _,
+        seed: _,
+        vfm: _,
+        k: _,
+        margin: _,
+        frames_per_fragment,
+        lift_radius: _,
+        // the virtual frames' depth files (inputs) carry these
+        virtual_camera: _,
+        lidar_cameras: _,
+        lidar_origin: _,
+        dense_stride: _,
+    } = ib;
+    *frames_per_fragment
+}
 
 /// Range limit for f-theta (LiDAR) frames, in lifting and in the depth video: the reference's
 /// indoor clips (5 m, 4 m) would flatten a LiDAR scan, so only the 16-bit millimetre range of
@@ -64,6 +86,8 @@ pub(crate) struct VideoMeta {
 
 /// The depth video of a pair: its hash always, its frames when they were just built.
 pub(crate) struct DepthVideo {
+    /// The stage's key hash.
+    pub(crate) key: String,
     pub(crate) meta: VideoMeta,
     frames: Option<Vec<RgbImage>>,
     src_paths: Vec<PathBuf>,
@@ -214,8 +238,9 @@ pub(crate) fn run(
         },
         |m, c, k| store(m, pair, l, c, k),
     )?;
-    ctx.timer.record("depth video", t.elapsed(), hit);
+    ctx.timer.record_as(NAME, "depth video", t.elapsed(), hit);
     Ok(DepthVideo {
+        key: key.hash,
         meta,
         frames,
         src_paths,

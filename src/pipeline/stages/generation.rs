@@ -20,6 +20,7 @@ use std::time::Instant;
 
 pub const STAGE: &str = "generation";
 pub const VERSION: u32 = 1;
+pub const NAME: crate::pipeline::plan::StageName = crate::pipeline::plan::StageName::Generation;
 
 #[derive(Serialize, Deserialize)]
 pub(crate) struct GenMeta {
@@ -114,12 +115,28 @@ pub(crate) fn short_prompt(p: &crate::wfm::Prompt) -> String {
 /// Key: `inputs` (the video hash, then for oracle the colour frames' hashes), backend id,
 /// prompt text, seed.
 pub fn key(inputs: &[String], backend_id: &str, ib: &ImageBranchParams) -> Result<CacheKey> {
+    let ImageBranchParams {
+        // keyed by its id (`backend_id`: the model, not the spelling of the option)
+        backend: _,
+        prompt,
+        seed,
+        vfm: _,
+        k: _,
+        margin: _,
+        // the depth video's hash (an input) carries L
+        frames_per_fragment: _,
+        lift_radius: _,
+        virtual_camera: _,
+        lidar_cameras: _,
+        lidar_origin: _,
+        dense_stride: _,
+    } = ib;
     let gi: Vec<&str> = inputs.iter().map(String::as_str).collect();
     CacheKey::new(
         STAGE,
         VERSION,
         &gi,
-        &json!({ "backend": backend_id, "prompt": ib.prompt.text(), "seed": ib.seed }),
+        &json!({ "backend": backend_id, "prompt": prompt.text(), "seed": seed }),
     )
 }
 
@@ -327,6 +344,6 @@ pub(crate) fn run(
         },
         store,
     )?;
-    ctx.timer.record("generation", t.elapsed(), hit);
+    ctx.timer.record_as(NAME, "generation", t.elapsed(), hit);
     Ok((gen, key))
 }

@@ -8,11 +8,29 @@ use crate::dataset::Scan;
 use crate::error::{Error, Result};
 use crate::geometry::PointCloud;
 use crate::pipeline::geo::{fpfh_branch, GeoBranch};
+use crate::pipeline::params::RegisterParams;
+use crate::pipeline::plan::StageName;
 use nalgebra::Point3;
 use serde_json::json;
 
 pub const STAGE: &str = "geo-fpfh";
 pub const VERSION: u32 = 1;
+pub const NAME: StageName = StageName::Geo;
+
+/// What the stage reads of the settings: the voxel size.
+pub fn settings(p: &RegisterParams) -> f64 {
+    let RegisterParams {
+        voxel,
+        // chooses this stage (FPFH) over SpinNet or features from files
+        geo_features: _,
+        fusion: _,
+        estimator: _,
+        inlier_threshold: _,
+        image: _,
+        success: _,
+    } = p;
+    *voxel
+}
 
 pub fn key(scan: &Scan, voxel: f64) -> Result<CacheKey> {
     CacheKey::new(
@@ -67,17 +85,18 @@ fn store(g: &GeoBranch, scan: &Scan, c: &Cache, k: &CacheKey) -> Result<()> {
     Ok(())
 }
 
-/// The scan's geometric branch through the cache, timed as `name`; with its key (the lift
+/// The scan's geometric branch through the cache, timed as `label`; with its key (the lift
 /// stage chains it).
 pub(crate) fn run(
     ctx: &mut Ctx,
-    name: &str,
+    label: &str,
     scan: &Scan,
     voxel: f64,
 ) -> Result<(GeoBranch, CacheKey)> {
     let key = key(scan, voxel)?;
     let g = ctx.stage(
-        name,
+        NAME,
+        label,
         &key,
         |e| load(e, voxel),
         || fpfh_branch(&scan.cloud, voxel),

@@ -16,6 +16,8 @@ use std::path::Path;
 
 pub const STAGE: &str = "geo-spinnet";
 pub const VERSION: u32 = 1;
+/// Instead of `geo-fpfh`: the same stage of the graph.
+pub const NAME: crate::pipeline::plan::StageName = crate::pipeline::plan::StageName::Geo;
 /// The seed of the keypoint subset and of the patch draws.
 pub const SEED: u64 = 0;
 
@@ -123,10 +125,10 @@ pub fn compute(scan: &Scan, input: &SpinNetInput, label: String) -> Result<GeoBr
     }
 }
 
-/// The scan's SpinNet branch through the cache, timed as `name`; with its key.
+/// The scan's SpinNet branch through the cache, timed as `step`; with its key.
 pub(crate) fn run(
     ctx: &mut Ctx,
-    name: &str,
+    step: &str,
     scan: &Scan,
     input: &SpinNetInput,
 ) -> Result<(GeoBranch, CacheKey)> {
@@ -134,7 +136,8 @@ pub(crate) fn run(
     let key = key(scan, input, &id)?;
     let lbl = label(input, &id);
     let g = ctx.stage(
-        name,
+        NAME,
+        step,
         &key,
         |e| load(e, lbl.clone()),
         || compute(scan, input, lbl.clone()),

@@ -14,6 +14,7 @@ use serde_json::json;
 
 pub const STAGE: &str = "image-points";
 pub const VERSION: u32 = 2;
+pub const NAME: crate::pipeline::plan::StageName = crate::pipeline::plan::StageName::ImagePoints;
 
 /// (source descriptors, valid, target descriptors, valid).
 pub(crate) type Pts = (Features, Vec<bool>, Features, Vec<bool>);
@@ -77,17 +78,18 @@ fn store((fs, vs, ft, vt): &Pts, c: &Cache, k: &CacheKey) -> Result<()> {
     Ok(())
 }
 
-/// Both scans' point descriptors, timed as "image point features".
+/// Both scans' point descriptors, timed as "image point features"; with the stage key.
 pub(crate) fn run(
     ctx: &mut Ctx,
     lift_keys: (&CacheKey, &CacheKey),
     view_keys: (&[String], &[String]),
     links: (&[Option<PixelLink>], &[Option<PixelLink>]),
     views: (&[ViewPoints], &[ViewPoints]),
-) -> Result<Pts> {
+) -> Result<(Pts, CacheKey)> {
     let (src_links, tgt_links) = links;
     let key = key(lift_keys, view_keys)?;
-    ctx.stage(
+    let pts = ctx.stage(
+        NAME,
         "image point features",
         &key,
         |e| load(e, src_links.len(), tgt_links.len()),
@@ -97,7 +99,8 @@ pub(crate) fn run(
             Ok((fs, vs, ft, vt))
         },
         store,
-    )
+    )?;
+    Ok((pts, key))
 }
 
 #[cfg(test)]

@@ -10,6 +10,8 @@ use crate::camera::CameraModel;
 use crate::dataset::FrameSet;
 use crate::error::{Error, Result};
 use crate::pipeline::memo::Memo;
+use crate::pipeline::params::{ImageBranchParams, RegisterParams};
+use crate::pipeline::plan::StageName;
 use crate::vfm::lift::{lift_views, LiftView, PixelLink};
 use nalgebra::Point3;
 use rayon::prelude::*;
@@ -18,6 +20,40 @@ use std::path::Path;
 
 pub const STAGE: &str = "lift";
 pub const VERSION: u32 = 1;
+pub const NAME: StageName = StageName::Lift;
+
+/// What the stage reads of the settings: the lift radius (m) at the keypoints' voxel (0 when
+/// the image branch is off: the stage does not run then).
+pub fn settings(p: &RegisterParams) -> f32 {
+    let RegisterParams {
+        voxel,
+        geo_features: _,
+        fusion: _,
+        estimator: _,
+        inlier_threshold: _,
+        image,
+        success: _,
+    } = p;
+    let Some(ib) = image else {
+        return 0.0;
+    };
+    let ImageBranchParams {
+        backend: _,
+        prompt: _,
+        seed: _,
+        vfm: _,
+        // the views (K, m, L) reach the key as the selected depth frames
+        k: _,
+        margin: _,
+        frames_per_fragment: _,
+        lift_radius,
+        virtual_camera: _,
+        lidar_cameras: _,
+        lidar_origin: _,
+        dense_stride: _,
+    } = ib;
+    lift_radius.at(*voxel, crate::estimate::scale::LIFT_RADIUS_PER_VOXEL)
+}
 
 /// Depth clip used when lifting (reference §4: 5 m).
 const LIFT_MAX_DEPTH: f32 = 5.0;
@@ -186,17 +222,18 @@ pub(crate) fn key_for(
     prepare(memo, inp, radius, image_size).map(|p| p.3)
 }
 
-/// The keypoints' pixel links, timed as `name`; with the stage key (image points chain it).
+/// The keypoints' pixel links, timed as `label`; with the stage key (image points chain it).
 pub(crate) fn run(
     ctx: &mut Ctx,
-    name: &str,
+    label: &str,
     inp: &LiftInput,
     radius: f32,
     image_size: (u32, u32),
 ) -> Result<(Vec<Option<PixelLink>>, CacheKey)> {
     let (paths, hashes, poses, key) = prepare(ctx.memo, inp, radius, image_size)?;
     let links = ctx.stage(
-        name,
+        NAME,
+        label,
         &key,
         |e| load(e, inp.keypoints.len()),
         || compute(inp, &paths, &hashes, &poses, radius, image_size),

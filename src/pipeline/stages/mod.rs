@@ -18,23 +18,24 @@
 //! | `image-points`         | `image_points.rs`      | lifts, vfm views                        |
 //! | `image-points-pair`    | `pair_vfm.rs`          | lifts, generation (pair models)         |
 //!
-//! `docs/architecture.md` has the parameters and keys of each. [`keys`] evaluates every
-//! stage's key for a parameter set and says which stages a change invalidates
-//! ([`invalidated`]).
+//! `docs/architecture.md` has the parameters and keys of each. Every stage exports its typed
+//! name (`NAME`, a [`StageName`]) and `settings`, the parameters its key reads (every field of
+//! the parameter types claimed or waived). `pipeline/plan.rs` orders the stages and gives
+//! their keys before a run ([`super::plan::plan`]); which stages a change invalidates is
+//! [`invalidated`].
 
 pub mod depth_video;
 pub mod generation;
 pub mod geo;
 pub mod geo_spinnet;
 pub mod image_points;
-pub mod keys;
 pub mod lift;
 pub mod pair_vfm;
 pub mod vfm;
 pub mod view_select;
 pub mod virtual_frames;
 
-pub use keys::{invalidated, StageKeys, StageName};
+pub use super::plan::{invalidated, StageName};
 
 use super::memo::Memo;
 use super::result::Timer;
@@ -90,10 +91,11 @@ impl<'a> Ctx<'a> {
         Ok((v, false))
     }
 
-    /// [`Self::cached`], timed as the stage `name`.
+    /// [`Self::cached`], timed as a step of the stage `name` (shown as `label`).
     pub(crate) fn stage<T>(
         &mut self,
-        name: &str,
+        name: StageName,
+        label: &str,
         key: &CacheKey,
         load: impl FnOnce(&Entry) -> Result<T>,
         compute: impl FnOnce() -> Result<T>,
@@ -101,7 +103,7 @@ impl<'a> Ctx<'a> {
     ) -> Result<T> {
         let t = Instant::now();
         let (v, hit) = self.cached(key, load, compute, store)?;
-        self.timer.record(name, t.elapsed(), hit);
+        self.timer.record_as(name, label, t.elapsed(), hit);
         Ok(v)
     }
 }

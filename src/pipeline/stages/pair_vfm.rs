@@ -16,6 +16,7 @@ use serde_json::json;
 
 pub const STAGE: &str = "image-points-pair";
 pub const VERSION: u32 = 1;
+pub const NAME: crate::pipeline::plan::StageName = crate::pipeline::plan::StageName::PairVfm;
 
 pub fn key(
     lift_keys: (&CacheKey, &CacheKey),
@@ -92,6 +93,7 @@ pub(crate) fn run(
     let mut loaded = false;
     let memo = ctx.memo;
     let d = ctx.stage(
+        NAME,
         "vfm view pairs + point features",
         key,
         |e| {

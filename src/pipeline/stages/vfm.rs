@@ -23,6 +23,7 @@ use std::time::Instant;
 
 pub const STAGE: &str = "vfm-view";
 pub const VERSION: u32 = 2;
+pub const NAME: crate::pipeline::plan::StageName = crate::pipeline::plan::StageName::Vfm;
 
 /// Whether `spec` describes views jointly (pair-conditioned: the `pair_vfm` stage) rather
 /// than one at a time (this stage).
@@ -167,10 +168,32 @@ pub fn key(
     CacheKey::new(STAGE, VERSION, &[&gen_key.hash, &lift_key.hash], &p)
 }
 
-/// The cell size a VFM is read through: `dense_stride` for dense per-pixel models, None for
-/// the others (it does not change what they give).
+/// What the stage reads of the settings: the VFM (its id, name and model file hash, is the
+/// key's `vfm`) and the cell size it is read through: `dense_stride` for dense per-pixel
+/// models, None for the others (it does not change what they give).
+pub fn settings(ib: &ImageBranchParams) -> (&VfmSpec, Option<u32>) {
+    let ImageBranchParams {
+        // the generation's key carries these
+        backend: _,
+        prompt: _,
+        seed: _,
+        vfm,
+        // the selected frames and the lift key carry these
+        k: _,
+        margin: _,
+        frames_per_fragment: _,
+        lift_radius: _,
+        virtual_camera: _,
+        lidar_cameras: _,
+        lidar_origin: _,
+        dense_stride,
+    } = ib;
+    (vfm, vfm.is_dense().then_some(*dense_stride))
+}
+
+/// The cell size a VFM is read through ([`settings`]).
 pub fn cell_of(ib: &ImageBranchParams) -> Option<u32> {
-    ib.vfm.is_dense().then_some(ib.dense_stride)
+    settings(ib).1
 }
 
 fn load(e: &Entry, pixels: &[(u32, u32)]) -> Result<ViewPoints> {
@@ -228,7 +251,7 @@ pub(crate) fn run_side(
     vfm_id: &str,
     model: &mut Option<Arc<dyn PerImageModel>>,
 ) -> Result<SideViews> {
-    let (spec, cell) = (&ib.vfm, cell_of(ib));
+    let (spec, cell) = settings(ib);
     let t = Instant::now();
     let memo = ctx.memo;
     let mut all_hit = true;
@@ -264,7 +287,7 @@ pub(crate) fn run_side(
         out.images.push(img);
         out.keys.push(key.hash);
     }
-    ctx.timer.record(name, t.elapsed(), all_hit);
+    ctx.timer.record_as(NAME, name, t.elapsed(), all_hit);
     Ok(out)
 }
 

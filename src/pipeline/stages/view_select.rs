@@ -13,14 +13,29 @@ use std::time::Instant;
 /// The stage's name in key comparisons (it is not cached: no folder of that name).
 pub const STAGE: &str = "view-selection";
 pub const VERSION: u32 = 1;
+pub const NAME: crate::pipeline::plan::StageName = crate::pipeline::plan::StageName::ViewSelect;
 
 /// The selection's key: L, m and K, and the generated video's length.
 pub fn key(ib: &ImageBranchParams, n_generated: usize) -> Result<CacheKey> {
+    let ImageBranchParams {
+        backend: _,
+        prompt: _,
+        seed: _,
+        vfm: _,
+        k,
+        margin,
+        frames_per_fragment,
+        lift_radius: _,
+        virtual_camera: _,
+        lidar_cameras: _,
+        lidar_origin: _,
+        dense_stride: _,
+    } = ib;
     CacheKey::new(
         STAGE,
         VERSION,
         &[],
-        &json!({ "L": ib.frames_per_fragment, "m": ib.margin, "K": ib.k, "n_generated": n_generated }),
+        &json!({ "L": frames_per_fragment, "m": margin, "K": k, "n_generated": n_generated }),
     )
 }
 
@@ -46,15 +61,16 @@ pub(crate) fn planned(ib: &ImageBranchParams) -> Result<ViewSelection> {
 }
 
 /// The selection on the generated video's actual length (a backend may return more than 2L
-/// frames), timed as "view selection".
+/// frames), timed as "view selection"; with its key.
 pub(crate) fn run(
     ctx: &mut Ctx,
     planned: ViewSelection,
     n_generated: usize,
     ib: &ImageBranchParams,
-) -> Result<ViewSelection> {
+) -> Result<(ViewSelection, CacheKey)> {
     let t = Instant::now();
     let sel = select(planned, n_generated, ib)?;
-    ctx.timer.record("view selection", t.elapsed(), false);
-    Ok(sel)
+    ctx.timer
+        .record_as(NAME, "view selection", t.elapsed(), false);
+    Ok((sel, key(ib, n_generated)?))
 }

@@ -34,6 +34,32 @@ use std::path::Path;
 pub const STAGE: &str = "virtual-frames";
 /// 2: a cache entry with a manifest (1 was a bare folder).
 pub const VERSION: u32 = 2;
+pub const NAME: crate::pipeline::plan::StageName = crate::pipeline::plan::StageName::VirtualFrames;
+
+/// What the stage reads of the settings for `scan`: L, the camera (resolved for this scan),
+/// the number of f-theta cameras and where their rig stands.
+pub fn settings(ib: &ImageBranchParams, scan: &Scan) -> (usize, VirtualCamera, usize, LidarOrigin) {
+    let ImageBranchParams {
+        backend: _,
+        prompt: _,
+        seed: _,
+        vfm: _,
+        k: _,
+        margin: _,
+        frames_per_fragment,
+        lift_radius: _,
+        virtual_camera,
+        lidar_cameras,
+        lidar_origin,
+        dense_stride: _,
+    } = ib;
+    (
+        *frames_per_fragment,
+        virtual_camera.resolve(&scan.cloud),
+        *lidar_cameras,
+        *lidar_origin,
+    )
+}
 
 /// Said with every result whose depth frames were rendered, not sensed.
 pub const VIRTUAL_FRAMES_NOTE: &str = "depth frames rendered from a virtual pinhole trajectory \
@@ -58,6 +84,8 @@ pub struct FrameStore<'a> {
     scratch: Option<(Cache, ScratchDir)>,
     /// Corrupt entries rebuilt, stores that failed.
     pub warnings: Vec<String>,
+    /// The key hashes of the entries read or written, in order (the plan's step).
+    pub keys: Vec<String>,
 }
 
 impl<'a> FrameStore<'a> {
@@ -66,6 +94,7 @@ impl<'a> FrameStore<'a> {
             cache,
             scratch: None,
             warnings: Vec::new(),
+            keys: Vec::new(),
         }
     }
 
@@ -83,9 +112,11 @@ impl<'a> FrameStore<'a> {
 
     /// The verified entry for `key` in the run's cache when it passes `check` (a corrupt one
     /// is left for [`Self::entry`] to report and replace).
-    fn hit(&self, key: &CacheKey, check: impl Fn(&Entry) -> Result<()>) -> Option<Entry> {
+    fn hit(&mut self, key: &CacheKey, check: impl Fn(&Entry) -> Result<()>) -> Option<Entry> {
         let e = self.cache?.get(key).ok()??;
-        check(&e).ok().map(|_| e)
+        let e = check(&e).ok().map(|_| e)?;
+        self.keys.push(key.hash.clone());
+        Some(e)
     }
 
     /// The verified entry for `key` (checked by `check`), else a new one: `n` files named
@@ -97,6 +128,7 @@ impl<'a> FrameStore<'a> {
         files: &Files,
         check: impl Fn(&Entry) -> Result<()>,
     ) -> Result<Entry> {
+        self.keys.push(key.hash.clone());
         if let Some(c) = self.cache {
             let verified = |e: &Entry| check(e).map(|()| e.clone());
             if let Some(e) = load_or_discard(c, key, verified, &mut self.warnings, "rebuilt") {
@@ -484,15 +516,8 @@ pub fn with_virtual_frames(
         if scan.frames.is_some() {
             continue;
         }
-        let cam = ib.virtual_camera.resolve(&scan.cloud);
-        scan.frames = Some(virtual_frames(
-            store,
-            scan,
-            ib.frames_per_fragment,
-            cam,
-            ib.lidar_cameras,
-            ib.lidar_origin,
-        )?);
+        let (l, cam, cameras, origin) = settings(ib, scan);
+        scan.frames = Some(virtual_frames(store, scan, l, cam, cameras, origin)?);
         let mut note = match cam {
             VirtualCamera::Ftheta if ib.lidar_cameras > 1 => format!(
                 "{VIRTUAL_FTHETA_NOTE}; {} such cameras, {:.0}° apart in yaw, shown one \
