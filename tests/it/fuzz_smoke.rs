@@ -1,6 +1,6 @@
 //! CI smoke run of every fuzz target with the in-process mutation fuzzer (not
 //! coverage-guided; the long runs use libFuzzer through `scripts/fuzz.sh`). Each target runs
-//! for `CGENREG_FUZZ_SMOKE_S` seconds (default 1.5) from its generated seeds plus excerpts
+//! for `CGENREG_FUZZ_SMOKE_S` seconds (default 0.75) from its generated seeds plus excerpts
 //! of the staged data; any panic fails the test and prints the input (hex) and the seed.
 
 use cgenreg::io::fuzz_targets as ft;
@@ -10,7 +10,7 @@ fn every_reader_survives_random_mutations() {
     let secs: f64 = std::env::var("CGENREG_FUZZ_SMOKE_S")
         .ok()
         .and_then(|v| v.parse().ok())
-        .unwrap_or(1.5);
+        .unwrap_or(0.75);
     let data = cgenreg::testing::test_data_root();
     let seed = 0x5eed_u64;
     let mut failures = Vec::new();
