@@ -17,16 +17,16 @@
 //! Every option not named is the default of the parameter types (ALIKE-t, K = 4, row softmax
 //! τ 0.1, mutual NN for the fused sets, SC2-PCR), as `cgenreg bench --vfm alike` runs it.
 
-use cgenreg::camera::visibility::{visibility, DepthView};
+use cgenreg::camera::visibility::visibility;
 use cgenreg::dataset::manifest::Dataset;
 use cgenreg::estimate::estimate_pose;
 use cgenreg::fusion::union::merge;
 use cgenreg::fusion::{Correspondence, FusionMode};
-use cgenreg::io::depth_png::{read_depth_png, DepthImage};
 use cgenreg::metrics::{rre_deg, rte_m};
 use cgenreg::pipeline::stages::virtual_frames::{with_virtual_frames, FrameStore};
 use cgenreg::pipeline::tail::{endpoints, similarities};
 use cgenreg::pipeline::union::{geometry_params, mode_correspondences, noisy_and_params};
+use cgenreg::pipeline::visibility::PairViews;
 use cgenreg::pipeline::{ImageBranchParams, Memo, RegisterParams, Registration, VfmSpec, WfmSpec};
 use clap::Parser;
 use serde_json::{json, Value};
@@ -142,10 +142,13 @@ fn study_pair(
         .as_ref()
         .ok_or_else(|| cgenreg::Error::Invalid("the study needs the image branch".into()))?;
     let (framed, _) = with_virtual_frames(&mut FrameStore::new(cache), pair, ib)?;
-    let src_depths = load_depths(&framed.source)?;
-    let tgt_depths = load_depths(&framed.target)?;
-    let src_views = views(&framed.source, &src_depths);
-    let tgt_views = views(&framed.target, &tgt_depths);
+    let frames = |scan: &cgenreg::dataset::Scan| {
+        scan.frames
+            .clone()
+            .ok_or_else(|| cgenreg::Error::Invalid(format!("{}: no depth frames", scan.name)))
+    };
+    let pair_views = PairViews::new(frames(&framed.source)?, frames(&framed.target)?);
+    let [src_views, tgt_views] = pair_views.views()?;
     let theta = params.inlier_threshold_m();
     let (src, tgt) = (&inputs.source_geo, &inputs.target_geo);
     let pts = |u: &[(u32, u32)]| {
@@ -240,27 +243,5 @@ fn union(sets: &[&[Correspondence]]) -> Vec<(u32, u32)> {
         .flat_map(|s| s.iter())
         .filter(|c| seen.insert((c.src, c.tgt)))
         .map(|c| (c.src, c.tgt))
-        .collect()
-}
-
-/// Every depth frame of a scan, read once.
-fn load_depths(scan: &cgenreg::dataset::Scan) -> cgenreg::Result<Vec<DepthImage>> {
-    scan.frames
-        .iter()
-        .flat_map(|f| f.frames.iter())
-        .map(|f| read_depth_png(&f.depth_path))
-        .collect()
-}
-
-fn views<'a>(scan: &'a cgenreg::dataset::Scan, depths: &'a [DepthImage]) -> Vec<DepthView<'a>> {
-    scan.frames
-        .iter()
-        .flat_map(|f| f.frames.iter().map(move |fr| (&f.camera, fr)))
-        .zip(depths)
-        .map(|((camera, fr), depth)| DepthView {
-            camera,
-            scan_from_camera: fr.scan_from_camera,
-            depth,
-        })
         .collect()
 }

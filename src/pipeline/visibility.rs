@@ -136,7 +136,7 @@ impl PairViews {
     }
 
     /// (source views, target views).
-    fn views(&self) -> Result<[Vec<DepthView<'_>>; 2]> {
+    pub fn views(&self) -> Result<[Vec<DepthView<'_>>; 2]> {
         let [sd, td] = self.depths()?;
         Ok([side(&self.source, sd), side(&self.target, td)])
     }
