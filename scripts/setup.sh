@@ -45,16 +45,24 @@ if [ "$(id -u)" -ne 0 ]; then
   echo "setup: not root: the local-Slurm test cannot start its daemons (under CI=true it fails; run the tests as root)" >&2
 fi
 
-# Native ONNX Runtime in a private venv (optional at run time, used when present).
+# Native ONNX Runtime in a private venv (optional at run time, used when present). With an
+# NVIDIA GPU (`nvidia-smi -L` lists one) or CGENREG_ORT_GPU=1: the onnxruntime-gpu build with
+# the CUDA and cuDNN wheels it names, so the ONNX models run on the GPU (CGENREG_ORT_GPU=0
+# keeps the CPU build; CGENREG_ORT_PROVIDER=cpu keeps a GPU build on the CPU at run time).
 venv="${CARGO_TARGET_DIR:-target}/ortvenv"
 ort_lib() { compgen -G "$venv/lib/python3*/site-packages/onnxruntime/capi/libonnxruntime.so*" | sort | tail -n 1; }
+ort_pkg="onnxruntime==$ORT_VERSION"
+if [ "${CGENREG_ORT_GPU:-}" = 1 ] ||
+  { [ "${CGENREG_ORT_GPU:-}" != 0 ] && nvidia-smi -L 2>/dev/null | grep -q '^GPU'; }; then
+  ort_pkg="onnxruntime-gpu[cuda,cudnn]==$ORT_VERSION"
+fi
 if [ -z "$(ort_lib || true)" ]; then
   mkdir -p "$(dirname "$venv")"
   if python3 -m venv "$venv" >/dev/null 2>&1 &&
-    "$venv/bin/python" -m pip install -q --disable-pip-version-check "onnxruntime==$ORT_VERSION"; then
-    echo "setup: onnxruntime $ORT_VERSION installed in $venv"
+    "$venv/bin/python" -m pip install -q --disable-pip-version-check "$ort_pkg"; then
+    echo "setup: $ort_pkg installed in $venv"
   else
-    echo "setup: onnxruntime not installed in $venv; the pure-Rust ONNX backend will be used" >&2
+    echo "setup: $ort_pkg not installed in $venv; the pure-Rust ONNX backend will be used" >&2
   fi
 fi
 

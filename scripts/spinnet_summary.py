@@ -59,7 +59,12 @@ def main():
     # runs of an earlier bench folder that this one does not hold keep their committed entry
     old_path = os.path.join(dest, "summary.json")
     old = json.load(open(old_path)).get("runs", {}) if os.path.exists(old_path) else {}
-    for name in RUNS:
+    # the optional steps' runs, by name
+    extra = sorted(
+        f[:-5] for f in os.listdir(bench) if f.endswith(".json") and f[:-5] not in RUNS
+        and re.match(r"(repose-|dev-all-|staged-.*-builtin$|rgbd-.*-builtin$)", f[:-5])
+    ) if os.path.isdir(bench) else []
+    for name in RUNS + extra + sorted(k for k in old if k not in RUNS and k not in extra):
         src = os.path.join(bench, name + ".json")
         done = os.path.join(bench, name + ".time")
         # a run still going has its .json (rewritten after every pair) but no timing yet

@@ -8,9 +8,12 @@
 2. FPFH + SC2-PCR from Python (`cgenreg.fpfh`, `cgenreg.match_then_fuse`, `cgenreg.sc2pcr`)
    against Open3D's FPFH + RANSAC from Python on the staged pairs: time and pairs registered.
 
-    CGENREG_DATA=... python examples/python/bench_python.py --cli target/release/cgenreg
+    CGENREG_DATA=... python examples/python/bench_python.py --cli target/release/cgenreg \
+        --profile release --json docs/results/python/bench-release.json
 
 Needs the `cgenreg` binary built in the same profile as the extension, and Open3D for part 2.
+`--json` writes what it printed (the tables of docs/python.md are made from it by
+scripts/tables.py), with the command, the machine and the date.
 """
 
 from __future__ import annotations
@@ -57,11 +60,13 @@ def overhead(cli: str, pairs, reps: int):
             p, rows[-1][1], rows[-1][2], 100 * (rows[-1][2] / rows[-1][1] - 1)), flush=True)
     tc, ty = sum(r[1] for r in rows), sum(r[2] for r in rows)
     print("total: CLI %.1f ms, Python %.1f ms: overhead %+.2f %%" % (tc, ty, 100 * (ty / tc - 1)))
+    return [{"pair": p, "cli_ms": round(c, 1), "python_ms": round(y, 1)} for p, c, y in rows]
 
 
 def stages_vs_open3d(root: Path, voxel: float, with_o3d: bool):
     n = ok = ok3 = 0
     t_ours = t_o3d = 0.0
+    per_pair = []
     for p in cgenreg.manifest_pairs(STAGED):
         src, tgt = _fragment_clouds(root, p)
         t0 = time.perf_counter()
@@ -76,6 +81,7 @@ def stages_vs_open3d(root: Path, voxel: float, with_o3d: bool):
         ok += good
         t_ours += dt
         line = "%-18s cgenreg %6.2f s %s" % (p["id"], dt, "ok  " if good else "FAIL")
+        row = {"pair": p["id"], "cgenreg_s": round(dt, 3), "cgenreg_ok": bool(good)}
         if with_o3d:
             t0 = time.perf_counter()
             t = open3d_fpfh_ransac(src, tgt, voxel)
@@ -85,11 +91,14 @@ def stages_vs_open3d(root: Path, voxel: float, with_o3d: bool):
             ok3 += g3
             t_o3d += d3
             line += " | Open3D %6.2f s %s" % (d3, "ok  " if g3 else "FAIL")
+            row.update({"open3d_s": round(d3, 3), "open3d_ok": bool(g3)})
+        per_pair.append(row)
         print(line, flush=True)
     print("cgenreg FPFH + SC2-PCR: %d/%d registered, %.2f s" % (ok, n, t_ours))
     if with_o3d:
         print("Open3D FPFH + RANSAC:  %d/%d registered, %.2f s (%.2fx cgenreg's time)" % (
             ok3, n, t_o3d, t_o3d / t_ours))
+    return per_pair
 
 
 def main() -> int:
@@ -98,6 +107,8 @@ def main() -> int:
     ap.add_argument("--pairs", nargs="*", default=["redkitchen/0-1", "redkitchen/5-6", "redkitchen/21-34"])
     ap.add_argument("--reps", type=int, default=3)
     ap.add_argument("--skip-overhead", action="store_true")
+    ap.add_argument("--profile", default="dev", help="the build profile of binary and extension (a label)")
+    ap.add_argument("--json", help="also write the results here")
     a = ap.parse_args()
     root = Path(os.environ.get("CGENREG_DATA", Path(__file__).resolve().parents[3] / "shared" / "data"))
     os.environ["CGENREG_DATA"] = str(root)
@@ -107,14 +118,23 @@ def main() -> int:
         o3d = "Open3D %s" % open3d.__version__
     except ImportError:
         o3d = None
-    print("machine: %s, %d CPUs; Python %s; numpy %s; %s; %s" % (
+    machine = "%s, %d CPUs; Python %s; numpy %s; %s" % (
         platform.processor() or platform.machine(), os.cpu_count(), platform.python_version(),
-        np.__version__, o3d or "no Open3D", time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())))
+        np.__version__, o3d or "no Open3D")
+    date = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+    print("machine: %s; %s" % (machine, date))
+    out = {"command": "python examples/python/bench_python.py --cli <cgenreg> --profile %s" % a.profile,
+           "profile": a.profile, "machine": machine, "date": date, "reps": a.reps}
     if not a.skip_overhead:
         print("== Python call overhead over the CLI (median of %d, loading excluded)" % a.reps)
-        overhead(a.cli, a.pairs, a.reps)
+        out["overhead"] = overhead(a.cli, a.pairs, a.reps)
     print("== FPFH + SC2-PCR from Python vs Open3D FPFH + RANSAC from Python (voxel 0.05 m)")
-    stages_vs_open3d(root, 0.05, o3d is not None)
+    out["staged"] = stages_vs_open3d(root, 0.05, o3d is not None)
+    if a.json:
+        os.makedirs(os.path.dirname(os.path.abspath(a.json)), exist_ok=True)
+        with open(a.json, "w") as f:
+            json.dump(out, f, indent=1)
+            f.write("\n")
     return 0
 
 

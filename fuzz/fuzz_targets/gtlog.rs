@@ -1,4 +1,4 @@
 #![no_main]
 libfuzzer_sys::fuzz_target!(|data: &[u8]| {
-    cgenreg::io::fuzz_targets::run("gtlog", data);
+    cgenreg::testing::fuzz_targets::run("gtlog", data);
 });

@@ -22,7 +22,7 @@ from ._cgenreg import Result
 from ._options import to_options
 from .bench import load_bench
 from .errors import CgenregError, FileError, FormatError, InvalidInput
-from .inspector import inspect
+from .inspector import inspect, screenshot
 
 __all__ = [
     "Result",
@@ -39,6 +39,7 @@ __all__ = [
     "load_bench",
     "manifest_pairs",
     "inspect",
+    "screenshot",
     "CgenregError",
     "InvalidInput",
     "FormatError",

@@ -91,6 +91,34 @@ def _write_pair(
     return manifest
 
 
+def _pair_manifest(
+    manifest: Optional[PathLike],
+    pair: Optional[str],
+    source: Optional[Any],
+    target: Optional[Any],
+    gt: Optional[Any],
+    what: str,
+) -> "tuple[Optional[str], Optional[PathLike], Optional[str]]":
+    """A manifest and pair to open: as given, or two clouds (arrays or files, + GT) written to a
+    temporary folder. Returns (the temporary folder or None, manifest, pair)."""
+    from . import read_cloud
+
+    if source is None and target is None:
+        return None, manifest, pair
+    if source is None or target is None or manifest is not None:
+        raise CgenregError("%s: give manifest (and pair), or source and target" % what)
+    tmp = tempfile.mkdtemp(prefix="cgenreg-%s-" % what)
+    src = read_cloud(source) if isinstance(source, (str, os.PathLike)) else source
+    tgt = read_cloud(target) if isinstance(target, (str, os.PathLike)) else target
+    gt_m = None
+    if gt is not None:
+        if isinstance(gt, (str, os.PathLike)):
+            gt_m = np.loadtxt(os.fspath(gt)).reshape(4, 4)
+        else:
+            gt_m = np.asarray(gt, dtype=np.float64)
+    return tmp, _write_pair(tmp, np.asarray(src), np.asarray(tgt), gt_m), "python/target-source"
+
+
 def inspect(
     manifest: Optional[PathLike] = None,
     pair: Optional[str] = None,
@@ -113,23 +141,7 @@ def inspect(
     returns the process (``wait=True`` waits for it to close). ``command`` overrides the
     program (see :func:`inspector_command`).
     """
-    from . import read_cloud
-
-    tmp = None
-    if source is not None or target is not None:
-        if source is None or target is None or manifest is not None:
-            raise CgenregError("inspect: give manifest (and pair), or source and target")
-        tmp = tempfile.mkdtemp(prefix="cgenreg-inspect-")
-        src = read_cloud(source) if isinstance(source, (str, os.PathLike)) else source
-        tgt = read_cloud(target) if isinstance(target, (str, os.PathLike)) else target
-        gt_m = None
-        if gt is not None:
-            if isinstance(gt, (str, os.PathLike)):
-                gt_m = np.loadtxt(os.fspath(gt)).reshape(4, 4)
-            else:
-                gt_m = np.asarray(gt, dtype=np.float64)
-        manifest = _write_pair(tmp, np.asarray(src), np.asarray(tgt), gt_m)
-        pair = "python/target-source"
+    tmp, manifest, pair = _pair_manifest(manifest, pair, source, target, gt, "inspect")
     argv = list(command) if command is not None else inspector_command()
     argv.append("inspect")
     if manifest is not None:
@@ -143,3 +155,59 @@ def inspect(
         if tmp is not None:
             shutil.rmtree(tmp, ignore_errors=True)
     return proc
+
+
+def screenshot(
+    manifest: Optional[PathLike] = None,
+    pair: Optional[str] = None,
+    *,
+    out: PathLike,
+    source: Optional[Any] = None,
+    target: Optional[Any] = None,
+    gt: Optional[Any] = None,
+    panel: str = "3d",
+    width: int = 1600,
+    height: int = 1000,
+    result_json: Optional[PathLike] = None,
+    force: bool = False,
+    command: Optional[Sequence[str]] = None,
+    **params: Any,
+) -> Optional[dict]:
+    """Render the inspector headless to a PNG, on a manifest pair or two clouds (arrays or files).
+
+    As ``cgenreg screenshot``: the pair is registered with ``**params`` (the same settings as
+    :func:`cgenreg.register`) and ``panel`` ("3d", "views", "posterior", ...) is drawn at
+    ``width`` x ``height`` into ``out`` (a new file, or a PNG to replace; another existing file
+    only with ``force``). No window
+    opens: this works on a machine without a display (it needs EGL). Returns the registration
+    result the picture shows, parsed from ``register --json``'s format, when ``result_json`` is
+    given (that file is written too). Runs the GUI-capable binary (see
+    :func:`inspector_command`, or ``command``) with an argument vector; a failure raises
+    :class:`CgenregError` with the program's message.
+    """
+    tmp, manifest, pair = _pair_manifest(manifest, pair, source, target, gt, "screenshot")
+    try:
+        argv = list(command) if command is not None else inspector_command()
+        argv.append("screenshot")
+        if manifest is not None:
+            argv += ["--manifest", os.fspath(manifest)]
+        if pair is not None:
+            argv += ["--pair", str(pair)]
+        argv += ["--panel", str(panel), "--out", os.fspath(out)]
+        argv += ["--width", str(int(width)), "--height", str(int(height))]
+        if result_json is not None:
+            argv += ["--result-json", os.fspath(result_json)]
+        if force:
+            argv.append("--force")
+        argv += to_options(params)
+        done = subprocess.run(argv, capture_output=True, text=True)
+        if done.returncode != 0:
+            msg = done.stderr.strip() or done.stdout.strip()
+            raise CgenregError("screenshot failed (exit %d): %s" % (done.returncode, msg))
+        if result_json is None:
+            return None
+        with open(os.fspath(result_json)) as f:
+            return json.load(f)
+    finally:
+        if tmp is not None:
+            shutil.rmtree(tmp, ignore_errors=True)

@@ -649,7 +649,7 @@ fn estimate<'py>(
 #[pyfunction]
 fn load_bench(py: Python<'_>, path: PathBuf) -> PyResult<String> {
     let run = py
-        .detach(|| cgenreg::metrics::compare::load_bench_run(&path))
+        .detach(|| cgenreg::report::compare::load_bench_run(&path))
         .map_err(to_py)?;
     let v = serde_json::json!({
         "label": run.label,

@@ -109,7 +109,7 @@ impl RunArgs {
     }
 }
 
-pub use crate::metrics::compare::PairRow;
+pub use crate::report::compare::PairRow;
 
 #[derive(Serialize)]
 struct BenchJson<'a> {

@@ -1,8 +1,8 @@
 //! `cgenreg diff A.json B.json`: two bench runs compared pair by pair (flipped successes,
-//! ΔRRE / ΔRTE, success quadrants, parameters that differ); see `metrics::compare`.
+//! ΔRRE / ΔRTE, success quadrants, parameters that differ); see `report::compare`.
 
 use crate::error::{Error, Result};
-use crate::metrics::compare::{compare, load_bench_run, table};
+use crate::report::compare::{compare, load_bench_run, table};
 use clap::Args;
 use std::path::PathBuf;
 

@@ -472,7 +472,7 @@ fn run_compare_screenshot(a: &ScreenshotArgs, runs: &[PathBuf], panel: Panel) ->
         }
         None => rows.first().map(|&i| c.pairs[i].id.clone()),
     };
-    eprint!("{}", crate::metrics::compare::table(c));
+    eprint!("{}", crate::report::compare::table(c));
     // the controls show what the worker would run (nothing runs for this screenshot)
     let params = worker.params().clone();
     crate::io::output::prepare(&a.out, crate::io::output::OutputKind::Png, a.force)?;

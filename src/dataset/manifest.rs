@@ -57,12 +57,12 @@
 use super::fragment::{build_fragment_with, fragment_frames, CropBox, FragmentOptions};
 use super::fragment_cache::{build_fragment_cached, FragmentCacheStatus};
 use super::{Scan, ScanPair};
+use crate::dataset::preset::Preset;
 use crate::error::{Error, Result};
 use crate::geometry::transform::isometry_from_matrix;
 use crate::io::gtlog::{read_gt_log, GtEntry};
 use crate::io::kitti::KittiFields;
 use crate::io::rgbd_sequence::RgbdSequence;
-use crate::pipeline::params::Preset;
 use nalgebra::{Isometry3, Matrix4};
 use serde::Deserialize;
 use std::collections::HashMap;

@@ -5,6 +5,7 @@ pub mod fragment;
 pub mod fragment_cache;
 pub mod manifest;
 pub mod open;
+pub mod preset;
 pub mod repose;
 pub mod threedmatch;
 

@@ -4,8 +4,8 @@
 pub mod camera_txt;
 pub mod cloud;
 pub mod depth_png;
-pub mod fuzz_targets;
 pub mod gtlog;
+pub mod json_diff;
 pub mod kitti;
 pub mod limits;
 pub mod npy;

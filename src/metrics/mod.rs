@@ -4,7 +4,6 @@
 //! Conventions: transforms are `target_from_source`; correspondences are endpoint pairs
 //! `src[i] ↔ tgt[i]` in their own frames. RRE is in degrees, RTE in metres.
 
-pub mod compare;
 pub mod convention;
 pub mod overlap;
 

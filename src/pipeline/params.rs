@@ -4,7 +4,7 @@
 use crate::estimate::scale::{Scaled, LIFT_RADIUS_PER_VOXEL, THRESHOLD_PER_VOXEL};
 use crate::estimate::EstimatorKind;
 use crate::fusion::FusionParams;
-use crate::metrics::{SuccessCriteria, SuccessCriterion};
+use crate::metrics::SuccessCriteria;
 use crate::vfm::VfmSpec;
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
@@ -142,65 +142,11 @@ fn is_default_success(s: &SuccessCriteria) -> bool {
     *s == SuccessCriteria::default()
 }
 
-/// The published protocols a run can start from: the keypoint voxel (every following distance
-/// with it, [`crate::estimate::scale`]) and the success criterion.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
-#[serde(rename_all = "kebab-case")]
-pub enum Preset {
-    /// The 3DMatch protocol (SC2-PCR's `config_3DMatch.json`): voxel 0.05 m, thresholds
-    /// 0.10 m; success RRE ≤ 15°, RTE ≤ 0.30 m.
-    #[default]
-    Indoor,
-    /// The KITTI protocol (SC2-PCR's `config_KITTI.json`): voxel 0.3 m, thresholds 0.6 m,
-    /// 8000 correspondences; success RRE ≤ 5°, RTE ≤ 2 m (KITTI's benchmark), SC2-PCR's
-    /// 5° / 0.6 m beside it.
-    Outdoor,
-}
+pub use crate::dataset::preset::Preset;
 
+/// What a preset does to the parameter types (the preset itself, its voxel and success
+/// criteria, is `dataset/preset.rs`: a data set names its protocol).
 impl Preset {
-    pub const ALL: [Preset; 2] = [Preset::Indoor, Preset::Outdoor];
-
-    pub fn name(self) -> &'static str {
-        match self {
-            Preset::Indoor => "indoor",
-            Preset::Outdoor => "outdoor",
-        }
-    }
-
-    pub fn label(self) -> &'static str {
-        match self {
-            Preset::Indoor => "indoor (3DMatch protocol)",
-            Preset::Outdoor => "outdoor (KITTI protocol)",
-        }
-    }
-
-    /// The keypoint voxel (m).
-    pub fn voxel(self) -> f64 {
-        match self {
-            Preset::Indoor => 0.05,
-            Preset::Outdoor => 0.3,
-        }
-    }
-
-    /// SC2-PCR's `max_points` (`num_node` of the KITTI configuration; the 3DMatch one uses
-    /// MyMatcher's 8000).
-    pub fn max_points(self) -> usize {
-        8000
-    }
-
-    pub fn success(self) -> SuccessCriteria {
-        match self {
-            Preset::Indoor => SuccessCriteria {
-                primary: SuccessCriterion::THREEDMATCH,
-                also: None,
-            },
-            Preset::Outdoor => SuccessCriteria {
-                primary: SuccessCriterion::KITTI,
-                also: Some(SuccessCriterion::SC2PCR_KITTI),
-            },
-        }
-    }
-
     /// `p` under this preset: its voxel and success criteria, every scale-aware distance
     /// following the voxel (user-set values are dropped: set them again after this).
     pub fn apply(self, p: &mut RegisterParams) {
@@ -502,6 +448,7 @@ pub fn cosmos_output_settings(
 mod tests {
     use super::*;
     use crate::estimate::{RansacParams, Sc2PcrParams};
+    use crate::metrics::SuccessCriterion;
 
     fn sc2(p: &RegisterParams) -> Sc2PcrParams {
         match p.estimator_resolved() {

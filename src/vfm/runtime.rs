@@ -11,6 +11,12 @@
 //! `CGENREG_ORT_BACKEND=tract` forces tract and `=native` makes a missing native library an error
 //! (used by the benchmark). Loading is checked step by step (file, symbol, API version), so a
 //! missing or broken library never panics; the reason is kept in [`backend_info`].
+//!
+//! Native sessions run on the CPU, or on an NVIDIA GPU through ONNX Runtime's CUDA execution
+//! provider when the loaded library has it (the `onnxruntime-gpu` wheel): `CGENREG_ORT_PROVIDER`
+//! = `auto` (the default: CUDA when available), `cpu`, or `cuda` (an error without it). The
+//! provider is chosen once per process and named in [`BackendInfo::describe`], so every result
+//! says where its descriptors were computed.
 
 use crate::error::{Error, Result};
 use ort::session::Session;
@@ -27,6 +33,37 @@ pub struct BackendInfo {
     pub library: Option<PathBuf>,
     /// Why the native library was not used (when tract was chosen), or None.
     pub note: Option<String>,
+    /// Where native sessions run (always the CPU under tract).
+    pub provider: Provider,
+}
+
+/// Where native ONNX Runtime sessions run.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Provider {
+    Cpu,
+    /// ONNX Runtime's CUDA execution provider (an NVIDIA GPU).
+    Cuda,
+}
+
+/// The provider for a `CGENREG_ORT_PROVIDER` value (`auto` or empty, `cpu`, `cuda`), given
+/// whether the loaded ONNX Runtime has the CUDA provider.
+pub fn choose_provider(
+    request: &str,
+    cuda_available: bool,
+) -> std::result::Result<Provider, String> {
+    match request.trim() {
+        "" | "auto" if cuda_available => Ok(Provider::Cuda),
+        "" | "auto" | "cpu" => Ok(Provider::Cpu),
+        "cuda" if cuda_available => Ok(Provider::Cuda),
+        "cuda" => Err(
+            "CGENREG_ORT_PROVIDER=cuda but the loaded ONNX Runtime has no CUDA provider (it needs \
+             the onnxruntime-gpu build and the CUDA libraries: see docs/install.md)"
+                .to_string(),
+        ),
+        other => Err(format!(
+            "CGENREG_ORT_PROVIDER: expected auto, cpu or cuda, got {other:?}"
+        )),
+    }
 }
 
 impl BackendInfo {
@@ -35,10 +72,14 @@ impl BackendInfo {
             // The file name only: this string lands in results, tables and plot titles, where a
             // machine's folders do not belong (`library` keeps the full path).
             ("onnxruntime", Some(v), Some(p)) => format!(
-                "onnxruntime {v} ({})",
+                "onnxruntime {v} ({}{})",
                 p.file_name()
                     .map(|n| n.to_string_lossy())
-                    .unwrap_or_default()
+                    .unwrap_or_default(),
+                match self.provider {
+                    Provider::Cpu => "",
+                    Provider::Cuda => ", CUDA",
+                }
             ),
             _ => match &self.note {
                 Some(n) => format!("tract (pure Rust; {n})"),
@@ -93,6 +134,7 @@ fn init() -> std::result::Result<Runtime, String> {
                 version: Some(version),
                 library: Some(library),
                 note: None,
+                provider: Provider::Cpu,
             }
         }
         Err(why) => {
@@ -107,6 +149,7 @@ fn init() -> std::result::Result<Runtime, String> {
                 version: None,
                 library: None,
                 note: Some(why),
+                provider: Provider::Cpu,
             }
         }
     };
@@ -114,8 +157,98 @@ fn init() -> std::result::Result<Runtime, String> {
         .with_name("cgenreg")
         .build()
         .map_err(|e| format!("creating the {} environment: {e}", info.kind))?;
+    let mut info = info;
+    if info.kind == "onnxruntime" {
+        let request = std::env::var("CGENREG_ORT_PROVIDER").unwrap_or_default();
+        let (usable, why) = cuda_usable(&env, info.library.as_deref());
+        info.provider = choose_provider(&request, usable).map_err(|e| match &why {
+            Some(w) => format!("{e}; {w}"),
+            None => e,
+        })?;
+        if info.provider == Provider::Cpu && request.trim() != "cpu" {
+            info.note = why;
+        }
+    }
     Ok(Runtime { info, env })
 }
+
+/// Whether a session can take ONNX Runtime's CUDA provider here: the loaded library lists it
+/// (the onnxruntime-gpu build) and registering it works (its CUDA and cuDNN libraries load).
+/// Otherwise why not, when the library has the provider but cannot use it.
+fn cuda_usable(
+    env: &ort::environment::Environment,
+    library: Option<&Path>,
+) -> (bool, Option<String>) {
+    use ort::ep::ExecutionProvider;
+    if !ort::ep::CUDA::is_available().unwrap_or(false) {
+        return (false, None);
+    }
+    if let Some(lib) = library {
+        preload_cuda_wheels(lib);
+    }
+    let probe = Session::builder(env).and_then(|b| {
+        b.with_execution_providers([ort::ep::CUDA::default().build().error_on_failure()])
+            .map_err(ort::Error::from)
+    });
+    match probe {
+        Ok(_) => (true, None),
+        Err(e) => (
+            false,
+            Some(format!(
+                "the CUDA provider is present but does not load: {e}"
+            )),
+        ),
+    }
+}
+
+/// The CUDA and cuDNN libraries of the `nvidia-*` wheels that `onnxruntime-gpu[cuda,cudnn]`
+/// installs beside it (`site-packages/nvidia/*/lib`), loaded globally before the CUDA provider
+/// is registered, as ONNX Runtime's own Python package does: the provider finds them by name
+/// then, without `LD_LIBRARY_PATH`. Libraries that do not load are left to the system's search
+/// path (a CUDA toolkit installed system-wide); the probe that follows says whether it worked.
+#[cfg(unix)]
+fn preload_cuda_wheels(ort_library: &Path) {
+    // <site-packages>/onnxruntime/capi/libonnxruntime.so.*
+    let Some(site) = ort_library.ancestors().nth(3) else {
+        return;
+    };
+    let Ok(groups) = std::fs::read_dir(site.join("nvidia")) else {
+        return;
+    };
+    let mut left: Vec<PathBuf> = groups
+        .flatten()
+        .filter_map(|g| std::fs::read_dir(g.path().join("lib")).ok())
+        .flat_map(|d| d.flatten().map(|e| e.path()))
+        .filter(|p| {
+            p.file_name()
+                .and_then(|n| n.to_str())
+                .is_some_and(|n| n.starts_with("lib") && n.contains(".so"))
+        })
+        .collect();
+    left.sort();
+    // a library whose dependencies are not loaded yet fails; retry until no progress
+    loop {
+        let before = left.len();
+        left.retain(|p| {
+            use libloading::os::unix::{Library, RTLD_GLOBAL, RTLD_NOW};
+            // SAFETY: loading the CUDA runtime's libraries runs their initialisers, as ONNX
+            // Runtime's own loading of them would; they stay loaded for the process.
+            match unsafe { Library::open(Some(p), RTLD_NOW | RTLD_GLOBAL) } {
+                Ok(l) => {
+                    std::mem::forget(l);
+                    false
+                }
+                Err(_) => true,
+            }
+        });
+        if left.is_empty() || left.len() == before {
+            break;
+        }
+    }
+}
+
+#[cfg(not(unix))]
+fn preload_cuda_wheels(_ort_library: &Path) {}
 
 /// Candidate native libraries, best first.
 pub fn native_library_candidates() -> Vec<PathBuf> {
@@ -320,6 +453,16 @@ impl OnnxModel {
                     what: rt.info.describe(),
                     message: e.to_string(),
                 })?;
+            if rt.info.provider == Provider::Cuda {
+                // an error, not a silent CPU run, when the GPU cannot take the session: the
+                // results say CUDA
+                builder = builder
+                    .with_execution_providers([ort::ep::CUDA::default().build().error_on_failure()])
+                    .map_err(|e| Error::External {
+                        what: rt.info.describe(),
+                        message: format!("registering the CUDA execution provider: {e}"),
+                    })?;
+            }
         }
         let session = builder.commit_from_file(path).map_err(|e| {
             Error::format(
@@ -523,6 +666,40 @@ mod tests {
             b.extend(entry(n));
         }
         b
+    }
+
+    #[test]
+    fn the_provider_is_cuda_only_where_the_library_has_it() {
+        assert_eq!(choose_provider("", true), Ok(Provider::Cuda));
+        assert_eq!(choose_provider("auto", false), Ok(Provider::Cpu));
+        assert_eq!(choose_provider("cpu", true), Ok(Provider::Cpu));
+        assert_eq!(choose_provider(" cuda ", true), Ok(Provider::Cuda));
+        let e = choose_provider("cuda", false).unwrap_err();
+        assert!(
+            e.contains("no CUDA provider") && e.contains("onnxruntime-gpu"),
+            "{e}"
+        );
+        let e = choose_provider("gpu", true).unwrap_err();
+        assert!(
+            e.contains("expected auto, cpu or cuda") && e.contains("\"gpu\""),
+            "{e}"
+        );
+        let mut info = BackendInfo {
+            kind: "onnxruntime",
+            version: Some("1.24.1".into()),
+            library: Some(PathBuf::from("/x/libonnxruntime.so.1.24.1")),
+            note: None,
+            provider: Provider::Cpu,
+        };
+        assert_eq!(
+            info.describe(),
+            "onnxruntime 1.24.1 (libonnxruntime.so.1.24.1)"
+        );
+        info.provider = Provider::Cuda;
+        assert_eq!(
+            info.describe(),
+            "onnxruntime 1.24.1 (libonnxruntime.so.1.24.1, CUDA)"
+        );
     }
 
     #[test]

@@ -1,4 +1,4 @@
-//! The corruption campaign (issue 12): a real image-branch run on redkitchen (fragments rebuilt
+//! The corruption campaign: a real image-branch run on redkitchen (fragments rebuilt
 //! from the raw RGB-D frames, built-in generator, XFeat), then, for one entry of every stage it
 //! cached, each kind of damage to its payload and to its manifest. After every injection the
 //! run must report the entry as corrupt, not use it (same pose and correspondences as the clean

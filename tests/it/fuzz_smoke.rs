@@ -3,7 +3,7 @@
 //! for `CGENREG_FUZZ_SMOKE_S` seconds (default 0.75) from its generated seeds plus excerpts
 //! of the staged data; any panic fails the test and prints the input (hex) and the seed.
 
-use cgenreg::io::fuzz_targets as ft;
+use cgenreg::testing::fuzz_targets as ft;
 
 #[test]
 fn every_reader_survives_random_mutations() {

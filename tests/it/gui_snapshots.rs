@@ -780,3 +780,157 @@ fn match_lines_follow_the_line_width_and_opacity_controls() {
     assert!(wide as f64 > 1.5 * thin as f64, "{wide} vs {thin}");
     assert!((faint as f64) < 0.5 * thin as f64, "{faint} vs {thin}");
 }
+
+/// A click at `pos` in the harness (press and release without moving).
+fn click_at(h: &mut Harness<'static, App>, pos: egui::Pos2) {
+    h.hover_at(pos);
+    h.run_steps(1);
+    h.drag_at(pos);
+    h.run_steps(1);
+    h.drop_at(pos);
+    h.run_steps(2);
+}
+
+/// The distance tool: two clicks in the 3D view pick two points near where they were drawn,
+/// and the distance is theirs in metres (two source points: the same under any pose); a
+/// third click starts again; switching the tool off forgets the ends.
+#[test]
+fn the_distance_tool_measures_between_two_clicked_points() {
+    use cgenreg::app::view3d::measure::{measurement, Cloud, Picked};
+    let mut app = demo_app();
+    app.ui_state.tab = Panel::View3d;
+    let Some(mut h) = harness(app) else { return };
+    h.run_steps(3);
+    h.get_by_label("measure distance").click();
+    h.run_steps(2);
+    assert!(h.state().view3d().measure.active);
+    let view = h.state().view3d();
+    let inner = view.viewport().expect("a drawn 3D view").shrink(160.0);
+    let on_screen = |i: usize| {
+        view.screen_position(Picked {
+            cloud: Cloud::Source,
+            index: i,
+        })
+        .filter(|p| inner.contains(*p))
+    };
+    let n = h.state().model().source.len();
+    let a = (0..n)
+        .find_map(on_screen)
+        .expect("a source point inside the view");
+    let b = (0..n)
+        .filter_map(on_screen)
+        .find(|p| p.distance(a) > 80.0)
+        .expect("a second source point apart from the first");
+    click_at(&mut h, a);
+    click_at(&mut h, b);
+    let state = h.state();
+    let picked = state.view3d().measure.picked.clone();
+    assert_eq!(picked.len(), 2, "{picked:?}");
+    for (p, clicked) in picked.iter().zip([a, b]) {
+        assert_eq!(p.cloud, Cloud::Source);
+        let drawn = state.view3d().screen_position(*p).unwrap();
+        assert!(
+            drawn.distance(clicked) <= 10.0,
+            "{p:?} drawn at {drawn:?}, clicked {clicked:?}"
+        );
+    }
+    let src = &state.model().source;
+    let (pa, pb) = (src[picked[0].index], src[picked[1].index]);
+    let want = (0..3)
+        .map(|k| (pa[k] as f64 - pb[k] as f64).powi(2))
+        .sum::<f64>()
+        .sqrt();
+    let pose = nalgebra::Isometry3::translation(1.0, 2.0, 3.0);
+    let got = measurement(state.model(), &pose, &state.view3d().measure).unwrap();
+    assert!(
+        (got.distance_m - want).abs() < 1e-6,
+        "{} vs {want}",
+        got.distance_m
+    );
+    assert!(want > 0.0);
+    h.remove_cursor();
+    h.run_steps(2);
+    h.snapshot("view3d-measure");
+    click_at(&mut h, a);
+    assert_eq!(h.state().view3d().measure.picked.len(), 1);
+    h.get_by_label("measure distance").click();
+    h.run_steps(2);
+    assert!(h.state().view3d().measure.picked.is_empty());
+    assert!(!h.state().view3d().measure.active);
+}
+
+/// "Apply prompt" sits below the fold of the side panel at 1280x800: scrolled to and clicked,
+/// it applies the draft. With the image branch off it edits the kept prompt and re-runs
+/// nothing; with it on, one settings command carries the new prompt. "Revert" drops a draft.
+#[test]
+fn apply_prompt_below_the_fold_applies_the_draft_and_revert_drops_it() {
+    let seen = Arc::new(Mutex::new(Vec::new()));
+    let handle = spawn_worker(Box::new(Recorder(seen.clone())), None);
+    let mut app = App::new(InspectorModel::demo(), Some(handle), None);
+    app.allow_dialogs = false;
+    let Some(mut h) = harness(app) else { return };
+    h.run_steps(2);
+    let minimal = PromptPreset::Minimal.default_scene();
+    h.get_by_label("Minimal").click();
+    h.run_steps(2);
+    let apply = h.get_by_label("Apply prompt");
+    let below = apply.rect().top() > 800.0;
+    apply.scroll_to_me();
+    // the scroll request is taken in the next pass and drawn in the one after
+    h.run_steps(4);
+    let apply = h.get_by_label("Apply prompt");
+    assert!(below && apply.rect().bottom() < 800.0, "{:?}", apply.rect());
+    h.get_by_label("Apply prompt").click();
+    h.run_steps(3);
+    assert_eq!(h.state().image_off.prompt.scene, minimal);
+    assert!(h.query_all_by_label("Apply prompt").next().is_none());
+    let applied = |seen: &Arc<Mutex<Vec<Command>>>| {
+        seen.lock()
+            .unwrap()
+            .iter()
+            .filter_map(|c| match c {
+                Command::ApplySettings(p) => Some(p.clone()),
+                _ => None,
+            })
+            .collect::<Vec<_>>()
+    };
+    assert!(
+        applied(&seen).is_empty(),
+        "image branch off: nothing re-runs"
+    );
+
+    // the image branch on: a draft re-runs nothing, applying it sends one settings command
+    let on = h.state().image_off.clone();
+    h.state_mut().params.image = Some(on);
+    h.run_steps(2);
+    seen.lock().unwrap().clear();
+    h.get_by_label("General").click();
+    h.run_steps(3);
+    assert!(applied(&seen).is_empty(), "a draft re-ran the pipeline");
+    h.get_by_label("Apply prompt").scroll_to_me();
+    h.run_steps(4);
+    h.get_by_label("Apply prompt").click();
+    h.run_steps(3);
+    let general = PromptPreset::General.default_scene();
+    let sent = applied(&seen);
+    assert_eq!(sent.len(), 1, "{sent:?}");
+    assert_eq!(sent[0].image.as_ref().unwrap().prompt.scene, general);
+    assert_eq!(
+        h.state().params.image.as_ref().unwrap().prompt.scene,
+        general
+    );
+
+    // Revert: the draft goes, the prompt stays
+    h.get_by_label("Wrong").click();
+    h.run_steps(2);
+    h.get_by_label("Revert").scroll_to_me();
+    h.run_steps(4);
+    h.get_by_label("Revert").click();
+    h.run_steps(3);
+    assert!(h.query_all_by_label("Apply prompt").next().is_none());
+    assert_eq!(
+        h.state().params.image.as_ref().unwrap().prompt.scene,
+        general
+    );
+    assert_eq!(applied(&seen).len(), 1);
+}

@@ -33,6 +33,7 @@ mod hypotheses;
 mod io_limits;
 mod io_malformed;
 mod kitti07_lidar;
+mod layering;
 mod mast3r_export;
 mod pandaset_lidar;
 mod pipeline_image;

@@ -163,8 +163,8 @@ fn a_pair_that_fails_or_panics_is_recorded_and_the_bench_goes_on() {
     };
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    // A PLY that is not one, and an ascii PCD whose COUNT overflows a capacity (a panic in
-    // the reader before issue 12's fix, a clear error after: either way the pair fails).
+    // A PLY that is not one, and an ascii PCD whose COUNT overflows a capacity (once a panic
+    // in the reader, now a clear error: either way the pair fails).
     std::fs::write(
         d.join("bad.ply"),
         "ply\nformat ascii 1.0\nelement vertex x\n",

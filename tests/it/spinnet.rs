@@ -66,6 +66,8 @@ fn parity(p: Protocol) {
     let mut ours = Vec::new();
     let mut worst_local = 0.0f32;
     let mut worst_samples = 0.0f64;
+    // the patches whose Rust grouping equals the authors' sample for sample
+    let mut exact = Vec::new();
     for i in 0..b {
         let want = &want_all[i * g.grouped_len()..(i + 1) * g.grouped_len()];
         // 1. the local frame
@@ -89,6 +91,7 @@ fn parity(p: Protocol) {
             .filter(|(a, b)| max_diff(a, b) > 1e-5)
             .count();
         worst_samples = worst_samples.max(off as f64 / (full.len() / 3) as f64);
+        exact.push(off == 0);
         ours.extend(full);
     }
     eprintln!(
@@ -108,19 +111,34 @@ fn parity(p: Protocol) {
             assert_eq!(worst_samples, 0.0);
         }
     }
-    // 4. the descriptor: Rust grouping + ONNX Runtime against the authors' torch forward
-    let got = net.run_grouped(ours, b).unwrap();
+    // 4. the network: ONNX Runtime on the authors' own grouping against their torch forward
     let scale = desc.iter().fold(0.0f32, |m, v| m.max(v.abs()));
-    let diff = max_diff(&got, &desc);
+    let tol = 1e-3 * scale.max(1.0);
+    let net_only = max_diff(&net.run_grouped(want_all, b).unwrap(), &desc);
+    assert!(
+        net_only < tol,
+        "ONNX vs torch on the same grouping: {net_only}"
+    );
+    // 5. the descriptor of the whole Rust path (grouping + ONNX Runtime): as close where the
+    // grouping was exact; where a sample on a ball's edge switched (3DMatch's frame differs
+    // by float rounding between solvers and CPUs), the same direction
+    let got = net.run_grouped(ours, b).unwrap();
+    let row = |v: &[f32], i: usize| v[i * 32..(i + 1) * 32].to_vec();
+    let diff = (0..b)
+        .filter(|&i| exact[i])
+        .map(|i| max_diff(&row(&got, i), &row(&desc, i)))
+        .fold(0.0f32, f32::max);
     let worst_cos = (0..b)
-        .map(|i| cosine(&got[i * 32..(i + 1) * 32], &desc[i * 32..(i + 1) * 32]))
+        .map(|i| cosine(&row(&got, i), &row(&desc, i)))
         .fold(1.0, f64::min);
     eprintln!(
-        "{}: descriptor max diff {diff:.2e} (values up to {scale:.2}), smallest cosine {worst_cos:.7}",
-        p.name()
+        "{}: ONNX vs torch {net_only:.2e}; descriptor max diff {diff:.2e} over {} of {b} patches \
+         grouped exactly (values up to {scale:.2}), smallest cosine {worst_cos:.7}",
+        p.name(),
+        exact.iter().filter(|e| **e).count()
     );
     assert!(worst_cos > 0.9999, "{worst_cos}");
-    assert!(diff < 1e-3 * scale.max(1.0), "{diff}");
+    assert!(diff < tol, "{diff}");
 }
 
 #[test]

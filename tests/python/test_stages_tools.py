@@ -148,3 +148,37 @@ def test_inspect_argument_vector_and_pair_manifest(data_root, tmp_path):
     b = cgenreg.register_pair(m, pair, voxel=0.05)
     np.testing.assert_array_equal(a.target_from_source, b.target_from_source)
     assert a.rre_deg == b.rre_deg
+
+
+def test_screenshot_through_the_native_binary_draws_what_register_computes(
+    data_root, cli_binary, tmp_path, monkeypatch
+):
+    """`cgenreg.screenshot` on two arrays runs the real GUI binary headless (no window, no
+    display): it writes the PNG at the size asked, and the result the picture shows equals
+    `cgenreg.register` on the same arrays and settings. A failure is an exception carrying the
+    program's message, and a file that is not a picture is never replaced."""
+    import struct
+
+    monkeypatch.setenv("CGENREG_BIN", str(cli_binary))  # as a user without the GUI wheel
+    src, ref, gt = _demo(data_root)
+    out = tmp_path / "pair.png"
+    shown = cgenreg.screenshot(
+        source=src, target=ref, gt=gt, out=out, width=640, height=400,
+        result_json=tmp_path / "shown.json", voxel=0.05,
+    )
+    head = out.read_bytes()[:24]
+    assert head[:8] == b"\x89PNG\r\n\x1a\n"
+    assert struct.unpack(">II", head[16:24]) == (640, 400)
+    py = json.loads(cgenreg.register(src, ref, gt, voxel=0.05).to_json())
+    assert close(shown["target_from_source"], py["target_from_source"])
+    assert shown["metrics"]["rre_deg"] == pytest.approx(py["metrics"]["rre_deg"], rel=1e-9)
+    assert shown["n_correspondences"] == py["n_correspondences"]
+    notes = tmp_path / "notes.png"  # not a picture: never replaced without force
+    notes.write_text("my notes")
+    with pytest.raises(cgenreg.CgenregError, match="notes.png"):
+        cgenreg.screenshot(source=src, target=ref, out=notes, voxel=0.05)
+    assert notes.read_text() == "my notes"
+    with pytest.raises(cgenreg.CgenregError, match="--voxel"):
+        cgenreg.screenshot(
+            source=src, target=ref, out=tmp_path / "bad.png", voxel=-1, command=[str(cli_binary)]
+        )

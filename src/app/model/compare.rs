@@ -1,8 +1,8 @@
 //! Two settings compared over the open dataset: what the Compare tab asks the worker for and
 //! what the worker sends back (plain data).
 
-use crate::metrics::compare::BenchRun;
 use crate::pipeline::params::RegisterParams;
+use crate::report::compare::BenchRun;
 
 /// One of the two runs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -282,6 +282,11 @@ impl App {
         &mut self.view3d.prefs
     }
 
+    /// The 3D panel's state (its camera, the distance tool, where points were drawn).
+    pub fn view3d(&self) -> &View3dState {
+        &self.view3d
+    }
+
     /// Show the depth frames instead of the generated views in the views panel.
     pub fn show_depth_frames(&mut self, on: bool) {
         self.views.show_depth = on;

@@ -3,12 +3,13 @@
 //!
 //! `camera.rs`: the orbit camera and projection; `colors.rs`: per-point and per-match
 //! colours; `scene.rs`: the viewport (state sync, input, the frame for the GL thread,
-//! picking, highlights); `legend.rs`: the legend. This file: the panel's persisted options,
+//! picking, highlights); `legend.rs`: the legend; `measure.rs`: the distance tool. This file: the panel's persisted options,
 //! its state and the options row.
 
 mod camera;
 mod colors;
 pub mod legend;
+pub mod measure;
 mod pick;
 mod scene;
 
@@ -154,6 +155,11 @@ pub struct View3dState {
     /// Points per cloud drawn while moving, adapted to [`MOVING_FRAME_TARGET`]; 0 until the
     /// first adaptation (read it through [`View3dState::moving_budget`]).
     moving_budget: u32,
+    /// The distance tool (not persisted: its ends are indices into the clouds shown now).
+    pub measure: measure::Measure,
+    /// The last frame's viewport, view-projection and the source's drawn transform
+    /// (side-by-side shift included): where a point is on screen.
+    last_frame: Option<(egui::Rect, Matrix4<f32>, Isometry3<f64>)>,
 }
 
 impl View3dState {
@@ -163,6 +169,28 @@ impl View3dState {
             0 => MOVING_POINT_BUDGET,
             b => b,
         }
+    }
+
+    /// The 3D viewport's rectangle in the last frame.
+    pub fn viewport(&self) -> Option<egui::Rect> {
+        self.last_frame.as_ref().map(|f| f.0)
+    }
+
+    /// Where a point of either cloud was drawn in the last frame (screen coordinates), if it
+    /// was in front of the camera.
+    pub fn screen_position(&self, p: measure::Picked) -> Option<egui::Pos2> {
+        let (rect, vp, src_xf) = self.last_frame.as_ref()?;
+        let (pts, xf) = match p.cloud {
+            measure::Cloud::Source => (&self.source_pos, *src_xf),
+            measure::Cloud::Target => (&self.target_pos, Isometry3::identity()),
+        };
+        let s = project(
+            vp,
+            apply(&xf, *pts.get(p.index)?),
+            rect.width(),
+            rect.height(),
+        )?;
+        Some(rect.min + egui::vec2(s[0], s[1]))
     }
 }
 
@@ -325,6 +353,28 @@ pub fn view3d_options(ui: &mut egui::Ui, state: &mut View3dState) {
         }
         if ui.button("Reset camera").clicked() {
             state.framed_for = None;
+        }
+    });
+    ui.horizontal_wrapped(|ui| {
+        let m = &mut state.measure;
+        let was = m.active;
+        ui.checkbox(&mut m.active, "measure distance")
+            .on_hover_text(
+                "clicks pick two points (source or target); the distance between them is shown \
+             in metres, in the target's frame",
+            );
+        if was != m.active {
+            m.clear();
+        }
+        if m.active {
+            match m.picked.len() {
+                0 => ui.label("click a first point"),
+                1 => ui.label("click a second point"),
+                _ => ui.label("a third click starts again"),
+            };
+            if !m.picked.is_empty() && ui.button("Clear").clicked() {
+                m.clear();
+            }
         }
     });
 }

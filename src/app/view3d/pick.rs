@@ -4,6 +4,7 @@
 use eframe::egui;
 use nalgebra::{Isometry3, Matrix4};
 
+use super::measure::{Cloud, Picked};
 use super::scene::ScreenSegment;
 use super::{apply, iso_to_mat, point3, View3dState};
 use crate::app::state::Shared;
@@ -13,7 +14,7 @@ use crate::app::state::Shared;
 pub(super) fn pointer_picking(
     response: &egui::Response,
     shared: &mut Shared<'_>,
-    state: &View3dState,
+    state: &mut View3dState,
     segments: &[ScreenSegment],
     src_xf: &Isometry3<f64>,
     vp: &Matrix4<f32>,
@@ -29,6 +30,31 @@ pub(super) fn pointer_picking(
                 shared.ui.hovered_match = Some(mi);
             }
         }
+    }
+    if response.clicked() && state.measure.active {
+        // the distance tool takes the click: the source point under it, else the target's
+        if let Some(pos) = response.interact_pointer_pos() {
+            let src =
+                pick_point(&state.source_pos, src_xf, vp, rect, pos, 10.0).map(|index| Picked {
+                    cloud: Cloud::Source,
+                    index,
+                });
+            let tgt = || {
+                if !state.prefs.show_target {
+                    return None;
+                }
+                let xf = Isometry3::identity();
+                let index = pick_point(&state.target_pos, &xf, vp, rect, pos, 10.0)?;
+                Some(Picked {
+                    cloud: Cloud::Target,
+                    index,
+                })
+            };
+            if let Some(p) = src.or_else(tgt) {
+                state.measure.pick(p);
+            }
+        }
+        return;
     }
     if response.clicked() {
         if let Some(mi) = shared.ui.hovered_match {

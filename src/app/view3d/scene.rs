@@ -46,7 +46,8 @@ pub fn scene_ui(
     } else {
         Isometry3::identity()
     };
-    let src_xf = offset * hyp_pose.unwrap_or_else(|| primary_alignment(model, &prefs));
+    let pose = hyp_pose.unwrap_or_else(|| primary_alignment(model, &prefs));
+    let src_xf = offset * pose;
 
     update_colors(state, model, shared.model_gen);
     let Some((source, target)) = clouds(state, target_override) else {
@@ -93,9 +94,11 @@ pub fn scene_ui(
     ui.painter()
         .add(render3d::paint_callback(rect, Arc::new(frame)));
 
+    state.last_frame = Some((rect, vp, src_xf));
     pointer_picking(&response, shared, state, &segments, &src_xf, &vp, rect);
     let painter = ui.painter_at(rect);
     highlights(&painter, shared, &segments, &src_xf, &vp, rect);
+    draw_measurement(&painter, rect, model, state, &pose);
     if let Some(pos) = response.hover_pos() {
         let text = hover_readout(shared, state, &src_xf, &vp, rect, pos);
         if let Some(text) = text {
@@ -193,6 +196,8 @@ fn sync_with_model(state: &mut View3dState, model: &InspectorModel, gen: u64) {
         state.target_pos = Arc::new(model.target.clone());
         state.frustum_range = frustum_range(&model.target);
         state.positions_for = Some(gen);
+        // the picked indices named points of the clouds shown before
+        state.measure.clear();
     }
     let shade_normals = state.prefs.depth_cue == DepthCue::Normals;
     if shade_normals && state.normals.as_ref().is_none_or(|n| n.0 != gen) {
@@ -418,6 +423,46 @@ fn highlights(
                 );
             }
         }
+    }
+}
+
+/// The distance tool's ends (ringed), the segment between them and its readout beside it.
+/// `pose`: where the source is drawn (without the side-by-side shift), so a source-target
+/// distance is the residual the picture shows.
+fn draw_measurement(
+    painter: &egui::Painter,
+    rect: egui::Rect,
+    model: &InspectorModel,
+    state: &View3dState,
+    pose: &Isometry3<f64>,
+) {
+    use super::measure::{measurement, Cloud};
+    if !state.measure.active {
+        return;
+    }
+    let ring = |c: Cloud| match c {
+        Cloud::Source => to_color32(SOURCE_RGB),
+        Cloud::Target => to_color32(TARGET_RGB),
+    };
+    let ends: Vec<_> = state
+        .measure
+        .picked
+        .iter()
+        .filter_map(|p| Some((*p, state.screen_position(*p)?)))
+        .collect();
+    for (p, at) in &ends {
+        painter.circle_filled(*at, 4.0, egui::Color32::WHITE);
+        painter.circle_stroke(*at, 7.0, egui::Stroke::new(2.0, ring(p.cloud)));
+    }
+    if let [(_, a), (_, b)] = ends.as_slice() {
+        painter.line_segment([*a, *b], egui::Stroke::new(2.0, egui::Color32::WHITE));
+    }
+    if let Some(m) = measurement(model, pose, &state.measure) {
+        let at = match ends.as_slice() {
+            [(_, a), (_, b)] => egui::pos2((a.x + b.x) / 2.0, (a.y + b.y) / 2.0),
+            _ => rect.center(),
+        };
+        super::pick::readout_box(painter, at, rect, &m.text("drawn pose"));
     }
 }
 

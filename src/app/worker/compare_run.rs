@@ -10,8 +10,8 @@ use super::PipelineWorker;
 use crate::app::channel::{EventSink, LogLevel, WorkerEvent};
 use crate::app::model::{CompareEvent, SettingsCompareRequest, SettingsRuns, Side};
 use crate::app::model::{PairEntry, PairStatus};
-use crate::metrics::compare::{BenchRun, PairRow};
 use crate::pipeline::{RegisterParams, WfmSpec};
+use crate::report::compare::{BenchRun, PairRow};
 
 /// A pair browser row as a bench run's row (what `cgenreg bench --json` records per pair).
 pub fn bench_row(e: &PairEntry) -> PairRow {

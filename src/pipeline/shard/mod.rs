@@ -142,7 +142,7 @@ impl RunIdentity {
         let a = serde_json::to_value(self).unwrap_or(Value::Null);
         let b = serde_json::to_value(other).unwrap_or(Value::Null);
         let mut out = Vec::new();
-        crate::metrics::compare::json_diff("", &a, &b, ("here", "there"), &mut out);
+        crate::io::json_diff::json_diff("", &a, &b, ("here", "there"), &mut out);
         out
     }
 }

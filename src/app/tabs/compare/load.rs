@@ -4,8 +4,8 @@
 use std::path::{Path, PathBuf};
 
 use super::{file_name, Side};
-use crate::metrics::compare::{self, compare, load_bench_run, BenchRun, Comparison};
 use crate::pipeline::params::RegisterParams;
+use crate::report::compare::{self, compare, load_bench_run, BenchRun, Comparison};
 
 /// One run as the panel shows it.
 #[derive(Clone, Debug)]

@@ -2,7 +2,7 @@
 //! pairs flipped from success to failure, by how much RRE / RTE moved, a scatter of RRE A
 //! against RRE B, the four success quadrants as filters, and a pair opened in the inspector
 //! with the settings of either run. Everything computed comes from
-//! [`crate::metrics::compare`] (the same comparison as `cgenreg diff`); this file draws it.
+//! [`crate::report::compare`] (the same comparison as `cgenreg diff`); this file draws it.
 //!
 //! The two files are read off the UI thread ([`CompareTab::request`] starts a short-lived
 //! loader thread, polled every frame): a merged run over a whole dataset is a large file, and
@@ -17,7 +17,7 @@ use super::{Tab, TabContext};
 use crate::app::channel::{Command, LogLevel};
 use crate::app::model::InspectorModel;
 use crate::app::state::Panel;
-use crate::metrics::compare::{self, Flip, PairOrder};
+use crate::report::compare::{self, Flip, PairOrder};
 
 mod header;
 mod load;

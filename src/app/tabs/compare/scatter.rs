@@ -7,7 +7,7 @@ use egui_plot::{
 };
 
 use super::{flip_color, flip_short, fmt, CompareTab, FLIPS};
-use crate::metrics::compare::{Flip, PairDiff};
+use crate::report::compare::{Flip, PairDiff};
 
 /// Smallest RRE drawn on log axes (0.001 deg); smaller values sit on it.
 const LOG_FLOOR: f64 = 1e-3;

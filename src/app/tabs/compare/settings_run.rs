@@ -11,8 +11,8 @@ use super::{CompareAction, CompareTab, Side, WARN};
 use crate::app::channel::{Command, LogLevel};
 use crate::app::model::InspectorModel;
 use crate::app::model::{CompareEvent, SettingsCompareRequest, SettingsRuns};
-use crate::metrics::compare::{self, json_diff};
 use crate::pipeline::params::RegisterParams;
+use crate::report::compare::{self, json_diff};
 
 /// The settings-comparison part of the Compare tab's state.
 #[derive(Clone, Debug, Default, PartialEq)]

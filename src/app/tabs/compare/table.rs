@@ -5,7 +5,7 @@
 use eframe::egui;
 
 use super::{flip_color, fmt, CompareTab};
-use crate::metrics::compare::{Flip, PairOrder};
+use crate::report::compare::{Flip, PairOrder};
 
 /// Column widths of the table (pixels); the six number columns share what is left.
 const ID_W: f32 = 140.0;

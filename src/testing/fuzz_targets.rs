@@ -54,31 +54,31 @@ pub fn try_run(target: &str, data: &[u8]) -> crate::Result<bool> {
     let p = Path::new("fuzz-input");
     let text = || String::from_utf8_lossy(data);
     Ok(match target {
-        "ply" => super::ply::parse_ply(p, data).is_ok(),
-        "pcd" => super::pcd::parse_pcd(p, data).is_ok(),
+        "ply" => crate::io::ply::parse_ply(p, data).is_ok(),
+        "pcd" => crate::io::pcd::parse_pcd(p, data).is_ok(),
         "lzf" => {
             // First 4 bytes: declared output length (capped like the PCD reader caps it).
             let Some((len, rest)) = data.split_first_chunk::<4>() else {
                 return Ok(false);
             };
             let n = (u32::from_le_bytes(*len) as usize).min(1 << 24);
-            super::pcd::lzf_decompress(rest, n).is_ok()
+            crate::io::pcd::lzf_decompress(rest, n).is_ok()
         }
-        "npy" => super::npy::parse_npy(p, data).is_ok(),
-        "npz" => super::npy::parse_npz(p, data).is_ok(),
-        "pickle" => super::pickle::parse_pickle_arrays(p, data).is_ok(),
-        "pth" => super::pickle::parse_pth_array(p, data).is_ok(),
-        "kitti" => super::kitti::parse_kitti_bin(p, data).is_ok(),
-        "xyz" => super::xyz::parse_xyz(p, &text()).is_ok(),
+        "npy" => crate::io::npy::parse_npy(p, data).is_ok(),
+        "npz" => crate::io::npy::parse_npz(p, data).is_ok(),
+        "pickle" => crate::io::pickle::parse_pickle_arrays(p, data).is_ok(),
+        "pth" => crate::io::pickle::parse_pth_array(p, data).is_ok(),
+        "kitti" => crate::io::kitti::parse_kitti_bin(p, data).is_ok(),
+        "xyz" => crate::io::xyz::parse_xyz(p, &text()).is_ok(),
         "gtlog" => {
             let t = text();
-            let a = super::gtlog::parse_gt_log(p, &t).is_ok();
-            let b = super::gtlog::parse_gt_info(p, &t).is_ok();
+            let a = crate::io::gtlog::parse_gt_log(p, &t).is_ok();
+            let b = crate::io::gtlog::parse_gt_info(p, &t).is_ok();
             a || b
         }
-        "depth_png" => super::depth_png::parse_depth_png(p, data).is_ok(),
-        "intrinsics" => super::camera_txt::parse_intrinsics(p, &text(), 640, 480).is_ok(),
-        "pose" => super::camera_txt::parse_pose(p, &text()).is_ok(),
+        "depth_png" => crate::io::depth_png::parse_depth_png(p, data).is_ok(),
+        "intrinsics" => crate::io::camera_txt::parse_intrinsics(p, &text(), 640, 480).is_ok(),
+        "pose" => crate::io::camera_txt::parse_pose(p, &text()).is_ok(),
         "manifest" => manifest(data),
         "cosmos_jsonl" => crate::wfm::prompt::parse_reference_jsonl(p, &text()).is_ok(),
         "mp4" => crate::wfm::video::decode_mp4_frames(p, data.to_vec()).is_ok(),
@@ -97,8 +97,8 @@ pub fn try_run(target: &str, data: &[u8]) -> crate::Result<bool> {
 /// at (no file is written per execution).
 fn manifest(data: &[u8]) -> bool {
     thread_local! {
-        static DIR: Option<super::limits::ScratchDir> = {
-            let d = super::limits::ScratchDir::new("cgenreg-fuzz-manifest").ok();
+        static DIR: Option<crate::io::limits::ScratchDir> = {
+            let d = crate::io::limits::ScratchDir::new("cgenreg-fuzz-manifest").ok();
             if let Some(d) = &d {
                 let cloud = b"0 0 0\n1 0 0\n0 1 0\n0 0 1\n";
                 let _ = std::fs::write(d.path().join("a.xyz"), cloud);
@@ -280,7 +280,7 @@ pub fn x264_seeds(target: &str, data: &Path) -> Vec<(String, Vec<u8>)> {
     if !frames.join("frame-000000.color.jpg").is_file() {
         return out;
     }
-    let Ok(tmp) = super::limits::ScratchDir::new("cgenreg-fuzz-x264") else {
+    let Ok(tmp) = crate::io::limits::ScratchDir::new("cgenreg-fuzz-x264") else {
         return out;
     };
     let ffmpeg = |args: &[&str]| {
@@ -388,19 +388,19 @@ pub fn seeds(target: &str, data: Option<&Path>) -> Vec<(String, Vec<u8>)> {
         p.is_file().then_some(p)
     };
     let real_cloud = |rel: &str, n: usize| {
-        real(rel).and_then(|p| super::cloud::load_cloud(&p).ok().map(|c| head(&c, n)))
+        real(rel).and_then(|p| crate::io::cloud::load_cloud(&p).ok().map(|c| head(&c, n)))
     };
     let c = small_cloud(40);
     match target {
         "ply" => {
-            out.push(("gen_binary.ply".into(), super::ply::encode_ply(&c)));
+            out.push(("gen_binary.ply".into(), crate::io::ply::encode_ply(&c)));
             out.push(("gen_ascii.ply".into(), ascii_ply(&c)));
             if let Some(r) = real_cloud("small-gicp-lidar-pair/source.ply", 200) {
-                out.push(("small_gicp_source_200.ply".into(), super::ply::encode_ply(&r)));
+                out.push(("small_gicp_source_200.ply".into(), crate::io::ply::encode_ply(&r)));
                 out.push(("small_gicp_source_200_ascii.ply".into(), ascii_ply(&r)));
             }
             if let Some(r) = real_cloud("3dmatch-redkitchen/teaser-plusplus/cloud_bin_0.ply", 200) {
-                out.push(("redkitchen_bin_0_200.ply".into(), super::ply::encode_ply(&r)));
+                out.push(("redkitchen_bin_0_200.ply".into(), crate::io::ply::encode_ply(&r)));
             }
         }
         "pcd" | "lzf" => {
@@ -410,7 +410,7 @@ pub fn seeds(target: &str, data: Option<&Path>) -> Vec<(String, Vec<u8>)> {
             }
             for (k, cl) in pcds.iter().enumerate() {
                 for enc in ["ascii", "binary", "binary_compressed"] {
-                    let b = super::pcd::encode_pcd(cl, enc);
+                    let b = crate::io::pcd::encode_pcd(cl, enc);
                     if target == "pcd" {
                         out.push((format!("seed{k}_{enc}.pcd"), b));
                     } else if enc == "binary_compressed" {
@@ -432,13 +432,13 @@ pub fn seeds(target: &str, data: Option<&Path>) -> Vec<(String, Vec<u8>)> {
             if target == "lzf" {
                 let raw: Vec<u8> = (0..2000u32).map(|i| (i % 7 * 31) as u8).collect();
                 let mut s = (raw.len() as u32).to_le_bytes().to_vec();
-                s.extend_from_slice(&super::pcd::lzf_compress(&raw));
+                s.extend_from_slice(&crate::io::pcd::lzf_compress(&raw));
                 out.push(("gen_runs.lzf".into(), s));
             }
         }
         "npy" | "npz" => {
             let flat: Vec<f32> = c.points.iter().flat_map(|p| [p.x, p.y, p.z]).collect();
-            let npy = super::npy::encode_npy_f32(&[c.len(), 3], &flat);
+            let npy = crate::io::npy::encode_npy_f32(&[c.len(), 3], &flat);
             let mut real_npy = Vec::new();
             if let Some(p) = real("3dmatch-redkitchen/geotransformer-demo/gt.npy") {
                 real_npy = std::fs::read(p).unwrap_or_default();
@@ -449,7 +449,7 @@ pub fn seeds(target: &str, data: Option<&Path>) -> Vec<(String, Vec<u8>)> {
                     out.push(("geotransformer_gt.npy".into(), real_npy));
                 }
             } else {
-                let feats = super::npy::encode_npy_f32(&[c.len(), 4], &vec![0.5; c.len() * 4]);
+                let feats = crate::io::npy::encode_npy_f32(&[c.len(), 4], &vec![0.5; c.len() * 4]);
                 out.push((
                     "gen_points_feats.npz".into(),
                     npz_of(&[("points.npy", npy), ("feats.npy", feats)]),
@@ -500,22 +500,22 @@ pub fn seeds(target: &str, data: Option<&Path>) -> Vec<(String, Vec<u8>)> {
             }
         }
         "depth_png" => {
-            let d = super::depth_png::DepthImage {
+            let d = crate::io::depth_png::DepthImage {
                 width: 16,
                 height: 12,
                 data: (0..192).map(|i| (i * 300) as u16).collect(),
             };
-            if let Ok(b) = super::depth_png::encode_depth_png(Path::new("gen.png"), &d) {
+            if let Ok(b) = crate::io::depth_png::encode_depth_png(Path::new("gen.png"), &d) {
                 out.push(("gen_16x12.png".into(), b));
             }
             // The real frame is 640x480 (about 0.3 MB, 600 executions/s under libFuzzer): a
             // 64x48 crop of its centre, re-encoded, keeps its depth statistics and runs 100x
             // faster; the PNG structure is the same as the generated seed's.
             if let Some(p) = real("7scenes-redkitchen-rgbd/frame-000000.depth.png") {
-                if let Ok(full) = super::depth_png::read_depth_png(&p) {
+                if let Ok(full) = crate::io::depth_png::read_depth_png(&p) {
                     let (w, h) = (64u32.min(full.width), 48u32.min(full.height));
                     let (x0, y0) = ((full.width - w) / 2, (full.height - h) / 2);
-                    let crop = super::depth_png::DepthImage {
+                    let crop = crate::io::depth_png::DepthImage {
                         width: w,
                         height: h,
                         data: (0..h)
@@ -523,7 +523,7 @@ pub fn seeds(target: &str, data: Option<&Path>) -> Vec<(String, Vec<u8>)> {
                             .map(|(x, y)| full.raw(x, y))
                             .collect(),
                     };
-                    if let Ok(b) = super::depth_png::encode_depth_png(&p, &crop) {
+                    if let Ok(b) = crate::io::depth_png::encode_depth_png(&p, &crop) {
                         out.push(("7scenes_frame0_crop64x48.depth.png".into(), b));
                     }
                 }
