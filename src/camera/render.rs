@@ -354,13 +354,8 @@ mod tests {
     #[test]
     fn zbuffer_equals_brute_force() {
         // Random points; every pixel's depth = min over the points whose square covers it.
-        let mut s = 12345u64;
-        let mut rnd = || {
-            s = s
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            ((s >> 33) as f64 / (1u64 << 31) as f64) as f32
-        };
+        let mut s = crate::testing::Lcg(12345);
+        let mut rnd = || s.unit31_f32();
         let pts: Vec<Point3<f32>> = (0..300)
             .map(|_| Point3::new(rnd() * 2.0 - 1.0, rnd() * 1.5 - 0.75, 1.0 + 3.0 * rnd()))
             .collect();

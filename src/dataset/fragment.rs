@@ -396,13 +396,8 @@ mod tests {
 
     #[test]
     fn parallel_merge_equals_voxel_downsample() {
-        let mut s = 99u64;
-        let mut rnd = || {
-            s = s
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (s >> 33) as f32 / (1u64 << 31) as f32
-        };
+        let mut s = crate::testing::Lcg(99);
+        let mut rnd = || s.unit31_f32();
         let parts: Vec<FramePoints> = (0..7)
             .map(|f| {
                 let n = 500 + 300 * f;

@@ -216,13 +216,7 @@ pub(crate) fn orthonormalise(r: &Matrix3<f64>) -> Option<Matrix3<f64>> {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn lcg(state: &mut u64) -> f64 {
-        *state = state
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        ((*state >> 11) as f64) / ((1u64 << 53) as f64)
-    }
+    use crate::testing::Lcg;
 
     fn known() -> Isometry3<f64> {
         Isometry3::new(
@@ -232,9 +226,9 @@ mod tests {
     }
 
     fn cloud(n: usize, seed: u64) -> Vec<Point3<f64>> {
-        let mut s = seed;
+        let mut s = Lcg(seed);
         (0..n)
-            .map(|_| Point3::new(lcg(&mut s) * 3.0, lcg(&mut s) * 2.0 - 1.0, lcg(&mut s)))
+            .map(|_| Point3::new(s.unit_f64() * 3.0, s.unit_f64() * 2.0 - 1.0, s.unit_f64()))
             .collect()
     }
 

@@ -366,7 +366,8 @@ pub fn fpfh_for_cloud(cloud: &PointCloud, voxel: f64) -> (PointCloud, Features) 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geometry::knn::tests::{fragment, Lcg};
+    use crate::geometry::knn::tests::fragment;
+    use crate::testing::Lcg;
     use nalgebra::{Isometry3, Vector3};
 
     const S: f64 = std::f64::consts::FRAC_1_SQRT_2;
@@ -432,7 +433,11 @@ mod tests {
         // Full pair features on random oriented pairs, including near-degenerate ones.
         let mut rng = Lcg(9);
         let mut unit = || {
-            let v = Vector3::new(rng.f32() - 0.5, rng.f32() - 0.5, rng.f32() - 0.5);
+            let v = Vector3::new(
+                rng.unit_f32() - 0.5,
+                rng.unit_f32() - 0.5,
+                rng.unit_f32() - 0.5,
+            );
             v.normalize()
         };
         for t in 0..200_000 {
@@ -453,7 +458,7 @@ mod tests {
         let mut rng = Lcg(seed);
         let pts: Vec<Point3<f32>> = (0..n)
             .map(|_| {
-                let (x, y) = (2.0 * rng.f32(), 2.0 * rng.f32());
+                let (x, y) = (2.0 * rng.unit_f32(), 2.0 * rng.unit_f32());
                 let z = 0.15 * (3.0 * x).sin() * (2.0 * y).cos() + 0.05 * (7.0 * y).sin();
                 Point3::new(x, y, z)
             })

@@ -251,13 +251,8 @@ pub(crate) mod tests {
 
     /// Rows of every remainder length for 8 and 16 lanes, with the special values placed.
     pub(crate) fn rows(seed: u64) -> Vec<Vec<f32>> {
-        let mut s = seed;
-        let mut next = move || {
-            s = s
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            ((s >> 40) as f32) / (1u64 << 24) as f32
-        };
+        let mut s = crate::testing::Lcg(seed);
+        let mut next = || s.unit_f32();
         let mut out = Vec::new();
         for len in [0usize, 1, 7, 8, 9, 15, 16, 17, 24, 31, 64, 1001, 7133] {
             let mut r: Vec<f32> = (0..len).map(|_| next() * 2.0 - 1.0).collect();

@@ -477,17 +477,11 @@ pub(crate) fn fast_exp(x: f32) -> f32 {
 #[allow(clippy::needless_range_loop)]
 mod tests {
     use super::*;
-
-    fn lcg(seed: &mut u64) -> f32 {
-        *seed = seed
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        ((*seed >> 40) as f32 / (1u64 << 24) as f32) * 2.0 - 1.0
-    }
+    use crate::testing::Lcg;
 
     fn random(rows: usize, cols: usize, seed: u64) -> DenseMatrix {
-        let mut s = seed;
-        DenseMatrix::from_fn(rows, cols, |_, _| lcg(&mut s)).unwrap()
+        let mut s = Lcg(seed);
+        DenseMatrix::from_fn(rows, cols, |_, _| s.signed_f32()).unwrap()
     }
 
     #[test]

@@ -437,25 +437,19 @@ pub fn concat_similarity(
 mod tests {
     use super::*;
     use crate::fusion::similarity::cosine_similarity;
+    use crate::testing::Lcg;
 
     fn odds(x: f64) -> f64 {
         x / (1.0 - x)
     }
 
-    fn lcg(seed: &mut u64) -> f32 {
-        *seed = seed
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        (*seed >> 40) as f32 / (1u64 << 24) as f32
-    }
-
     #[test]
     fn noisy_and_is_the_odds_product_of_appendix_a() {
-        let mut s = 3u64;
+        let mut s = Lcg(3);
         for _ in 0..2000 {
             let (pi_, pg) = (
-                lcg(&mut s).clamp(1e-6, 0.999),
-                lcg(&mut s).clamp(1e-6, 0.999),
+                s.unit_f32().clamp(1e-6, 0.999),
+                s.unit_f32().clamp(1e-6, 0.999),
             );
             for prior in [1e-8, 4e-5, 0.01, 0.3] {
                 let pf = noisy_and(pi_, pg, prior) as f64;
@@ -485,10 +479,10 @@ mod tests {
 
     #[test]
     fn uninformative_branch_leaves_the_other_unchanged() {
-        let mut s = 5u64;
+        let mut s = Lcg(5);
         for prior in [1e-9f64, 1e-4, 0.2] {
             for _ in 0..500 {
-                let p = lcg(&mut s);
+                let p = s.unit_f32();
                 let f = noisy_and(p, prior as f32, prior);
                 let g = noisy_and(prior as f32, p, prior);
                 // p_geo = pi is rounded to f32, hence the tolerance.
@@ -533,9 +527,9 @@ mod tests {
     #[test]
     fn exact_reference_matches_f32_transcription() {
         let (n, m) = (17, 23);
-        let mut s = 11u64;
-        let a = DenseMatrix::from_fn(n, m, |_, _| lcg(&mut s)).unwrap();
-        let mut b = DenseMatrix::from_fn(n, m, |_, _| lcg(&mut s)).unwrap();
+        let mut s = Lcg(11);
+        let a = DenseMatrix::from_fn(n, m, |_, _| s.unit_f32()).unwrap();
+        let mut b = DenseMatrix::from_fn(n, m, |_, _| s.unit_f32()).unwrap();
         b.data[0] = 0.0;
         b.data[1] = 1.0;
         let f = fuse(Some(&a), Some(&b), FusionMode::NoisyAnd, None, true).unwrap();
@@ -564,9 +558,9 @@ mod tests {
 
     #[test]
     fn noisy_or_symmetry_and_bounds() {
-        let mut s = 13u64;
+        let mut s = Lcg(13);
         for _ in 0..1000 {
-            let (a, b) = (lcg(&mut s), lcg(&mut s));
+            let (a, b) = (s.unit_f32(), s.unit_f32());
             let o = noisy_or(a, b);
             assert_eq!(o, noisy_or(b, a));
             assert!(o >= a.max(b) - 1e-7 && o <= 1.0);
@@ -596,9 +590,9 @@ mod tests {
     #[test]
     fn concat_similarity_equals_cosine_of_concatenated_features() {
         let (n, m, di, dg) = (19, 27, 12, 9);
-        let mut s = 17u64;
+        let mut s = Lcg(17);
         let mut f = |rows: usize, d: usize| {
-            Features::new(d, (0..rows * d).map(|_| lcg(&mut s) - 0.5).collect())
+            Features::new(d, (0..rows * d).map(|_| s.unit_f32() - 0.5).collect())
         };
         let (is, it, gs, gt) = (f(n, di), f(m, di), f(n, dg), f(m, dg));
         let rv: Vec<bool> = (0..n).map(|i| i % 3 != 0).collect();

@@ -230,21 +230,15 @@ fn top_k(data: &[f32], rows: usize, cols: usize, k: usize) -> Vec<Correspondence
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn lcg(seed: &mut u64) -> u32 {
-        *seed = seed
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        (*seed >> 33) as u32
-    }
+    use crate::testing::Lcg;
 
     /// Scores with many exact ties, zeros and a few negatives.
     fn tied_matrix(rows: usize, cols: usize, seed: u64) -> DenseMatrix {
-        let mut s = seed;
-        DenseMatrix::from_fn(rows, cols, |_, _| match lcg(&mut s) % 10 {
+        let mut s = Lcg(seed);
+        DenseMatrix::from_fn(rows, cols, |_, _| match s.u31() % 10 {
             0 => 0.0,
             1 => -0.5,
-            r => (lcg(&mut s) % 7) as f32 * 0.125 + r as f32 * 0.01,
+            r => (s.u31() % 7) as f32 * 0.125 + r as f32 * 0.01,
         })
         .unwrap()
     }

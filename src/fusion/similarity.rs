@@ -130,17 +130,11 @@ pub fn max_similarity(pairs: &[(Features, Features)]) -> Result<DenseMatrix> {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn lcg(seed: &mut u64) -> f32 {
-        *seed = seed
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        ((*seed >> 40) as f32 / (1u64 << 24) as f32) * 2.0 - 1.0
-    }
+    use crate::testing::Lcg;
 
     fn random_features(n: usize, d: usize, seed: u64) -> Features {
-        let mut s = seed;
-        Features::new(d, (0..n * d).map(|_| lcg(&mut s)).collect())
+        let mut s = Lcg(seed);
+        Features::new(d, (0..n * d).map(|_| s.signed_f32()).collect())
     }
 
     #[test]

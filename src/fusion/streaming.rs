@@ -200,15 +200,8 @@ mod tests {
     use crate::fusion::{match_then_fuse, Calibration, FusionMode, FusionParams, Selection};
 
     fn feats(n: usize, d: usize, seed: u64) -> Features {
-        let mut s = seed;
-        let data = (0..n * d)
-            .map(|_| {
-                s = s
-                    .wrapping_mul(6364136223846793005)
-                    .wrapping_add(1442695040888963407);
-                ((s >> 40) as f32) / (1u64 << 24) as f32
-            })
-            .collect();
+        let mut s = crate::testing::Lcg(seed);
+        let data = (0..n * d).map(|_| s.unit_f32()).collect();
         Features::new(d, data)
     }
 

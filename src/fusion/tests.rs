@@ -2,26 +2,18 @@
 
 use super::*;
 
-struct Rng(u64);
-impl Rng {
-    fn uniform(&mut self) -> f32 {
-        self.0 = self
-            .0
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        (self.0 >> 40) as f32 / (1u64 << 24) as f32
-    }
-    /// Roughly normal (sum of 4 uniforms), zero mean, unit variance.
-    fn normal(&mut self) -> f32 {
-        ((0..4).map(|_| self.uniform()).sum::<f32>() - 2.0) * 3f32.sqrt()
-    }
+use crate::testing::Lcg as Rng;
+
+/// Roughly normal (sum of 4 uniforms), zero mean, unit variance.
+fn normal(rng: &mut Rng) -> f32 {
+    ((0..4).map(|_| rng.unit_f32()).sum::<f32>() - 2.0) * 3f32.sqrt()
 }
 
 /// A similarity whose entry (i, perm[i]) is raised by `signal` above noise of scale `sigma`.
 fn noisy_similarity(perm: &[usize], signal: f32, sigma: f32, rng: &mut Rng) -> DenseMatrix {
     let n = perm.len();
     DenseMatrix::from_fn(n, n, |i, j| {
-        let v = sigma * rng.normal() + if perm[i] == j { signal } else { 0.0 };
+        let v = sigma * normal(rng) + if perm[i] == j { signal } else { 0.0 };
         v.clamp(-1.0, 1.0)
     })
     .unwrap()
@@ -30,7 +22,7 @@ fn noisy_similarity(perm: &[usize], signal: f32, sigma: f32, rng: &mut Rng) -> D
 fn permutation(n: usize, rng: &mut Rng) -> Vec<usize> {
     let mut p: Vec<usize> = (0..n).collect();
     for i in (1..n).rev() {
-        let j = (rng.uniform() * (i + 1) as f32) as usize % (i + 1);
+        let j = (rng.unit_f32() * (i + 1) as f32) as usize % (i + 1);
         p.swap(i, j);
     }
     p
@@ -173,8 +165,8 @@ fn params_round_trip_through_json() {
 fn one_pass_default_equals_general_path() {
     let (n, m) = (157, 211);
     let mut rng = Rng(7);
-    let mut s_img = DenseMatrix::from_fn(n, m, |_, _| rng.normal() * 0.3).unwrap();
-    let s_geo = DenseMatrix::from_fn(n, m, |_, _| rng.normal() * 0.3).unwrap();
+    let mut s_img = DenseMatrix::from_fn(n, m, |_, _| normal(&mut rng) * 0.3).unwrap();
+    let s_geo = DenseMatrix::from_fn(n, m, |_, _| normal(&mut rng) * 0.3).unwrap();
     // Exact ties within a row and within a column.
     s_img.data[5 * m + 3] = 3.0;
     s_img.data[5 * m + 9] = 3.0;
@@ -220,7 +212,7 @@ fn select_from_features_matches_the_matrices() {
     let mut rng = Rng(7);
     let (n, m) = (517, 389);
     let mut feats = |rows: usize, dim: usize| {
-        Features::new(dim, (0..rows * dim).map(|_| rng.normal()).collect())
+        Features::new(dim, (0..rows * dim).map(|_| normal(&mut rng)).collect())
     };
     let (fs, ft) = (feats(n, 64), feats(m, 64));
     let (gs, gt) = (feats(n, 33), feats(m, 33));

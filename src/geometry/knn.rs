@@ -163,19 +163,7 @@ impl KdIndex {
 pub(crate) mod tests {
     use super::*;
 
-    pub(crate) struct Lcg(pub u64);
-    impl Lcg {
-        pub fn f32(&mut self) -> f32 {
-            self.0 = self
-                .0
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            ((self.0 >> 40) as f64 / (1u64 << 24) as f64) as f32
-        }
-        pub fn point(&mut self, scale: f32) -> Point3<f32> {
-            Point3::new(self.f32() * scale, self.f32() * scale, self.f32() * scale)
-        }
-    }
+    use crate::testing::Lcg;
 
     /// Minimal reader for binary little-endian PLY files whose vertices are exactly
     /// `float x, y, z` (the staged TEASER++ fragments). The real reader lives in `io::ply`.

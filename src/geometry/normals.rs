@@ -140,7 +140,8 @@ pub fn orient_towards_viewpoint(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geometry::knn::tests::{fragment, Lcg};
+    use crate::geometry::knn::tests::fragment;
+    use crate::testing::Lcg;
 
     fn angle_deg(a: &Vector3<f32>, b: &Vector3<f32>) -> f32 {
         // Unoriented angle.
@@ -195,9 +196,10 @@ mod tests {
         let mut rng = Lcg(11);
         for t in 0..2000 {
             // Random SPD matrices with a spread of conditioning, including near-planar ones.
-            let axis = Vector3::new(rng.f32(), rng.f32(), rng.f32()).cast::<f64>() * 6.0;
+            let axis =
+                Vector3::new(rng.unit_f32(), rng.unit_f32(), rng.unit_f32()).cast::<f64>() * 6.0;
             let r = nalgebra::Rotation3::new(axis);
-            let s = [1.0, 0.3 + rng.f32() as f64, 10f64.powi(-(t % 8) - 1)];
+            let s = [1.0, 0.3 + rng.unit_f32() as f64, 10f64.powi(-(t % 8) - 1)];
             let c = r.matrix() * Matrix3::from_diagonal(&Vector3::from(s)) * r.matrix().transpose();
             let v = smallest_eigenvector(&c).unwrap();
             let want = r.matrix().column(2).into_owned();
@@ -223,7 +225,7 @@ mod tests {
         let w = n.cross(&u);
         let c0 = Point3::new(1.0f32, 2.0, 3.0);
         let plane: Vec<Point3<f32>> = (0..5000)
-            .map(|_| c0 + u * (rng.f32() - 0.5) + w * (rng.f32() - 0.5))
+            .map(|_| c0 + u * (rng.unit_f32() - 0.5) + w * (rng.unit_f32() - 0.5))
             .collect();
         let index = KdIndex::new(&plane);
         let ns = estimate_normals(&plane, &index, 0.05, 30);

@@ -208,13 +208,8 @@ mod tests {
     #[test]
     fn centroids_per_voxel_match_brute_force() {
         // Deterministic pseudo-random points.
-        let mut s = 12345u64;
-        let mut rnd = || {
-            s = s
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            ((s >> 33) as f64 / (1u64 << 31) as f64) as f32
-        };
+        let mut s = crate::testing::Lcg(12345);
+        let mut rnd = || s.unit31_f32();
         let pts: Vec<Point3<f32>> = (0..5000)
             .map(|_| Point3::new(rnd(), rnd(), rnd()))
             .collect();

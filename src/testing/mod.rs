@@ -2,6 +2,9 @@
 //! targets and the CI smoke test call; not part of the API.
 
 pub mod fuzz_targets;
+pub mod rng;
+
+pub use rng::Lcg;
 
 use std::path::{Path, PathBuf};
 

@@ -150,16 +150,12 @@ impl PairPointDescriptors {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::testing::Lcg;
 
-    fn lcg(seed: &mut u64) -> f32 {
-        *seed = seed
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        ((*seed >> 33) as f32 / (1u64 << 31) as f32) - 0.5
-    }
-
-    fn grid(w: u32, h: u32, dim: usize, seed: &mut u64) -> DenseDescriptors {
-        let data = (0..(w * h) as usize * dim).map(|_| lcg(seed)).collect();
+    fn grid(w: u32, h: u32, dim: usize, seed: &mut Lcg) -> DenseDescriptors {
+        let data = (0..(w * h) as usize * dim)
+            .map(|_| seed.unit31_f32() - 0.5)
+            .collect();
         DenseDescriptors::new(w, h, dim, data, 1.0, 1.0).unwrap()
     }
 
@@ -167,7 +163,7 @@ mod tests {
     #[test]
     fn matches_brute_force_definition() {
         let (w, h, dim, ks, kt) = (6u32, 5u32, 4usize, 2usize, 3usize);
-        let mut seed = 7u64;
+        let mut seed = Lcg(7);
         let pairs: Vec<_> = (0..ks * kt)
             .map(|_| (grid(w, h, dim, &mut seed), grid(w, h, dim, &mut seed)))
             .collect();
@@ -211,7 +207,7 @@ mod tests {
 
     #[test]
     fn wrong_pair_count_and_bad_view_are_errors() {
-        let mut seed = 1u64;
+        let mut seed = Lcg(1);
         let pairs: Vec<_> = (0..3)
             .map(|_| (grid(4, 4, 2, &mut seed), grid(4, 4, 2, &mut seed)))
             .collect();

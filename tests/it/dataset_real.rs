@@ -28,13 +28,8 @@ fn fraction_within(query: &[Point3<f32>], reference: &[Point3<f32>], radius: f32
 
 #[test]
 fn fraction_within_matches_brute_force() {
-    let mut s = 7u64;
-    let mut rnd = || {
-        s = s
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        (s >> 40) as f32 / (1u64 << 24) as f32
-    };
+    let mut s = cgenreg::testing::Lcg(7);
+    let mut rnd = || s.unit_f32();
     let a: Vec<Point3<f32>> = (0..800).map(|_| Point3::new(rnd(), rnd(), rnd())).collect();
     let b: Vec<Point3<f32>> = (0..900).map(|_| Point3::new(rnd(), rnd(), rnd())).collect();
     let r = 0.05f32;

@@ -90,13 +90,10 @@ impl Dense {
 
 #[test]
 fn transpose64_matches_naive() {
-    let mut s = 0x1234_5678_9abc_def0u64;
+    let mut s = crate::testing::Lcg(0x1234_5678_9abc_def0);
     let mut a = [0u64; 64];
     for w in &mut a {
-        s = s
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        *w = s;
+        *w = s.next_u64();
     }
     let mut t = a;
     transpose64(&mut t);
