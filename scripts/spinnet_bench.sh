@@ -11,9 +11,9 @@
 #   OUT           output folder (default target/spinnet-bench)
 #   PROBE=1       also KITTI 07 at 512 keypoints (a sensitivity figure, see below)
 #   FUSED=1       also the rows fused with the image branch, and redkitchen-rgbd (step 4)
-#   BUILTIN=1     also built-in frames fused with each branch on the indoor sets (step 5)
+#   DEV_ALL=1     also every development pair at 128 and 256 keypoints (step 5)
 #   REPOSE="1 2"  also redkitchen-rgbd 3DLoMatch re-posed by these seeds, each branch (step 6)
-#   DEV_ALL=1     also every development pair at 128 and 256 keypoints (step 7)
+#   BUILTIN=1     also built-in frames fused with each branch on the indoor sets (step 7)
 # Needs the exports of scripts/spinnet_export.sh. Summary: scripts/spinnet_summary.py OUT.
 set -euo pipefail
 root="$(cd "$(dirname "$0")/.." && pwd)"
@@ -75,14 +75,13 @@ if [ "${FUSED:-}" = 1 ]; then
   run kitti-fpfh-builtin "$m/kitti07.toml" "${lidar[@]}"
   run "kitti-spinnet-$n-builtin" "$m/kitti07.toml" "${lidar[@]}" --geo-features spinnet-kitti --spinnet-keypoints "$n"
 fi
-# 5. BUILTIN=1: the built-in frames (the generator stand-in) + ALIKE-t fused with each geometric
-# branch on the indoor sets (the default fusion), FPFH beside SpinNet in the same run.
-if [ "${BUILTIN:-}" = 1 ]; then
-  b=(--wfm builtin --vfm alike)
-  run staged-fpfh-builtin "$m/redkitchen-staged.toml" "${b[@]}"
-  run "staged-spinnet-$n-builtin" "$m/redkitchen-staged.toml" "${b[@]}" --geo-features spinnet-3dmatch --spinnet-keypoints "$n"
-  run rgbd-fpfh-builtin "$m/redkitchen-rgbd.toml" "${b[@]}"
-  run "rgbd-spinnet-$n-builtin" "$m/redkitchen-rgbd.toml" "${b[@]}" --geo-features spinnet-3dmatch --spinnet-keypoints "$n"
+# 5. DEV_ALL=1: every development pair (redkitchen-dev, never evaluated) at 128 and 256
+# keypoints, FPFH beside: a check of the count step 1 chose on one pair.
+if [ "${DEV_ALL:-}" = 1 ]; then
+  run dev-all-fpfh "$m/redkitchen-dev.toml"
+  for k in 128 256; do
+    run "dev-all-spinnet-$k" "$m/redkitchen-dev.toml" --geo-features spinnet-3dmatch --spinnet-keypoints "$k"
+  done
 fi
 # 6. REPOSE="1 2 ...": redkitchen-rgbd 3DLoMatch with every source turned by a seeded random
 # rotation (`--repose-seed`, as scripts/repose_study.sh), each branch alone, seed by seed.
@@ -91,12 +90,13 @@ for s in ${REPOSE:-}; do
   run "repose-fpfh-seed$s" "${rp[@]}"
   run "repose-spinnet-$n-seed$s" "${rp[@]}" --geo-features spinnet-3dmatch --spinnet-keypoints "$n"
 done
-# 7. DEV_ALL=1: every development pair (redkitchen-dev, never evaluated) at 128 and 256
-# keypoints, FPFH beside: a check of the count step 1 chose on one pair.
-if [ "${DEV_ALL:-}" = 1 ]; then
-  run dev-all-fpfh "$m/redkitchen-dev.toml"
-  for k in 128 256; do
-    run "dev-all-spinnet-$k" "$m/redkitchen-dev.toml" --geo-features spinnet-3dmatch --spinnet-keypoints "$k"
-  done
+# 7. BUILTIN=1: the built-in frames (the generator stand-in) + ALIKE-t fused with each geometric
+# branch on the indoor sets (the default fusion), FPFH beside SpinNet in the same run.
+if [ "${BUILTIN:-}" = 1 ]; then
+  b=(--wfm builtin --vfm alike)
+  run staged-fpfh-builtin "$m/redkitchen-staged.toml" "${b[@]}"
+  run "staged-spinnet-$n-builtin" "$m/redkitchen-staged.toml" "${b[@]}" --geo-features spinnet-3dmatch --spinnet-keypoints "$n"
+  run rgbd-fpfh-builtin "$m/redkitchen-rgbd.toml" "${b[@]}"
+  run "rgbd-spinnet-$n-builtin" "$m/redkitchen-rgbd.toml" "${b[@]}" --geo-features spinnet-3dmatch --spinnet-keypoints "$n"
 fi
 echo done

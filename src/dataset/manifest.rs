@@ -397,6 +397,209 @@ fn gt_from_poses(
     ))
 }
 
+/// Paths of a manifest, resolved against its root: they must exist with the kind asked for and,
+/// unless the manifest allows otherwise, lie inside the root once symlinks are resolved.
+struct Resolver<'a> {
+    manifest: &'a Path,
+    root: &'a Path,
+    real_root: PathBuf,
+    allow_outside: bool,
+}
+
+impl Resolver<'_> {
+    fn resolve(&self, field: &str, rel: &str, dir: bool) -> Result<PathBuf> {
+        let (path, root) = (self.manifest, self.root);
+        let p = root.join(expand_env(path, rel)?);
+        let want = if dir { "folder" } else { "file" };
+        let expected = || format!("an existing {want} (relative to root {})", root.display());
+        let found = match std::fs::metadata(&p) {
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Some("not found"),
+            Err(_) => Some("not readable"),
+            Ok(m) if dir && !m.is_dir() => Some("not a folder"),
+            Ok(m) if !dir && m.is_dir() => Some("a folder"),
+            Ok(m) if !dir && !m.is_file() => Some("not a regular file (a FIFO, device or socket)"),
+            Ok(_) => None,
+        };
+        if let Some(why) = found {
+            return Err(bad(
+                path,
+                field,
+                expected(),
+                format!("{} ({why})", p.display()),
+            ));
+        }
+        if !self.allow_outside {
+            let real = p.canonicalize().map_err(|e| Error::io(&p, e))?;
+            if !real.starts_with(&self.real_root) {
+                return Err(bad(
+                    path,
+                    field,
+                    format!(
+                        "a path inside root {} (symlinks resolved; put \
+                         `allow_outside_root = true` in the manifest to allow others)",
+                        root.display()
+                    ),
+                    format!("{} (outside the root)", p.display()),
+                ));
+            }
+        }
+        Ok(p)
+    }
+}
+
+/// Where a fragment's points come from: a cloud file (with the frames of a sequence when it
+/// names one), or the RGB-D frames of a sequence fused with the fragment options.
+fn fragment_source(
+    path: &Path,
+    field: &str,
+    f: &RawFragment,
+    resolve: &dyn Fn(&str, &str, bool) -> Result<PathBuf>,
+    default_opts: &FragmentOptions,
+) -> Result<FragmentSource> {
+    let range = match &f.sequence {
+        Some(s) => Some(SequenceRange {
+            dir: resolve(&format!("{field}.sequence"), s, true)?,
+            first: f.first.ok_or_else(|| {
+                bad(
+                    path,
+                    format!("{field}.first"),
+                    "the first frame index of the fragment",
+                    "missing",
+                )
+            })?,
+            count: match f.count {
+                Some(0) => {
+                    return Err(bad(path, format!("{field}.count"), "at least 1 frame", "0"))
+                }
+                Some(c) => c,
+                None => super::fragment::FRAGMENT_LEN,
+            },
+        }),
+        None => None,
+    };
+    let kitti_fields = match f.kitti_fields {
+        None => None,
+        Some(n) => {
+            let is_bin = f.cloud.as_deref().is_some_and(|c| {
+                Path::new(c)
+                    .extension()
+                    .is_some_and(|e| e.eq_ignore_ascii_case("bin"))
+            });
+            if !is_bin {
+                return Err(bad(
+                    path,
+                    format!("{field}.kitti_fields"),
+                    "kitti_fields only with a `cloud = \"....bin\"` file",
+                    format!("{:?}", f.cloud.as_deref().unwrap_or("no cloud")),
+                ));
+            }
+            Some(KittiFields::from_count(n).ok_or_else(|| {
+                bad(
+                    path,
+                    format!("{field}.kitti_fields"),
+                    "3 (x, y, z) or 4 (x, y, z, intensity)",
+                    n.to_string(),
+                )
+            })?)
+        }
+    };
+    Ok(match (&f.cloud, range) {
+        (Some(c), frames) => FragmentSource::Cloud {
+            path: resolve(&format!("{field}.cloud"), c, false)?,
+            frames,
+            kitti_fields,
+        },
+        (None, Some(range)) => {
+            let o = RawOptions {
+                voxel: f.voxel,
+                max_depth: f.max_depth,
+                min_depth: f.min_depth,
+                crop: f.crop.clone(),
+                color: f.color,
+            };
+            FragmentSource::Rgbd {
+                range,
+                options: apply_options(path, field, default_opts, &o)?,
+            }
+        }
+        (None, None) => {
+            return Err(bad(
+                path,
+                field,
+                "`cloud = \"file\"` or `sequence = \"dir\"` + `first`",
+                "neither",
+            ))
+        }
+    })
+}
+
+/// A pair's ground truth `target_from_source` and where it came from: a `gt.log` entry (read
+/// once per file), an inline matrix, the fragments' frame poses, or a matrix file; none.
+#[allow(clippy::too_many_arguments)]
+fn pair_gt(
+    path: &Path,
+    field: &str,
+    p: &RawPair,
+    resolve: &dyn Fn(&str, &str, bool) -> Result<PathBuf>,
+    fragments: &[FragmentSpec],
+    logs: &mut HashMap<PathBuf, Vec<GtEntry>>,
+    seqs: &mut HashMap<PathBuf, RgbdSequence>,
+) -> Result<(Option<Isometry3<f64>>, Option<String>)> {
+    let gt_poses = p.gt_poses.unwrap_or(false);
+    Ok(if let Some(log) = &p.gt_log {
+        let lp = resolve(&format!("{field}.gt_log"), log, false)?;
+        let [ei, ej] = match p.gt_entry {
+            Some(e) => e,
+            None => match (p.target.parse::<usize>(), p.source.parse::<usize>()) {
+                (Ok(a), Ok(b)) => [a, b],
+                _ => {
+                    return Err(bad(
+                        path,
+                        format!("{field}.gt_entry"),
+                        "gt_entry = [i, j] (the ids are not numbers)",
+                        "missing",
+                    ))
+                }
+            },
+        };
+        if !logs.contains_key(&lp) {
+            let entries = read_gt_log(&lp)?;
+            logs.insert(lp.clone(), entries);
+        }
+        let e = logs[&lp]
+            .iter()
+            .find(|e| e.target == ei && e.source == ej)
+            .ok_or_else(|| {
+                bad(
+                    path,
+                    format!("{field}.gt_log"),
+                    format!("an entry `{ei} {ej}` in {}", lp.display()),
+                    "no such entry",
+                )
+            })?;
+        (
+            Some(e.target_from_source),
+            Some(format!("{} entry `{ei} {ej}`", lp.display())),
+        )
+    } else if let Some(m) = &p.gt_matrix {
+        (
+            Some(matrix_field(path, &format!("{field}.gt_matrix"), m)?),
+            Some("inline gt_matrix".to_string()),
+        )
+    } else if gt_poses {
+        let (t, o) = gt_from_poses(path, field, fragments, &p.target, &p.source, seqs)?;
+        (Some(t), Some(o))
+    } else if let Some(f) = &p.gt_file {
+        let fp = resolve(&format!("{field}.gt_file"), f, false)?;
+        (
+            Some(super::read_gt_matrix(&fp)?),
+            Some(fp.display().to_string()),
+        )
+    } else {
+        (None, None)
+    })
+}
+
 impl Dataset {
     /// Load a manifest; relative paths resolve against its `root` field.
     pub fn load(path: &Path) -> Result<Dataset> {
@@ -456,48 +659,14 @@ impl Dataset {
             &raw.fragment_options.clone().unwrap_or_default(),
         )?;
 
-        let allow_outside = raw.allow_outside_root.unwrap_or(false);
-        // Resolved once: every path is checked against the real root (symlinks resolved).
-        let real_root = root.canonicalize().map_err(|e| Error::io(&root, e))?;
-        let resolve = |field: &str, rel: &str, dir: bool| -> Result<PathBuf> {
-            let p = root.join(expand_env(path, rel)?);
-            let want = if dir { "folder" } else { "file" };
-            let expected = || format!("an existing {want} (relative to root {})", root.display());
-            let found = match std::fs::metadata(&p) {
-                Err(e) if e.kind() == std::io::ErrorKind::NotFound => Some("not found"),
-                Err(_) => Some("not readable"),
-                Ok(m) if dir && !m.is_dir() => Some("not a folder"),
-                Ok(m) if !dir && m.is_dir() => Some("a folder"),
-                Ok(m) if !dir && !m.is_file() => {
-                    Some("not a regular file (a FIFO, device or socket)")
-                }
-                Ok(_) => None,
-            };
-            if let Some(why) = found {
-                return Err(bad(
-                    path,
-                    field,
-                    expected(),
-                    format!("{} ({why})", p.display()),
-                ));
-            }
-            if !allow_outside {
-                let real = p.canonicalize().map_err(|e| Error::io(&p, e))?;
-                if !real.starts_with(&real_root) {
-                    return Err(bad(
-                        path,
-                        field,
-                        format!(
-                            "a path inside root {} (symlinks resolved; put \
-                             `allow_outside_root = true` in the manifest to allow others)",
-                            root.display()
-                        ),
-                        format!("{} (outside the root)", p.display()),
-                    ));
-                }
-            }
-            Ok(p)
+        let resolver = Resolver {
+            manifest: path,
+            allow_outside: raw.allow_outside_root.unwrap_or(false),
+            // resolved once: every path is checked against the real root (symlinks resolved)
+            real_root: root.canonicalize().map_err(|e| Error::io(&root, e))?,
+            root: &root,
         };
+        let resolve = |field: &str, rel: &str, dir: bool| resolver.resolve(field, rel, dir);
 
         let mut fragments = Vec::with_capacity(raw.fragments.len());
         let mut seen = HashMap::new();
@@ -519,86 +688,7 @@ impl Dataset {
                     "a duplicate",
                 ));
             }
-            let range = match &f.sequence {
-                Some(s) => Some(SequenceRange {
-                    dir: resolve(&format!("{field}.sequence"), s, true)?,
-                    first: f.first.ok_or_else(|| {
-                        bad(
-                            path,
-                            format!("{field}.first"),
-                            "the first frame index of the fragment",
-                            "missing",
-                        )
-                    })?,
-                    count: match f.count {
-                        Some(0) => {
-                            return Err(bad(
-                                path,
-                                format!("{field}.count"),
-                                "at least 1 frame",
-                                "0",
-                            ))
-                        }
-                        Some(c) => c,
-                        None => super::fragment::FRAGMENT_LEN,
-                    },
-                }),
-                None => None,
-            };
-            let kitti_fields = match f.kitti_fields {
-                None => None,
-                Some(n) => {
-                    let is_bin = f.cloud.as_deref().is_some_and(|c| {
-                        Path::new(c)
-                            .extension()
-                            .is_some_and(|e| e.eq_ignore_ascii_case("bin"))
-                    });
-                    if !is_bin {
-                        return Err(bad(
-                            path,
-                            format!("{field}.kitti_fields"),
-                            "kitti_fields only with a `cloud = \"....bin\"` file",
-                            format!("{:?}", f.cloud.as_deref().unwrap_or("no cloud")),
-                        ));
-                    }
-                    Some(KittiFields::from_count(n).ok_or_else(|| {
-                        bad(
-                            path,
-                            format!("{field}.kitti_fields"),
-                            "3 (x, y, z) or 4 (x, y, z, intensity)",
-                            n.to_string(),
-                        )
-                    })?)
-                }
-            };
-            let source = match (&f.cloud, range) {
-                (Some(c), frames) => FragmentSource::Cloud {
-                    path: resolve(&format!("{field}.cloud"), c, false)?,
-                    frames,
-                    kitti_fields,
-                },
-                (None, Some(range)) => {
-                    let o = RawOptions {
-                        voxel: f.voxel,
-                        max_depth: f.max_depth,
-                        min_depth: f.min_depth,
-                        crop: f.crop.clone(),
-                        color: f.color,
-                    };
-                    FragmentSource::Rgbd {
-                        range,
-                        options: apply_options(path, &field, &default_opts, &o)?,
-                    }
-                }
-                (None, None) => {
-                    return Err(bad(
-                        path,
-                        field,
-                        "`cloud = \"file\"` or `sequence = \"dir\"` + `first`",
-                        "neither",
-                    ))
-                }
-            };
+            let source = fragment_source(path, &field, f, &resolve, &default_opts)?;
             fragments.push(FragmentSpec {
                 id: f.id.clone(),
                 source,
@@ -647,59 +737,8 @@ impl Dataset {
                     "gt_entry alone",
                 ));
             }
-            let (gt, origin) = if let Some(log) = &p.gt_log {
-                let lp = resolve(&format!("{field}.gt_log"), log, false)?;
-                let [ei, ej] = match p.gt_entry {
-                    Some(e) => e,
-                    None => match (p.target.parse::<usize>(), p.source.parse::<usize>()) {
-                        (Ok(a), Ok(b)) => [a, b],
-                        _ => {
-                            return Err(bad(
-                                path,
-                                format!("{field}.gt_entry"),
-                                "gt_entry = [i, j] (the ids are not numbers)",
-                                "missing",
-                            ))
-                        }
-                    },
-                };
-                if !logs.contains_key(&lp) {
-                    let entries = read_gt_log(&lp)?;
-                    logs.insert(lp.clone(), entries);
-                }
-                let e = logs[&lp]
-                    .iter()
-                    .find(|e| e.target == ei && e.source == ej)
-                    .ok_or_else(|| {
-                        bad(
-                            path,
-                            format!("{field}.gt_log"),
-                            format!("an entry `{ei} {ej}` in {}", lp.display()),
-                            "no such entry",
-                        )
-                    })?;
-                (
-                    Some(e.target_from_source),
-                    Some(format!("{} entry `{ei} {ej}`", lp.display())),
-                )
-            } else if let Some(m) = &p.gt_matrix {
-                (
-                    Some(matrix_field(path, &format!("{field}.gt_matrix"), m)?),
-                    Some("inline gt_matrix".to_string()),
-                )
-            } else if gt_poses {
-                let (t, o) =
-                    gt_from_poses(path, &field, &fragments, &p.target, &p.source, &mut seqs)?;
-                (Some(t), Some(o))
-            } else if let Some(f) = &p.gt_file {
-                let fp = resolve(&format!("{field}.gt_file"), f, false)?;
-                (
-                    Some(super::read_gt_matrix(&fp)?),
-                    Some(fp.display().to_string()),
-                )
-            } else {
-                (None, None)
-            };
+            let (gt, origin) =
+                pair_gt(path, &field, p, &resolve, &fragments, &mut logs, &mut seqs)?;
             let pair_preset = preset_field(path, &format!("{field}.preset"), p.preset.as_deref())?;
             let id = format!("{}/{}-{}", raw.name, p.target, p.source);
             if pair_ids.insert(id.clone(), i).is_some() {
