@@ -114,7 +114,7 @@ REPOSE = {
     "spinnet-repose": (
         [("FPFH + SC2-PCR (geometry only, NN)", "docs/results/spinnet/repose-fpfh"),
          ("SpinNet 3DMatch, 128 keypoints (geometry only, NN)", "docs/results/spinnet/repose-spinnet-128")],
-        list(range(1, 6)),
+        list(range(1, 4)),
     ),
 }
 

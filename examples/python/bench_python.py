@@ -123,7 +123,10 @@ def main() -> int:
         np.__version__, o3d or "no Open3D")
     date = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
     print("machine: %s; %s" % (machine, date))
-    out = {"command": "python examples/python/bench_python.py --cli <cgenreg> --profile %s" % a.profile,
+    repo = Path(__file__).resolve().parents[2]
+    argv = [os.path.relpath(x, repo) if os.path.isabs(x) and x.startswith(str(repo)) else x
+            for x in sys.argv[1:]]
+    out = {"command": " ".join(["python", "examples/python/bench_python.py"] + argv),
            "profile": a.profile, "machine": machine, "date": date, "reps": a.reps}
     if not a.skip_overhead:
         print("== Python call overhead over the CLI (median of %d, loading excluded)" % a.reps)
