@@ -16,7 +16,7 @@
 // Benchmarks, examples and tests: a failed step is reported by the panic that ends them.
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
-use cgenreg::io::fuzz_targets as ft;
+use cgenreg::testing::fuzz_targets as ft;
 use std::path::{Path, PathBuf};
 
 fn data_root() -> Option<PathBuf> {
