@@ -89,6 +89,7 @@ pub enum Command {
 }
 
 /// `inspect` changes only the saved settings its options name: it is told which were given.
+#[cfg_attr(not(feature = "gui"), allow(unused_variables))]
 fn with_named_options(c: Command, matches: &clap::ArgMatches) -> Command {
     match c {
         #[cfg(feature = "gui")]
