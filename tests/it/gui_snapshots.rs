@@ -307,14 +307,25 @@ impl Worker for Recorder {
     }
 }
 
-#[test]
-fn tabs_and_controls_drive_the_ui_and_the_worker() {
+/// What a recording worker was sent.
+type Commands = Arc<Mutex<Vec<Command>>>;
+
+/// The demo app whose worker records the commands it is sent (they are not run), two frames in.
+fn recording_harness() -> Option<(Harness<'static, App>, Commands)> {
     let seen = Arc::new(Mutex::new(Vec::new()));
     let handle = spawn_worker(Box::new(Recorder(seen.clone())), None);
     let mut app = App::new(InspectorModel::demo(), Some(handle), None);
     app.allow_dialogs = false;
-    let Some(mut h) = harness(app) else { return };
+    let mut h = harness(app)?;
     h.run_steps(2);
+    Some((h, seen))
+}
+
+#[test]
+fn tabs_and_controls_drive_the_ui_and_the_worker() {
+    let Some((mut h, seen)) = recording_harness() else {
+        return;
+    };
     // tabs switch panels
     h.get_by_label("3D").click();
     h.run_steps(2);
@@ -864,12 +875,9 @@ fn the_distance_tool_measures_between_two_clicked_points() {
 /// nothing; with it on, one settings command carries the new prompt. "Revert" drops a draft.
 #[test]
 fn apply_prompt_below_the_fold_applies_the_draft_and_revert_drops_it() {
-    let seen = Arc::new(Mutex::new(Vec::new()));
-    let handle = spawn_worker(Box::new(Recorder(seen.clone())), None);
-    let mut app = App::new(InspectorModel::demo(), Some(handle), None);
-    app.allow_dialogs = false;
-    let Some(mut h) = harness(app) else { return };
-    h.run_steps(2);
+    let Some((mut h, seen)) = recording_harness() else {
+        return;
+    };
     let minimal = PromptPreset::Minimal.default_scene();
     h.get_by_label("Minimal").click();
     h.run_steps(2);

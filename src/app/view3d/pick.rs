@@ -34,23 +34,7 @@ pub(super) fn pointer_picking(
     if response.clicked() && state.measure.active {
         // the distance tool takes the click: the source point under it, else the target's
         if let Some(pos) = response.interact_pointer_pos() {
-            let src =
-                pick_point(&state.source_pos, src_xf, vp, rect, pos, 10.0).map(|index| Picked {
-                    cloud: Cloud::Source,
-                    index,
-                });
-            let tgt = || {
-                if !state.prefs.show_target {
-                    return None;
-                }
-                let xf = Isometry3::identity();
-                let index = pick_point(&state.target_pos, &xf, vp, rect, pos, 10.0)?;
-                Some(Picked {
-                    cloud: Cloud::Target,
-                    index,
-                })
-            };
-            if let Some(p) = src.or_else(tgt) {
+            if let Some(p) = point_under(state, src_xf, vp, rect, pos, 10.0) {
                 state.measure.pick(p);
             }
         }
@@ -108,23 +92,11 @@ pub(super) fn hover_readout(
     if let Some(mi) = shared.ui.hovered_match {
         return describe(mi);
     }
-    let src = pick_point(&state.source_pos, src_xf, vp, rect, pos, 6.0);
-    let (who, i, matched) = match src {
-        Some(i) => ("source", i, model.matches.iter().position(|m| m.src == i)),
-        None => {
-            if !state.prefs.show_target {
-                return None;
-            }
-            let i = pick_point(
-                &state.target_pos,
-                &Isometry3::identity(),
-                vp,
-                rect,
-                pos,
-                6.0,
-            )?;
-            ("target", i, model.matches.iter().position(|m| m.tgt == i))
-        }
+    let p = point_under(state, src_xf, vp, rect, pos, 6.0)?;
+    let (who, i) = (p.cloud.label(), p.index);
+    let matched = match p.cloud {
+        Cloud::Source => model.matches.iter().position(|m| m.src == i),
+        Cloud::Target => model.matches.iter().position(|m| m.tgt == i),
     };
     let kind = if matched.is_some() {
         "keypoint"
@@ -134,6 +106,33 @@ pub(super) fn hover_readout(
     Some(match matched.and_then(describe) {
         Some(m) => format!("{who} {kind} {i}\n{m}"),
         None => format!("{who} {kind} {i} (no correspondence)"),
+    })
+}
+
+/// The point under `pos` within `radius` pixels: a source point (drawn under `src_xf`) first,
+/// else a target point when the target is shown.
+fn point_under(
+    state: &View3dState,
+    src_xf: &Isometry3<f64>,
+    vp: &Matrix4<f32>,
+    rect: egui::Rect,
+    pos: egui::Pos2,
+    radius: f32,
+) -> Option<Picked> {
+    if let Some(index) = pick_point(&state.source_pos, src_xf, vp, rect, pos, radius) {
+        return Some(Picked {
+            cloud: Cloud::Source,
+            index,
+        });
+    }
+    if !state.prefs.show_target {
+        return None;
+    }
+    let xf = Isometry3::identity();
+    let index = pick_point(&state.target_pos, &xf, vp, rect, pos, radius)?;
+    Some(Picked {
+        cloud: Cloud::Target,
+        index,
     })
 }
 
