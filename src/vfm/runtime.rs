@@ -1,15 +1,16 @@
 //! ONNX Runtime backend selection and session loading.
 //!
-//! One `ort` build (2.0.0-rc.14, `alternative-backend`) serves two backends, chosen once per
-//! process on first use:
+//! One `ort` build (2.0.0-rc.14, `alternative-backend`) serves up to two backends, chosen once
+//! per process on first use:
 //! 1. native ONNX Runtime (>= 1.24, C API 24), from `ORT_DYLIB_PATH`, else the shared library of
 //!    a pip-installed `onnxruntime` wheel (`onnxruntime/capi/libonnxruntime.so.*`), found in the
 //!    build folder's private venv (`target/ortvenv`, made by scripts/setup.sh), through
 //!    `python3 -c 'import onnxruntime'` and by globbing the usual site-packages folders;
-//! 2. tract (pure Rust), when no native library loads.
+//! 2. tract (pure Rust), when no native library loads, in a build with the opt-in `tract`
+//!    feature; without it a missing native library is an error that says how to get one.
 //!
-//! `CGENREG_ORT_BACKEND=tract` forces tract and `=native` makes a missing native library an error
-//! (used by the benchmark). Loading is checked step by step (file, symbol, API version), so a
+//! `CGENREG_ORT_BACKEND=tract` forces tract (a `tract` build) and `=native` makes a missing
+//! native library an error (used by the benchmark). Loading is checked step by step (file, symbol, API version), so a
 //! missing or broken library never panics; the reason is kept in [`backend_info`].
 //!
 //! Native sessions run on the CPU, or on an NVIDIA GPU through ONNX Runtime's CUDA execution
@@ -119,6 +120,34 @@ pub fn backend_name() -> String {
     }
 }
 
+/// No native ONNX Runtime: tract, the pure-Rust fallback, in a build with the `tract` feature.
+#[cfg(feature = "tract")]
+fn fallback(forced: &str, why: String) -> std::result::Result<BackendInfo, String> {
+    if forced == "native" {
+        return Err(format!(
+            "CGENREG_ORT_BACKEND=native but no native ONNX Runtime: {why}"
+        ));
+    }
+    ort::set_api(ort_tract::api());
+    Ok(BackendInfo {
+        kind: "tract",
+        version: None,
+        library: None,
+        note: Some(why),
+        provider: Provider::Cpu,
+    })
+}
+
+/// No native ONNX Runtime, and a build without the `tract` fallback: what to do about it.
+#[cfg(not(feature = "tract"))]
+fn fallback(_forced: &str, why: String) -> std::result::Result<BackendInfo, String> {
+    Err(format!(
+        "no native ONNX Runtime could be loaded ({why}); run scripts/setup.sh (it unpacks one \
+         under target/), or set ORT_DYLIB_PATH to a libonnxruntime.so (docs/install.md); a \
+         build with `--features tract` falls back to the pure-Rust tract instead"
+    ))
+}
+
 fn init() -> std::result::Result<Runtime, String> {
     let forced = std::env::var("CGENREG_ORT_BACKEND").unwrap_or_default();
     let native = if forced == "tract" {
@@ -137,21 +166,7 @@ fn init() -> std::result::Result<Runtime, String> {
                 provider: Provider::Cpu,
             }
         }
-        Err(why) => {
-            if forced == "native" {
-                return Err(format!(
-                    "CGENREG_ORT_BACKEND=native but no native ONNX Runtime: {why}"
-                ));
-            }
-            ort::set_api(ort_tract::api());
-            BackendInfo {
-                kind: "tract",
-                version: None,
-                library: None,
-                note: Some(why),
-                provider: Provider::Cpu,
-            }
-        }
+        Err(why) => fallback(&forced, why)?,
     };
     let env = ort::init()
         .with_name("cgenreg")

@@ -86,6 +86,8 @@ fn descriptors_equal_the_python_export() {
 }
 
 /// The same comparison on tract, in a child process (the backend is chosen once per process).
+/// Only in a build with the opt-in `tract` feature.
+#[cfg(feature = "tract")]
 #[test]
 fn tract_fallback_runs_both_models() {
     if std::env::var("CGENREG_ORT_BACKEND").as_deref() == Ok("tract") || sequence().is_none() {
