@@ -359,7 +359,7 @@ fn fusion_controls(ui: &mut egui::Ui, params: &mut RegisterParams) {
     );
 }
 
-/// The preset (indoor / outdoor), the keypoint voxel, every distance that follows it (with
+/// The preset (indoor / outdoor / outdoor-search), the keypoint voxel, the scale hypotheses, every distance that follows it (with
 /// its value at the voxel, or set by hand) and the success criterion: all fields of
 /// `params` itself ([`Preset::apply`], [`Scaled`]).
 fn scale_controls(ui: &mut egui::Ui, params: &mut RegisterParams) {
@@ -383,6 +383,15 @@ fn scale_controls(ui: &mut egui::Ui, params: &mut RegisterParams) {
         )
         .labelled_by(l.id)
         .on_hover_text("FPFH radii follow it (2 v, 5 v), and so does every distance ticked below");
+    });
+    ui.horizontal(|ui| {
+        let l = ui.label("Scale hypotheses");
+        ui.add(egui::DragValue::new(&mut params.scales).range(1..=6))
+            .labelled_by(l.id)
+            .on_hover_text(
+                "1: the voxel alone; N: the voxels v, 2 v, ..., 2^(N-1) v, the pose most \
+                 consistent with both scans' range views kept",
+            );
     });
     let v = params.voxel;
     if let EstimatorKind::Sc2Pcr(s) = &mut params.estimator {

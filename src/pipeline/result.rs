@@ -65,6 +65,9 @@ pub struct RegistrationResult {
     pub estimate: Isometry3<f64>,
     pub gt_target_from_source: Option<[[f64; 4]; 4]>,
     pub metrics: Option<PairMetrics>,
+    /// The distance (m) under which a correspondence counts as a GT inlier (the metrics'
+    /// inlier ratio, the inspector's inlier colours): the run's inlier threshold.
+    pub gt_inlier_threshold_m: f64,
     /// Whether the ground truth or its inverse explains the data better (None without GT);
     /// its warning is also in `warnings`.
     pub convention: Option<crate::metrics::convention::ConventionCheck>,
@@ -96,6 +99,9 @@ pub struct RegistrationResult {
     /// The `visibility` fusion's report: every candidate pose's score and the one kept.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub visibility: Option<super::visibility::VisibilityReport>,
+    /// The scale search's report: every hypothesis's voxel and visibility, and the one kept.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub scales: Option<super::scales::ScaleReport>,
     /// The in-memory tail's inputs, when the registration kept them
     /// ([`super::Registration::keep`]): what a re-fusion, the correspondence export and the
     /// posterior inspector recompute from.

@@ -39,18 +39,19 @@ pub fn key(params: &RegisterParams, inputs: &[&str]) -> Result<crate::cache::Cac
         image: _,
         // judges the result after the estimate; does not change it
         success: _,
+        scales,
     } = params;
-    crate::cache::CacheKey::new(
-        STAGE,
-        VERSION,
-        inputs,
-        &serde_json::json!({
-            "fusion": fusion,
-            // the resolved values: a threshold that follows the voxel keys as the number it is
-            "estimator": estimator.resolved(*voxel),
-            "inlier_threshold": inlier_threshold.at(*voxel, crate::estimate::scale::THRESHOLD_PER_VOXEL),
-        }),
-    )
+    let mut settings = serde_json::json!({
+        "fusion": fusion,
+        // the resolved values: a threshold that follows the voxel keys as the number it is
+        "estimator": estimator.resolved(*voxel),
+        "inlier_threshold": inlier_threshold.at(*voxel, crate::estimate::scale::THRESHOLD_PER_VOXEL),
+    });
+    // a scale search keeps another hypothesis's pose; one scale keys as before
+    if let (true, Some(o)) = (*scales > 1, settings.as_object_mut()) {
+        o.insert("scales".into(), (*scales).into());
+    }
+    crate::cache::CacheKey::new(STAGE, VERSION, inputs, &settings)
 }
 
 /// Inputs of the in-memory stages (similarity onward): with them, a change of temperature,
@@ -495,6 +496,7 @@ pub(crate) fn finish(
         estimate: est.target_from_source,
         gt_target_from_source: pair.gt_target_from_source.as_ref().map(matrix_rows),
         metrics,
+        gt_inlier_threshold_m: params.inlier_threshold_m(),
         convention,
         estimator: est.method.clone(),
         warnings,
@@ -513,6 +515,7 @@ pub(crate) fn finish(
         image: None,
         union: None,
         visibility: None,
+        scales: None,
         inputs: None,
         plan: None,
     })

@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 use cgenreg::app::colormap::{SOURCE_RGB, TARGET_RGB};
 use cgenreg::app::model::{PairStatus, StageState};
 use cgenreg::app::worker::{
-    result_to_model, PipelineWorker, ViewMemo, GT_INLIER_M, IMAGE_BRANCH_OFF, VIEW_MEMO,
+    result_to_model, PipelineWorker, ViewMemo, IMAGE_BRANCH_OFF, VIEW_MEMO,
 };
 use cgenreg::app::{spawn_worker, Command, Panel, WorkerEvent};
 use cgenreg::dataset::manifest::Dataset;
@@ -48,6 +48,13 @@ fn registration_result_becomes_a_consistent_model() {
     // every correspondence, with GT flags recomputed by brute force
     assert_eq!(model.matches.len(), res.correspondences.len());
     let gt = pair.gt_target_from_source.unwrap();
+    // judged by the run's inlier threshold (the indoor preset's 0.10 m here)
+    let within = res.gt_inlier_threshold_m;
+    assert_eq!(within, params().inlier_threshold_m());
+    assert_eq!(
+        (model.gt_inlier_m, model.gt_inlier_label().as_str()),
+        (within, "10 cm")
+    );
     let mut inl = 0;
     for (m, c) in model.matches.iter().zip(&res.correspondences) {
         assert_eq!((m.src, m.tgt), (c.src as usize, c.tgt as usize));
@@ -56,8 +63,8 @@ fn registration_result_becomes_a_consistent_model() {
         let d = (gt * Point3::new(s.x as f64, s.y as f64, s.z as f64)
             - Point3::new(t.x as f64, t.y as f64, t.z as f64))
         .norm();
-        assert_eq!(m.inlier_gt, Some(d < GT_INLIER_M));
-        inl += (d < GT_INLIER_M) as usize;
+        assert_eq!(m.inlier_gt, Some(d < within));
+        inl += (d < within) as usize;
     }
     assert!(
         inl > 0,

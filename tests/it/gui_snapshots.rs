@@ -752,14 +752,18 @@ fn the_geometric_features_control_picks_spinnet() {
     h.run_steps(3);
     let want = GeoFeatureSource::spinnet(Protocol::Kitti);
     assert_eq!(h.state().params.geo_features, want);
-    assert!(
+    // the worker thread records the command when it gets it: wait for it (a loaded machine)
+    let sent = || {
         seen.lock()
             .unwrap()
             .iter()
-            .any(|c| matches!(c, Command::ApplySettings(p) if p.geo_features == want)),
-        "{:?}",
-        seen.lock().unwrap()
-    );
+            .any(|c| matches!(c, Command::ApplySettings(p) if p.geo_features == want))
+    };
+    let t0 = std::time::Instant::now();
+    while !sent() && t0.elapsed() < std::time::Duration::from_secs(10) {
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    assert!(sent(), "{:?}", seen.lock().unwrap());
     assert!(h
         .query_all_by_label("SpinNet keypoints per scan")
         .next()

@@ -41,7 +41,7 @@ pub struct PairEntry {
     /// Success under the run's criterion (`RegisterParams::success`: 15° / 30 cm indoor, 5° / 2 m
     /// outdoor); None without GT.
     pub success: Option<bool>,
-    /// Fraction of the correspondences within 10 cm under GT.
+    /// Fraction of the correspondences within the run's inlier threshold under GT.
     pub inlier_ratio: Option<f64>,
     /// Number of selected correspondences.
     pub correspondences: Option<usize>,
@@ -378,6 +378,9 @@ pub struct InspectorModel {
     pub estimated: Option<Isometry3<f64>>,
     pub ground_truth: Option<Isometry3<f64>>,
     pub matches: Vec<MatchInfo>,
+    /// The distance (m) under which a match is a GT inlier: the run's inlier threshold (0.10 m
+    /// indoor, 0.6 m outdoor), what `matches[i].inlier_gt` was judged by.
+    pub gt_inlier_m: f64,
     pub source_views: Vec<ViewImage>,
     pub target_views: Vec<ViewImage>,
     pub posteriors: Vec<Posterior>,
@@ -420,6 +423,7 @@ impl Default for InspectorModel {
             estimated: None,
             ground_truth: None,
             matches: Vec::new(),
+            gt_inlier_m: crate::pipeline::RegisterParams::default().inlier_threshold_m(),
             source_views: Vec::new(),
             target_views: Vec::new(),
             posteriors: Vec::new(),
@@ -450,6 +454,11 @@ impl InspectorModel {
     /// The synthetic demo with `n` points per cloud (benchmarks use 100k and 300k).
     pub fn demo_sized(n: usize) -> Self {
         demo::build(n)
+    }
+
+    /// [`Self::gt_inlier_m`] as people read it: "10 cm", "60 cm", "2.4 m".
+    pub fn gt_inlier_label(&self) -> String {
+        distance_label(self.gt_inlier_m)
     }
 
     /// Each match's rank quantile of fused score in [0, 1] (the confidence colours).
@@ -495,6 +504,16 @@ pub fn pose_errors(gt: &Isometry3<f64>, estimated: &Isometry3<f64>) -> (f64, f64
 }
 
 mod demo;
+
+/// A distance in metres as people read it: centimetres under a metre ("10 cm"), else metres
+/// ("2.4 m").
+pub fn distance_label(m: f64) -> String {
+    if m < 1.0 {
+        format!("{} cm", (m * 100.0 * 10.0).round() / 10.0)
+    } else {
+        format!("{} m", (m * 100.0).round() / 100.0)
+    }
+}
 
 #[cfg(test)]
 mod tests {

@@ -210,7 +210,8 @@ impl App {
                 .filter(|m| m.survived == Some(true) && m.inlier_gt == Some(true))
                 .count();
             ui.label(format!(
-                "GT inliers (10 cm): {inl} of {} matches ({:.1} %); {kept_inl} of {kept} kept",
+                "GT inliers ({}): {inl} of {} matches ({:.1} %); {kept_inl} of {kept} kept",
+                self.model.gt_inlier_label(),
                 gt_known.len(),
                 100.0 * inl as f64 / gt_known.len() as f64
             ));

@@ -89,10 +89,11 @@ pub fn value_rgb(v: f32, kind: PosteriorKind) -> [u8; 3] {
     }
 }
 
-/// A candidate counts as the ground truth within the 10 cm inlier threshold.
+/// A candidate counts as the ground truth within the run's inlier threshold.
 fn near_gt(model: &InspectorModel, cand: usize, gt: usize) -> bool {
+    let r = model.gt_inlier_m as f32;
     match (model.target.get(cand), model.target.get(gt)) {
-        (Some(a), Some(b)) => (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f32>() < 0.1f32 * 0.1,
+        (Some(a), Some(b)) => (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f32>() < r * r,
         _ => cand == gt,
     }
 }
@@ -385,7 +386,11 @@ pub fn posterior_panel(
                     format!(
                         "{name} argmax #{} {}",
                         p.candidates[i],
-                        if hit { "at GT (< 10 cm)" } else { "off GT" }
+                        if hit {
+                            format!("at GT (< {})", model.gt_inlier_label())
+                        } else {
+                            "off GT".to_string()
+                        }
                     ),
                 );
             }

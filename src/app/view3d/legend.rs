@@ -72,7 +72,10 @@ pub(super) fn legend(
         }
     }
     if p.show_lines && match_mode == MatchColorMode::InlierOutlier && model.ground_truth.is_some() {
-        rows.push(("match: GT inlier (10 cm)".into(), INLIER_RGB));
+        rows.push((
+            format!("match: GT inlier ({})", model.gt_inlier_label()),
+            INLIER_RGB,
+        ));
         rows.push(("match: GT outlier".into(), OUTLIER_RGB));
     }
     let mut y = rect.top() + 8.0;

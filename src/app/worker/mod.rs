@@ -44,7 +44,7 @@ use crate::pipeline::{ImageBranchOutput, RegisterParams, RegistrationResult};
 
 pub use model_build::{
     default_posterior_point, point_posterior, pr_curve, result_to_model, ViewMemo, DISPLAY_POINTS,
-    FIGURE7_CORRECT_M, GT_INLIER_M, IMAGE_BRANCH_OFF, VIEW_MEMO,
+    FIGURE7_CORRECT_M, IMAGE_BRANCH_OFF, VIEW_MEMO,
 };
 pub use run_all::RunAllSummary;
 use study::StudyPlots;

@@ -17,8 +17,6 @@ use crate::pipeline::memo::Lru;
 use crate::pipeline::tail::{FusionInputs, Similarities};
 use crate::pipeline::{ImageBranchOutput, RegistrationResult};
 
-/// Inlier threshold of the GT flags on correspondences (metres).
-pub const GT_INLIER_M: f64 = 0.10;
 /// A match is correct within this distance under the ground truth in the paper's figure 7.
 pub const FIGURE7_CORRECT_M: f64 = 0.05;
 /// Display points per cloud on top of the keypoints.
@@ -180,7 +178,7 @@ pub fn result_to_model(
             let tp = result.target_keypoints.get(t)?;
             let inlier_gt = gt.map(|g| {
                 let q = g * sp.cast::<f64>();
-                (q - tp.cast::<f64>()).norm() < GT_INLIER_M
+                (q - tp.cast::<f64>()).norm() < result.gt_inlier_threshold_m
             });
             Some(MatchInfo {
                 src: s,
@@ -239,6 +237,7 @@ pub fn result_to_model(
         estimated: Some(result.estimate),
         ground_truth: gt,
         matches,
+        gt_inlier_m: result.gt_inlier_threshold_m,
         source_views,
         target_views,
         posteriors: Vec::new(),
@@ -479,9 +478,10 @@ pub fn point_posterior(
 }
 
 /// The source point the posterior tab opens on after a run, and why: the strongest selected
-/// match that fails under the ground truth (its target more than 10 cm from where the GT
-/// puts the source point), else the strongest match. None without matches.
-pub fn default_posterior_point(matches: &[MatchInfo]) -> Option<(usize, String)> {
+/// match that fails under the ground truth (its target more than `gt_inlier_m` from where the
+/// GT puts the source point), else the strongest match. None without matches.
+pub fn default_posterior_point(matches: &[MatchInfo], gt_inlier_m: f64) -> Option<(usize, String)> {
+    let within = crate::app::model::distance_label(gt_inlier_m);
     let strongest = |keep: &dyn Fn(&MatchInfo) -> bool| {
         matches
             .iter()
@@ -500,7 +500,7 @@ pub fn default_posterior_point(matches: &[MatchInfo]) -> Option<(usize, String)>
             m.src,
             format!(
                 "opened on the strongest selected match that fails under GT: source #{} -> target #{}, \
-                 fused score {:.3} (rank {} of {n}; {wrong} of {n} matches are > 10 cm off GT)",
+                 fused score {:.3} (rank {} of {n}; {wrong} of {n} matches are > {within} off GT)",
                 m.src,
                 m.tgt,
                 m.score,
@@ -510,9 +510,9 @@ pub fn default_posterior_point(matches: &[MatchInfo]) -> Option<(usize, String)>
     }
     let (_, m) = strongest(&|_| true)?;
     let why = if matches.iter().any(|m| m.inlier_gt.is_some()) {
-        "every selected match is within 10 cm of GT"
+        format!("every selected match is within {within} of GT")
     } else {
-        "no ground truth for this pair"
+        "no ground truth for this pair".to_string()
     };
     Some((
         m.src,
@@ -547,7 +547,7 @@ mod tests {
             m(3, 0.7, Some(false)),
             m(4, 0.95, Some(true)),
         ];
-        let (src, why) = default_posterior_point(&ms).unwrap();
+        let (src, why) = default_posterior_point(&ms, 0.1).unwrap();
         assert_eq!(src, 3);
         assert!(
             why.contains("fails under GT") && why.contains("rank 3 of 4"),
@@ -555,12 +555,12 @@ mod tests {
         );
         assert!(why.contains("2 of 4"), "{why}");
         let ok = [m(1, 0.9, Some(true)), m(4, 0.95, Some(true))];
-        let (src, why) = default_posterior_point(&ok).unwrap();
+        let (src, why) = default_posterior_point(&ok, 0.1).unwrap();
         assert_eq!(src, 4);
         assert!(why.contains("within 10 cm"), "{why}");
-        let (src, why) = default_posterior_point(&[m(7, 0.2, None), m(8, 0.1, None)]).unwrap();
+        let (src, why) = default_posterior_point(&[m(7, 0.2, None), m(8, 0.1, None)], 0.1).unwrap();
         assert_eq!(src, 7);
         assert!(why.contains("no ground truth"), "{why}");
-        assert!(default_posterior_point(&[]).is_none());
+        assert!(default_posterior_point(&[], 0.1).is_none());
     }
 }

@@ -144,7 +144,8 @@ impl PipelineWorker {
         let cache = self.cache.clone();
         let fpfh = params.geo_features == crate::pipeline::params::GeoFeatureSource::Fpfh;
         // geometry only with FPFH: the plan (both scans' keys) says whether the branch is kept
-        let geo_plan = match (&params.image, fpfh) {
+        // (a scale search runs whole: its hypotheses have a plan each)
+        let geo_plan = match (&params.image, fpfh && params.scales == 1) {
             (None, true) => Some(Registration::new(&params).memo(&self.memo).plan(pair)?),
             _ => None,
         };
@@ -232,7 +233,7 @@ impl PipelineWorker {
         let chosen = self
             .current
             .as_ref()
-            .and_then(|c| default_posterior_point(&c.model.matches));
+            .and_then(|c| default_posterior_point(&c.model.matches, c.model.gt_inlier_m));
         if let Some((src, why)) = chosen {
             if let Ok(m) = self.inspect_point(src) {
                 if let Some(c) = self.current.as_mut() {
@@ -304,7 +305,9 @@ impl PipelineWorker {
             _ => StageName::ALL.to_vec(),
         };
         let row = invalidated_row(&changed, t0.elapsed().as_secs_f64() * 1e3);
-        if changed.iter().any(|s| *s != StageName::Fusion) {
+        // a scale search arbitrates between whole registrations: it always runs whole (from
+        // the stage cache)
+        if params.scales > 1 || changed.iter().any(|s| *s != StageName::Fusion) {
             self.invalidated = Some(row);
             return None;
         }

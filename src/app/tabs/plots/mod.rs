@@ -302,13 +302,18 @@ pub fn pr_plot(ui: &mut egui::Ui, model: &InspectorModel, h: f32) -> egui::Rect 
         egui::Color32::from_rgb(230, 80, 60),
     ];
     // Both fusion rules come from the worker's kept similarities (the paper's figure 7);
-    // otherwise the one curve is the current fusion's matches (correct within 10 cm).
+    // otherwise the one curve is the current fusion's matches (correct within the run's
+    // inlier threshold).
     let title = if model.plots.pr_curves.len() == 2 {
         "Match precision–recall: Noisy-AND vs Noisy-OR (figure 7; correct within 5 cm under GT)"
+            .to_string()
     } else {
-        "Match precision–recall (correct within 10 cm under GT)"
+        format!(
+            "Match precision–recall (correct within {} under GT)",
+            model.gt_inlier_label()
+        )
     };
-    plot("pr", title, "recall", "precision", ui, h)
+    plot("pr", &title, "recall", "precision", ui, h)
         .include_x(0.0)
         .include_x(1.0)
         .include_y(0.0)
