@@ -98,6 +98,14 @@ TABLES = {
              "docs/results/spinnet/rgbd-spinnet-128-builtin.json"),
         ],
     ),
+    "outdoor-dev": (
+        "success: RRE <= 5 deg and RTE <= 2 m (KITTI)",
+        [
+            ("PandaSet development pairs, outdoor (one voxel, 0.3 m)", "docs/results/outdoor/dev-pandaset-outdoor.json"),
+            ("PandaSet development pairs, outdoor-search (0.3 / 0.6 / 1.2 m, visibility)",
+             "docs/results/outdoor/dev-pandaset-outdoor-search.json"),
+        ],
+    ),
     "spinnet-dev-all": (
         "3DMatch success: RRE <= 15 deg and RTE <= 30 cm",
         [
@@ -197,6 +205,100 @@ def render_python(name):
     return "\n".join(out + ["", src])
 
 
+# name -> (rows of (label, cgenreg run file), Open3D's file): the outdoor LiDAR tables, pair by
+# pair (GT distance, RRE, RTE, both criteria, the scale search's kept voxel) and per data set.
+OUTDOOR = {
+    "outdoor-pairs": (
+        [("outdoor", "docs/results/outdoor/cgenreg-{set}.json"),
+         ("outdoor-search", "docs/results/outdoor/cgenreg-{set}-search.json")],
+        "docs/results/outdoor/open3d-outdoor.json",
+    ),
+}
+OUTDOOR_SETS = [("kitti07", "KITTI 07"), ("pandaset", "PandaSet"), ("lidar", "small_gicp LiDAR")]
+
+
+def kept_voxel(row):
+    m = re.search(r"kept voxel ([0-9.]+) m", row.get("scales") or "")
+    return f"{m.group(1)} m" if m else "–"
+
+
+def render_outdoor(name):
+    rows, o3d_rel = OUTDOOR[name]
+    o3d = load(o3d_rel)
+    o3d_pairs = {p["id"]: p for p in (o3d or {}).get("pairs", [])}
+    yes = lambda b: "yes" if b else "no"
+    out = [
+        "Success: RRE <= 5 deg and RTE <= 2 m (KITTI), SC2-PCR's 5 deg / 0.6 m beside it (`/0.6`).",
+        "",
+        "| pair | distance m | " + " | ".join(f"{lab} RRE ° / RTE m | {lab} ok (/0.6)" for lab, _ in rows)
+        + " | outdoor-search kept | Open3D RRE ° / RTE m | Open3D ok (/0.6) |",
+        "|---|---:|" + "---|---|" * len(rows) + "---|---|---|",
+    ]
+    summary = {}
+    sources = []
+    for key, set_label in OUTDOOR_SETS:
+        runs = []
+        for lab, pattern in rows:
+            rel = pattern.format(set=key)
+            d = load(rel)
+            runs.append((lab, rel, d))
+            if d:
+                sources.append(f"- {set_label}, {lab}: `{rel}`, {describe(d)}")
+        base = next((d for _, _, d in runs if d), None)
+        if base is None:
+            out.append(f"| {set_label}: not run | | " + "| " * (2 * len(rows) + 3))
+            continue
+        for i, pr in enumerate(base["pairs"]):
+            pid = pr["id"]
+            cells = [pid, f"{pr.get('gt_distance_m') or 0:.1f}"]
+            kept = "–"
+            for lab, rel, d in runs:
+                r = next((x for x in (d or {}).get("pairs", []) if x["id"] == pid), None)
+                if r is None or r.get("rre_deg") is None:
+                    cells += ["not run" if r is None else (r.get("error") or "failed"), ""]
+                    continue
+                also = (r.get("also") or {}).get("success")
+                cells += [f"{r['rre_deg']:.2f} / {r['rte_m']:.3f}", f"{yes(r['success'])} ({yes(also)})"]
+                s = summary.setdefault((lab, key), [0, 0, 0, 0.0])
+                s[0] += 1
+                s[1] += bool(r["success"])
+                s[2] += bool(also)
+                s[3] += r.get("time_s") or 0.0
+                if r.get("scales"):
+                    kept = kept_voxel(r)
+            o = o3d_pairs.get(pid)
+            if o:
+                ok = o.get("success") or [False, False]
+                cells += [kept, f"{o['rre_deg']:.2f} / {o['rte_m']:.3f}", f"{yes(ok[0])} ({yes(ok[1])})"]
+                s = summary.setdefault(("Open3D", key), [0, 0, 0, 0.0])
+                s[0] += 1
+                s[1] += bool(ok[0])
+                s[2] += bool(ok[1])
+                s[3] += o.get("time_s") or 0.0
+            else:
+                cells += [kept, "not run", ""]
+            out.append("| " + " | ".join(cells) + " |")
+    out += ["", "| method | " + " | ".join(f"{lab} 5°/2m (5°/0.6m)" for _, lab in OUTDOOR_SETS) + " | s/pair |",
+            "|---|" + "---|" * len(OUTDOOR_SETS) + "---:|"]
+    methods = [(lab, f"cgenreg FPFH + SC2-PCR, {lab}") for lab, _ in rows] + [
+        ("Open3D", f"Open3D {(o3d or {}).get('open3d', '?')} FPFH + RANSAC")]
+    for lab, title in methods:
+        cells, n_all, t_all = [], 0, 0.0
+        for key, _ in OUTDOOR_SETS:
+            s = summary.get((lab, key))
+            if not s:
+                cells.append("not run")
+                continue
+            cells.append(f"{s[1]}/{s[0]} ({s[2]}/{s[0]})")
+            n_all += s[0]
+            t_all += s[3]
+        out.append(f"| {title} | " + " | ".join(cells) + f" | {t_all / max(n_all, 1):.2f} |")
+    if o3d:
+        sources.append(f"- Open3D: `{o3d_rel}` (`scripts/open3d_outdoor.sh`), {o3d.get('method', '')}, "
+                       f"voxel {o3d.get('voxel_m')} m, seed {o3d.get('seed')}")
+    return "\n".join(out + ["", "From:"] + sources)
+
+
 BEGIN = "<!-- generated by scripts/tables.py: {} -->"
 END = "<!-- end of generated table -->"
 FILES = ["BENCHMARKS.md", "docs/ablation.md", "docs/studies.md", "docs/python.md"]
@@ -288,6 +390,8 @@ def render(name):
         return render_python(name)
     if name in GRIDS:
         return render_grid(name)
+    if name in OUTDOOR:
+        return render_outdoor(name)
     title, rows = TABLES[name]
     out = [
         f"| row | split | pairs | registered | RR % | RRE median ° | RTE median cm | s/pair |",
@@ -316,8 +420,9 @@ def rewrite(text):
 
     def sub(m):
         name = m.group(1)
-        if name not in TABLES and name not in GRIDS and name not in PYTHON_BENCH and name not in REPOSE:
-            known = ", ".join(list(TABLES) + list(GRIDS) + list(PYTHON_BENCH) + list(REPOSE))
+        if name not in TABLES and name not in GRIDS and name not in PYTHON_BENCH and name not in REPOSE \
+                and name not in OUTDOOR:
+            known = ", ".join(list(TABLES) + list(GRIDS) + list(PYTHON_BENCH) + list(REPOSE) + list(OUTDOOR))
             raise SystemExit(f"tables.py: unknown table {name!r} (known: {known})")
         found.append(name)
         return BEGIN.format(name) + "\n" + render(name) + "\n" + END

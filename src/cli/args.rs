@@ -53,10 +53,18 @@ fn frame_count(s: &str) -> Result<usize, String> {
 #[derive(Args, Debug, Clone)]
 pub struct PipelineArgs {
     /// Protocol to start from: indoor (3DMatch: voxel 0.05 m, thresholds 0.10 m, success
-    /// 15°/0.30 m) or outdoor (KITTI: voxel 0.3 m, thresholds 0.6 m, success 5°/2 m with
-    /// SC2-PCR's 5°/0.6 m beside it). Default: the manifest's `preset`, else indoor.
+    /// 15°/0.30 m), outdoor (KITTI: voxel 0.3 m, thresholds 0.6 m, success 5°/2 m with
+    /// SC2-PCR's 5°/0.6 m beside it) or outdoor-search (outdoor at the voxels 0.3, 0.6 and
+    /// 1.2 m, the pose most consistent with both scans' range views kept: LiDAR of unknown
+    /// scale). Default: the manifest's `preset`, else indoor.
     #[arg(long, value_enum)]
     pub preset: Option<Preset>,
+    /// Scale hypotheses: register at the voxels v, 2v, ..., 2^(N-1) v (every distance that
+    /// follows the voxel with it) and keep the pose most consistent with both scans' depth
+    /// views (sensor frames, else 360° range images at each scan's estimated sensor position;
+    /// for LiDAR). 1: the voxel alone. Default: the preset's (3 for outdoor-search, else 1).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=6))]
+    pub scales: Option<u32>,
     /// Keypoint voxel size in metres (default: the preset's). FPFH radii follow it (normals
     /// 2v, features 5v), and so do the thresholds not set below (2v) and the lift radius (1v).
     #[arg(long, value_parser = positive_f64, allow_negative_numbers = true)]
@@ -210,6 +218,9 @@ impl PipelineArgs {
     pub fn apply_overrides(&self, p: &mut RegisterParams) {
         if let Some(v) = self.voxel {
             p.voxel = v;
+        }
+        if let Some(n) = self.scales {
+            p.scales = n;
         }
         if let Some(t) = self.inlier_threshold {
             p.inlier_threshold = Scaled::Set(t);

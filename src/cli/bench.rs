@@ -499,9 +499,13 @@ pub fn run(a: BenchArgs) -> Result<()> {
                         .as_ref()
                         .map(|t| t.translation.vector.norm()),
                     fusion: r.fusion_provenance(),
+                    scales: r.scales.as_ref().map(|s| s.provenance()),
                 };
-                if let Some(f) = r.fusion_provenance() {
-                    log_line(&bar, &format!("{}: {f}", spec.id));
+                for line in [r.fusion_provenance(), row.scales.clone()]
+                    .into_iter()
+                    .flatten()
+                {
+                    log_line(&bar, &format!("{}: {line}", spec.id));
                 }
                 (row, stages, DONE)
             }

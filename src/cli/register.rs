@@ -199,6 +199,9 @@ pub fn print_human(r: &RegistrationResult) {
     if let Some(f) = r.fusion_provenance() {
         outln!("{f}");
     }
+    if let Some(s) = &r.scales {
+        outln!("{}", s.provenance());
+    }
     outln!(
         "keypoints: {} source, {} target; {} correspondences, {} inliers ({})",
         r.n_source_keypoints,

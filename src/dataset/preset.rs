@@ -19,15 +19,20 @@ pub enum Preset {
     /// 8000 correspondences; success RRE ≤ 5°, RTE ≤ 2 m (KITTI's benchmark), SC2-PCR's
     /// 5° / 0.6 m beside it.
     Outdoor,
+    /// The outdoor protocol plus scale hypotheses (voxels 0.3, 0.6 and 1.2 m, the pose most
+    /// consistent with both scans' range views kept): for LiDAR data whose scale no published
+    /// configuration fixes (docs/outdoor.md, "Scale hypotheses").
+    OutdoorSearch,
 }
 
 impl Preset {
-    pub const ALL: [Preset; 2] = [Preset::Indoor, Preset::Outdoor];
+    pub const ALL: [Preset; 3] = [Preset::Indoor, Preset::Outdoor, Preset::OutdoorSearch];
 
     pub fn name(self) -> &'static str {
         match self {
             Preset::Indoor => "indoor",
             Preset::Outdoor => "outdoor",
+            Preset::OutdoorSearch => "outdoor-search",
         }
     }
 
@@ -35,6 +40,7 @@ impl Preset {
         match self {
             Preset::Indoor => "indoor (3DMatch protocol)",
             Preset::Outdoor => "outdoor (KITTI protocol)",
+            Preset::OutdoorSearch => "outdoor, scale search (KITTI protocol at 3 voxels)",
         }
     }
 
@@ -42,7 +48,16 @@ impl Preset {
     pub fn voxel(self) -> f64 {
         match self {
             Preset::Indoor => 0.05,
-            Preset::Outdoor => 0.3,
+            Preset::Outdoor | Preset::OutdoorSearch => 0.3,
+        }
+    }
+
+    /// Scale hypotheses: the registration at the voxels v, 2 v, ... (`scales` octaves), the
+    /// most visibility-consistent pose kept; 1 = the voxel alone.
+    pub fn scales(self) -> u32 {
+        match self {
+            Preset::Indoor | Preset::Outdoor => 1,
+            Preset::OutdoorSearch => 3,
         }
     }
 
@@ -58,7 +73,7 @@ impl Preset {
                 primary: SuccessCriterion::THREEDMATCH,
                 also: None,
             },
-            Preset::Outdoor => SuccessCriteria {
+            Preset::Outdoor | Preset::OutdoorSearch => SuccessCriteria {
                 primary: SuccessCriterion::KITTI,
                 also: Some(SuccessCriterion::SC2PCR_KITTI),
             },

@@ -62,6 +62,8 @@ pub(crate) fn spinnet_input(params: &RegisterParams) -> Option<SpinNetInput<'_>>
         inlier_threshold: _,
         image: _,
         success: _,
+        // each scale hypothesis is a registration at one voxel
+        scales: _,
     } = params;
     match geo_features {
         GeoFeatureSource::Spinnet {

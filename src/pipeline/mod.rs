@@ -6,7 +6,8 @@
 //! in-memory tail: similarity to evaluation), `stages` (one file per cached stage),
 //! `plan` (the stage graph: the ordered steps of a registration with their keys, and what a
 //! change invalidates), `image_branch` (runs the image branch's steps), `register` (the entry
-//! point, [`Registration`]: plan, then run), then
+//! point, [`Registration`]: plan, then run; `scales` runs it at several voxels and keeps the
+//! most visibility-consistent pose), then
 //! `study` and `shard` (many pairs).
 
 pub mod export;
@@ -18,6 +19,7 @@ pub mod params;
 pub mod plan;
 pub mod register;
 pub mod result;
+pub mod scales;
 pub mod shard;
 pub mod stages;
 pub mod study;

@@ -136,6 +136,19 @@ pub struct RegisterParams {
     /// indoor settings serialise as before (run files resume across the change).
     #[serde(default, skip_serializing_if = "is_default_success")]
     pub success: SuccessCriteria,
+    /// Scale hypotheses: the whole registration at the voxels v, 2 v, ..., 2^(scales-1) v, the
+    /// pose most consistent with both scans' depth views kept ([`super::scales`]); 1 = the
+    /// voxel alone (not written then, so earlier run files resume).
+    #[serde(default = "one_scale", skip_serializing_if = "is_one")]
+    pub scales: u32,
+}
+
+fn one_scale() -> u32 {
+    1
+}
+
+fn is_one(n: &u32) -> bool {
+    *n == 1
 }
 
 fn is_default_success(s: &SuccessCriteria) -> bool {
@@ -152,6 +165,7 @@ impl Preset {
     pub fn apply(self, p: &mut RegisterParams) {
         p.voxel = self.voxel();
         p.success = self.success();
+        p.scales = self.scales();
         p.inlier_threshold = Scaled::FollowVoxel;
         match &mut p.estimator {
             EstimatorKind::Sc2Pcr(s) => {
@@ -223,6 +237,7 @@ impl Default for RegisterParams {
             inlier_threshold: Scaled::FollowVoxel,
             image: None,
             success: SuccessCriteria::default(),
+            scales: 1,
         }
     }
 }
@@ -476,6 +491,28 @@ mod tests {
         let also = p.success.also.unwrap();
         assert_eq!((also.max_rre_deg, also.max_rte_m), (5.0, 0.6));
         assert_eq!(Preset::of(&p), Some(Preset::Outdoor));
+    }
+
+    #[test]
+    fn outdoor_search_is_the_outdoor_preset_at_three_octaves() {
+        let p = RegisterParams::preset(Preset::OutdoorSearch);
+        let single = RegisterParams::preset(Preset::Outdoor);
+        assert_eq!((p.scales, single.scales), (3, 1));
+        assert_eq!(
+            RegisterParams {
+                scales: 1,
+                ..p.clone()
+            },
+            single,
+            "everything else is the outdoor preset"
+        );
+        assert_eq!(Preset::of(&p), Some(Preset::OutdoorSearch));
+        // one scale is not written, so run files of single-voxel runs read as before
+        let json = serde_json::to_value(&single).unwrap();
+        assert!(json.get("scales").is_none(), "{json}");
+        assert_eq!(serde_json::to_value(&p).unwrap()["scales"], 3);
+        let back: RegisterParams = serde_json::from_value(json).unwrap();
+        assert_eq!(back.scales, 1);
     }
 
     #[test]

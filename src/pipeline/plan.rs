@@ -348,6 +348,8 @@ pub(crate) fn learned_geo_keys(params: &RegisterParams) -> Result<Vec<String>> {
         inlier_threshold: _,
         image: _,
         success: _,
+        // each scale hypothesis is a registration at one voxel
+        scales: _,
     } = params;
     let k = CacheKey::new(
         "geo-learned",

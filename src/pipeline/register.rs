@@ -101,7 +101,12 @@ impl<'a> Registration<'a> {
     /// is set, then the in-memory tail. With `keep`, the result holds the tail's inputs; it
     /// always holds the plan it ran with every key filled ([`RegistrationResult::plan`]).
     /// It runs the steps of [`Plan::skeleton`] (no key is computed twice).
+    /// With `params.scales` > 1 it is the scale search ([`super::scales`]): this run at each
+    /// hypothesis's voxel, the most visibility-consistent pose kept (its plan in the result).
     pub fn run(&self, pair: &ScanPair) -> Result<RegistrationResult> {
+        if self.params.scales > 1 {
+            return super::scales::register(self, pair);
+        }
         self.run_plan(Plan::skeleton(pair, self.params), pair)
     }
 
@@ -117,6 +122,11 @@ impl<'a> Registration<'a> {
     /// Crate-internal: [`Self::run`] is the public way in (the inspector's worker runs the plan
     /// it made to find its kept geometric branch).
     pub(crate) fn run_plan(&self, mut plan: Plan, pair: &ScanPair) -> Result<RegistrationResult> {
+        if self.params.scales > 1 {
+            return Err(Error::Invalid(
+                "a scale search runs through Registration::run (one plan per hypothesis)".into(),
+            ));
+        }
         if plan.params() != self.params {
             return Err(Error::Invalid(
                 "the plan was made for other parameters than the registration's".into(),

@@ -39,6 +39,9 @@ pub struct PairRow {
     /// The `union` fusion's provenance line (None for the other modes).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub fusion: Option<String>,
+    /// The scale search's provenance line (None for a single voxel).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub scales: Option<String>,
 }
 
 impl PairRow {

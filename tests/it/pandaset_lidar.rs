@@ -123,3 +123,70 @@ fn pandaset_sensor_origin_is_recovered_from_the_scan() {
         }
     }
 }
+
+/// The scale search (`outdoor-search`, the manifest's preset): the registration at the voxels
+/// 0.3, 0.6 and 1.2 m, the pose most consistent with both scans' range views kept. Guards the
+/// headline (both PandaSet pairs at KITTI's 5° / 2 m, where the single 0.3 m voxel of the
+/// published KITTI configuration registers neither) and one development pair of the choice
+/// (docs/outdoor.md, "Scale hypotheses"). Every hypothesis is in the report, and the kept one
+/// has the largest visibility score.
+#[test]
+fn pandaset_pairs_register_with_the_scale_search() {
+    use cgenreg::dataset::preset::Preset;
+    use cgenreg::pipeline::{RegisterParams, Registration};
+    let Some(_root) = cgenreg::testing::test_data_root() else {
+        return;
+    };
+    let ds = Dataset::load(&manifest()).unwrap();
+    assert_eq!(ds.preset, Some(Preset::OutdoorSearch));
+    let dev = Dataset::load(
+        &Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/manifests/pandaset-dev.toml"),
+    )
+    .unwrap();
+    // the development pairs never involve frame 0, which every evaluated pair has
+    assert!(dev
+        .pairs()
+        .iter()
+        .all(|p| !p.id.contains("000000") && !ds.pairs().iter().any(|q| q.id == p.id)));
+    let dir = tempfile::tempdir().unwrap();
+    let cache = cgenreg::cache::Cache::open(dir.path()).unwrap();
+    let runs = [
+        (&ds, "pandaset/ego_000000-world_000040"),
+        (&ds, "pandaset/ego_000000-world_000070"),
+        (&dev, "pandaset-dev/world_000070-world_000040"),
+    ];
+    // geometry alone as `register` and `bench` run it without --wfm: nearest-neighbour selection
+    let mut params = RegisterParams::preset(Preset::OutdoorSearch);
+    params.fusion.selection = cgenreg::fusion::select::Selection::RowNn;
+    for (set, id) in runs {
+        let pair = set.load_pair(id).unwrap();
+        let r = Registration::new(&params).cache(&cache).run(&pair).unwrap();
+        let m = r.metrics.as_ref().unwrap();
+        let report = r
+            .scales
+            .as_ref()
+            .expect("a scale search reports its hypotheses");
+        println!(
+            "{id}: RRE {:.2}°, RTE {:.3} m, {}; {}",
+            m.rre_deg,
+            m.rte_m,
+            if m.success { "success" } else { "failure" },
+            report.provenance()
+        );
+        let voxels: Vec<f64> = report.hypotheses.iter().map(|h| h.voxel).collect();
+        assert_eq!(voxels.len(), 3, "{voxels:?}");
+        assert!((voxels[2] - 1.2).abs() < 1e-9, "{voxels:?}");
+        let best = report.hypotheses.iter().map(|h| h.score).max().unwrap();
+        let kept = report
+            .hypotheses
+            .iter()
+            .find(|h| h.voxel == report.chosen_voxel)
+            .unwrap();
+        assert_eq!(kept.score, best);
+        assert!(
+            (report.theta - 0.6).abs() < 1e-9,
+            "scored at the finest threshold"
+        );
+        assert!(m.success, "{id}: {m:?}");
+    }
+}

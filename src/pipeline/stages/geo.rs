@@ -28,6 +28,8 @@ pub fn settings(p: &RegisterParams) -> f64 {
         inlier_threshold: _,
         image: _,
         success: _,
+        // each scale hypothesis is a registration at one voxel
+        scales: _,
     } = p;
     *voxel
 }

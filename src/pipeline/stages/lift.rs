@@ -33,6 +33,8 @@ pub fn settings(p: &RegisterParams) -> f32 {
         inlier_threshold: _,
         image,
         success: _,
+        // each scale hypothesis is a registration at one voxel
+        scales: _,
     } = p;
     let Some(ib) = image else {
         return 0.0;
