@@ -65,20 +65,10 @@ pub fn categorical(i: usize) -> [u8; 3] {
     hsv(h, 0.85, 0.95)
 }
 
+/// HSV (hue in turns) to 8-bit RGB ([`crate::io::color::hsv_to_rgb`]).
 pub fn hsv(h: f32, s: f32, v: f32) -> [u8; 3] {
-    let h6 = h.fract() * 6.0;
-    let c = v * s;
-    let x = c * (1.0 - ((h6 % 2.0) - 1.0).abs());
-    let (r, g, b) = match h6 as i32 {
-        0 => (c, x, 0.0),
-        1 => (x, c, 0.0),
-        2 => (0.0, c, x),
-        3 => (0.0, x, c),
-        4 => (x, 0.0, c),
-        _ => (c, 0.0, x),
-    };
-    let m = v - c;
-    let q = |u: f32| ((u + m) * 255.0).round() as u8;
+    let q = |u: f32| (u * 255.0).round() as u8;
+    let [r, g, b] = crate::io::color::hsv_to_rgb(h * 360.0, s, v);
     [q(r), q(g), q(b)]
 }
 

@@ -3,6 +3,7 @@
 
 pub mod camera_txt;
 pub mod cloud;
+pub mod color;
 pub mod depth_png;
 pub mod gtlog;
 pub mod json_diff;

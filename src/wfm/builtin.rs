@@ -20,6 +20,7 @@
 
 use super::backend::{now_unix, GenerateRequest, Generation, Provenance, WfmBackend};
 use crate::error::{Error, Result};
+use crate::io::color::hsv_to_rgb as hsv;
 use image::RgbImage;
 use rayon::prelude::*;
 
@@ -47,22 +48,6 @@ struct Palette {
     flat: [f32; 3],
     fog: [f32; 3],
     void: [f32; 3],
-}
-
-fn hsv(h: f32, s: f32, v: f32) -> [f32; 3] {
-    let h = h.rem_euclid(360.0) / 60.0;
-    let c = v * s;
-    let x = c * (1.0 - ((h % 2.0) - 1.0).abs());
-    let (r, g, b) = match h as u32 {
-        0 => (c, x, 0.0),
-        1 => (x, c, 0.0),
-        2 => (0.0, c, x),
-        3 => (0.0, x, c),
-        4 => (x, 0.0, c),
-        _ => (c, 0.0, x),
-    };
-    let m = v - c;
-    [r + m, g + m, b + m]
 }
 
 fn palette(prompt: &str) -> (Palette, String) {
