@@ -148,45 +148,24 @@ pub fn missing_files(p: &RegisterParams) -> Vec<std::path::PathBuf> {
 /// A one-line description of registration settings: geometric features, image branch (WFM,
 /// VFM, K), fusion, selection, estimator.
 pub fn settings_summary(p: &RegisterParams) -> String {
-    use crate::fusion::{FusionMode, Selection};
-    use crate::pipeline::params::{GeoFeatureSource, WfmSpec};
-    let geo = match &p.geo_features {
-        GeoFeatureSource::Fpfh => "FPFH".to_string(),
-        GeoFeatureSource::Files { .. } => "learned features (files)".to_string(),
-        GeoFeatureSource::GeoTransformerPkl { .. } => "GeoTransformer pkl".to_string(),
-        GeoFeatureSource::Spinnet {
-            protocol,
-            keypoints,
-            ..
-        } => format!("SpinNet {} ({keypoints} keypoints)", protocol.name()),
-    };
+    use super::labels;
     let mut parts = vec![format!(
-        "{geo} (voxel {} cm)",
+        "{} (voxel {} cm)",
+        labels::geo(&p.geo_features),
         (p.voxel * 1000.0).round() / 10.0
     )];
+    parts.extend(labels::scales(p));
     match &p.image {
         None => parts.push("no image branch".into()),
-        Some(ib) => {
-            let wfm = match &ib.backend {
-                WfmSpec::Oracle => "oracle RGB",
-                WfmSpec::Builtin => "built-in shading (not a WFM)",
-                WfmSpec::Cached { .. } => "cached Cosmos output",
-                WfmSpec::Cosmos { .. } => "Cosmos-Transfer1",
-            };
-            parts.push(format!("{wfm} + {} K={}", ib.vfm.name(), ib.k));
-        }
+        Some(ib) => parts.push(format!(
+            "{} + {} K={}",
+            labels::wfm(&ib.backend),
+            labels::vfm(ib),
+            ib.k
+        )),
     }
-    let mode = if p.image.is_none() {
-        FusionMode::GeometryOnly
-    } else {
-        p.fusion.mode
-    };
-    parts.push(mode.label().to_string());
-    parts.push(match p.fusion.selection {
-        Selection::MutualNn => "mutual NN".to_string(),
-        Selection::RowNn => "NN".to_string(),
-        Selection::TopK(k) => format!("top-{k}"),
-    });
+    parts.push(labels::fusion(p).to_string());
+    parts.push(labels::selection(p.fusion.selection));
     parts.push(p.estimator.label().to_string());
     parts.join(" | ")
 }
@@ -710,10 +689,10 @@ mod tests {
         assert!(b.register_params().unwrap().image.is_some());
         assert_eq!(
             a.settings_summary(),
-            "FPFH (voxel 5 cm) | no image branch | Geometry only | NN | SC2-PCR"
+            "FPFH (voxel 5 cm) | no image branch | geometry only | NN | SC2-PCR"
         );
         assert!(
-            b.settings_summary().contains("oracle RGB + xfeat K=4"),
+            b.settings_summary().contains("oracle RGB + XFeat K=4"),
             "{}",
             b.settings_summary()
         );

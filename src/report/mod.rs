@@ -3,3 +3,4 @@
 //! its `RegisterParams`), below the CLI and the app.
 
 pub mod compare;
+pub mod labels;

@@ -19,7 +19,7 @@ pub struct LoadedRun {
     pub params: Result<RegisterParams, String>,
     /// The run's manifest, found here (see [`BenchRun::resolve_manifest`]).
     pub manifest: Option<PathBuf>,
-    /// "FPFH (voxel 5 cm) | no image branch | Geometry only | NN | SC2-PCR".
+    /// "FPFH (voxel 5 cm) | no image branch | geometry only | NN | SC2-PCR".
     pub summary: String,
     /// Files the settings name that are missing here (e.g. the VFM model of another machine).
     pub missing: Vec<PathBuf>,
