@@ -21,7 +21,10 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 RUNS = ["dev-fpfh", "dev-spinnet-128", "dev-spinnet-256", "kitti-fpfh", "kitti-spinnet-128",
         "staged-fpfh", "staged-spinnet-128", "kitti-spinnet-512-probe",
         "staged-fpfh-oracle", "staged-spinnet-128-oracle", "rgbd-fpfh", "rgbd-spinnet-128",
-        "rgbd-fpfh-oracle", "rgbd-spinnet-128-oracle", "kitti-fpfh-builtin", "kitti-spinnet-128-builtin"]
+        "rgbd-fpfh-oracle", "rgbd-spinnet-128-oracle", "kitti-fpfh-builtin", "kitti-spinnet-128-builtin",
+        # the evaluated rows at 256, the count chosen on every development pair (KEYPOINTS=256)
+        "kitti-spinnet-256", "staged-spinnet-256", "staged-spinnet-256-oracle", "rgbd-spinnet-256",
+        "rgbd-spinnet-256-oracle", "kitti-spinnet-256-builtin"]
 
 
 def relative(d):
@@ -54,7 +57,8 @@ def main():
     os.makedirs(dest, exist_ok=True)
     summary = {"runs": {}, "note": "geometry only (SC2-PCR, nearest-neighbour selection) unless a run's name ends "
                "in -oracle or -builtin (the image branch with ALIKE-t and the default fusion); SpinNet at the "
-               "keypoint count chosen on the development pair; times on a 2-core machine shared with other "
+               "keypoint count in its name (128: chosen on the development pair; 256: on every development pair, the "
+               "default); times on a 2-core machine shared with other "
                "work (wall) and the process's own CPU time (user)"}
     # runs of an earlier bench folder that this one does not hold keep their committed entry
     old_path = os.path.join(dest, "summary.json")

@@ -92,8 +92,8 @@ pub struct PipelineArgs {
     /// $CGENREG_SPINNET_DIR/spinnet-<protocol>.onnx).
     #[arg(long, requires = "geo_features")]
     pub spinnet_model: Option<PathBuf>,
-    /// SpinNet keypoints per scan, drawn from the voxel-downsampled cloud (default 128, chosen on
-    /// the development pair; docs/spinnet.md).
+    /// SpinNet keypoints per scan, drawn from the voxel-downsampled cloud (default 256, chosen on
+    /// the development pairs; docs/spinnet.md).
     #[arg(long, requires = "geo_features", value_parser = clap::value_parser!(u64).range(1..=1_000_000))]
     pub spinnet_keypoints: Option<u64>,
     /// Calibration of both branches (row: the paper's eq. 5; dual: the reference code's).
