@@ -310,6 +310,16 @@ impl Worker for Recorder {
 /// What a recording worker was sent.
 type Commands = Arc<Mutex<Vec<Command>>>;
 
+/// Waits (up to 10 s) until `cond` holds: the recording worker runs on its own thread, so a
+/// command the UI sent is in its list a little later, later still on a loaded machine. The
+/// caller asserts afterwards.
+fn eventually(cond: impl Fn() -> bool) {
+    let t0 = std::time::Instant::now();
+    while !cond() && t0.elapsed() < std::time::Duration::from_secs(10) {
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+}
+
 /// The demo app whose worker records the commands it is sent (they are not run), two frames in.
 fn recording_harness() -> Option<(Harness<'static, App>, Commands)> {
     let seen = Arc::new(Mutex::new(Vec::new()));
@@ -759,10 +769,7 @@ fn the_geometric_features_control_picks_spinnet() {
             .iter()
             .any(|c| matches!(c, Command::ApplySettings(p) if p.geo_features == want))
     };
-    let t0 = std::time::Instant::now();
-    while !sent() && t0.elapsed() < std::time::Duration::from_secs(10) {
-        std::thread::sleep(std::time::Duration::from_millis(20));
-    }
+    eventually(sent);
     assert!(sent(), "{:?}", seen.lock().unwrap());
     assert!(h
         .query_all_by_label("SpinNet keypoints per scan")
@@ -924,6 +931,8 @@ fn apply_prompt_below_the_fold_applies_the_draft_and_revert_drops_it() {
     h.get_by_label("Apply prompt").click();
     h.run_steps(3);
     let general = PromptPreset::General.default_scene();
+    // the worker thread records a command when it gets it: wait for it (a loaded machine)
+    eventually(|| !applied(&seen).is_empty());
     let sent = applied(&seen);
     assert_eq!(sent.len(), 1, "{sent:?}");
     assert_eq!(sent[0].image.as_ref().unwrap().prompt.scene, general);
