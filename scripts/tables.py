@@ -104,10 +104,14 @@ TABLES = {
              "docs/results/spinnet/staged-fpfh-builtin.json"),
             ("staged: SpinNet 3DMatch 128, built-in frames (NOT a WFM) + ALIKE-t, visibility fusion",
              "docs/results/spinnet/staged-spinnet-128-builtin.json"),
+            ("staged: SpinNet 3DMatch 256, built-in frames (NOT a WFM) + ALIKE-t, visibility fusion",
+             "docs/results/spinnet/staged-spinnet-256-builtin.json"),
             ("redkitchen-rgbd: FPFH, built-in frames (NOT a WFM) + ALIKE-t, visibility fusion",
              "docs/results/spinnet/rgbd-fpfh-builtin.json"),
             ("redkitchen-rgbd: SpinNet 3DMatch 128, built-in frames (NOT a WFM) + ALIKE-t, visibility fusion",
              "docs/results/spinnet/rgbd-spinnet-128-builtin.json"),
+            ("redkitchen-rgbd: SpinNet 3DMatch 256, built-in frames (NOT a WFM) + ALIKE-t, visibility fusion",
+             "docs/results/spinnet/rgbd-spinnet-256-builtin.json"),
         ],
     ),
     "outdoor-dev": (
@@ -133,7 +137,9 @@ TABLES = {
 REPOSE = {
     "spinnet-repose": (
         [("FPFH + SC2-PCR (geometry only, NN)", "docs/results/spinnet/repose-fpfh"),
-         ("SpinNet 3DMatch, 128 keypoints (geometry only, NN)", "docs/results/spinnet/repose-spinnet-128")],
+         ("SpinNet 3DMatch, 128 keypoints (geometry only, NN)", "docs/results/spinnet/repose-spinnet-128"),
+         ("SpinNet 3DMatch, 256 keypoints, the default (geometry only, NN)",
+          "docs/results/spinnet/repose-spinnet-256")],
         list(range(1, 4)),
     ),
 }
