@@ -100,6 +100,19 @@ pub fn visibility(
     out
 }
 
+/// Both directions of a pose's visibility: `source` keypoints moved by `target_from_source`
+/// against the target's views, plus `target` keypoints moved back against the source's (the
+/// score the `visibility` fusion and the scale search compare poses by).
+pub fn both_ways(
+    (source, target): (&[Point3<f32>], &[Point3<f32>]),
+    target_from_source: &Isometry3<f64>,
+    (source_views, target_views): (&[DepthView<'_>], &[DepthView<'_>]),
+    theta: f64,
+) -> Visibility {
+    visibility(source, target_from_source, target_views, theta)
+        + visibility(target, &target_from_source.inverse(), source_views, theta)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -15,7 +15,7 @@ use super::register::Registration;
 use super::result::{RegistrationResult, StageTiming};
 use super::stages::virtual_frames::{virtual_frames, FrameStore};
 use super::visibility::{choose, PairViews};
-use crate::camera::visibility::{visibility, Visibility};
+use crate::camera::visibility::both_ways;
 use crate::dataset::{FrameSet, Scan, ScanPair};
 use crate::error::{Error, Result};
 use crate::estimate::scale::Scaled;
@@ -169,8 +169,12 @@ pub(crate) fn register(reg: &Registration, pair: &ScanPair) -> Result<Registrati
         .iter()
         .zip(&results)
         .map(|(&voxel, r)| {
-            let v: Visibility = visibility(src_pts, &r.estimate, &tgt_views, theta)
-                + visibility(tgt_pts, &r.estimate.inverse(), &src_views, theta);
+            let v = both_ways(
+                (src_pts, tgt_pts),
+                &r.estimate,
+                (&src_views, &tgt_views),
+                theta,
+            );
             ScaleHypothesis {
                 voxel,
                 consistent: v.consistent,

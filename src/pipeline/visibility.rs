@@ -13,7 +13,7 @@ use super::params::RegisterParams;
 use super::result::{RegistrationResult, StageTiming, Timer};
 use super::tail::{finish, EstimateMemo, FusionInputs, Similarities};
 use super::union::{from_sets, member_sets};
-use crate::camera::visibility::{visibility, DepthView, Visibility};
+use crate::camera::visibility::{both_ways, DepthView};
 use crate::dataset::{FrameSet, ScanPair};
 use crate::error::{Error, Result};
 use crate::io::depth_png::{read_depth_png, DepthImage};
@@ -201,8 +201,12 @@ pub(crate) fn register(
         .iter()
         .zip(&results)
         .map(|(&pose, r)| {
-            let v: Visibility = visibility(src_pts, &r.estimate, &tgt_views, theta)
-                + visibility(tgt_pts, &r.estimate.inverse(), &src_views, theta);
+            let v = both_ways(
+                (src_pts, tgt_pts),
+                &r.estimate,
+                (&src_views, &tgt_views),
+                theta,
+            );
             CandidateScore {
                 pose,
                 consistent: v.consistent,
