@@ -163,7 +163,8 @@ pub(crate) fn register(reg: &Registration, pair: &ScanPair) -> Result<Registrati
     let finest = results
         .first()
         .ok_or_else(|| Error::Invalid("scales: no hypothesis".into()))?;
-    let theta = hypothesis_params(reg.params, voxels[0]).inlier_threshold_m();
+    // every hypothesis keeps the search's own inlier threshold (`hypothesis_params`)
+    let theta = reg.params.inlier_threshold_m();
     let (src_pts, tgt_pts) = (&finest.source_keypoints, &finest.target_keypoints);
     let hypotheses: Vec<ScaleHypothesis> = voxels
         .iter()
