@@ -2,6 +2,10 @@
 # The one command that passes the tests on a fresh machine (README, .ci/run).
 set -euo pipefail
 cd "$(dirname "$0")/.."
+# Each step's start, in seconds since this script began (what a CI log needs to see where the time goes).
+start=$(date +%s)
+step() { echo "== [$(($(date +%s) - start)) s] $*"; }
+step "setup"
 CGENREG_SETUP_SKIP_SPINNET=1 bash scripts/setup.sh
 export CGENREG_DATA="${CGENREG_DATA:-$(cd .. && pwd)/shared/data}"
 # A clean clone builds everything once: incremental compilation only adds its bookkeeping there.
@@ -12,27 +16,33 @@ status=0
 mkdir -p target
 prep_log=target/test-prepare.log
 # At a lower priority: the build is the critical path, the download mostly waits on the network.
-(nice -n 10 bash scripts/spinnet_prepare.sh && nice -n 10 bash scripts/test_python.sh --prepare) \
+(nice -n 10 bash scripts/spinnet_prepare.sh && echo "== [$(($(date +%s) - start)) s] SpinNet ready" &&
+  nice -n 10 bash scripts/test_python.sh --prepare && echo "== [$(($(date +%s) - start)) s] Python venv ready") \
   >"$prep_log" 2>&1 &
 prep_pid=$!
 # Test targets only: the crate has no doc tests, and the examples (built by a bare `cargo test`
 # only to see that they compile; clippy --all-targets does that) cost a link each.
+step "test build"
 cargo test --lib --bins --tests --no-run 2>&1 || status=$?
+step "waiting for the background preparation"
 prep_status=0
 wait "$prep_pid" || prep_status=$?
 echo "== background preparation (SpinNet export, Python venv): exit $prep_status"
 cat "$prep_log"
+step "tests"
 cargo test --lib --bins --tests --no-fail-fast 2>&1 || status=$?
 # Result tables are generated from the committed JSONs; a hand edit or a new JSON without a rerun fails.
+step "result tables"
 python3 scripts/tables.py --check || status=$?
 # The narrower kernels on a wider CPU (same binary; CGENREG_SIMD caps the detected features):
 # the fusion and SC2-PCR kernels must give the same bits at every width.
 for isa in avx2 scalar; do
-  echo "== CGENREG_SIMD=$isa: fusion, estimate and simd unit tests"
+  step "CGENREG_SIMD=$isa: fusion, estimate and simd unit tests"
   CGENREG_SIMD=$isa cargo test --lib --no-fail-fast -- fusion:: estimate:: simd:: 2>&1 || status=$?
 done
 # The Python package (pip install . gives it): built in the dev profile into target/, tested
 # with pytest in a private virtual environment under target/.
-echo "== Python package: tests/python"
+step "Python package: tests/python"
 bash scripts/test_python.sh 2>&1 || status=$?
+step "done (exit $status)"
 exit $status

@@ -23,6 +23,8 @@ if [ "${1:-}" = "--prepare" ]; then exit 0; fi
 # so that build's artifacts are reused (without the GUI, crates such as `half` get other
 # features and the ONNX stack is compiled a second time); the wheel `pip install .` builds
 # differs only in carrying no inspector (tested by monkeypatching the extension's HAS_GUI).
+SECONDS=0
 VIRTUAL_ENV="$venv" PATH="$venv/bin:$PATH" "$venv/bin/maturin" develop --quiet --features gui
+echo "test_python: extension built and installed in ${SECONDS} s"
 CGENREG_TEST_BIN="${CGENREG_TEST_BIN:-$PWD/target/debug/cgenreg}" \
   "$venv/bin/python" -m pytest -q -p no:cacheprovider tests/python "$@"
