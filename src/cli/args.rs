@@ -107,7 +107,8 @@ pub struct PipelineArgs {
     pub tau_geo: f32,
     /// Fusion of the two branches. Default: `visibility` when the image branch runs (the
     /// union's, the geometric branch's and Noisy-AND's poses; the one most consistent with both
-    /// scans' depth views is kept), Noisy-AND with `--reference` (the authors' code).
+    /// scans' depth views is kept; with virtual views of cloud-only scans, the union's pose),
+    /// Noisy-AND with `--reference` (the authors' code).
     #[arg(long, value_enum)]
     pub fusion: Option<FusionMode>,
     /// Noisy-AND prior; default 1/(N*M).

@@ -121,6 +121,7 @@ pub fn fragment_frames(seq: &RgbdSequence, first: usize, count: usize) -> Result
     Ok(FrameSet {
         camera: intrinsics.into(),
         frames,
+        origin: super::ViewOrigin::Sensor,
     })
 }
 

@@ -35,6 +35,37 @@ pub struct FrameSet {
     /// f-theta for the virtual camera of a LiDAR scan.
     pub camera: CameraModel,
     pub frames: Vec<RgbdFrame>,
+    /// Where the frames' cameras stand: whether an empty depth ray is one the sensor cast.
+    pub origin: ViewOrigin,
+}
+
+/// Where a frame set's cameras stand. A depth pixel says "this ray is empty up to depth d" only
+/// along a ray the sensor cast; the `visibility` fusion weighs free space only for sensor views.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ViewOrigin {
+    /// The sensor's own frames (an RGB-D fragment's).
+    Sensor,
+    /// Range images rendered at a LiDAR scan's sensor position (its scan origin or the
+    /// estimated one): the sensor's rays, resampled.
+    SensorPosition,
+    /// A virtual trajectory around a cloud-only scan: rays no sensor cast.
+    Virtual,
+}
+
+impl ViewOrigin {
+    /// Whether free space in these views is evidence (the sensor's rays).
+    pub fn is_sensor(self) -> bool {
+        matches!(self, ViewOrigin::Sensor | ViewOrigin::SensorPosition)
+    }
+
+    pub fn label(self) -> &'static str {
+        match self {
+            ViewOrigin::Sensor => "sensor frames",
+            ViewOrigin::SensorPosition => "range images at the sensor",
+            ViewOrigin::Virtual => "virtual views",
+        }
+    }
 }
 
 #[derive(Clone, Debug)]

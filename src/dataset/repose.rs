@@ -85,6 +85,7 @@ mod tests {
                 color_path: None,
                 scan_from_camera: Isometry3::translation(0.5, 0.0, 0.0),
             }],
+            origin: crate::dataset::ViewOrigin::Sensor,
         });
         ScanPair {
             id: "t/0-1".into(),

@@ -43,7 +43,8 @@ pub enum FusionMode {
     Union,
     /// The union's, the geometric branch's and Noisy-AND's poses, of which the one most
     /// consistent with both scans' depth views is kept (fewest points put into the space a
-    /// sensor saw through; `camera::visibility`). Its posterior is Noisy-AND's.
+    /// sensor saw through; `camera::visibility`). With virtual views of a cloud-only scan
+    /// (rays no sensor cast) the union's pose, nothing compared. Its posterior is Noisy-AND's.
     Visibility,
 }
 

@@ -7,14 +7,16 @@
 //! Chosen on development pairs by the written protocol (docs/ablation.md, "The fusion study,
 //! fourth round"): counts of correspondences cannot tell a correct small Noisy-AND cluster
 //! from a wrong but consistent large geometric one; whether a pose puts one scan into the
-//! space the other's sensor saw through can.
+//! space the other's sensor saw through can. Only along the sensor's own rays, though (fifth
+//! round): when either scan's views are a virtual trajectory around a cloud, empty pixels are
+//! only where the cloud has no points, and the union's pose is kept without comparing.
 
 use super::params::RegisterParams;
 use super::result::{RegistrationResult, StageTiming, Timer};
 use super::tail::{finish, EstimateMemo, FusionInputs, Similarities};
 use super::union::{from_sets, member_sets};
 use crate::camera::visibility::{both_ways, DepthView};
-use crate::dataset::{FrameSet, ScanPair};
+use crate::dataset::{FrameSet, ScanPair, ViewOrigin};
 use crate::error::{Error, Result};
 use crate::io::depth_png::{read_depth_png, DepthImage};
 use serde::{Deserialize, Serialize};
@@ -60,17 +62,44 @@ pub struct CandidateScore {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct VisibilityReport {
     pub chosen: Candidate,
-    /// Every candidate, in the tie order.
+    /// Every candidate, in the tie order (none when the views are virtual: nothing compared).
     pub candidates: Vec<CandidateScore>,
     /// The depth views each side was checked against.
     pub source_views: usize,
     pub target_views: usize,
+    /// Where the views' cameras stand (the weaker side's); poses are compared only for the
+    /// sensor's rays. Results written before this field existed compared every pose.
+    #[serde(default = "sensor_views")]
+    pub views: ViewOrigin,
+}
+
+fn sensor_views() -> ViewOrigin {
+    ViewOrigin::Sensor
+}
+
+/// The views of a pair as the visibility rule sees them: virtual when either side's are.
+pub fn pair_view_origin(source: ViewOrigin, target: ViewOrigin) -> ViewOrigin {
+    match (source, target) {
+        (ViewOrigin::Virtual, _) | (_, ViewOrigin::Virtual) => ViewOrigin::Virtual,
+        (ViewOrigin::SensorPosition, _) | (_, ViewOrigin::SensorPosition) => {
+            ViewOrigin::SensorPosition
+        }
+        _ => ViewOrigin::Sensor,
+    }
 }
 
 impl VisibilityReport {
     /// "fusion: visibility (kept the Noisy-AND pose; V = consistent - conflicting keypoints:
-    /// union -399, geometry -323, Noisy-AND 2056)".
+    /// union -399, geometry -323, Noisy-AND 2056)", or with virtual views "fusion: visibility
+    /// (virtual views: kept the union pose, poses not compared ...)".
     pub fn provenance(&self) -> String {
+        if !self.views.is_sensor() {
+            return format!(
+                "fusion: visibility ({}: kept the union pose; poses are compared only in views \
+                 from the sensor's position, where an empty pixel is a ray the sensor cast)",
+                self.views.label()
+            );
+        }
         let v: Vec<String> = self
             .candidates
             .iter()
@@ -135,6 +164,11 @@ impl PairViews {
             .map_err(|m| Error::Invalid(format!("fusion visibility: {m}")))
     }
 
+    /// Where the pair's cameras stand ([`pair_view_origin`] of both sides).
+    pub fn origin(&self) -> ViewOrigin {
+        pair_view_origin(self.source.origin, self.target.origin)
+    }
+
     /// (source views, target views).
     pub fn views(&self) -> Result<[Vec<DepthView<'_>>; 2]> {
         let [sd, td] = self.depths()?;
@@ -173,6 +207,27 @@ pub(crate) fn register(
         )
     })?;
     let t = Instant::now();
+    let origin = views.origin();
+    if !origin.is_sensor() {
+        // Nothing to compare: the union's pose, one estimate.
+        let (and, geo) = member_sets(params, inputs, sims, &mut timer)?;
+        let (n_src, n_tgt) = (views.source.frames.len(), views.target.frames.len());
+        let mut res = from_sets(pair, params, inputs, (&and, &geo), timer, memo)?;
+        let report = VisibilityReport {
+            chosen: Candidate::Union,
+            candidates: Vec::new(),
+            source_views: n_src,
+            target_views: n_tgt,
+            views: origin,
+        };
+        res.total_ms = t0.elapsed().as_secs_f64() * 1e3;
+        res.image_branch = inputs.image_label.as_ref().map(|l| {
+            let union = res.union.as_ref().map(|u| format!("; {}", u.provenance()));
+            format!("{l}; {}{})", report.provenance(), union.unwrap_or_default())
+        });
+        res.visibility = Some(report);
+        return Ok(res);
+    }
     let [src_views, tgt_views] = views.views()?;
     timer.record("visibility: depth views", t.elapsed(), false);
     let (and, geo) = member_sets(params, inputs, sims, &mut timer)?;
@@ -224,6 +279,7 @@ pub(crate) fn register(
         candidates,
         source_views: src_views.len(),
         target_views: tgt_views.len(),
+        views: origin,
     };
 
     let [union, g, a] = results;
@@ -288,6 +344,7 @@ mod tests {
             ],
             source_views: 50,
             target_views: 50,
+            views: ViewOrigin::Sensor,
         };
         let p = r.provenance();
         assert!(
@@ -298,5 +355,40 @@ mod tests {
             p.contains("union -399, geometry -323, Noisy-AND 2056"),
             "{p}"
         );
+        // With virtual views nothing is compared, and the provenance says why.
+        let v = VisibilityReport {
+            chosen: Candidate::Union,
+            candidates: Vec::new(),
+            views: ViewOrigin::Virtual,
+            ..r
+        };
+        let p = v.provenance();
+        assert!(
+            p.starts_with("fusion: visibility (virtual views: kept the union pose"),
+            "{p}"
+        );
+    }
+
+    #[test]
+    fn a_pair_is_virtual_when_either_side_is() {
+        use ViewOrigin::*;
+        for (s, t, want) in [
+            (Sensor, Sensor, Sensor),
+            (Sensor, SensorPosition, SensorPosition),
+            (SensorPosition, SensorPosition, SensorPosition),
+            (Virtual, Sensor, Virtual),
+            (SensorPosition, Virtual, Virtual),
+        ] {
+            assert_eq!(pair_view_origin(s, t), want, "{s:?} {t:?}");
+            assert_eq!(pair_view_origin(t, s), want, "{t:?} {s:?}");
+        }
+        assert!(Sensor.is_sensor() && SensorPosition.is_sensor() && !Virtual.is_sensor());
+    }
+
+    #[test]
+    fn a_report_written_before_the_views_field_reads_as_sensor_views() {
+        let old = r#"{"chosen":"noisy-and","candidates":[],"source_views":50,"target_views":50}"#;
+        let r: VisibilityReport = serde_json::from_str(old).unwrap();
+        assert_eq!(r.views, ViewOrigin::Sensor);
     }
 }

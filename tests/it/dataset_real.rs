@@ -325,6 +325,12 @@ fn dev4_manifest_uses_other_fragment_boundaries() {
     dev_manifest_uses_other_fragment_boundaries("redkitchen-dev4.toml", [6, 31], 15);
 }
 
+/// The fifth development set (fusion study, fifth round): fragments at 50k+18 and 50k+43.
+#[test]
+fn dev5_manifest_uses_other_fragment_boundaries() {
+    dev_manifest_uses_other_fragment_boundaries("redkitchen-dev5.toml", [18, 43], 13);
+}
+
 fn dev_manifest_uses_other_fragment_boundaries(file: &str, offsets: [usize; 2], pairs: usize) {
     use cgenreg::dataset::manifest::FragmentSource;
     let Some(_root) = cgenreg::testing::test_data_root() else {

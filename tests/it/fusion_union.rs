@@ -16,6 +16,19 @@ use std::path::Path;
 /// build.
 const DEV_PAIR: &str = "redkitchen-dev/f025-f425";
 
+/// [`DEV_PAIR`], its fragments rebuilt from the raw frames once for the tests that use it.
+fn dev_pair() -> &'static cgenreg::dataset::ScanPair {
+    static PAIR: std::sync::OnceLock<cgenreg::dataset::ScanPair> = std::sync::OnceLock::new();
+    PAIR.get_or_init(|| {
+        let manifest =
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/manifests/redkitchen-dev.toml");
+        Dataset::load(&manifest)
+            .unwrap()
+            .load_pair(DEV_PAIR)
+            .unwrap()
+    })
+}
+
 fn params(mode: FusionMode) -> RegisterParams {
     RegisterParams {
         image: Some(ImageBranchParams {
@@ -38,11 +51,8 @@ fn union_is_never_worse_than_its_best_branch_on_a_development_pair() {
     let Some(_) = cgenreg::testing::test_data_root() else {
         return;
     };
-    let manifest =
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/manifests/redkitchen-dev.toml");
-    let ds = Dataset::load(&manifest).unwrap();
     let p = params(FusionMode::Union);
-    let pair = ds.load_pair(DEV_PAIR).unwrap();
+    let pair = dev_pair().clone();
     let mut res = Registration::new(&p).keep(true).run(&pair).unwrap();
     let inputs = res.inputs.take().unwrap();
     let ok = |r: &cgenreg::pipeline::RegistrationResult| r.metrics.as_ref().unwrap().success;
@@ -159,4 +169,47 @@ fn visibility_keeps_the_small_correct_cluster_the_union_outvotes() {
     assert!(v.image_branch.as_deref().unwrap().contains(&line), "{line}");
     let json = serde_json::to_value(&v).unwrap();
     assert_eq!(json["visibility"]["chosen"], "noisy-and");
+}
+
+/// The same development pair as clouds only (D2 in docs/ablation.md: the fragments as plain
+/// clouds, so the image branch renders a virtual trajectory; built-in frames + ALIKE-t). In
+/// those views a wrong Noisy-AND pose once scored a higher V than the right geometric one; a
+/// virtual camera's empty pixels are not rays a sensor cast, so the visibility fusion compares
+/// nothing there and keeps the union's pose, which registers, as geometry alone does.
+#[test]
+fn visibility_keeps_the_union_pose_with_virtual_views() {
+    let Some(_) = cgenreg::testing::test_data_root() else {
+        return;
+    };
+    let mut pair = dev_pair().clone();
+    pair.source.frames = None;
+    pair.target.frames = None;
+    let mut p = params(FusionMode::Visibility);
+    p.image.as_mut().unwrap().backend = WfmSpec::Builtin;
+    let mut v = Registration::new(&p).keep(true).run(&pair).unwrap();
+    let inputs = v.inputs.take().unwrap();
+    let ok = |r: &cgenreg::pipeline::RegistrationResult| r.metrics.as_ref().unwrap().success;
+    let rep = v.visibility.as_ref().unwrap();
+    assert_eq!(rep.views, cgenreg::dataset::ViewOrigin::Virtual);
+    assert_eq!(rep.chosen, Candidate::Union);
+    assert!(rep.candidates.is_empty(), "nothing compared");
+    assert!(v
+        .fusion_provenance()
+        .unwrap()
+        .starts_with("fusion: visibility (virtual views: kept the union pose"));
+    let other = |mode, sel: Option<Selection>| {
+        let mut q = p.clone();
+        q.fusion.mode = mode;
+        if let Some(s) = sel {
+            q.fusion.selection = s;
+        }
+        Registration::new(&q)
+            .refuse_from_memory(&pair, &inputs, None)
+            .unwrap()
+    };
+    let union = other(FusionMode::Union, None);
+    assert_eq!(v.target_from_source, union.target_from_source);
+    let geo = other(FusionMode::GeometryOnly, Some(Selection::RowNn));
+    assert!(ok(&geo), "{:?}", geo.metrics);
+    assert!(ok(&v), "{:?}", v.metrics);
 }

@@ -264,6 +264,7 @@ pub fn virtual_frames(
         poses.push(camera_from_scan.inverse());
     }
     Ok(FrameSet {
+        origin: crate::dataset::ViewOrigin::SensorPosition,
         camera: CameraModel::FTheta(cam),
         frames: (0..l)
             .map(|i| {
@@ -473,6 +474,7 @@ fn frame_set(
 ) -> Result<FrameSet> {
     let poses = read_poses(e, l)?;
     Ok(FrameSet {
+        origin: crate::dataset::ViewOrigin::Virtual,
         camera: opts.intrinsics.into(),
         frames: poses
             .into_iter()
