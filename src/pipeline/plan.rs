@@ -499,10 +499,11 @@ mod tests {
         ds.load_pair(&id).unwrap()
     }
 
-    /// The demo's image-branch parameters (as `tests/common::demo_params`): L = 8, m = 1, K = 2.
+    /// The demo's image-branch parameters (as `tests/common::demo_params`): L = 8, m = 1, K = 2,
+    /// keypoints on a 10 cm grid (the plan does not depend on their number; the runs' cost does).
     fn demo_params() -> RegisterParams {
         RegisterParams {
-            voxel: 0.05,
+            voxel: 0.1,
             image: Some(ImageBranchParams {
                 backend: WfmSpec::Builtin,
                 frames_per_fragment: 8,
@@ -568,7 +569,7 @@ mod tests {
         assert_eq!(inv(&p), [Fusion]);
         // The estimator's threshold too.
         let mut p = old.clone();
-        p.inlier_threshold = crate::estimate::scale::Scaled::Set(0.2);
+        p.inlier_threshold = crate::estimate::scale::Scaled::Set(0.3);
         assert_eq!(inv(&p), [Fusion]);
 
         // K: view selection and everything after it; the depth video and generation stay.
@@ -591,7 +592,7 @@ mod tests {
         // described at the lifted pixels, the point features and the tail; the depth video
         // and the generation stay.
         let mut p = old.clone();
-        p.voxel = 0.04;
+        p.voxel = 0.12;
         assert_eq!(inv(&p), [Geo, Lift, Vfm, ImagePoints, Fusion]);
 
         // The VFM: its views and the point features (the lift keeps its pixels); the cell
@@ -619,7 +620,7 @@ mod tests {
 
         // The lift radius: the lift onward.
         let mut p = old.clone();
-        p.image.as_mut().unwrap().lift_radius = crate::estimate::scale::Scaled::Set(0.1);
+        p.image.as_mut().unwrap().lift_radius = crate::estimate::scale::Scaled::Set(0.15);
         assert_eq!(inv(&p), [Lift, Vfm, ImagePoints, Fusion]);
 
         // Without a cache the generation's input is not known before the depth video runs.
@@ -647,13 +648,13 @@ mod tests {
         changes.push(p);
         let mut p = old.clone();
         p.fusion.mode = crate::fusion::FusionMode::NoisyOr;
-        p.inlier_threshold = crate::estimate::scale::Scaled::Set(0.2);
+        p.inlier_threshold = crate::estimate::scale::Scaled::Set(0.3);
         changes.push(p);
         let mut p = old.clone();
         p.estimator = crate::estimate::EstimatorKind::WeightedSvd;
         changes.push(p);
         let mut p = old.clone();
-        p.voxel = 0.04;
+        p.voxel = 0.12;
         changes.push(p);
         let mut p = old.clone();
         p.image.as_mut().unwrap().k = 3;
@@ -692,7 +693,7 @@ mod tests {
         let keys = plan(&pair, &geo_only, None, &Memo::default()).unwrap();
         assert_eq!(keys.stages().collect::<Vec<_>>(), [Geo, Fusion]);
         let mut p = geo_only.clone();
-        p.voxel = 0.04;
+        p.voxel = 0.12;
         assert_eq!(
             invalidated(&pair, &geo_only, &p, None, &memo).unwrap(),
             [Geo, Fusion]
@@ -800,7 +801,7 @@ mod tests {
             Some(ran)
         );
         let mut other = p.clone();
-        other.voxel = 0.04;
+        other.voxel = 0.12;
         assert!(Registration::new(&other).run_plan(after, &pair).is_err());
 
         // A pair VFM: its point features instead of the views and per-image point features.

@@ -324,21 +324,22 @@ fn every_damaged_stage_entry_is_reported_unused_and_recomputed() {
     };
     let dir = tempfile::tempdir().unwrap();
     let manifest = dir.path().join("campaign.toml");
-    std::fs::write(&manifest, manifest_text(&root, 20)).unwrap();
+    std::fs::write(&manifest, manifest_text(&root, 12)).unwrap();
     let cache_dir = dir.path().join("cache");
     let cache = Cache::open(&cache_dir).unwrap();
     let ds = Dataset::load(&manifest)
         .unwrap()
         .with_fragment_cache(Some(cache.clone()));
     let id = ds.pairs()[0].id.clone();
-    // 10 cm keypoints (about a quarter of the 5 cm count): every run after an injection
-    // recomputes similarity, fusion and SC2-PCR, which scale with the keypoints, while what is
-    // tested (each damaged entry reported, unused and rewritten) does not depend on them.
+    // 10 cm keypoints (about a quarter of the 5 cm count) and fragments of 12 frames, L = 6:
+    // every run after an injection recomputes the damaged stage and the tail, whose cost scales
+    // with them, while what is tested (each damaged entry reported, unused and rewritten) does
+    // not depend on them.
     let p = RegisterParams {
         voxel: 0.1,
         image: Some(ImageBranchParams {
             backend: WfmSpec::Builtin,
-            frames_per_fragment: 10,
+            frames_per_fragment: 6,
             margin: 1,
             k: 2,
             ..Default::default()

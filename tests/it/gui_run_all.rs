@@ -29,11 +29,23 @@ fn data_root() -> Option<PathBuf> {
     None
 }
 
-/// A geometry-only worker on the staged manifest with its own (empty) stage cache.
+/// A geometry-only worker on the staged manifest with its own (empty) stage cache; keypoints on
+/// a 10 cm grid (a quarter of the default count: what Run all is checked for does not depend on
+/// it).
 fn worker(cache: &Path) -> PipelineWorker {
+    worker_with(
+        cache,
+        RegisterParams {
+            voxel: 0.1,
+            ..Default::default()
+        },
+    )
+}
+
+fn worker_with(cache: &Path, params: RegisterParams) -> PipelineWorker {
     let manifest =
         Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/manifests/redkitchen-staged.toml");
-    let mut w = PipelineWorker::open_manifest(&manifest, RegisterParams::default()).unwrap();
+    let mut w = PipelineWorker::open_manifest(&manifest, params).unwrap();
     assert!(w.params().image.is_none(), "the default runs geometry only");
     w.set_cache(Some(Cache::open(cache).unwrap()));
     w
@@ -223,7 +235,9 @@ fn cancel_stops_run_all_between_pairs() {
     let Some(data) = data_root() else { return };
     crate::common::export_data_env(&data);
     let dir = tempfile::tempdir().unwrap();
-    let w = worker(dir.path());
+    // The default keypoints: a pair takes long enough that the Cancel sent after the first
+    // row lands while the second pair runs.
+    let w = worker_with(dir.path(), RegisterParams::default());
     let n = w.pair_ids().len();
     let h = spawn_worker(Box::new(w), None);
     let mut seen = Vec::new();

@@ -60,7 +60,7 @@ fn full_method_on_demo_with_cache() {
     let pair = ds.load_pair(&id).unwrap();
     let dir = tempfile::tempdir().unwrap();
     let cache = Cache::open(dir.path()).unwrap();
-    let p = params();
+    let p = common::demo_params_5cm(WfmSpec::Builtin);
 
     // 1. End to end, everything computed.
     let r1 = Registration::new(&p).cache(&cache).run(&pair).unwrap();

@@ -159,9 +159,12 @@ fn a_job_array_on_a_real_slurm_merges_to_the_local_run_and_a_killed_task_resumes
     eprintln!("slurm up in {:.1} s", t0.elapsed().as_secs_f64());
     let manifest =
         PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("assets/manifests/redkitchen-staged.toml");
-    // Four staged pairs, the built-in generator (NOT a WFM) on L = 8 frames, one shared cache.
+    // Four staged pairs, the built-in generator (NOT a WFM) on L = 8 frames, keypoints on a
+    // 10 cm grid (what is compared does not depend on their number), one shared cache.
     let opts = |cache: &Path| -> Vec<String> {
         let mut v: Vec<String> = [
+            "--voxel",
+            "0.1",
             "--limit",
             "4",
             "--wfm",
