@@ -20,17 +20,18 @@ prep_log=target/test-prepare.log
   nice -n 10 bash scripts/test_python.sh --prepare && echo "== [$(($(date +%s) - start)) s] Python venv ready") \
   >"$prep_log" 2>&1 &
 prep_pid=$!
-# Test targets only: the crate has no doc tests, and the examples (built by a bare `cargo test`
+# Test targets only: the crate has no doc tests, the binary has no tests of its own (it is
+# built for the integration tests all the same), and the examples (built by a bare `cargo test`
 # only to see that they compile; clippy --all-targets does that) cost a link each.
 step "test build"
-cargo test --lib --bins --tests --no-run 2>&1 || status=$?
+cargo test --lib --tests --no-run 2>&1 || status=$?
 step "waiting for the background preparation"
 prep_status=0
 wait "$prep_pid" || prep_status=$?
 echo "== background preparation (SpinNet export, Python venv): exit $prep_status"
 cat "$prep_log"
 step "tests"
-cargo test --lib --bins --tests --no-fail-fast 2>&1 || status=$?
+cargo test --lib --tests --no-fail-fast 2>&1 || status=$?
 # Result tables are generated from the committed JSONs; a hand edit or a new JSON without a rerun fails.
 step "result tables"
 python3 scripts/tables.py --check || status=$?
