@@ -540,8 +540,8 @@ fn switch_image_branch(
                 *image_off = ib;
             }
             // the geometric branch's own defaults, as `register` takes them without --wfm
-            if params.fusion.selection == Selection::MutualNn {
-                params.fusion.selection = Selection::RowNn;
+            if params.fusion.selection == Selection::default_for(true) {
+                params.fusion.selection = Selection::default_for(false);
             }
             params.fusion.mode = FusionMode::GeometryOnly;
         }
@@ -554,8 +554,8 @@ fn switch_image_branch(
             params.image = Some(ib);
             // the fused pipeline's defaults, as `register --wfm` takes them (the union of both
             // branches' correspondences unless the user picked another mode)
-            if params.fusion.selection == Selection::RowNn {
-                params.fusion.selection = Selection::MutualNn;
+            if params.fusion.selection == Selection::default_for(false) {
+                params.fusion.selection = Selection::default_for(true);
             }
             if matches!(
                 params.fusion.mode,

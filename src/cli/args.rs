@@ -179,11 +179,9 @@ impl PipelineArgs {
                 Selection::TopK(crate::fusion::select::REFERENCE_TOP_K),
             )
         } else {
-            let sel = self.selection.unwrap_or(if image_branch {
-                Selection::MutualNn
-            } else {
-                Selection::RowNn
-            });
+            let sel = self
+                .selection
+                .unwrap_or(Selection::default_for(image_branch));
             let sel = match sel {
                 Selection::TopK(_) => Selection::TopK(self.topk),
                 s => s,

@@ -28,6 +28,17 @@ pub enum Selection {
 pub const REFERENCE_TOP_K: usize = 8000;
 
 impl Selection {
+    /// The selection a run uses unless one is chosen, the same in `register`, `bench`, the
+    /// inspector and Python: each source keypoint's best target for geometry alone (the SC2-PCR
+    /// FPFH protocol), mutual nearest neighbours when the branches are fused (the paper).
+    pub fn default_for(image_branch: bool) -> Selection {
+        if image_branch {
+            Selection::MutualNn
+        } else {
+            Selection::RowNn
+        }
+    }
+
     /// Every rule; top-k with `k`.
     pub fn all_with_k(k: usize) -> [Selection; 3] {
         [Selection::MutualNn, Selection::TopK(k), Selection::RowNn]
