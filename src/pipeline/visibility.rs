@@ -212,7 +212,7 @@ pub(crate) fn register(
         // Nothing to compare: the union's pose, one estimate.
         let (and, geo) = member_sets(params, inputs, sims, &mut timer)?;
         let (n_src, n_tgt) = (views.source.frames.len(), views.target.frames.len());
-        let mut res = from_sets(pair, params, inputs, (&and, &geo), timer, memo)?;
+        let res = from_sets(pair, params, inputs, (&and, &geo), timer, memo)?;
         let report = VisibilityReport {
             chosen: Candidate::Union,
             candidates: Vec::new(),
@@ -220,13 +220,7 @@ pub(crate) fn register(
             target_views: n_tgt,
             views: origin,
         };
-        res.total_ms = t0.elapsed().as_secs_f64() * 1e3;
-        res.image_branch = inputs.image_label.as_ref().map(|l| {
-            let union = res.union.as_ref().map(|u| format!("; {}", u.provenance()));
-            format!("{l}; {}{})", report.provenance(), union.unwrap_or_default())
-        });
-        res.visibility = Some(report);
-        return Ok(res);
+        return Ok(with_report(res, inputs, report, t0));
     }
     let [src_views, tgt_views] = views.views()?;
     timer.record("visibility: depth views", t.elapsed(), false);
@@ -305,13 +299,23 @@ pub(crate) fn register(
         Candidate::NoisyAnd => a,
     };
     res.timings = timings;
+    Ok(with_report(res, inputs, report, t0))
+}
+
+/// The kept result with the run's total time, the report and its provenance in the label.
+fn with_report(
+    mut res: RegistrationResult,
+    inputs: &FusionInputs,
+    report: VisibilityReport,
+    t0: Instant,
+) -> RegistrationResult {
     res.total_ms = t0.elapsed().as_secs_f64() * 1e3;
     res.image_branch = inputs.image_label.as_ref().map(|l| {
         let union = res.union.as_ref().map(|u| format!("; {}", u.provenance()));
         format!("{l}; {}{})", report.provenance(), union.unwrap_or_default())
     });
     res.visibility = Some(report);
-    Ok(res)
+    res
 }
 
 #[cfg(test)]
