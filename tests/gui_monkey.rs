@@ -137,7 +137,13 @@ fn random_events_never_panic_block_or_wedge_the_worker() {
         voxel: 0.1,
         ..Default::default()
     };
-    let worker = PipelineWorker::open_manifest(&manifest, params).unwrap();
+    let mut worker = PipelineWorker::open_manifest(&manifest, params).unwrap();
+    // A stage cache, as the inspector has by default: the storm switches pairs hundreds of
+    // times over the same sixteen, and a user's inspector loads their FPFH from the cache then.
+    let cache_dir = tempfile::tempdir().unwrap();
+    worker.set_cache(Some(
+        cgenreg::cache::Cache::open(cache_dir.path().join("cache")).unwrap(),
+    ));
     let handle = spawn_worker(Box::new(worker), None);
     let mut app = App::new(InspectorModel::default(), Some(handle), None);
     app.allow_dialogs = false;
