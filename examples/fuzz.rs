@@ -16,7 +16,10 @@
 // Benchmarks, examples and tests: a failed step is reported by the panic that ends them.
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
-use cgenreg::testing::fuzz_targets as ft;
+// The harness the libFuzzer targets run, outside the library (only the readers' public API).
+#[allow(dead_code)]
+#[path = "../fuzz/src/targets.rs"]
+mod ft;
 use std::path::{Path, PathBuf};
 
 fn data_root() -> Option<PathBuf> {

@@ -1,4 +1,4 @@
 #![no_main]
 libfuzzer_sys::fuzz_target!(|data: &[u8]| {
-    cgenreg::testing::fuzz_targets::run("cosmos_jsonl", data);
+    cgenreg_fuzz::targets::run("cosmos_jsonl", data);
 });

@@ -1,4 +1,4 @@
 #![no_main]
 libfuzzer_sys::fuzz_target!(|data: &[u8]| {
-    cgenreg::testing::fuzz_targets::run("pth", data);
+    cgenreg_fuzz::targets::run("pth", data);
 });

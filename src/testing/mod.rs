@@ -1,7 +1,6 @@
-//! Support for this crate's own tests (unit and integration) and the fuzz harness the `fuzz/`
-//! targets and the CI smoke test call; not part of the API.
+//! Support for this crate's own tests (unit and integration); not part of the API. (The fuzz
+//! harness lives with the fuzz targets, in `fuzz/src/targets.rs`.)
 
-pub mod fuzz_targets;
 pub mod rng;
 
 pub use rng::Lcg;

@@ -3,7 +3,10 @@
 //! for `CGENREG_FUZZ_SMOKE_S` seconds (default 0.75) from its generated seeds plus excerpts
 //! of the staged data; any panic fails the test and prints the input (hex) and the seed.
 
-use cgenreg::testing::fuzz_targets as ft;
+// The harness the libFuzzer targets run, outside the library (only the readers' public API).
+#[allow(dead_code)] // the libFuzzer entry points are not called here
+#[path = "../../fuzz/src/targets.rs"]
+mod ft;
 
 #[test]
 fn every_reader_survives_random_mutations() {

@@ -19,7 +19,7 @@ fn write_seeds() {
         eprintln!("seeds: cannot create {dir}: {e}");
         std::process::exit(1);
     }
-    let seeds = cgenreg::testing::fuzz_targets::seeds(target, data.as_deref());
+    let seeds = cgenreg_fuzz::targets::seeds(target, data.as_deref());
     for (name, bytes) in &seeds {
         let p = std::path::Path::new(dir).join(name);
         if let Err(e) = std::fs::write(&p, bytes) {
@@ -30,7 +30,7 @@ fn write_seeds() {
     // How many the reader accepts (a seed it refuses still gives the fuzzer a start).
     let refused: Vec<&str> = seeds
         .iter()
-        .filter(|(_, b)| !cgenreg::testing::fuzz_targets::run(target, b))
+        .filter(|(_, b)| !cgenreg_fuzz::targets::run(target, b))
         .map(|(n, _)| n.as_str())
         .collect();
     println!(

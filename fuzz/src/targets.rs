@@ -1,11 +1,16 @@
 //! Fuzz targets: one per reader of untrusted input, each a function of raw bytes that must
 //! return (an error is fine) without panicking, hanging or allocating without bound.
 //!
-//! The same targets run under libFuzzer (`fuzz/`, coverage-guided, see `scripts/fuzz.sh`)
-//! and under the small in-process mutation fuzzer here ([`fuzz`]), which needs no nightly
-//! toolchain and no C++ compiler and gives the CI smoke run (`tests/it/fuzz_smoke.rs`). It is
-//! *not* coverage-guided: it mutates seeds (bit flips, interesting bytes, chunk copies and
-//! deletions, number tokens replaced by extreme values, splices) at random.
+//! The same targets run under libFuzzer (`fuzz/fuzz_targets/`, coverage-guided, see
+//! `scripts/fuzz.sh`) and under the small in-process mutation fuzzer here ([`fuzz`]), which
+//! needs no nightly toolchain and no C++ compiler and gives the CI smoke run
+//! (`tests/it/fuzz_smoke.rs`). It is *not* coverage-guided: it mutates seeds (bit flips,
+//! interesting bytes, chunk copies and deletions, number tokens replaced by extreme values,
+//! splices) at random.
+//!
+//! Not part of the library: it calls the readers through their public API only, and is
+//! compiled into the fuzz crate's library (`fuzz/src/lib.rs`), the `fuzz` example and the
+//! integration tests, each of which includes this file.
 //!
 //! Seeds ([`seeds`]) are generated here, plus small excerpts of the staged data set when a
 //! data root is given (re-encoded to a few hundred points, never the whole files).
@@ -50,41 +55,41 @@ pub fn run(target: &str, data: &[u8]) -> bool {
 }
 
 /// [`run`], with an unknown target an error that lists the known ones.
-pub fn try_run(target: &str, data: &[u8]) -> crate::Result<bool> {
+pub fn try_run(target: &str, data: &[u8]) -> cgenreg::Result<bool> {
     let p = Path::new("fuzz-input");
     let text = || String::from_utf8_lossy(data);
     Ok(match target {
-        "ply" => crate::io::ply::parse_ply(p, data).is_ok(),
-        "pcd" => crate::io::pcd::parse_pcd(p, data).is_ok(),
+        "ply" => cgenreg::io::ply::parse_ply(p, data).is_ok(),
+        "pcd" => cgenreg::io::pcd::parse_pcd(p, data).is_ok(),
         "lzf" => {
             // First 4 bytes: declared output length (capped like the PCD reader caps it).
             let Some((len, rest)) = data.split_first_chunk::<4>() else {
                 return Ok(false);
             };
             let n = (u32::from_le_bytes(*len) as usize).min(1 << 24);
-            crate::io::pcd::lzf_decompress(rest, n).is_ok()
+            cgenreg::io::pcd::lzf_decompress(rest, n).is_ok()
         }
-        "npy" => crate::io::npy::parse_npy(p, data).is_ok(),
-        "npz" => crate::io::npy::parse_npz(p, data).is_ok(),
-        "pickle" => crate::io::pickle::parse_pickle_arrays(p, data).is_ok(),
-        "pth" => crate::io::pickle::parse_pth_array(p, data).is_ok(),
-        "kitti" => crate::io::kitti::parse_kitti_bin(p, data).is_ok(),
-        "xyz" => crate::io::xyz::parse_xyz(p, &text()).is_ok(),
+        "npy" => cgenreg::io::npy::parse_npy(p, data).is_ok(),
+        "npz" => cgenreg::io::npy::parse_npz(p, data).is_ok(),
+        "pickle" => cgenreg::io::pickle::parse_pickle_arrays(p, data).is_ok(),
+        "pth" => cgenreg::io::pickle::parse_pth_array(p, data).is_ok(),
+        "kitti" => cgenreg::io::kitti::parse_kitti_bin(p, data).is_ok(),
+        "xyz" => cgenreg::io::xyz::parse_xyz(p, &text()).is_ok(),
         "gtlog" => {
             let t = text();
-            let a = crate::io::gtlog::parse_gt_log(p, &t).is_ok();
-            let b = crate::io::gtlog::parse_gt_info(p, &t).is_ok();
+            let a = cgenreg::io::gtlog::parse_gt_log(p, &t).is_ok();
+            let b = cgenreg::io::gtlog::parse_gt_info(p, &t).is_ok();
             a || b
         }
-        "depth_png" => crate::io::depth_png::parse_depth_png(p, data).is_ok(),
-        "intrinsics" => crate::io::camera_txt::parse_intrinsics(p, &text(), 640, 480).is_ok(),
-        "pose" => crate::io::camera_txt::parse_pose(p, &text()).is_ok(),
+        "depth_png" => cgenreg::io::depth_png::parse_depth_png(p, data).is_ok(),
+        "intrinsics" => cgenreg::io::camera_txt::parse_intrinsics(p, &text(), 640, 480).is_ok(),
+        "pose" => cgenreg::io::camera_txt::parse_pose(p, &text()).is_ok(),
         "manifest" => manifest(data),
-        "cosmos_jsonl" => crate::wfm::prompt::parse_reference_jsonl(p, &text()).is_ok(),
-        "mp4" => crate::wfm::video::decode_mp4_frames(p, data.to_vec()).is_ok(),
-        "h264" => crate::wfm::video::decode_annexb(p, data).is_ok(),
+        "cosmos_jsonl" => cgenreg::wfm::prompt::parse_reference_jsonl(p, &text()).is_ok(),
+        "mp4" => cgenreg::wfm::video::decode_mp4_frames(p, data.to_vec()).is_ok(),
+        "h264" => cgenreg::wfm::video::decode_annexb(p, data).is_ok(),
         other => {
-            return Err(crate::Error::Invalid(format!(
+            return Err(cgenreg::Error::Invalid(format!(
                 "unknown fuzz target {other:?}; known: {:?}",
                 all_targets()
             )))
@@ -97,8 +102,8 @@ pub fn try_run(target: &str, data: &[u8]) -> crate::Result<bool> {
 /// at (no file is written per execution).
 fn manifest(data: &[u8]) -> bool {
     thread_local! {
-        static DIR: Option<crate::io::limits::ScratchDir> = {
-            let d = crate::io::limits::ScratchDir::new("cgenreg-fuzz-manifest").ok();
+        static DIR: Option<cgenreg::io::limits::ScratchDir> = {
+            let d = cgenreg::io::limits::ScratchDir::new("cgenreg-fuzz-manifest").ok();
             if let Some(d) = &d {
                 let cloud = b"0 0 0\n1 0 0\n0 1 0\n0 0 1\n";
                 let _ = std::fs::write(d.path().join("a.xyz"), cloud);
@@ -118,7 +123,7 @@ fn manifest(data: &[u8]) -> bool {
             return false;
         };
         let m = d.path().join("m.toml");
-        crate::dataset::Dataset::parse_with_root(&m, text, Some(d.path())).is_ok()
+        cgenreg::dataset::Dataset::parse_with_root(&m, text, Some(d.path())).is_ok()
     })
 }
 
@@ -136,9 +141,9 @@ const PICKLE_P4: &str = "8004957d010000000000007d94288c0c7265665f706f696e74735f6
 /// lays them out.
 const PTH_P2: &str = "80028a0a6cfc9c46f9206aa850192e80024de9032e80027d710028581000000070726f746f636f6c5f76657273696f6e71014de903580d0000006c6974746c655f656e6469616e710288580a000000747970655f73697a657371037d710428580500000073686f727471054b025803000000696e7471064b0458040000006c6f6e6771074b0475752e8002636e756d70792e5f636f72652e6d756c746961727261790a5f7265636f6e7374727563740a7100636e756d70790a6e6461727261790a71014b00857102635f636f646563730a656e636f64650a7103580100000062710458060000006c6174696e317105867106527107877108527109284b014b044b0386710a636e756d70790a64747970650a710b58020000006638710c898887710d52710e284b0358010000003c710f4e4e4e4affffffff4affffffff4b007471106289680358670000000000000000000000000000000000c3903f000000000000c3a03f000000000000c3a83f000000000000c3b03f000000000000c3b43f000000000000c3b83f000000000000c3bc3f000000000000004000000000000002400000000000000440000000000000064071116805867112527113747114622e80025d71002e";
 
-fn small_cloud(n: usize) -> crate::geometry::cloud::PointCloud {
+fn small_cloud(n: usize) -> cgenreg::geometry::cloud::PointCloud {
     use nalgebra::{Point3, Vector3};
-    crate::geometry::cloud::PointCloud {
+    cgenreg::geometry::cloud::PointCloud {
         points: (0..n)
             .map(|i| Point3::new(i as f32 * 0.1, (i % 5) as f32 * 0.2, 1.0 + (i % 3) as f32))
             .collect(),
@@ -149,9 +154,12 @@ fn small_cloud(n: usize) -> crate::geometry::cloud::PointCloud {
 }
 
 /// The first `n` points of a real cloud, attributes kept.
-fn head(c: &crate::geometry::cloud::PointCloud, n: usize) -> crate::geometry::cloud::PointCloud {
+fn head(
+    c: &cgenreg::geometry::cloud::PointCloud,
+    n: usize,
+) -> cgenreg::geometry::cloud::PointCloud {
     let n = n.min(c.len());
-    crate::geometry::cloud::PointCloud {
+    cgenreg::geometry::cloud::PointCloud {
         points: c.points[..n].to_vec(),
         colors: c.colors.as_ref().map(|v| v[..n].to_vec()),
         normals: c.normals.as_ref().map(|v| v[..n].to_vec()),
@@ -172,7 +180,7 @@ fn npz_of(entries: &[(&str, Vec<u8>)]) -> Vec<u8> {
     w.finish().map(|c| c.into_inner()).unwrap_or_default()
 }
 
-fn ascii_ply(c: &crate::geometry::cloud::PointCloud) -> Vec<u8> {
+fn ascii_ply(c: &cgenreg::geometry::cloud::PointCloud) -> Vec<u8> {
     let mut s = format!(
         "ply\nformat ascii 1.0\ncomment fuzz seed\nelement vertex {}\nproperty float x\n\
          property float y\nproperty float z\nproperty uchar red\nproperty uchar green\n\
@@ -280,7 +288,7 @@ pub fn x264_seeds(target: &str, data: &Path) -> Vec<(String, Vec<u8>)> {
     if !frames.join("frame-000000.color.jpg").is_file() {
         return out;
     }
-    let Ok(tmp) = crate::io::limits::ScratchDir::new("cgenreg-fuzz-x264") else {
+    let Ok(tmp) = cgenreg::io::limits::ScratchDir::new("cgenreg-fuzz-x264") else {
         return out;
     };
     let ffmpeg = |args: &[&str]| {
@@ -388,19 +396,19 @@ pub fn seeds(target: &str, data: Option<&Path>) -> Vec<(String, Vec<u8>)> {
         p.is_file().then_some(p)
     };
     let real_cloud = |rel: &str, n: usize| {
-        real(rel).and_then(|p| crate::io::cloud::load_cloud(&p).ok().map(|c| head(&c, n)))
+        real(rel).and_then(|p| cgenreg::io::cloud::load_cloud(&p).ok().map(|c| head(&c, n)))
     };
     let c = small_cloud(40);
     match target {
         "ply" => {
-            out.push(("gen_binary.ply".into(), crate::io::ply::encode_ply(&c)));
+            out.push(("gen_binary.ply".into(), cgenreg::io::ply::encode_ply(&c)));
             out.push(("gen_ascii.ply".into(), ascii_ply(&c)));
             if let Some(r) = real_cloud("small-gicp-lidar-pair/source.ply", 200) {
-                out.push(("small_gicp_source_200.ply".into(), crate::io::ply::encode_ply(&r)));
+                out.push(("small_gicp_source_200.ply".into(), cgenreg::io::ply::encode_ply(&r)));
                 out.push(("small_gicp_source_200_ascii.ply".into(), ascii_ply(&r)));
             }
             if let Some(r) = real_cloud("3dmatch-redkitchen/teaser-plusplus/cloud_bin_0.ply", 200) {
-                out.push(("redkitchen_bin_0_200.ply".into(), crate::io::ply::encode_ply(&r)));
+                out.push(("redkitchen_bin_0_200.ply".into(), cgenreg::io::ply::encode_ply(&r)));
             }
         }
         "pcd" | "lzf" => {
@@ -410,7 +418,7 @@ pub fn seeds(target: &str, data: Option<&Path>) -> Vec<(String, Vec<u8>)> {
             }
             for (k, cl) in pcds.iter().enumerate() {
                 for enc in ["ascii", "binary", "binary_compressed"] {
-                    let b = crate::io::pcd::encode_pcd(cl, enc);
+                    let b = cgenreg::io::pcd::encode_pcd(cl, enc);
                     if target == "pcd" {
                         out.push((format!("seed{k}_{enc}.pcd"), b));
                     } else if enc == "binary_compressed" {
@@ -432,13 +440,13 @@ pub fn seeds(target: &str, data: Option<&Path>) -> Vec<(String, Vec<u8>)> {
             if target == "lzf" {
                 let raw: Vec<u8> = (0..2000u32).map(|i| (i % 7 * 31) as u8).collect();
                 let mut s = (raw.len() as u32).to_le_bytes().to_vec();
-                s.extend_from_slice(&crate::io::pcd::lzf_compress(&raw));
+                s.extend_from_slice(&cgenreg::io::pcd::lzf_compress(&raw));
                 out.push(("gen_runs.lzf".into(), s));
             }
         }
         "npy" | "npz" => {
             let flat: Vec<f32> = c.points.iter().flat_map(|p| [p.x, p.y, p.z]).collect();
-            let npy = crate::io::npy::encode_npy_f32(&[c.len(), 3], &flat);
+            let npy = cgenreg::io::npy::encode_npy_f32(&[c.len(), 3], &flat);
             let mut real_npy = Vec::new();
             if let Some(p) = real("3dmatch-redkitchen/geotransformer-demo/gt.npy") {
                 real_npy = std::fs::read(p).unwrap_or_default();
@@ -449,7 +457,7 @@ pub fn seeds(target: &str, data: Option<&Path>) -> Vec<(String, Vec<u8>)> {
                     out.push(("geotransformer_gt.npy".into(), real_npy));
                 }
             } else {
-                let feats = crate::io::npy::encode_npy_f32(&[c.len(), 4], &vec![0.5; c.len() * 4]);
+                let feats = cgenreg::io::npy::encode_npy_f32(&[c.len(), 4], &vec![0.5; c.len() * 4]);
                 out.push((
                     "gen_points_feats.npz".into(),
                     npz_of(&[("points.npy", npy), ("feats.npy", feats)]),
@@ -500,22 +508,22 @@ pub fn seeds(target: &str, data: Option<&Path>) -> Vec<(String, Vec<u8>)> {
             }
         }
         "depth_png" => {
-            let d = crate::io::depth_png::DepthImage {
+            let d = cgenreg::io::depth_png::DepthImage {
                 width: 16,
                 height: 12,
                 data: (0..192).map(|i| (i * 300) as u16).collect(),
             };
-            if let Ok(b) = crate::io::depth_png::encode_depth_png(Path::new("gen.png"), &d) {
+            if let Ok(b) = cgenreg::io::depth_png::encode_depth_png(Path::new("gen.png"), &d) {
                 out.push(("gen_16x12.png".into(), b));
             }
             // The real frame is 640x480 (about 0.3 MB, 600 executions/s under libFuzzer): a
             // 64x48 crop of its centre, re-encoded, keeps its depth statistics and runs 100x
             // faster; the PNG structure is the same as the generated seed's.
             if let Some(p) = real("7scenes-redkitchen-rgbd/frame-000000.depth.png") {
-                if let Ok(full) = crate::io::depth_png::read_depth_png(&p) {
+                if let Ok(full) = cgenreg::io::depth_png::read_depth_png(&p) {
                     let (w, h) = (64u32.min(full.width), 48u32.min(full.height));
                     let (x0, y0) = ((full.width - w) / 2, (full.height - h) / 2);
-                    let crop = crate::io::depth_png::DepthImage {
+                    let crop = cgenreg::io::depth_png::DepthImage {
                         width: w,
                         height: h,
                         data: (0..h)
@@ -523,7 +531,7 @@ pub fn seeds(target: &str, data: Option<&Path>) -> Vec<(String, Vec<u8>)> {
                             .map(|(x, y)| full.raw(x, y))
                             .collect(),
                     };
-                    if let Ok(b) = crate::io::depth_png::encode_depth_png(&p, &crop) {
+                    if let Ok(b) = cgenreg::io::depth_png::encode_depth_png(&p, &crop) {
                         out.push(("7scenes_frame0_crop64x48.depth.png".into(), b));
                     }
                 }
@@ -572,10 +580,10 @@ pub fn seeds(target: &str, data: Option<&Path>) -> Vec<(String, Vec<u8>)> {
                     })
                 })
                 .collect();
-            if let Ok(mp4) = crate::wfm::video::encode_mp4_h264(&frames, 30) {
+            if let Ok(mp4) = cgenreg::wfm::video::encode_mp4_h264(&frames, 30) {
                 if target == "mp4" {
                     out.push(("gen_32x16x3.mp4".into(), mp4));
-                } else if let Some(annexb) = crate::wfm::video::h264_access_units(&mp4) {
+                } else if let Some(annexb) = cgenreg::wfm::video::h264_access_units(&mp4) {
                     // The target's format: an Annex B stream (start code before each unit).
                     let mut s = Vec::new();
                     for nal in annexb {
@@ -832,7 +840,7 @@ mod tests {
     /// the mp4 and Annex B readers: every one of them, to as many frames as were encoded.
     #[test]
     fn x264_seeds_decode_through_the_readers() {
-        let Some(data) = crate::testing::test_data_root() else {
+        let Some(data) = cgenreg::testing::test_data_root() else {
             return;
         };
         let mp4 = x264_seeds("mp4", &data);
@@ -859,16 +867,16 @@ mod tests {
                 // the sizes of the samples before it, so sample 1 is read from the box
                 // headers and the reader refuses the file with an error. The seed still
                 // reaches the demuxer's and the reader's fragment code.
-                assert!(crate::wfm::video::decode_mp4_frames(p, bytes.clone()).is_err());
+                assert!(cgenreg::wfm::video::decode_mp4_frames(p, bytes.clone()).is_err());
                 continue;
             }
-            let frames = crate::wfm::video::decode_mp4_frames(p, bytes.clone())
+            let frames = cgenreg::wfm::video::decode_mp4_frames(p, bytes.clone())
                 .unwrap_or_else(|e| panic!("{name}: {e}"));
             let want = X264_SEEDS.iter().find(|s| name.contains(s.0)).map(|s| s.2);
             assert_eq!(Some(frames.len() as u32), want, "{name}");
         }
         for (name, bytes) in &h264 {
-            let frames = crate::wfm::video::decode_annexb(p, bytes)
+            let frames = cgenreg::wfm::video::decode_annexb(p, bytes)
                 .unwrap_or_else(|e| panic!("{name}: {e}"));
             let want = X264_SEEDS.iter().find(|s| name.contains(s.0)).map(|s| s.2);
             assert_eq!(Some(frames.len() as u32), want, "{name}");
