@@ -28,6 +28,10 @@ pub enum Error {
     /// (fewer than 3 correspondences, collinear points, ...).
     #[error("degenerate input: {0}")]
     Degenerate(String),
+    /// Code that panicked where a run goes on without it (one pair of a run, one command of the
+    /// inspector's worker): the panic's message. A bug to report, never an answer to input.
+    #[error("panicked: {0}")]
+    Panicked(String),
     /// An external program or model that failed.
     #[error("{what}: {message}")]
     External { what: String, message: String },
@@ -82,6 +86,23 @@ impl Error {
             found: found.into(),
         }
     }
+}
+
+/// A panic's message (`panic!` with a literal or a formatted string; "(no message)" otherwise).
+pub fn panic_message(payload: &(dyn std::any::Any + Send)) -> String {
+    payload
+        .downcast_ref::<&str>()
+        .map(|s| s.to_string())
+        .or_else(|| payload.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "(no message)".into())
+}
+
+/// Runs `f`, a panic inside it becoming [`Error::Panicked`]: the one last-resort guard around
+/// a pair of a run (`bench`, studies, the inspector's Run all: the pair is recorded as failed
+/// and the run goes on) and around a command of the inspector's worker.
+pub fn catch_panic<T>(f: impl FnOnce() -> Result<T>) -> Result<T> {
+    std::panic::catch_unwind(std::panic::AssertUnwindSafe(f))
+        .unwrap_or_else(|payload| Err(Error::Panicked(panic_message(payload.as_ref()))))
 }
 
 /// Write `bytes` to `path` atomically: a temporary file in the same directory, then rename.

@@ -247,13 +247,14 @@ pub fn spawn_worker(mut worker: Box<dyn Worker>, ctx: Option<egui::Context>) -> 
                 }
                 for c in batch {
                     let desc = format!("{c:?}");
-                    let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-                        worker.handle(c, &sink)
-                    }));
-                    if r.is_err() {
+                    let r = crate::error::catch_panic(|| {
+                        worker.handle(c, &sink);
+                        Ok(())
+                    });
+                    if let Err(e) = r {
                         sink.log(
                             LogLevel::Error,
-                            format!("worker panicked while handling {desc}"),
+                            format!("worker {e} (while handling {desc})"),
                         );
                     }
                 }

@@ -543,7 +543,7 @@ fn switch_image_branch(
             if params.fusion.selection == Selection::default_for(true) {
                 params.fusion.selection = Selection::default_for(false);
             }
-            params.fusion.mode = FusionMode::GeometryOnly;
+            params.fusion.mode = FusionMode::default_for(false, false);
         }
         (false, Some(b)) => {
             let mut ib = ImageBranchParams {
@@ -557,11 +557,11 @@ fn switch_image_branch(
             if params.fusion.selection == Selection::default_for(false) {
                 params.fusion.selection = Selection::default_for(true);
             }
-            if matches!(
-                params.fusion.mode,
-                FusionMode::GeometryOnly | FusionMode::NoisyAnd
-            ) {
-                params.fusion.mode = FusionMode::DEFAULT_WITH_IMAGE;
+            // (Noisy-AND too: the paper's mode, `FusionParams::default()`)
+            if params.fusion.mode == FusionMode::default_for(false, false)
+                || params.fusion.mode == FusionMode::NoisyAnd
+            {
+                params.fusion.mode = FusionMode::default_for(true, params.fusion.exact_reference);
             }
         }
         (false, None) => {}

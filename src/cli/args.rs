@@ -108,7 +108,7 @@ pub struct PipelineArgs {
     /// Fusion of the two branches. Default: `visibility` when the image branch runs (the
     /// union's, the geometric branch's and Noisy-AND's poses; the one most consistent with both
     /// scans' depth views is kept; with virtual views of cloud-only scans, the union's pose),
-    /// Noisy-AND with `--reference` (the authors' code).
+    /// Noisy-AND with `--reference` (the authors' code), `geometry` without the image branch.
     #[arg(long, value_enum)]
     pub fusion: Option<FusionMode>,
     /// Noisy-AND prior; default 1/(N*M).
@@ -190,11 +190,9 @@ impl PipelineArgs {
         };
         p.fusion.calibration_img = cal.with_tau(self.tau_img);
         p.fusion.calibration_geo = cal.with_tau(self.tau_geo);
-        p.fusion.mode = self.fusion.unwrap_or(if image_branch && !self.reference {
-            FusionMode::DEFAULT_WITH_IMAGE
-        } else {
-            FusionMode::NoisyAnd
-        });
+        p.fusion.mode = self
+            .fusion
+            .unwrap_or(FusionMode::default_for(image_branch, self.reference));
         p.fusion.selection = sel;
         p.fusion.exact_reference = self.reference;
         p.fusion.prior = self.prior;

@@ -123,7 +123,7 @@ pub fn apply_named(
         }
         if !has("fusion") {
             p.fusion.mode = match given.image {
-                None => crate::fusion::FusionMode::GeometryOnly,
+                None => crate::fusion::FusionMode::default_for(false, false),
                 Some(_) => g.mode,
             };
         }

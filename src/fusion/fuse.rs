@@ -53,6 +53,18 @@ impl FusionMode {
     /// (`FusionParams::default()` stays the paper's Noisy-AND).
     pub const DEFAULT_WITH_IMAGE: FusionMode = FusionMode::Visibility;
 
+    /// The mode a run uses unless one is chosen, the same in `register`, `bench`, the
+    /// inspector's branch switch and Python: [`Self::DEFAULT_WITH_IMAGE`] when the image
+    /// branch runs, the paper's Noisy-AND under `reference` (the authors' code), and
+    /// geometry only without images (what runs then, whatever the mode says).
+    pub fn default_for(image_branch: bool, reference: bool) -> FusionMode {
+        match (image_branch, reference) {
+            (false, _) => FusionMode::GeometryOnly,
+            (true, true) => FusionMode::NoisyAnd,
+            (true, false) => Self::DEFAULT_WITH_IMAGE,
+        }
+    }
+
     /// Every mode, in the order the inspector lists them.
     pub const ALL: [FusionMode; 7] = [
         FusionMode::Visibility,

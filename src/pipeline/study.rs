@@ -507,7 +507,7 @@ fn run_one(
         generate,
         ..Registration::new(&params)
     };
-    let r = match super::shard::catch_pair(|| reg.run(pair)) {
+    let r = match crate::error::catch_panic(|| reg.run(pair)) {
         Ok(r) => r,
         Err(e @ Error::GenerationNotCached { .. }) => return skipped(e.to_string()),
         Err(e) => return failed(e.to_string()),

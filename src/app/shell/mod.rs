@@ -42,8 +42,8 @@ use view3d::{View3dPrefs, View3dState};
 /// neighbours.
 pub fn paper_defaults() -> RegisterParams {
     let mut p = RegisterParams::default();
-    p.fusion.mode = crate::fusion::FusionMode::GeometryOnly;
-    p.fusion.selection = crate::fusion::Selection::RowNn;
+    p.fusion.mode = crate::fusion::FusionMode::default_for(false, false);
+    p.fusion.selection = crate::fusion::Selection::default_for(false);
     p
 }
 

@@ -69,9 +69,9 @@ impl App {
             if let Some(ib) = self.params.image.take() {
                 self.image_off = ib;
             }
-            self.params.fusion.mode = crate::fusion::FusionMode::GeometryOnly;
-            if self.params.fusion.selection == crate::fusion::Selection::MutualNn {
-                self.params.fusion.selection = crate::fusion::Selection::RowNn;
+            self.params.fusion.mode = crate::fusion::FusionMode::default_for(false, false);
+            if self.params.fusion.selection == crate::fusion::Selection::default_for(true) {
+                self.params.fusion.selection = crate::fusion::Selection::default_for(false);
             }
             commands.push(Command::ApplySettings(self.params.clone()));
         }

@@ -145,7 +145,8 @@ pub fn demo_protocol(user: &RegisterParams) -> RegisterParams {
     ib.backend = crate::pipeline::WfmSpec::Builtin;
     (ib.frames_per_fragment, ib.margin, ib.k) = (8, 1, 2);
     if user.image.is_none() {
-        // the fused pipeline's own defaults, as `register --wfm builtin` takes them
+        // the paper's fusion (Noisy-AND of mutual nearest neighbours): the demo shows the
+        // method as published, not the default `visibility` rule of `register --wfm`
         p.fusion.mode = crate::fusion::FusionMode::NoisyAnd;
         p.fusion.selection = crate::fusion::Selection::MutualNn;
     }
@@ -208,7 +209,7 @@ impl PipelineWorker {
         let mut params = base;
         if params.image.is_none() {
             // without the image branch only geometry-only fusion runs: show what ran
-            params.fusion.mode = FusionMode::GeometryOnly;
+            params.fusion.mode = FusionMode::default_for(false, false);
         }
         Self {
             dataset,

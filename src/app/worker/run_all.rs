@@ -57,14 +57,6 @@ impl RunSelection {
     }
 }
 
-/// The text of a panic payload.
-fn panic_text(p: &(dyn std::any::Any + Send)) -> String {
-    p.downcast_ref::<&str>()
-        .map(|s| s.to_string())
-        .or_else(|| p.downcast_ref::<String>().cloned())
-        .unwrap_or_else(|| "(no message)".into())
-}
-
 impl PipelineWorker {
     /// The ids of the rows `sel` picks, in the dataset's order.
     pub fn selected_pairs(&self, sel: RunSelection) -> Vec<String> {
@@ -92,15 +84,15 @@ impl PipelineWorker {
             .cloned()
             .unwrap_or_else(|| PairEntry::pending(id, ""));
         let t = Instant::now();
-        let run = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        let run = crate::error::catch_panic(|| {
             let pair = match self.loaded.get(id) {
                 Some(p) => p.clone(),
                 None => self.dataset.load_pair(id)?,
             };
             self.register(id, &pair, generate)
-        }));
+        });
         match run {
-            Ok(Ok(r)) if self.params.image.is_some() && r.result.image.is_none() => {
+            Ok(r) if self.params.image.is_some() && r.result.image.is_none() => {
                 // the row must not show geometry-only numbers as the image branch's
                 let why = r
                     .note
@@ -108,16 +100,9 @@ impl PipelineWorker {
                 row.reset(PairStatus::Failed(why));
                 row.time_ms = Some(t.elapsed().as_secs_f64() * 1e3);
             }
-            Ok(Ok(r)) => fill_row(&mut row, &r.result),
-            Ok(Err(e)) => {
+            Ok(r) => fill_row(&mut row, &r.result),
+            Err(e) => {
                 row.reset(PairStatus::Failed(e.to_string()));
-                row.time_ms = Some(t.elapsed().as_secs_f64() * 1e3);
-            }
-            Err(p) => {
-                row.reset(PairStatus::Failed(format!(
-                    "panicked: {}",
-                    panic_text(p.as_ref())
-                )));
                 row.time_ms = Some(t.elapsed().as_secs_f64() * 1e3);
             }
         }

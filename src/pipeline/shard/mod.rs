@@ -27,7 +27,7 @@ mod run_file;
 mod tests;
 
 pub use merge::{merge, Merged};
-pub use progress::{catch_pair, run_pending, Progress, ResumeMode};
+pub use progress::{run_pending, Progress, ResumeMode};
 pub use run_file::{
     read_run_file, stage_totals, strip_times, PairRecord, RunFile, RunHeader, StageTime, DONE,
     FAILED,

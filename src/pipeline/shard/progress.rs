@@ -179,24 +179,8 @@ impl Progress {
     }
 }
 
-/// Runs `f` and turns a panic into an error carrying the panic message (a last-resort guard
-/// around one pair: the run records the pair as failed and goes on).
-pub fn catch_pair<T>(f: impl FnOnce() -> Result<T>) -> Result<T> {
-    match std::panic::catch_unwind(std::panic::AssertUnwindSafe(f)) {
-        Ok(r) => r,
-        Err(payload) => {
-            let msg = payload
-                .downcast_ref::<&str>()
-                .map(|s| s.to_string())
-                .or_else(|| payload.downcast_ref::<String>().cloned())
-                .unwrap_or_else(|| "(no message)".into());
-            Err(Error::Invalid(format!("panicked: {msg}")))
-        }
-    }
-}
-
 /// Runs the pending pairs of `progress` one after the other: marks each in flight, runs
-/// `run(position, id)` under [`catch_pair`], records the outcome (a failure as
+/// `run(position, id)` under [`catch_panic`](crate::error::catch_panic), records the outcome (a failure as
 /// `failed_result(position, reason)`), and rewrites the output. A pair that errors or panics is
 /// recorded as failed and the run goes on; `log` gets one line per pair for a log reader.
 /// Errors only when the output cannot be written at the end.
@@ -229,7 +213,7 @@ pub fn run_pending(
         let r = progress.begin(pos, write);
         save(r, log);
         let t = std::time::Instant::now();
-        let rec = match catch_pair(|| run(pos, &id)) {
+        let rec = match crate::error::catch_panic(|| run(pos, &id)) {
             Ok(rec) => rec,
             Err(e) => PairRecord {
                 id: id.clone(),

@@ -255,12 +255,14 @@ fn a_panicking_or_failing_pair_is_recorded_and_the_run_goes_on() {
 }
 
 #[test]
-fn catch_pair_turns_panics_into_errors() {
-    let e = catch_pair::<()>(|| panic!("reader exploded at byte {}", 7))
-        .unwrap_err()
-        .to_string();
-    assert!(e.contains("reader exploded at byte 7"), "{e}");
-    assert_eq!(catch_pair(|| Ok(3)).unwrap(), 3);
+fn catch_panic_turns_panics_into_errors() {
+    use crate::error::catch_panic;
+    let e = catch_panic::<()>(|| panic!("reader exploded at byte {}", 7)).unwrap_err();
+    assert!(matches!(e, Error::Panicked(_)), "{e:?}");
+    assert_eq!(e.to_string(), "panicked: reader exploded at byte 7");
+    assert_eq!(catch_panic(|| Ok(3)).unwrap(), 3);
+    let e = catch_panic::<()>(|| std::panic::panic_any(7u8)).unwrap_err();
+    assert_eq!(e.to_string(), "panicked: (no message)");
 }
 
 #[test]
