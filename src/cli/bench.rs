@@ -9,14 +9,13 @@ use crate::dataset::fragment_cache::pair_summary;
 use crate::dataset::manifest::{Dataset, PairSpec};
 use crate::dataset::repose::repose_motion;
 use crate::error::{Error, Result};
-use crate::metrics::{PairMetrics, SuccessCriterion, Summary};
+use crate::metrics::SuccessCriterion;
 use crate::pipeline::shard::{
-    run_pending, stage_totals, PairRecord, Progress, ResumeMode, RunFile, RunHeader, RunIdentity,
-    Shard, StageTime, DONE, FAILED,
+    run_pending, stage_totals, PairRecord, Progress, ResumeMode, RunIdentity, Shard, StageTime,
+    DONE, FAILED,
 };
 use crate::pipeline::{Memo, Registration};
 use clap::Args;
-use serde::Serialize;
 use std::path::PathBuf;
 
 #[derive(Args, Debug)]
@@ -109,110 +108,7 @@ impl RunArgs {
     }
 }
 
-pub use crate::report::compare::PairRow;
-
-#[derive(Serialize)]
-struct BenchJson<'a> {
-    manifest: String,
-    params: &'a serde_json::Value,
-    run: &'a RunHeader,
-    pairs: Vec<PairRow>,
-    summary: Vec<SplitSummary>,
-    records: &'a [PairRecord],
-}
-
-#[derive(Serialize)]
-pub struct SplitSummary {
-    pub split: String,
-    /// Under `criterion`.
-    pub recall: f64,
-    /// What `recall` counts (the pairs' criterion; 3DMatch's for rows that do not name one).
-    pub criterion: SuccessCriterion,
-    /// The fraction of pairs that succeed under the run's second criterion, when it has one.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub also: Option<(SuccessCriterion, f64)>,
-    #[serde(flatten)]
-    pub summary: Summary,
-    pub time_per_pair_s: f64,
-    /// Pairs that ran with an error: failures in the recall and accuracies, left out of the
-    /// error means and medians (which are over the pairs with a pose).
-    pub errors: usize,
-}
-
-/// The rows of a run file's records, in order.
-pub fn rows_of(f: &RunFile) -> Result<Vec<PairRow>> {
-    f.records
-        .iter()
-        .map(|r| {
-            serde_json::from_value::<PairRow>(r.result.clone())
-                .map_err(|e| Error::Invalid(format!("pair {}: not a bench result: {e}", r.id)))
-        })
-        .collect()
-}
-
-/// Bench output bytes for a run file (what `bench` and `merge` write).
-pub fn bench_json(f: &RunFile) -> Result<Vec<u8>> {
-    let rows = rows_of(f)?;
-    let summary = summarise(&rows);
-    let out = BenchJson {
-        manifest: f.run.identity.manifest.clone(),
-        params: &f.run.identity.params,
-        run: &f.run,
-        pairs: rows,
-        summary,
-        records: &f.records,
-    };
-    serde_json::to_vec_pretty(&out).map_err(|e| Error::Invalid(format!("serialising results: {e}")))
-}
-
-/// Per-split summaries (splits sorted by name). A pair that ran with an error counts as a
-/// failure with infinite error, so recall and accuracies stay honest; the error means and
-/// medians are over the pairs with a pose ([`Summary::from_pairs`]).
-pub fn summarise(rows: &[PairRow]) -> Vec<SplitSummary> {
-    let mut splits: Vec<String> = rows.iter().map(|r| r.split.clone()).collect();
-    splits.sort();
-    splits.dedup();
-    splits
-        .iter()
-        .map(|split| {
-            let sel: Vec<&PairRow> = rows.iter().filter(|r| &r.split == split).collect();
-            let pm: Vec<PairMetrics> = sel
-                .iter()
-                .map(|r| PairMetrics {
-                    rre_deg: r.rre_deg.unwrap_or(f64::INFINITY),
-                    rte_m: r.rte_m.unwrap_or(f64::INFINITY),
-                    inlier_ratio: r.inlier_ratio.unwrap_or(0.0),
-                    success: r.success.unwrap_or(false),
-                    criterion: r.criterion.unwrap_or_default(),
-                    also: r.also,
-                })
-                .collect();
-            let s = Summary::from_pairs(&pm);
-            let tpp = sel.iter().map(|r| r.time_s).sum::<f64>() / sel.len().max(1) as f64;
-            let criterion = sel
-                .iter()
-                .find_map(|r| r.criterion)
-                .unwrap_or(SuccessCriterion::THREEDMATCH);
-            // a pair that failed to run fails the second criterion too
-            let also = sel.iter().find_map(|r| r.also).map(|j| {
-                let n = sel
-                    .iter()
-                    .filter(|r| r.also.is_some_and(|a| a.success))
-                    .count();
-                (j.criterion, n as f64 / sel.len().max(1) as f64)
-            });
-            SplitSummary {
-                split: split.clone(),
-                recall: s.recall,
-                criterion,
-                also,
-                summary: s,
-                time_per_pair_s: tpp,
-                errors: sel.iter().filter(|r| r.rre_deg.is_none()).count(),
-            }
-        })
-        .collect()
-}
+pub use crate::report::bench_file::{bench_json, rows_of, summarise, PairRow, SplitSummary};
 
 /// The paper-style table of `summaries`, with the success criterion it counts by.
 pub fn print_table(summaries: &[SplitSummary]) {

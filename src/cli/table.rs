@@ -3,13 +3,15 @@
 //! accuracy and error), one row per file and split. Rows are labelled from each file's own
 //! parameters, so a row can never claim a backend it did not run.
 
-use crate::error::{Error, Result};
+use crate::error::Result;
 use crate::fusion::FusionMode;
 use crate::pipeline::RegisterParams;
+use crate::report::bench_file::read_bench_file;
 use crate::report::labels;
 use clap::Args;
-use serde_json::Value;
-use std::path::{Path, PathBuf};
+#[cfg(test)]
+use std::path::Path;
+use std::path::PathBuf;
 
 #[derive(Args, Debug)]
 pub struct TableArgs {
@@ -21,28 +23,19 @@ pub struct TableArgs {
     pub split: Option<String>,
 }
 
-fn field<'a>(path: &Path, v: &'a Value, ptr: &str) -> Result<&'a Value> {
-    v.pointer(ptr).ok_or_else(|| {
-        Error::format(
-            path,
-            ptr,
-            "a field of `cgenreg bench --json` output",
-            "missing",
-        )
-    })
-}
-
-/// The run's parameters, typed: what its rows are labelled from (report::labels).
-fn run_params(path: &Path, v: &Value) -> Result<RegisterParams> {
-    let params = field(path, v, "/params")?;
-    serde_json::from_value(params.clone()).map_err(|e| {
-        Error::format(
-            path,
-            "params",
-            "the registration parameters of a `cgenreg bench --json` output",
-            e.to_string(),
-        )
-    })
+/// The run's parameters, typed, from a bench output's JSON (what its rows are labelled from).
+#[cfg(test)]
+fn run_params(path: &Path, v: &serde_json::Value) -> Result<RegisterParams> {
+    let params = v.get("params").cloned().unwrap_or(serde_json::Value::Null);
+    crate::report::bench_file::BenchFile {
+        manifest: None,
+        params,
+        run: None,
+        pairs: Vec::new(),
+        summary: Vec::new(),
+        records: Vec::new(),
+    }
+    .register_params(path)
 }
 
 /// (WFM + VFM, geometric features, fusion) of a run.
@@ -66,68 +59,62 @@ fn row_label(p: &RegisterParams) -> (String, String, String) {
     }
 }
 
-fn pct(v: &Value, k: &str) -> String {
-    v.get(k)
-        .and_then(Value::as_f64)
-        .map(|x| format!("{:.1}", 100.0 * x))
-        .unwrap_or_else(|| "–".into())
+fn pct(x: f64) -> String {
+    if x.is_finite() {
+        format!("{:.1}", 100.0 * x)
+    } else {
+        "–".into()
+    }
 }
 
-fn num(v: &Value, k: &str, scale: f64) -> String {
-    v.get(k)
-        .and_then(Value::as_f64)
-        .filter(|x| x.is_finite())
-        .map(|x| format!("{:.1}", scale * x))
-        .unwrap_or_else(|| "inf".into())
+fn num(x: f64, scale: f64) -> String {
+    if x.is_finite() {
+        format!("{:.1}", scale * x)
+    } else {
+        "inf".into()
+    }
 }
 
 pub fn run(a: TableArgs) -> Result<()> {
     outln!("| VFM (frames) | Geo. features | Fusion | selection | calibration τ (img/geo) | split | pairs | RR % | RA@5° | RA@10° | RA@45° | RRE mean° | RRE med.° | TA@5cm | TA@10cm | TA@25cm | RTE mean cm | RTE med. cm | s/pair |");
     outln!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
     for path in &a.files {
-        let v: Value = crate::io::output::read_json(path, "`cgenreg bench --json` output")?;
-        let p = run_params(path, &v)?;
+        let f = read_bench_file(path)?;
+        let p = f.register_params(path)?;
         let (vfm, geo, fusion) = row_label(&p);
         let mut selection = labels::selection(p.fusion.selection);
         // recorded beside the parameters by `bench --repose-seed`
-        if let Some(seed) = v.pointer("/params/repose_seed").and_then(Value::as_u64) {
+        if let Some(seed) = f.repose_seed() {
             selection.push_str(&format!(", source re-posed (seed {seed})"));
         }
         if let Some(sc) = labels::scales(&p) {
             selection.push_str(&format!(", {sc}"));
         }
         let calibration = labels::calibration(&p);
-        let summaries = field(path, &v, "/summary")?.as_array().ok_or_else(|| {
-            Error::format(
-                path,
-                "summary",
-                "an array of per-split summaries",
-                "not an array",
-            )
-        })?;
-        for s in summaries {
-            let split = s.get("split").and_then(Value::as_str).unwrap_or("?");
+        for x in &f.summary {
             if a.split
                 .as_ref()
-                .is_some_and(|w| !w.eq_ignore_ascii_case(split))
+                .is_some_and(|w| !w.eq_ignore_ascii_case(&x.split))
             {
                 continue;
             }
+            let s = &x.summary;
             outln!(
-                "| {vfm} | {geo} | {fusion} | {selection} | {calibration} | {split} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {:.2} |",
-                s.get("n").and_then(Value::as_u64).unwrap_or(0),
-                pct(s, "recall"),
-                pct(s, "rot_acc_5"),
-                pct(s, "rot_acc_10"),
-                pct(s, "rot_acc_45"),
-                num(s, "rre_mean", 1.0),
-                num(s, "rre_median", 1.0),
-                pct(s, "trans_acc_5cm"),
-                pct(s, "trans_acc_10cm"),
-                pct(s, "trans_acc_25cm"),
-                num(s, "rte_mean", 100.0),
-                num(s, "rte_median", 100.0),
-                s.get("time_per_pair_s").and_then(Value::as_f64).unwrap_or(f64::NAN),
+                "| {vfm} | {geo} | {fusion} | {selection} | {calibration} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {:.2} |",
+                x.split,
+                s.n,
+                pct(s.recall),
+                pct(s.rot_acc_5),
+                pct(s.rot_acc_10),
+                pct(s.rot_acc_45),
+                num(s.rre_mean, 1.0),
+                num(s.rre_median, 1.0),
+                pct(s.trans_acc_5cm),
+                pct(s.trans_acc_10cm),
+                pct(s.trans_acc_25cm),
+                num(s.rte_mean, 100.0),
+                num(s.rte_median, 100.0),
+                x.time_per_pair_s,
             );
         }
     }

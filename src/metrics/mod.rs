@@ -194,18 +194,37 @@ impl PairMetrics {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Summary {
     pub n: usize,
+    #[serde(deserialize_with = "null_as_nan")]
     pub recall: f64,
+    #[serde(deserialize_with = "null_as_nan")]
     pub rot_acc_5: f64,
+    #[serde(deserialize_with = "null_as_nan")]
     pub rot_acc_10: f64,
+    #[serde(deserialize_with = "null_as_nan")]
     pub rot_acc_45: f64,
+    #[serde(deserialize_with = "null_as_nan")]
     pub rre_mean: f64,
+    #[serde(deserialize_with = "null_as_nan")]
     pub rre_median: f64,
+    #[serde(deserialize_with = "null_as_nan")]
     pub trans_acc_5cm: f64,
+    #[serde(deserialize_with = "null_as_nan")]
     pub trans_acc_10cm: f64,
+    #[serde(deserialize_with = "null_as_nan")]
     pub trans_acc_25cm: f64,
+    #[serde(deserialize_with = "null_as_nan")]
     pub rte_mean: f64,
+    #[serde(deserialize_with = "null_as_nan")]
     pub rte_median: f64,
+    #[serde(deserialize_with = "null_as_nan")]
     pub ir_mean: f64,
+}
+
+/// A number written by serde_json, where NaN is written as `null`, read back (`null` as NaN).
+pub(crate) fn null_as_nan<'de, D: serde::Deserializer<'de>>(
+    d: D,
+) -> std::result::Result<f64, D::Error> {
+    Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NAN))
 }
 
 /// The finite values: a pair with no pose (infinite error) is a failure in the fractions, but
