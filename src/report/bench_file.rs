@@ -1,5 +1,5 @@
 //! A `cgenreg bench --json` output: its writer ([`bench_json`], for `bench` and `merge`) and
-//! its typed reader ([`read_bench_file`], for `table`): the run file (header and one record per
+//! its typed reader ([`read_bench_file`], for `table`, `diff` and the Compare tab): the run file (header and one record per
 //! pair), the parameters as recorded, one row per pair ([`PairRow`]) and one summary per split
 //! ([`SplitSummary`]).
 
@@ -120,8 +120,8 @@ pub fn summarise(rows: &[PairRow]) -> Vec<SplitSummary> {
         .collect()
 }
 
-/// A bench output as written: what `table` reads (`diff` and the Compare tab read the same
-/// file through [`super::compare::load_bench_run`]).
+/// A bench output as written: what `table`, `diff` and the Compare tab read (the last two
+/// through [`super::compare::load_bench_run`]).
 #[derive(Clone, Debug, PartialEq)]
 pub struct BenchFile {
     /// The manifest, as given to `bench` (relative to where it ran).

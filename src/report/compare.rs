@@ -4,7 +4,7 @@
 //! itself is pure ([`compare`]); [`load_bench_run`] reads a `cgenreg bench --json` output.
 
 use crate::pipeline::params::RegisterParams;
-use crate::{Error, Result};
+use crate::Result;
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
@@ -170,53 +170,35 @@ pub fn settings_summary(p: &RegisterParams) -> String {
     parts.join(" | ")
 }
 
-/// Reads a `cgenreg bench --json` (or `cgenreg merge`) output.
+/// Reads a `cgenreg bench --json` (or `cgenreg merge`) output through the one typed reader
+/// ([`read_bench_file`](super::bench_file::read_bench_file)): errors name the file and field.
 pub fn load_bench_run(path: &Path) -> Result<BenchRun> {
-    // bounded, regular files only (a /dev/zero link is refused before any read)
-    let v: Value = crate::io::output::read_json(path, "cgenreg bench --json output")?;
-    bench_run_from_json(&path.display().to_string(), &v).map_err(|(field, why)| {
-        Error::format(
-            path,
-            &field,
-            "a cgenreg bench --json output (pairs, params, run.identity)",
-            why,
-        )
-    })
+    let f = super::bench_file::read_bench_file(path)?;
+    Ok(BenchRun::from_bench_file(&path.display().to_string(), f))
 }
 
-/// [`load_bench_run`] on parsed JSON; errors name the field.
-pub fn bench_run_from_json(
-    label: &str,
-    v: &Value,
-) -> std::result::Result<BenchRun, (String, String)> {
-    let pairs = v
-        .get("pairs")
-        .ok_or_else(|| ("pairs".to_string(), "missing".to_string()))?;
-    let pairs: Vec<PairRow> =
-        serde_json::from_value(pairs.clone()).map_err(|e| ("pairs".to_string(), e.to_string()))?;
-    let params = v
-        .get("params")
-        .cloned()
-        .ok_or_else(|| ("params".to_string(), "missing".to_string()))?;
-    let mut identity = v.pointer("/run/identity").cloned().unwrap_or(Value::Null);
-    if let Value::Object(m) = &mut identity {
-        // compared on their own: the parameters (above) and the pairs (matched by id)
-        for k in ["params", "selected", "shard_count"] {
-            m.remove(k);
+impl BenchRun {
+    /// The comparison's view of a bench output: its identity without the parameters (compared
+    /// on their own), the selected pairs (matched by id) and the shard count.
+    pub fn from_bench_file(label: &str, f: super::bench_file::BenchFile) -> BenchRun {
+        let mut identity = f
+            .run
+            .as_ref()
+            .and_then(|h| serde_json::to_value(&h.identity).ok())
+            .unwrap_or(Value::Null);
+        if let Value::Object(m) = &mut identity {
+            for k in ["params", "selected", "shard_count"] {
+                m.remove(k);
+            }
+        }
+        BenchRun {
+            label: label.to_string(),
+            params: f.params,
+            identity,
+            manifest: f.manifest,
+            pairs: f.pairs,
         }
     }
-    let manifest = match v.get("manifest") {
-        None | Some(Value::Null) => None,
-        Some(Value::String(s)) => Some(s.clone()),
-        Some(_) => return Err(("manifest".to_string(), "not a string".to_string())),
-    };
-    Ok(BenchRun {
-        label: label.to_string(),
-        params,
-        identity,
-        manifest,
-        pairs,
-    })
 }
 
 /// How a pair's success changed from run A to run B.
@@ -651,12 +633,16 @@ mod tests {
         let c = compare(&a, &a);
         assert!(c.param_differences.is_empty() && c.run_differences.is_empty());
         assert_eq!(c.pairs[0].d_rre_deg, Some(0.0));
-        let e = bench_run_from_json("x", &json!({"params": {}})).unwrap_err();
-        assert_eq!(e.0, "pairs");
-        let e = bench_run_from_json("x", &json!({"pairs": [{"id": 3}], "params": {}})).unwrap_err();
-        assert_eq!(e.0, "pairs");
         let dir = tempfile::tempdir().unwrap();
         let p = dir.path().join("bad.json");
+        for bad in [
+            r#"{"params": {}, "summary": []}"#,
+            r#"{"pairs": [{"id": 3}], "params": {}, "summary": []}"#,
+        ] {
+            std::fs::write(&p, bad).unwrap();
+            let e = load_bench_run(&p).unwrap_err().to_string();
+            assert!(e.contains("bad.json: pairs: "), "{e}");
+        }
         std::fs::write(&p, b"{not json").unwrap();
         let e = load_bench_run(&p).unwrap_err().to_string();
         assert!(e.contains("bad.json"), "{e}");
@@ -759,8 +745,14 @@ mod tests {
         assert!(e.starts_with("params:"), "{e}");
         a.params = Value::Null;
         assert_eq!(a.register_params().unwrap_err(), "params: missing");
-        let e = bench_run_from_json("x", &json!({"pairs": [], "params": {}, "manifest": 3}))
-            .unwrap_err();
-        assert_eq!(e.0, "manifest");
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("run.json");
+        std::fs::write(
+            &p,
+            r#"{"pairs": [], "params": {}, "summary": [], "manifest": 3}"#,
+        )
+        .unwrap();
+        let e = load_bench_run(&p).unwrap_err().to_string();
+        assert!(e.contains("run.json: manifest: "), "{e}");
     }
 }
