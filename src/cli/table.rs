@@ -27,15 +27,7 @@ pub struct TableArgs {
 #[cfg(test)]
 fn run_params(path: &Path, v: &serde_json::Value) -> Result<RegisterParams> {
     let params = v.get("params").cloned().unwrap_or(serde_json::Value::Null);
-    crate::report::bench_file::BenchFile {
-        manifest: None,
-        params,
-        run: None,
-        pairs: Vec::new(),
-        summary: Vec::new(),
-        records: Vec::new(),
-    }
-    .register_params(path)
+    crate::report::bench_file::params_from_json(path, &params)
 }
 
 /// (WFM + VFM, geometric features, fusion) of a run.

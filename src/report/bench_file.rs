@@ -141,20 +141,25 @@ impl BenchFile {
     /// The run's parameters, typed (what its rows are labelled from); `path` names the file
     /// in the error.
     pub fn register_params(&self, path: &Path) -> Result<RegisterParams> {
-        serde_json::from_value(self.params.clone()).map_err(|e| {
-            Error::format(
-                path,
-                "params",
-                "the registration parameters of a `cgenreg bench --json` output",
-                e.to_string(),
-            )
-        })
+        params_from_json(path, &self.params)
     }
 
     /// The seed of `bench --repose-seed`, recorded beside the parameters.
     pub fn repose_seed(&self) -> Option<u64> {
         self.params.get("repose_seed").and_then(Value::as_u64)
     }
+}
+
+/// Recorded registration parameters, typed; `path` names the file in the error.
+pub fn params_from_json(path: &Path, params: &Value) -> Result<RegisterParams> {
+    serde_json::from_value(params.clone()).map_err(|e| {
+        Error::format(
+            path,
+            "params",
+            "the registration parameters of a `cgenreg bench --json` output",
+            e.to_string(),
+        )
+    })
 }
 
 /// Reads a `cgenreg bench --json` (or `cgenreg merge`) output, typed; errors name the file and
