@@ -14,8 +14,9 @@ use crate::cli::args::ManifestSettings;
 use crate::dataset::manifest::Dataset;
 use crate::error::{Error, Result};
 use crate::pipeline::shard::{
-    run_pending, stage_totals, PairRecord, Progress, RunFile, RunIdentity, StageTime, DONE,
+    run_pending, stage_totals, PairRecord, Progress, RunIdentity, StageTime, DONE,
 };
+use crate::report::generate_file::generate_json;
 use clap::Args;
 use serde_json::json;
 use std::path::PathBuf;
@@ -38,17 +39,6 @@ pub struct GenerateArgs {
     pub pipeline: PipelineArgs,
     #[command(flatten)]
     pub image: ImageArgs,
-}
-
-/// Generate output bytes for a run file.
-pub fn generate_json(f: &RunFile) -> Result<Vec<u8>> {
-    let v = json!({
-        "manifest": f.run.identity.manifest,
-        "params": f.run.identity.params,
-        "run": f.run,
-        "records": f.records,
-    });
-    serde_json::to_vec_pretty(&v).map_err(|e| Error::Invalid(format!("serialising: {e}")))
 }
 
 pub fn run(a: GenerateArgs) -> Result<()> {

@@ -34,18 +34,6 @@ pub struct StatusArgs {
     pub project_pairs: usize,
 }
 
-/// Writes `f` in the format of its command.
-pub fn serialise(f: &RunFile) -> Result<Vec<u8>> {
-    match f.run.identity.command.as_str() {
-        "bench" => super::bench::bench_json(f),
-        c if c.starts_with("study") => super::study::study_json(f),
-        "generate" => super::generate::generate_json(f),
-        c => Err(Error::Invalid(format!(
-            "unknown command {c:?} in a run file"
-        ))),
-    }
-}
-
 /// Prints the command's own table for a (merged) run file.
 fn print_tables(f: &RunFile) -> Result<()> {
     match f.run.identity.command.as_str() {
@@ -122,7 +110,12 @@ pub fn run_merge(a: MergeArgs) -> Result<()> {
         eprintln!("missing: {id}");
     }
     if let Some(path) = &a.json {
-        crate::io::output::write(path, OutputKind::RunJson, a.force, &serialise(&m.file)?)?;
+        crate::io::output::write(
+            path,
+            OutputKind::RunJson,
+            a.force,
+            &crate::report::run_output_bytes(&m.file)?,
+        )?;
         eprintln!("wrote {}", path.display());
     }
     if !m.missing.is_empty() && !a.allow_missing {

@@ -152,14 +152,12 @@ impl BenchFile {
 
 /// Recorded registration parameters, typed; `path` names the file in the error.
 pub fn params_from_json(path: &Path, params: &Value) -> Result<RegisterParams> {
-    serde_json::from_value(params.clone()).map_err(|e| {
-        Error::format(
-            path,
-            "params",
-            "the registration parameters of a `cgenreg bench --json` output",
-            e.to_string(),
-        )
-    })
+    let expected = "the registration parameters of a `cgenreg bench --json` output";
+    if params.is_null() {
+        return Err(Error::format(path, "params", expected, "missing"));
+    }
+    serde_json::from_value(params.clone())
+        .map_err(|e| Error::format(path, "params", expected, e.to_string()))
 }
 
 /// Reads a `cgenreg bench --json` (or `cgenreg merge`) output, typed; errors name the file and
@@ -176,13 +174,25 @@ pub fn read_bench_file(path: &Path) -> Result<BenchFile> {
             "missing",
         )
     };
+    let mut run: Option<RunHeader> = field(path, &v, "run")?;
+    let mut records: Vec<PairRecord> = field(path, &v, "records")?.unwrap_or_default();
+    // A file with a run header is a run file: its header and records are checked against each
+    // other as `merge` and `status` check them (read_run_file), so no reader trusts a corrupt one.
+    if let Some(header) = run.take() {
+        let f = RunFile {
+            run: header,
+            records,
+        };
+        f.check(path)?;
+        (run, records) = (Some(f.run), f.records);
+    }
     Ok(BenchFile {
         manifest: field(path, &v, "manifest")?,
         params: v.get("params").cloned().ok_or_else(|| missing("params"))?,
-        run: field(path, &v, "run")?,
+        run,
         pairs: field(path, &v, "pairs")?.ok_or_else(|| missing("pairs"))?,
         summary: field(path, &v, "summary")?.ok_or_else(|| missing("summary"))?,
-        records: field(path, &v, "records")?.unwrap_or_default(),
+        records,
     })
 }
 
@@ -281,6 +291,38 @@ mod tests {
             RegisterParams::default()
         );
         assert_eq!(back.repose_seed(), None);
+    }
+
+    /// A header that disagrees with its records (a pair the run never selected, a pair twice)
+    /// is refused by the typed reader as `merge` and `status` refuse it.
+    #[test]
+    fn a_run_header_is_checked_against_its_records() {
+        let rows = [row("a", Some(2.0), true), row("b", None, false)];
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("run.json");
+        let mut f = run_file(&rows);
+        f.records[1].id = "a".into();
+        std::fs::write(&path, bench_json(&f).unwrap()).unwrap();
+        let e = read_bench_file(&path).unwrap_err().to_string();
+        assert!(
+            e.contains(": records[1].id: expected each pair once"),
+            "{e}"
+        );
+        let mut f = run_file(&rows);
+        f.records[0].id = "elsewhere".into();
+        std::fs::write(&path, bench_json(&f).unwrap()).unwrap();
+        let e = read_bench_file(&path).unwrap_err().to_string();
+        assert!(
+            e.contains(": records[0].id: expected a pair of run.identity.selected"),
+            "{e}"
+        );
+        // and the params of an output without them name the field
+        let mut v: Value = serde_json::from_slice(&bench_json(&run_file(&rows)).unwrap()).unwrap();
+        v["params"] = Value::Null;
+        std::fs::write(&path, serde_json::to_vec(&v).unwrap()).unwrap();
+        let back = read_bench_file(&path).unwrap();
+        let e = back.register_params(&path).unwrap_err().to_string();
+        assert!(e.contains(": params: ") && e.ends_with("missing"), "{e}");
     }
 
     /// Outputs written by earlier versions: `recall` twice, no criterion, error count, header

@@ -80,12 +80,10 @@ pub struct BenchRun {
 
 impl BenchRun {
     /// The run's parameters as the pipeline's own type (a `bench` run records the whole
-    /// [`RegisterParams`]); the error names the field that does not fit.
-    pub fn register_params(&self) -> std::result::Result<RegisterParams, String> {
-        if self.params.is_null() {
-            return Err("params: missing".into());
-        }
-        serde_json::from_value(self.params.clone()).map_err(|e| format!("params: {e}"))
+    /// [`RegisterParams`]), read as every bench output reader reads them; the error names the
+    /// run's file and the field that does not fit.
+    pub fn register_params(&self) -> Result<RegisterParams> {
+        crate::report::bench_file::params_from_json(Path::new(&self.label), &self.params)
     }
 
     /// A one-line description of the run's settings ("FPFH · geometry only · NN · SC2-PCR").
@@ -741,10 +739,14 @@ mod tests {
     fn bad_params_name_the_field() {
         let mut a = run("a", "NoisyAnd", vec![]);
         a.params = json!({"voxel": "five"});
-        let e = a.register_params().unwrap_err();
-        assert!(e.starts_with("params:"), "{e}");
+        let e = a.register_params().unwrap_err().to_string();
+        assert!(e.starts_with("a: params: "), "{e}");
         a.params = Value::Null;
-        assert_eq!(a.register_params().unwrap_err(), "params: missing");
+        let e = a.register_params().unwrap_err().to_string();
+        assert!(
+            e.starts_with("a: params: ") && e.ends_with("missing"),
+            "{e}"
+        );
         let dir = tempfile::tempdir().unwrap();
         let p = dir.path().join("run.json");
         std::fs::write(

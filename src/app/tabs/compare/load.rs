@@ -44,9 +44,7 @@ impl LoadedComparison {
 
 fn loaded_run(path: &Path) -> Result<LoadedRun, String> {
     let run = load_bench_run(path).map_err(|e| e.to_string())?;
-    let params = run
-        .register_params()
-        .map_err(|e| format!("{}: {e}", path.display()));
+    let params = run.register_params().map_err(|e| e.to_string());
     let missing = params
         .as_ref()
         .map(compare::missing_files)
