@@ -9,7 +9,18 @@ step "setup"
 CGENREG_SETUP_SKIP_SPINNET=1 bash scripts/setup.sh
 export CGENREG_DATA="${CGENREG_DATA:-$(cd .. && pwd)/shared/data}"
 # A clean clone builds everything once: incremental compilation only adds its bookkeeping there.
-if [ "${CI:-}" = "true" ]; then export CARGO_INCREMENTAL="${CARGO_INCREMENTAL:-0}"; fi
+# The crate itself as one codegen unit there: its library and unit tests are compiled side by side
+# on the two cores, each on one, and one unit costs fewer CPU-seconds in all (duplicated inlining)
+# and gives faster kernels (docs/development.md). Not in Cargo.toml: an edit-and-rebuild loop
+# would then re-optimise the whole crate each time. Every cargo call below, and the Python
+# extension's build (scripts/test_python.sh reads CGENREG_CARGO_CONFIG), passes the same
+# setting, or the library would be compiled again.
+cargo_config=()
+if [ "${CI:-}" = "true" ]; then
+  export CARGO_INCREMENTAL="${CARGO_INCREMENTAL:-0}"
+  export CGENREG_CARGO_CONFIG="${CGENREG_CARGO_CONFIG-profile.dev.package.cgenreg.codegen-units=1}"
+fi
+if [ -n "${CGENREG_CARGO_CONFIG:-}" ]; then cargo_config=(--config "$CGENREG_CARGO_CONFIG"); fi
 status=0
 # What only needs the network and a disk (SpinNet's export: a 3 GB torch download under CI; the
 # Python tests' venv) is made in the background while the tests compile on every core.
@@ -24,14 +35,14 @@ prep_pid=$!
 # built for the integration tests all the same), and the examples (built by a bare `cargo test`
 # only to see that they compile; clippy --all-targets does that) cost a link each.
 step "test build"
-cargo test --lib --tests --no-run 2>&1 || status=$?
+cargo "${cargo_config[@]}" test --lib --tests --no-run 2>&1 || status=$?
 step "waiting for the background preparation"
 prep_status=0
 wait "$prep_pid" || prep_status=$?
 echo "== background preparation (SpinNet export, Python venv): exit $prep_status"
 cat "$prep_log"
 step "tests"
-cargo test --lib --tests --no-fail-fast 2>&1 || status=$?
+cargo "${cargo_config[@]}" test --lib --tests --no-fail-fast 2>&1 || status=$?
 # Result tables are generated from the committed JSONs; a hand edit or a new JSON without a rerun fails.
 step "result tables"
 python3 scripts/tables.py --check || status=$?
@@ -39,7 +50,7 @@ python3 scripts/tables.py --check || status=$?
 # the fusion and SC2-PCR kernels must give the same bits at every width.
 for isa in avx2 scalar; do
   step "CGENREG_SIMD=$isa: fusion, estimate and simd unit tests"
-  CGENREG_SIMD=$isa cargo test --lib --no-fail-fast -- fusion:: estimate:: simd:: 2>&1 || status=$?
+  CGENREG_SIMD=$isa cargo "${cargo_config[@]}" test --lib --no-fail-fast -- fusion:: estimate:: simd:: 2>&1 || status=$?
 done
 # The Python package (pip install . gives it): built in the dev profile into target/, tested
 # with pytest in a private virtual environment under target/.

@@ -24,7 +24,11 @@ if [ "${1:-}" = "--prepare" ]; then exit 0; fi
 # features and the ONNX stack is compiled a second time); the wheel `pip install .` builds
 # differs only in carrying no inspector (tested by monkeypatching the extension's HAS_GUI).
 SECONDS=0
-VIRTUAL_ENV="$venv" PATH="$venv/bin:$PATH" "$venv/bin/maturin" develop --quiet --features gui
+# CGENREG_CARGO_CONFIG: the cargo setting scripts/test.sh built with (under CI), so the library
+# compiled there is reused.
+config=()
+if [ -n "${CGENREG_CARGO_CONFIG:-}" ]; then config=(--config "$CGENREG_CARGO_CONFIG"); fi
+VIRTUAL_ENV="$venv" PATH="$venv/bin:$PATH" "$venv/bin/maturin" develop --quiet --features gui "${config[@]}"
 echo "test_python: extension built and installed in ${SECONDS} s"
 CGENREG_TEST_BIN="${CGENREG_TEST_BIN:-$PWD/target/debug/cgenreg}" \
   "$venv/bin/python" -m pytest -q -p no:cacheprovider tests/python "$@"
