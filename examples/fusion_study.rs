@@ -5,7 +5,10 @@
 //! the geometry-alone, Noisy-AND and image-alone poses with their fit on the union of
 //! {geometry, Noisy-AND} and of all three sets, on each branch's own set, SC2-PCR on the union
 //! of the Noisy-AND and geometry sets (b, the `union` mode), and each pose's free-space
-//! (visibility) consistency with both scans' depth views (fourth round). The first round's
+//! (visibility) consistency with both scans' depth views (fourth round), and (a probe for a
+//! later round, not a rule of any round so far) each pose after point-to-plane ICP on the
+//! keypoint clouds, at the inlier threshold θ alone (`icp1_*`) and coarse to fine at 4θ, 2θ, θ
+//! (`icp3_*`). The first round's
 //! candidate (c) is no longer computed. `scripts/fusion_study2.py` (counts) and
 //! `scripts/fusion_study4.py` (visibility) apply the rules and the decision rule to these lines.
 //!
@@ -29,6 +32,7 @@ use cgenreg::pipeline::union::{geometry_params, mode_correspondences, noisy_and_
 use cgenreg::pipeline::visibility::PairViews;
 use cgenreg::pipeline::{ImageBranchParams, Memo, RegisterParams, Registration, VfmSpec, WfmSpec};
 use clap::Parser;
+use nalgebra::{Isometry3, Matrix6, Point3, Translation3, UnitQuaternion, Vector3, Vector6};
 use serde_json::{json, Value};
 use std::io::Write;
 use std::path::PathBuf;
@@ -168,6 +172,26 @@ fn study_pair(
     let (gs, gt_) = pts(&union(&[geo]));
     let (as_, at) = pts(&union(&[and]));
     let (is, it) = pts(&union(&[img]));
+    // The probe's ICP: target normals by local PCA at twice the keypoint voxel (30 neighbours).
+    let tgt_index = cgenreg::geometry::knn::KdIndex::new(&tgt.keypoints.points);
+    let tgt_normals = cgenreg::geometry::normals::estimate_normals(
+        &tgt.keypoints.points,
+        &tgt_index,
+        2.0 * params.voxel,
+        30,
+    );
+    let icp = |t0: &Isometry3<f64>, radii: &[f64]| {
+        radii.iter().fold(*t0, |t, &d| {
+            icp_point_to_plane(
+                &src.keypoints.points,
+                &tgt.keypoints.points,
+                &tgt_normals,
+                &tgt_index,
+                t,
+                d,
+            )
+        })
+    };
     let mut cands = serde_json::Map::new();
     for (name, corr) in [
         ("geometry", geo),
@@ -190,7 +214,13 @@ fn study_pair(
                 // source's views (under the inverse pose).
                 let vst = visibility(&src.keypoints.points, &t, &tgt_views, theta);
                 let vts = visibility(&tgt.keypoints.points, &t.inverse(), &src_views, theta);
-                json!({"fit_g": fg, "fit_a": fa, "fit_i": fi,
+                let t1 = icp(&t, &[theta]);
+                let t3 = icp(&t, &[4.0 * theta, 2.0 * theta, theta]);
+                let (r1, tr1) = (rre_deg(&t1, &gt), rte_m(&t1, &gt));
+                let (r3, tr3) = (rre_deg(&t3, &gt), rte_m(&t3, &gt));
+                json!({"icp1_rre": r1, "icp1_rte": tr1, "icp1_ok": r1 <= 15.0 && tr1 <= 0.30,
+                       "icp3_rre": r3, "icp3_rte": tr3, "icp3_ok": r3 <= 15.0 && tr3 <= 0.30,
+                       "fit_g": fg, "fit_a": fa, "fit_i": fi,
                        "vis_st": [vst.consistent, vst.conflict, vst.unseen],
                        "vis_ts": [vts.consistent, vts.conflict, vts.unseen],
                        "vis": (vst + vts).score(),
@@ -244,4 +274,52 @@ fn union(sets: &[&[Correspondence]]) -> Vec<(u32, u32)> {
         .filter(|c| seen.insert((c.src, c.tgt)))
         .map(|c| (c.src, c.tgt))
         .collect()
+}
+
+/// Point-to-plane ICP (Gauss-Newton on the linearised rotation, at most 30 iterations): each
+/// moved source point paired with its nearest target point within `max_dist` that has a normal;
+/// stops when an update moves less than 1e-6 (rad + m) or fewer than 6 pairs remain.
+fn icp_point_to_plane(
+    src: &[Point3<f32>],
+    tgt: &[Point3<f32>],
+    normals: &[Vector3<f32>],
+    index: &cgenreg::geometry::knn::KdIndex,
+    init: Isometry3<f64>,
+    max_dist: f64,
+) -> Isometry3<f64> {
+    let mut t = init;
+    for _ in 0..30 {
+        let mut a = Matrix6::<f64>::zeros();
+        let mut b = Vector6::<f64>::zeros();
+        let mut n_pairs = 0usize;
+        for p in src {
+            let q = t * p.cast::<f64>();
+            let Some((j, d)) = index.nearest(&q.cast::<f32>()) else {
+                continue;
+            };
+            let n = normals[j].cast::<f64>();
+            if f64::from(d) > max_dist || n.norm() == 0.0 {
+                continue;
+            }
+            let r = n.dot(&(q - tgt[j].cast::<f64>()));
+            let c = q.coords.cross(&n);
+            let jac = Vector6::new(c.x, c.y, c.z, n.x, n.y, n.z);
+            a += jac * jac.transpose();
+            b += jac * r;
+            n_pairs += 1;
+        }
+        if n_pairs < 6 {
+            break;
+        }
+        let Some(x) = a.cholesky().map(|ch| ch.solve(&(-b))) else {
+            break;
+        };
+        let rot = UnitQuaternion::from_scaled_axis(Vector3::new(x[0], x[1], x[2]));
+        let step = Isometry3::from_parts(Translation3::new(x[3], x[4], x[5]), rot);
+        t = step * t;
+        if x.norm() < 1e-6 {
+            break;
+        }
+    }
+    t
 }
