@@ -9,16 +9,15 @@ step "setup"
 CGENREG_SETUP_SKIP_SPINNET=1 bash scripts/setup.sh
 export CGENREG_DATA="${CGENREG_DATA:-$(cd .. && pwd)/shared/data}"
 # A clean clone builds everything once: incremental compilation only adds its bookkeeping there.
-# The crate itself as one codegen unit there: its library and unit tests are compiled side by side
-# on the two cores, each on one, and one unit costs fewer CPU-seconds in all (duplicated inlining)
-# and gives faster kernels (docs/development.md). Not in Cargo.toml: an edit-and-rebuild loop
-# would then re-optimise the whole crate each time. Every cargo call below, and the Python
-# extension's build (scripts/test_python.sh reads CGENREG_CARGO_CONFIG), passes the same
-# setting, or the library would be compiled again.
+# The crate's own settings for such a build (one codegen unit, no line tables) are in
+# .ci/cargo-config.toml, not in Cargo.toml, where an edit-and-rebuild loop would pay for them
+# (docs/development.md). Every cargo call below, and the Python extension's build
+# (scripts/test_python.sh reads CGENREG_CARGO_CONFIG), passes the same file, or the library
+# would be compiled again.
 cargo_config=()
 if [ "${CI:-}" = "true" ]; then
   export CARGO_INCREMENTAL="${CARGO_INCREMENTAL:-0}"
-  export CGENREG_CARGO_CONFIG="${CGENREG_CARGO_CONFIG-profile.dev.package.cgenreg.codegen-units=1}"
+  export CGENREG_CARGO_CONFIG="${CGENREG_CARGO_CONFIG-$PWD/.ci/cargo-config.toml}"
 fi
 if [ -n "${CGENREG_CARGO_CONFIG:-}" ]; then cargo_config=(--config "$CGENREG_CARGO_CONFIG"); fi
 status=0

@@ -24,8 +24,8 @@ if [ "${1:-}" = "--prepare" ]; then exit 0; fi
 # features and the ONNX stack is compiled a second time); the wheel `pip install .` builds
 # differs only in carrying no inspector (tested by monkeypatching the extension's HAS_GUI).
 SECONDS=0
-# CGENREG_CARGO_CONFIG: the cargo setting scripts/test.sh built with (under CI), so the library
-# compiled there is reused.
+# CGENREG_CARGO_CONFIG: the cargo settings (a `--config` value: a file or KEY=VALUE) scripts/test.sh
+# built with (under CI), so the library compiled there is reused.
 config=()
 if [ -n "${CGENREG_CARGO_CONFIG:-}" ]; then config=(--config "$CGENREG_CARGO_CONFIG"); fi
 VIRTUAL_ENV="$venv" PATH="$venv/bin:$PATH" "$venv/bin/maturin" develop --quiet --features gui "${config[@]}"
