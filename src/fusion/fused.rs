@@ -26,7 +26,7 @@ pub(crate) enum Sim<'a> {
     /// `cosine_similarity` forms them, so no N x M matrix is held.
     Features {
         src: &'a crate::features::Features,
-        tgt: &'a crate::features::Features,
+        tgt: &'a super::similarity::DotRhs<'a>,
     },
 }
 
@@ -354,7 +354,7 @@ fn band_rows(sim: Sim<'_>, r0: usize, n: usize, buf: &mut Vec<f32>) {
     if let Sim::Features { src, tgt } = sim {
         let (d, cols) = (src.dim, tgt.len());
         buf.resize(n * cols, 0.0);
-        super::similarity::dot_band(&src.data[r0 * d..(r0 + n) * d], &tgt.data, d, buf);
+        super::similarity::dot_band(&src.data[r0 * d..(r0 + n) * d], tgt, buf);
     }
 }
 
@@ -486,16 +486,17 @@ fn one_pass(
     let streamed = |s: Sim<'_>| matches!(s, Sim::Features { .. });
     for (what, br) in [("image", a), ("geometric", b)] {
         if let Sim::Features { src, tgt } = br.sim {
-            if src.dim != tgt.dim || src.dim == 0 {
+            if src.dim != tgt.dim() || src.dim == 0 {
                 return Err(Error::Invalid(format!(
                     "fusion: {what} features are {}-D (source) and {}-D (target)",
-                    src.dim, tgt.dim
+                    src.dim,
+                    tgt.dim()
                 )));
             }
         }
     }
-    // Feature-backed rows are formed a band at a time with one sgemm: 64+ rows keep its
-    // packing of the target features amortised (as `cosine_similarity`'s bands).
+    // Feature-backed rows are formed a band at a time by `dot_band`: 64+ rows keep the sgemm
+    // fallback's packing of the target features amortised (as `cosine_similarity`'s bands).
     let band = if streamed(a.sim) || (!only_a && streamed(b.sim)) {
         rows_per_task(rows, cols, 1 << 18).max(64).min(rows)
     } else {

@@ -385,6 +385,7 @@ pub fn match_then_fuse_select_features(
         similarity::normalize_rows(geo.0),
         similarity::normalize_rows(geo.1),
     );
+    let (it, gt) = (similarity::DotRhs::new(&it), similarity::DotRhs::new(&gt));
     let img_sim = fused::Sim::Features { src: &is, tgt: &it };
     let geo_sim = fused::Sim::Features { src: &gs, tgt: &gt };
     let a = fused::Branch {

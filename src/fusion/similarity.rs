@@ -2,6 +2,7 @@
 
 use super::matrix::{rows_per_task, DenseMatrix};
 use crate::features::Features;
+use crate::simd::Isa;
 use crate::{Error, Result};
 use rayon::prelude::*;
 
@@ -21,19 +22,93 @@ pub fn normalize_rows(f: &Features) -> Features {
     Features { dim: f.dim, data }
 }
 
+/// The depth of the blocked sgemm's k block (matrixmultiply's `S_KC`): up to it, a dot product
+/// is one FMA chain there, which the FMA kernel reproduces bit for bit.
+const SGEMM_KC: usize = 256;
+
+/// The right-hand side of [`dot_band`]: target features (m x d, row-major), laid out once per
+/// matrix for the kernel this CPU runs. With AVX2 + FMA and d ≤ 256 they are transposed (d x m)
+/// for [`crate::simd::dot_rows`], which reads them in place; otherwise each band goes through
+/// the blocked sgemm, which packs them again for every band (as much work as the products when
+/// d is a few dozen). Both give the same bits where both run.
+pub(crate) struct DotRhs<'a> {
+    b: &'a [f32],
+    d: usize,
+    m: usize,
+    isa: Isa,
+    /// `b` transposed, for the FMA kernel (empty with sgemm).
+    bt: Vec<f32>,
+}
+
+impl<'a> DotRhs<'a> {
+    pub fn new(f: &'a Features) -> Self {
+        let (d, m) = (f.dim, f.len());
+        let isa = match crate::simd::features().fma_isa() {
+            Isa::Scalar => Isa::Scalar,
+            _ if d == 0 || d > SGEMM_KC => Isa::Scalar,
+            isa => isa,
+        };
+        let mut bt = Vec::new();
+        if isa != Isa::Scalar {
+            bt = vec![0.0f32; d * m];
+            bt.par_chunks_mut(m.max(1))
+                .enumerate()
+                .for_each(|(k, row)| {
+                    for (j, v) in row.iter_mut().enumerate() {
+                        *v = f.data[j * d + k];
+                    }
+                });
+        }
+        DotRhs {
+            b: &f.data[..d * m],
+            d,
+            m,
+            isa,
+            bt,
+        }
+    }
+
+    /// Target rows.
+    pub fn len(&self) -> usize {
+        self.m
+    }
+
+    pub fn dim(&self) -> usize {
+        self.d
+    }
+}
+
 /// `out[r][j] = a_band[r] · b[j]` for a band of rows `a_band` (rows x d, row-major) against all
-/// of `b` (m x d, row-major, read as its transpose), with one blocked sgemm; `out` is rows x m.
+/// of `b`'s rows; `out` is rows x m.
 /// Panics when the slice lengths disagree with `d` (a caller bug, never data-dependent).
-pub(crate) fn dot_band(a_band: &[f32], b: &[f32], d: usize, out: &mut [f32]) {
+pub(crate) fn dot_band(a_band: &[f32], b: &DotRhs<'_>, out: &mut [f32]) {
+    let (d, m) = (b.d, b.m);
     if d == 0 {
         out.fill(0.0);
         return;
     }
     let rows = a_band.len() / d;
+    assert!(
+        a_band.len() == rows * d && out.len() == rows * m,
+        "dot_band: {} x {d} against {} x {d} into {} values",
+        rows,
+        m,
+        out.len()
+    );
+    if b.isa != Isa::Scalar {
+        crate::simd::dot_rows(b.isa, a_band, d, &b.bt, m, out);
+        return;
+    }
+    sgemm_band(a_band, b.b, d, out);
+}
+
+/// [`dot_band`] by one blocked sgemm: `b` (m x d, row-major) read as its transpose.
+fn sgemm_band(a_band: &[f32], b: &[f32], d: usize, out: &mut [f32]) {
+    let rows = a_band.len() / d;
     let m = b.len() / d;
     assert!(
         a_band.len() == rows * d && b.len() == m * d && out.len() == rows * m,
-        "dot_band: {} x {d} against {} x {d} into {} values",
+        "sgemm band: {} x {d} against {} x {d} into {} values",
         rows,
         m,
         out.len()
@@ -61,8 +136,8 @@ pub(crate) fn dot_band(a_band: &[f32], b: &[f32], d: usize, out: &mut [f32]) {
     }
 }
 
-/// `S[i][j] = cos(src_i, tgt_j)`: both sides L2-normalised, then one blocked sgemm per band
-/// of source rows, bands run in parallel.
+/// `S[i][j] = cos(src_i, tgt_j)`: both sides L2-normalised, then [`dot_band`] per band of
+/// source rows, bands run in parallel.
 pub fn cosine_similarity(src: &Features, tgt: &Features) -> Result<DenseMatrix> {
     if src.dim != tgt.dim {
         return Err(Error::Invalid(format!(
@@ -86,6 +161,7 @@ pub fn cosine_similarity(src: &Features, tgt: &Features) -> Result<DenseMatrix> 
     }
     let a = normalize_rows(src);
     let b = normalize_rows(tgt);
+    let rhs = DotRhs::new(&b);
     // Bands of 64+ rows keep sgemm's packing of B amortised while giving rayon enough tasks.
     let band = rows_per_task(n, m, 1 << 18).max(64).min(n);
     out.data
@@ -94,7 +170,7 @@ pub fn cosine_similarity(src: &Features, tgt: &Features) -> Result<DenseMatrix> 
         .for_each(|(t, c)| {
             let r0 = t * band;
             let rows = c.len() / m;
-            dot_band(&a.data[r0 * d..(r0 + rows) * d], &b.data, d, c);
+            dot_band(&a.data[r0 * d..(r0 + rows) * d], &rhs, c);
         });
     Ok(out)
 }
@@ -162,6 +238,53 @@ mod tests {
         assert!(cosine_similarity(&src, &random_features(3, 8, 3)).is_err());
         let empty = cosine_similarity(&Features::new(d, vec![]), &tgt).unwrap();
         assert_eq!(empty.shape(), (0, m));
+    }
+
+    /// The FMA kernel against the sgemm it replaces, bit for bit, and against an FMA chain
+    /// written out, over shapes that leave every tile edge (rows mod 4, columns mod 16 and
+    /// mod 256) and every depth up to sgemm's k block (a row of -0 included).
+    #[test]
+    fn fma_kernel_has_the_sgemm_bits() {
+        if crate::simd::features().fma_isa() == Isa::Scalar {
+            eprintln!("skipping: no AVX2 + FMA on this CPU");
+            return;
+        }
+        let seed = 0x5eed_d07;
+        let mut dims = Lcg(seed);
+        for case in 0..40u64 {
+            let d = [1, 2, 3, 7, 8, 24, 32, 33, 64, 65, 128, 255, 256][case as usize % 13];
+            let rows = 1 + (dims.next_u64() % 70) as usize;
+            let m = 1 + (dims.next_u64() % 600) as usize;
+            let mut a = random_features(rows, d, seed ^ (2 * case + 1));
+            a.data[..d].iter_mut().for_each(|v| *v = -0.0);
+            let b = random_features(m, d, seed ^ (2 * case + 2));
+            let rhs = DotRhs::new(&b);
+            assert_ne!(rhs.isa, Isa::Scalar, "d = {d} takes the FMA kernel");
+            let (mut fast, mut gemm) = (vec![1.0f32; rows * m], vec![2.0f32; rows * m]);
+            dot_band(&a.data, &rhs, &mut fast);
+            sgemm_band(&a.data, &b.data, d, &mut gemm);
+            let chain = |i: usize, j: usize| {
+                let mut acc = 0.0f32;
+                for k in 0..d {
+                    acc = a.data[i * d + k].mul_add(b.data[j * d + k], acc);
+                }
+                acc
+            };
+            for i in 0..rows {
+                for j in 0..m {
+                    let (x, y) = (fast[i * m + j], gemm[i * m + j]);
+                    assert_eq!(
+                        x.to_bits(),
+                        y.to_bits(),
+                        "seed {seed:#x} case {case}: {rows} x {m} x {d} at ({i}, {j}): {x} vs {y}"
+                    );
+                    assert_eq!(x.to_bits(), chain(i, j).to_bits(), "case {case} ({i}, {j})");
+                }
+            }
+        }
+        // deeper than sgemm's k block: sgemm itself
+        let b = random_features(5, SGEMM_KC + 1, 9);
+        assert_eq!(DotRhs::new(&b).isa, Isa::Scalar);
     }
 
     #[test]

@@ -29,6 +29,7 @@ pub fn row_nn_posterior(src: &Features, tgt: &Features, tau: f32) -> Result<Vec<
     }
     let a = normalize_rows(src);
     let b = normalize_rows(tgt);
+    let rhs = super::similarity::DotRhs::new(&b);
     let it = 1.0 / tau;
     let mut out: Vec<Correspondence> = a
         .data
@@ -37,7 +38,7 @@ pub fn row_nn_posterior(src: &Features, tgt: &Features, tau: f32) -> Result<Vec<
         .flat_map_iter(|(t, a_band)| {
             let rows = a_band.len() / d;
             let mut s = vec![0.0f32; rows * m];
-            super::similarity::dot_band(a_band, &b.data, d, &mut s);
+            super::similarity::dot_band(a_band, &rhs, &mut s);
             let base = t * BAND;
             (0..rows)
                 .filter_map(|r| {

@@ -93,6 +93,17 @@ impl Features {
         }
     }
 
+    /// Dot products as exact fused multiply-add chains ([`dot_rows`]): AVX2 + FMA (an AVX-512
+    /// CPU has both), else [`Isa::Scalar`], where `dot_rows` is correct but slow (a C library
+    /// call per product) and callers keep a faster fallback of their own.
+    pub fn fma_isa(&self) -> Isa {
+        if self.avx2 && self.fma {
+            Isa::Avx2
+        } else {
+            Isa::Scalar
+        }
+    }
+
     /// Bit-set kernels and SC2-PCR's compatibility rows: AVX-512 F+BW+VL+VPOPCNTDQ with POPCNT
     /// and FMA, else AVX2 with POPCNT and FMA.
     pub fn bitset_isa(&self) -> Isa {
@@ -125,6 +136,21 @@ pub fn and_popcount(isa: Isa, a: &[u64], b: &[u64]) -> u32 {
     }
     let _ = isa;
     scalar::and_popcount(a, b)
+}
+
+/// [`scalar::dot_rows`] (rows of `a` against the transpose `bt` of b, exact FMA chains) with
+/// the kernel `isa` selects; `isa` must come from [`Features::fma_isa`] of this CPU (or be
+/// [`Isa::Scalar`]). Every kernel gives the same bits.
+#[inline(always)]
+pub fn dot_rows(isa: Isa, a: &[f32], d: usize, bt: &[f32], m: usize, out: &mut [f32]) {
+    #[cfg(target_arch = "x86_64")]
+    match isa {
+        // SAFETY: the CPU supports AVX2 and FMA (fma_isa checked them at run time).
+        Isa::Avx512 | Isa::Avx2 => return unsafe { x86_64_avx2::dot_rows(a, d, bt, m, out) },
+        Isa::Scalar => {}
+    }
+    let _ = isa;
+    scalar::dot_rows(a, d, bt, m, out)
 }
 
 /// The endpoints of n correspondences as structure-of-arrays f32: source x, y, z and target

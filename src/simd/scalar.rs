@@ -69,3 +69,37 @@ pub fn compat_row(
         }
     }
 }
+
+/// `out[r][j] = a_r · b_j` for the rows of `a` (rows x d, row-major) against `bt`, the
+/// transpose of b (d x m, row-major: its column j is b's row j); `out` is rows x m. Each sum is
+/// one fused multiply-add chain over k = 0..d from +0: the arithmetic of the blocked sgemm's
+/// FMA kernels (matrixmultiply, for d up to its 256-deep k block), so the result has their
+/// bits. Compiled without FMA, every `mul_add` is a C library call: the reference the FMA
+/// kernels are tested against, not a fast path.
+///
+/// Panics when the slice lengths disagree (a caller bug, never data-dependent).
+#[inline(always)]
+pub fn dot_rows(a: &[f32], d: usize, bt: &[f32], m: usize, out: &mut [f32]) {
+    let rows = a.len().checked_div(d).unwrap_or(0);
+    assert!(
+        rows * d == a.len() && bt.len() == d * m && out.len() == rows * m,
+        "dot_rows: {} values of {d}-D rows against a {d} x {m} transpose into {} values",
+        a.len(),
+        out.len()
+    );
+    for r in 0..rows {
+        for j in 0..m {
+            out[r * m + j] = dot_one(&a[r * d..(r + 1) * d], bt, m, j);
+        }
+    }
+}
+
+/// One entry of [`dot_rows`]: row `x` (d values) against column `j` of `bt` (d x m).
+#[inline(always)]
+pub fn dot_one(x: &[f32], bt: &[f32], m: usize, j: usize) -> f32 {
+    let mut acc = 0.0f32;
+    for (k, v) in x.iter().enumerate() {
+        acc = v.mul_add(bt[k * m + j], acc);
+    }
+    acc
+}
