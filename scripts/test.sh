@@ -41,6 +41,13 @@ wait "$prep_pid" || prep_status=$?
 echo "== background preparation (SpinNet export, Python venv): exit $prep_status"
 cat "$prep_log"
 step "tests"
+# The Python extension (the binding crate and its link: mostly one core) builds in the background,
+# at a lower priority, while the Rust tests run and leave part of the second core idle; the Python
+# step below then finds it built. It starts once `cargo test` has checked that its own targets are
+# fresh (cargo holds the build folder's lock for that check, not while the tests run).
+py_build_log=target/test-python-build.log
+(sleep 15 && nice -n 10 bash scripts/test_python.sh --build) >"$py_build_log" 2>&1 &
+py_build_pid=$!
 cargo "${cargo_config[@]}" test --lib --tests --no-fail-fast 2>&1 || status=$?
 # Result tables are generated from the committed JSONs; a hand edit or a new JSON without a rerun fails.
 step "result tables"
@@ -54,6 +61,10 @@ done
 # The Python package (pip install . gives it): built in the dev profile into target/, tested
 # with pytest in a private virtual environment under target/.
 step "Python package: tests/python"
+py_build_status=0
+wait "$py_build_pid" || py_build_status=$?
+echo "== background Python extension build: exit $py_build_status"
+cat "$py_build_log"
 bash scripts/test_python.sh 2>&1 || status=$?
 step "done (exit $status)"
 exit $status

@@ -30,5 +30,8 @@ config=()
 if [ -n "${CGENREG_CARGO_CONFIG:-}" ]; then config=(--config "$CGENREG_CARGO_CONFIG"); fi
 VIRTUAL_ENV="$venv" PATH="$venv/bin:$PATH" "$venv/bin/maturin" develop --quiet --features gui "${config[@]}"
 echo "test_python: extension built and installed in ${SECONDS} s"
+# `--build`: only the venv and the extension (scripts/test.sh builds it in the background while
+# the Rust tests run).
+if [ "${1:-}" = "--build" ]; then exit 0; fi
 CGENREG_TEST_BIN="${CGENREG_TEST_BIN:-$PWD/target/debug/cgenreg}" \
   "$venv/bin/python" -m pytest -q -p no:cacheprovider tests/python "$@"
