@@ -300,18 +300,19 @@ mod tests {
         let rows = [row("a", Some(2.0), true), row("b", None, false)];
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("run.json");
-        let mut f = run_file(&rows);
-        f.records[1].id = "a".into();
-        std::fs::write(&path, bench_json(&f).unwrap()).unwrap();
-        let e = read_bench_file(&path).unwrap_err().to_string();
+        // the reader's error for the run file whose record `i` has the id `id`
+        let refused = |i: usize, id: &str| {
+            let mut f = run_file(&rows);
+            f.records[i].id = id.into();
+            std::fs::write(&path, bench_json(&f).unwrap()).unwrap();
+            read_bench_file(&path).unwrap_err().to_string()
+        };
+        let e = refused(1, "a");
         assert!(
             e.contains(": records[1].id: expected each pair once"),
             "{e}"
         );
-        let mut f = run_file(&rows);
-        f.records[0].id = "elsewhere".into();
-        std::fs::write(&path, bench_json(&f).unwrap()).unwrap();
-        let e = read_bench_file(&path).unwrap_err().to_string();
+        let e = refused(0, "elsewhere");
         assert!(
             e.contains(": records[0].id: expected a pair of run.identity.selected"),
             "{e}"

@@ -80,6 +80,18 @@ pub fn compat_row(
 /// Panics when the slice lengths disagree (a caller bug, never data-dependent).
 #[inline(always)]
 pub fn dot_rows(a: &[f32], d: usize, bt: &[f32], m: usize, out: &mut [f32]) {
+    let rows = dot_rows_shape(a, d, bt, m, out);
+    for r in 0..rows {
+        for j in 0..m {
+            out[r * m + j] = dot_one(&a[r * d..(r + 1) * d], bt, m, j);
+        }
+    }
+}
+
+/// The number of rows of [`dot_rows`]'s `a`, once every length has been checked against `d`
+/// and `m` (the FMA kernels' pointer arithmetic relies on it); panics on a mismatch.
+#[inline(always)]
+pub fn dot_rows_shape(a: &[f32], d: usize, bt: &[f32], m: usize, out: &[f32]) -> usize {
     let rows = a.len().checked_div(d).unwrap_or(0);
     assert!(
         rows * d == a.len() && bt.len() == d * m && out.len() == rows * m,
@@ -87,11 +99,7 @@ pub fn dot_rows(a: &[f32], d: usize, bt: &[f32], m: usize, out: &mut [f32]) {
         a.len(),
         out.len()
     );
-    for r in 0..rows {
-        for j in 0..m {
-            out[r * m + j] = dot_one(&a[r * d..(r + 1) * d], bt, m, j);
-        }
-    }
+    rows
 }
 
 /// One entry of [`dot_rows`]: row `x` (d values) against column `j` of `bt` (d x m).

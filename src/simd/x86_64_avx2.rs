@@ -42,13 +42,7 @@ pub unsafe fn dot_rows(a: &[f32], d: usize, bt: &[f32], m: usize, out: &mut [f32
     const ROWS: usize = 4;
     const LANES: usize = 16;
     const BLOCK: usize = 256;
-    let rows = a.len().checked_div(d).unwrap_or(0);
-    assert!(
-        rows * d == a.len() && bt.len() == d * m && out.len() == rows * m,
-        "dot_rows: {} values of {d}-D rows against a {d} x {m} transpose into {} values",
-        a.len(),
-        out.len()
-    );
+    let rows = super::scalar::dot_rows_shape(a, d, bt, m, out);
     let scalar = super::scalar::dot_one;
     let mut j0 = 0;
     while j0 < m {
