@@ -126,10 +126,10 @@ fn study_pair(
         .run(pair)?;
     let inputs = r
         .inputs
-        .ok_or_else(|| cgenreg::Error::Invalid("the registration kept no inputs".into()))?;
+        .ok_or_else(|| cgenreg::Error::Missing("the registration kept no inputs".into()))?;
     let gt = pair
         .gt_target_from_source
-        .ok_or_else(|| cgenreg::Error::Invalid("the study needs ground truth".into()))?;
+        .ok_or_else(|| cgenreg::Error::Missing("the study needs ground truth".into()))?;
     let sims = similarities(&inputs)?;
     let set = |f| mode_correspondences(&inputs, Some(&sims), &f);
     let mut image = params.fusion;
@@ -144,12 +144,12 @@ fn study_pair(
     let ib = params
         .image
         .as_ref()
-        .ok_or_else(|| cgenreg::Error::Invalid("the study needs the image branch".into()))?;
+        .ok_or_else(|| cgenreg::Error::Missing("the study needs the image branch".into()))?;
     let (framed, _) = with_virtual_frames(&mut FrameStore::new(cache), pair, ib)?;
     let frames = |scan: &cgenreg::dataset::Scan| {
         scan.frames
             .clone()
-            .ok_or_else(|| cgenreg::Error::Invalid(format!("{}: no depth frames", scan.name)))
+            .ok_or_else(|| cgenreg::Error::Missing(format!("{}: no depth frames", scan.name)))
     };
     let pair_views = PairViews::new(frames(&framed.source)?, frames(&framed.target)?);
     let [src_views, tgt_views] = pair_views.views()?;

@@ -21,9 +21,30 @@ pub enum Error {
         expected: String,
         found: String,
     },
-    /// Input that is well formed but cannot be used (empty cloud, mismatched sizes, ...).
+    /// Input that is well formed but cannot be used (an empty cloud, a scan that is not what a
+    /// step needs, ...) where none of the narrower kinds below says it better.
     #[error("invalid input: {0}")]
     Invalid(String),
+    /// Inputs whose sizes do not agree with each other or with what a step needs (features
+    /// and points, the two branches' matrices, weights and correspondences, an index out of
+    /// range): a caller's mistake or a damaged cache entry, never a matter of settings.
+    #[error("shape mismatch: {0}")]
+    Shape(String),
+    /// A parameter outside its range (a temperature, a prior, K, L, a camera's size, a flag's
+    /// value): the message names the parameter as the user sets it and what it accepts.
+    #[error("invalid parameter: {0}")]
+    Param(String),
+    /// Something a step needs that is not there: a pair id the manifest does not list, a
+    /// branch's posterior a fusion mode needs, a scan's frames, inputs a run did not keep.
+    #[error("missing input: {0}")]
+    Missing(String),
+    /// A command line or a choice of settings that cannot run as given (a flag that needs
+    /// another one, two that exclude each other): the message says what to add or drop.
+    #[error("{0}")]
+    Usage(String),
+    /// A value that could not be written in its file format (JSON, PNG, an archive).
+    #[error("encoding: {0}")]
+    Encode(String),
     /// A computation that cannot produce a meaningful result for this input
     /// (fewer than 3 correspondences, collinear points, ...).
     #[error("degenerate input: {0}")]

@@ -22,6 +22,9 @@ use std::path::PathBuf;
 const _: () =
     assert!(std::mem::size_of::<Point3<f32>>() == 12 && std::mem::align_of::<Point3<f32>>() == 4);
 
+/// Selected correspondences as NumPy arrays: source index, target index, score.
+type CorrespondenceArrays = (Py<PyArray1<u32>>, Py<PyArray1<u32>>, Py<PyArray1<f32>>);
+
 /// The library's error as the Python package's exception (`cgenreg.errors`): the same
 /// message, and for a file format error its path, field, expectation and finding.
 fn to_py(e: cgenreg::Error) -> PyErr {
@@ -47,9 +50,12 @@ fn to_py(e: cgenreg::Error) -> PyErr {
                     path.display().to_string(),
                     source.raw_os_error(),
                 ))?,
-                cgenreg::Error::Invalid(_) | cgenreg::Error::Degenerate(_) => {
-                    m.getattr("InvalidInput")?.call1((msg,))?
-                }
+                cgenreg::Error::Invalid(_)
+                | cgenreg::Error::Shape(_)
+                | cgenreg::Error::Param(_)
+                | cgenreg::Error::Missing(_)
+                | cgenreg::Error::Usage(_)
+                | cgenreg::Error::Degenerate(_) => m.getattr("InvalidInput")?.call1((msg,))?,
                 _ => m.getattr("CgenregError")?.call1((msg,))?,
             };
             Ok(PyErr::from_value(obj))
@@ -206,7 +212,7 @@ impl RegResult {
     fn correspondences(
         &self,
         py: Python<'_>,
-    ) -> (Py<PyArray1<u32>>, Py<PyArray1<u32>>, Py<PyArray1<f32>>) {
+    ) -> CorrespondenceArrays {
         (
             self.corr_source.clone_ref(py),
             self.corr_target.clone_ref(py),

@@ -71,7 +71,7 @@ impl NewEntry {
 
     pub fn add_json<T: Serialize + ?Sized>(&mut self, name: &str, value: &T) -> Result<()> {
         let b = serde_json::to_vec_pretty(value)
-            .map_err(|e| Error::Invalid(format!("serialising {name}: {e}")))?;
+            .map_err(|e| Error::Encode(format!("serialising {name}: {e}")))?;
         self.add_bytes(name, &b)
     }
 
@@ -83,7 +83,7 @@ impl NewEntry {
         data: &[f32],
     ) -> Result<()> {
         if rows * cols != data.len() {
-            return Err(Error::Invalid(format!(
+            return Err(Error::Shape(format!(
                 "matrix {rows}x{cols} needs {} values, got {}",
                 rows * cols,
                 data.len()
@@ -99,7 +99,7 @@ impl NewEntry {
     pub fn add_png(&mut self, name: &str, img: &image::RgbImage) -> Result<()> {
         let mut buf = std::io::Cursor::new(Vec::new());
         img.write_to(&mut buf, image::ImageFormat::Png)
-            .map_err(|e| Error::Invalid(format!("encoding {name} as PNG: {e}")))?;
+            .map_err(|e| Error::Encode(format!("encoding {name} as PNG: {e}")))?;
         self.add_bytes(name, buf.get_ref())
     }
 
@@ -122,7 +122,7 @@ impl NewEntry {
         };
         let mp = self.tmp.join(MANIFEST);
         let b = serde_json::to_vec_pretty(&manifest)
-            .map_err(|e| Error::Invalid(format!("serialising the manifest: {e}")))?;
+            .map_err(|e| Error::Encode(format!("serialising the manifest: {e}")))?;
         write_synced(&mp, &b)?;
         sync_dir(&self.tmp);
         let dest = self.cache.entry_dir(&self.key.stage, &self.key.hash);

@@ -26,7 +26,7 @@ impl CacheKey {
                 .chars()
                 .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-')
         {
-            return Err(Error::Invalid(format!(
+            return Err(Error::Param(format!(
                 "cache stage name {stage:?}: use letters, digits, '_' and '-'"
             )));
         }

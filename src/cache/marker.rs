@@ -35,7 +35,7 @@ impl Cache {
                 .unwrap_or(0),
         };
         let b = serde_json::to_vec_pretty(&m)
-            .map_err(|e| Error::Invalid(format!("serialising the cache marker: {e}")))?;
+            .map_err(|e| Error::Encode(format!("serialising the cache marker: {e}")))?;
         crate::error::write_atomic(&self.root.join(MARKER), &b)?;
         Ok(true)
     }

@@ -251,7 +251,7 @@ impl Cache {
                 self.discard(&matches[0])?;
                 Ok(true)
             }
-            n => Err(Error::Invalid(format!(
+            n => Err(Error::Usage(format!(
                 "{n} entries of stage {stage} start with {hash}; give more digits"
             ))),
         }

@@ -59,7 +59,7 @@ impl FThetaCamera {
     /// Check the model: positive size, non-empty polynomial, r increasing on [0, max_angle].
     pub fn validate(&self) -> Result<()> {
         if self.width == 0 || self.height == 0 || self.poly.is_empty() {
-            return Err(Error::Invalid(format!(
+            return Err(Error::Param(format!(
                 "f-theta camera: size {}x{} and {} polynomial coefficients; need a positive size and at least one coefficient",
                 self.width,
                 self.height,
@@ -67,7 +67,7 @@ impl FThetaCamera {
             )));
         }
         if !(self.max_angle > 0.0 && self.max_angle < std::f64::consts::PI) {
-            return Err(Error::Invalid(format!(
+            return Err(Error::Param(format!(
                 "f-theta camera: max_angle {} rad must be in (0, pi)",
                 self.max_angle
             )));
@@ -76,7 +76,7 @@ impl FThetaCamera {
         for i in 0..=n {
             let t = self.max_angle * i as f64 / n as f64;
             if self.dr_dtheta(t) <= 0.0 {
-                return Err(Error::Invalid(format!(
+                return Err(Error::Param(format!(
                     "f-theta camera: r(theta) is not increasing at theta = {:.3} rad",
                     t
                 )));

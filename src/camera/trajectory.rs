@@ -82,7 +82,7 @@ pub fn virtual_trajectory(
     opts: &TrajectoryOptions,
 ) -> Result<Vec<Isometry3<f64>>> {
     if n_frames == 0 {
-        return Err(Error::Invalid(
+        return Err(Error::Param(
             "virtual trajectory: n_frames must be at least 1".into(),
         ));
     }
@@ -90,14 +90,14 @@ pub fn virtual_trajectory(
         Error::Invalid("virtual trajectory: the cloud has no finite points".into())
     })?;
     let up = Unit::try_new(opts.up, 1e-12)
-        .ok_or_else(|| Error::Invalid("virtual trajectory: `up` is the zero vector".into()))?;
+        .ok_or_else(|| Error::Param("virtual trajectory: `up` is the zero vector".into()))?;
     let f0 = opts.forward - up.into_inner() * opts.forward.dot(&up);
     let f0 = f0.try_normalize(1e-9).ok_or_else(|| {
-        Error::Invalid("virtual trajectory: `forward` must not be parallel to `up`".into())
+        Error::Param("virtual trajectory: `forward` must not be parallel to `up`".into())
     })?;
     let k = &opts.intrinsics;
     if !(k.fx > 0.0 && k.fy > 0.0 && k.width > 0 && k.height > 0) {
-        return Err(Error::Invalid(format!(
+        return Err(Error::Param(format!(
             "virtual trajectory: invalid intrinsics {k:?}"
         )));
     }

@@ -328,7 +328,7 @@ impl ImageArgs {
                     spec: s.clone(),
                 },
                 _ => {
-                    return Err(crate::Error::Invalid(
+                    return Err(crate::Error::Usage(
                         "--wfm cached needs --wfm-dir (Cosmos output folder) and --wfm-spec (its JSONL)"
                             .into(),
                     ))
@@ -336,7 +336,7 @@ impl ImageArgs {
             },
             WfmSpec::Cosmos { .. } => {
                 if self.cosmos_cmd.is_empty() {
-                    return Err(crate::Error::Invalid(
+                    return Err(crate::Error::Usage(
                         "--wfm cosmos needs --cosmos-cmd PROGRAM [--cosmos-cmd ARG ...]".into(),
                     ));
                 }
@@ -359,7 +359,7 @@ impl ImageArgs {
         match (&mut vfm, &self.vfm_model) {
             (v, Some(p)) => *v.model_mut() = p.clone(),
             (VfmSpec::Mast3r { .. }, None) => {
-                return Err(crate::Error::Invalid(
+                return Err(crate::Error::Usage(
                     "--vfm mast3r needs --vfm-model FILE.onnx (export it with \
                      models/export_mast3r.py; no MASt3R weights ship with cgenreg)"
                         .into(),

@@ -249,7 +249,7 @@ pub fn selection<'a>(
 ) -> Result<Vec<&'a PairSpec>> {
     let specs = ds.select_pairs(split, limit);
     if specs.is_empty() {
-        return Err(Error::Invalid(format!(
+        return Err(Error::Missing(format!(
             "{}: no pairs selected",
             manifest.display()
         )));
@@ -289,7 +289,7 @@ pub fn run(a: BenchArgs) -> Result<()> {
     let shard = a.run.shard();
     // the thresholds as used (a distance that follows the voxel as its value)
     let mut params_json = serde_json::to_value(params.resolved())
-        .map_err(|e| Error::Invalid(format!("serialising parameters: {e}")))?;
+        .map_err(|e| Error::Encode(format!("serialising parameters: {e}")))?;
     // part of the run's identity: a resumed run never mixes two frames
     if let (Some(seed), Some(o)) = (a.repose_seed, params_json.as_object_mut()) {
         o.insert("repose_seed".into(), seed.into());
@@ -418,7 +418,7 @@ pub fn run(a: BenchArgs) -> Result<()> {
             time_s,
             stages,
             result: serde_json::to_value(&row)
-                .map_err(|e| Error::Invalid(format!("serialising a row: {e}")))?,
+                .map_err(|e| Error::Encode(format!("serialising a row: {e}")))?,
         })
     };
     let failed_result = |pos: usize, why: &str| {

@@ -188,7 +188,7 @@ pub fn run(a: CacheArgs) -> Result<()> {
                 return Ok(());
             }
             if targets.is_empty() {
-                return Err(Error::Invalid(
+                return Err(Error::Usage(
                     "cgenreg cache rm: give STAGE/HASHPREFIX, STAGE, or --all".into(),
                 ));
             }
@@ -198,7 +198,7 @@ pub fn run(a: CacheArgs) -> Result<()> {
                         if cache.remove_entry(stage, hash)? {
                             outln!("removed {t}");
                         } else {
-                            return Err(Error::Invalid(format!("no cache entry {t}")));
+                            return Err(Error::Missing(format!("no cache entry {t}")));
                         }
                     }
                     None => {
@@ -207,7 +207,7 @@ pub fn run(a: CacheArgs) -> Result<()> {
                             let mut stages: Vec<String> =
                                 cache.list()?.into_iter().map(|e| e.stage).collect();
                             stages.dedup();
-                            return Err(Error::Invalid(format!(
+                            return Err(Error::Missing(format!(
                                 "cgenreg cache rm {t:?}: no stage of that name in {} (stages \
                                  there: {})",
                                 cache.root().display(),

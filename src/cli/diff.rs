@@ -21,7 +21,7 @@ pub fn run(a: DiffArgs) -> Result<()> {
     let c = compare(&load_bench_run(&a.a)?, &load_bench_run(&a.b)?);
     if a.json {
         let s = serde_json::to_string_pretty(&c)
-            .map_err(|e| Error::Invalid(format!("serialising the comparison: {e}")))?;
+            .map_err(|e| Error::Encode(format!("serialising the comparison: {e}")))?;
         outln!("{s}");
     } else {
         out!("{}", table(&c));

@@ -43,14 +43,14 @@ pub struct GenerateArgs {
 
 pub fn run(a: GenerateArgs) -> Result<()> {
     if a.image.wfm.is_none() {
-        return Err(Error::Invalid(
+        return Err(Error::Usage(
             "generate fills the cache of the image branch: pass --wfm builtin, oracle, cached or \
              cosmos"
                 .into(),
         ));
     }
     if a.image.no_cache {
-        return Err(Error::Invalid(
+        return Err(Error::Usage(
             "generate writes into the stage cache: --no-cache makes no sense here".into(),
         ));
     }
@@ -61,7 +61,7 @@ pub fn run(a: GenerateArgs) -> Result<()> {
         .image
         .params_and_cache_for(&a.pipeline, &ManifestSettings::of(&ds))?;
     let Some(ib) = params.image.clone() else {
-        return Err(Error::Invalid("no image branch".into()));
+        return Err(Error::Missing("no image branch".into()));
     };
     let shard = a.run.shard();
     let identity = RunIdentity::new(
@@ -70,7 +70,7 @@ pub fn run(a: GenerateArgs) -> Result<()> {
         a.pairs.split.as_deref(),
         a.pairs.limit,
         serde_json::to_value(&params)
-            .map_err(|e| Error::Invalid(format!("serialising parameters: {e}")))?,
+            .map_err(|e| Error::Encode(format!("serialising parameters: {e}")))?,
         shard.count,
         specs.iter().map(|s| s.id.clone()).collect(),
     )?;

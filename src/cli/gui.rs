@@ -138,7 +138,7 @@ pub fn apply_named(
         return Ok(p);
     }
     let Some(ib) = p.image.as_mut() else {
-        return Err(Error::Invalid(format!(
+        return Err(Error::Usage(format!(
             "--{} sets the image branch, which is off (in the saved settings and on the \
              command line): add --wfm oracle|builtin|cached",
             image_named[0].replace('_', "-")
@@ -178,7 +178,7 @@ pub fn apply_named(
     .any(|id| has(id))
     {
         if !gb.backend.same_kind(&ib.backend) {
-            return Err(Error::Invalid(format!(
+            return Err(Error::Usage(format!(
                 "--{} belongs to another WFM backend than the saved one ({}): add --wfm",
                 image_named[0].replace('_', "-"),
                 ib.backend.label()
@@ -298,7 +298,7 @@ fn parse_view_pair(s: &str) -> std::result::Result<(usize, usize), String> {
 fn check_out_folder(flag: &str, path: &Path) -> Result<()> {
     let dir = path.parent().filter(|d| !d.as_os_str().is_empty());
     match dir {
-        Some(d) if !d.is_dir() => Err(Error::Invalid(format!(
+        Some(d) if !d.is_dir() => Err(Error::Missing(format!(
             "{flag} {}: the folder {} does not exist (create it first)",
             path.display(),
             d.display()
@@ -359,14 +359,14 @@ fn open_with(
     let id = match pair {
         Some(p) if ids.iter().any(|i| i == p) => p.to_string(),
         Some(p) => {
-            return Err(Error::Invalid(format!(
+            return Err(Error::Missing(format!(
                 "{}: no pair {p:?}; pairs: {}",
                 manifest.display(),
                 ids.join(", ")
             )))
         }
         None => ids.first().cloned().ok_or_else(|| {
-            Error::Invalid(format!(
+            Error::Missing(format!(
                 "{}: the manifest lists no pairs",
                 manifest.display()
             ))
@@ -466,7 +466,7 @@ fn run_compare_screenshot(a: &ScreenshotArgs, runs: &[PathBuf], panel: Panel) ->
     let selected = match &a.compare_pair {
         Some(id) if c.pairs.iter().any(|p| &p.id == id) => Some(id.clone()),
         Some(id) => {
-            return Err(Error::Invalid(format!(
+            return Err(Error::Missing(format!(
                 "--compare-pair {id:?}: not a pair of both runs"
             )))
         }
@@ -496,7 +496,7 @@ pub fn run_screenshot(a: ScreenshotArgs) -> Result<()> {
     // before the work, and again right before the write below
     crate::io::output::prepare(&a.out, crate::io::output::OutputKind::Png, a.force)?;
     let panel = Panel::from_name(&a.panel).ok_or_else(|| {
-        Error::Invalid(format!(
+        Error::Param(format!(
             "--panel {:?}: expected pairs, views, 3d, posterior, plots, stages, compare or hypotheses",
             a.panel
         ))
@@ -504,12 +504,12 @@ pub fn run_screenshot(a: ScreenshotArgs) -> Result<()> {
     match (&a.compare, panel) {
         (Some(runs), Panel::Compare) => return run_compare_screenshot(&a, runs, panel),
         (Some(_), _) => {
-            return Err(Error::Invalid(
+            return Err(Error::Usage(
                 "--compare renders the Compare tab: use it with --panel compare".into(),
             ))
         }
         (None, Panel::Compare) => {
-            return Err(Error::Invalid(
+            return Err(Error::Usage(
                 "--panel compare needs two runs: --compare A.json B.json".into(),
             ))
         }
@@ -588,9 +588,9 @@ pub fn run_screenshot(a: ScreenshotArgs) -> Result<()> {
         // the result the picture shows, as `register --json` prints it
         let r = worker
             .result()
-            .ok_or_else(|| Error::Invalid(format!("{id}: no registration result to write")))?;
+            .ok_or_else(|| Error::Missing(format!("{id}: no registration result to write")))?;
         let text = serde_json::to_string_pretty(r)
-            .map_err(|e| Error::Invalid(format!("serialising the result: {e}")))?;
+            .map_err(|e| Error::Encode(format!("serialising the result: {e}")))?;
         crate::error::write_atomic(path, format!("{text}\n").as_bytes())?;
         eprintln!("wrote {}", path.display());
     }
@@ -629,7 +629,7 @@ pub fn run_screenshot(a: ScreenshotArgs) -> Result<()> {
     if let Some((i, j)) = view_pair {
         let (ks, kt) = (model.source_views.len(), model.target_views.len());
         if i >= ks || j >= kt {
-            return Err(Error::Invalid(format!(
+            return Err(Error::Param(format!(
                 "--view-pair {i},{j}: the pair has {ks} source and {kt} target views"
             )));
         }

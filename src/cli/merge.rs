@@ -119,7 +119,7 @@ pub fn run_merge(a: MergeArgs) -> Result<()> {
         eprintln!("wrote {}", path.display());
     }
     if !m.missing.is_empty() && !a.allow_missing {
-        return Err(Error::Invalid(format!(
+        return Err(Error::Missing(format!(
             "{} of {} pairs missing (listed above): run the missing shards again (they resume) \
              or pass --allow-missing",
             m.missing.len(),
@@ -139,7 +139,7 @@ fn names(files: &[(PathBuf, String)]) -> String {
 }
 
 fn no_outputs(paths: &[PathBuf]) -> Error {
-    Error::Invalid(format!(
+    Error::Missing(format!(
         "no shard outputs found in {}",
         paths
             .iter()
@@ -177,7 +177,7 @@ fn collect(paths: &[PathBuf]) -> Result<(Vec<(PathBuf, RunFile)>, Vec<(PathBuf, 
                 files.extend(v.into_iter().map(|q| (q, strict)));
             }
         } else if std::fs::symlink_metadata(p).is_err() {
-            return Err(Error::Invalid(format!(
+            return Err(Error::Missing(format!(
                 "{}: no such file or folder",
                 p.display()
             )));

@@ -172,7 +172,7 @@ fn parse_settings(options: &[String]) -> crate::Result<SettingsArgs> {
         // clap's own text without its usage footer: the option, the value and what it takes
         let text = e.to_string();
         let text = text.split("\n\n").next().unwrap_or(&text);
-        crate::Error::Invalid(text.trim_start_matches("error: ").trim().to_string())
+        crate::Error::Usage(text.trim_start_matches("error: ").trim().to_string())
     })
 }
 
@@ -233,7 +233,7 @@ pub fn main_with_args(argv: Vec<std::ffi::OsString>) -> i32 {
         #[cfg(feature = "gui")]
         None => gui::run_inspect(gui::InspectArgs::default()),
         #[cfg(not(feature = "gui"))]
-        None => Err(crate::Error::Invalid(
+        None => Err(crate::Error::Usage(
             "built without the GUI: use a subcommand (see --help)".into(),
         )),
     };

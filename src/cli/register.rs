@@ -112,7 +112,7 @@ fn register_input(
         .inputs
         .take()
         .map(std::sync::Arc::unwrap_or_clone)
-        .ok_or_else(|| crate::Error::Invalid("the registration kept no fusion inputs".into()))?;
+        .ok_or_else(|| crate::Error::Missing("the registration kept no fusion inputs".into()))?;
     res.timings.insert(
         0,
         crate::pipeline::StageTiming {
@@ -155,7 +155,7 @@ pub fn run(a: RegisterArgs) -> Result<()> {
         },
         (_, _, Some(manifest), Some(pair)) => PairInput::Manifest { manifest, pair },
         _ => {
-            return Err(Error::Invalid(
+            return Err(Error::Usage(
                 "give --source and --target, or --manifest and --pair".into(),
             ))
         }
@@ -176,7 +176,7 @@ pub fn run(a: RegisterArgs) -> Result<()> {
     }
     if a.json {
         let s = serde_json::to_string_pretty(&res)
-            .map_err(|e| Error::Invalid(format!("serialising the result: {e}")))?;
+            .map_err(|e| Error::Encode(format!("serialising the result: {e}")))?;
         outln!("{s}");
     } else {
         print_human(&res);

@@ -108,7 +108,7 @@ fn plain_path(what: &str, p: &Path) -> Result<String> {
     if ok {
         Ok(s)
     } else {
-        Err(Error::Invalid(format!(
+        Err(Error::Param(format!(
             "{what} {s:?}: use a path of letters, digits and / . _ - + , : @ only (it goes into \
              #SBATCH lines, which are not shell-quoted)"
         )))
@@ -123,7 +123,7 @@ fn plain_value(what: &str, v: &str) -> Result<String> {
     {
         Ok(v.to_string())
     } else {
-        Err(Error::Invalid(format!(
+        Err(Error::Param(format!(
             "--{what} {v:?}: letters, digits and _ . : , = / - + @ only"
         )))
     }
@@ -134,7 +134,7 @@ fn plain_value(what: &str, v: &str) -> Result<String> {
 fn no_control_chars(what: &str, p: &Path) -> Result<String> {
     let s = p.to_string_lossy().into_owned();
     if let Some(c) = s.chars().find(|c| c.is_control()) {
-        return Err(Error::Invalid(format!(
+        return Err(Error::Param(format!(
             "{what} {s:?}: contains the control character {c:?}; paths that go into the job \
              scripts cannot hold newlines, carriage returns or other control characters \
              (rename the folder)"
@@ -171,14 +171,14 @@ pub fn task_argv(plan: &Plan, out: &Path, index: usize) -> Vec<String> {
 
 pub fn run(a: SlurmArgs) -> Result<()> {
     if a.array == 0 {
-        return Err(Error::Invalid("--array must be at least 1".into()));
+        return Err(Error::Param("--array must be at least 1".into()));
     }
     let out = absolute(&a.out)?;
     let out_s = plain_path("--out", &out)?;
     let manifest = absolute(&a.manifest)?;
     let manifest_s = no_control_chars("the manifest path", &manifest)?;
     if !manifest.is_file() {
-        return Err(Error::Invalid(format!(
+        return Err(Error::Missing(format!(
             "{}: no such manifest",
             manifest.display()
         )));
@@ -224,7 +224,7 @@ pub fn run(a: SlurmArgs) -> Result<()> {
         );
     }
     let pj = serde_json::to_vec_pretty(&plan)
-        .map_err(|e| Error::Invalid(format!("serialising the plan: {e}")))?;
+        .map_err(|e| Error::Encode(format!("serialising the plan: {e}")))?;
     crate::error::write_atomic(&plan_path, &pj)?;
 
     let mut sbatch = String::from("#!/bin/bash\n");
@@ -372,11 +372,11 @@ pub fn run_task(a: SlurmTaskArgs) -> Result<()> {
             .ok()
             .and_then(|s| s.trim().parse().ok())
             .ok_or_else(|| {
-                Error::Invalid("no --index and no SLURM_ARRAY_TASK_ID in the environment".into())
+                Error::Missing("no --index and no SLURM_ARRAY_TASK_ID in the environment".into())
             })?,
     };
     if index >= plan.array {
-        return Err(Error::Invalid(format!(
+        return Err(Error::Param(format!(
             "task {index} of an array of {}",
             plan.array
         )));
@@ -397,7 +397,7 @@ pub fn run_task(a: SlurmTaskArgs) -> Result<()> {
         .map_err(|e| Error::Invalid(format!("the task's command line: {e}")))?;
     let r = match cli.command {
         Some(c) => super::run_command(c),
-        None => Err(Error::Invalid("no command in the plan".into())),
+        None => Err(Error::Missing("no command in the plan".into())),
     };
     let rc = if r.is_ok() { 0 } else { 1 };
     let rc_path = a.dir.join("logs").join(format!("task-{index}.rc"));

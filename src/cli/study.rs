@@ -104,7 +104,7 @@ pub fn print_study(f: &RunFile) -> Result<()> {
 
 fn run_common(a: &CommonArgs, settings: Vec<StudySetting>, command: &str) -> Result<()> {
     if a.image.wfm.is_none() {
-        return Err(Error::Invalid(
+        return Err(Error::Usage(
             "a study needs the image branch: pass --wfm oracle, builtin, cached or cosmos".into(),
         ));
     }
@@ -128,7 +128,7 @@ fn run_common(a: &CommonArgs, settings: Vec<StudySetting>, command: &str) -> Res
         a.pairs.limit,
         json!({
             "register": serde_json::to_value(&params)
-                .map_err(|e| Error::Invalid(format!("serialising parameters: {e}")))?,
+                .map_err(|e| Error::Encode(format!("serialising parameters: {e}")))?,
             "settings": settings_json(&settings),
             "generate": generate,
         }),

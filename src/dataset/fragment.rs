@@ -86,7 +86,7 @@ pub(super) fn fragment_frame(
     count: usize,
 ) -> Result<&crate::io::rgbd_sequence::SequenceFrame> {
     seq.frame(idx).ok_or_else(|| {
-        Error::Invalid(format!(
+        Error::Missing(format!(
             "{}: fragment frames {first}..{} need frame-{idx:06}.depth.png, which is missing",
             seq.dir.display(),
             first + count - 1
@@ -98,7 +98,7 @@ pub(super) fn fragment_frame(
 /// coordinates (`scan_from_camera = inv(P_first) * P_f`).
 pub fn fragment_frames(seq: &RgbdSequence, first: usize, count: usize) -> Result<FrameSet> {
     if count == 0 {
-        return Err(Error::Invalid(format!(
+        return Err(Error::Param(format!(
             "{}: a fragment needs at least one frame (count = 0)",
             seq.dir.display()
         )));
@@ -219,7 +219,7 @@ pub fn build_fragment_with(
 ) -> Result<Scan> {
     // Also rejects NaN bounds.
     if opts.max_depth.partial_cmp(&opts.min_depth) != Some(std::cmp::Ordering::Greater) {
-        return Err(Error::Invalid(format!(
+        return Err(Error::Param(format!(
             "fragment depth range [{}, {}] is empty",
             opts.min_depth, opts.max_depth
         )));

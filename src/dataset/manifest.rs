@@ -997,7 +997,7 @@ impl Dataset {
     /// [`Self::load_fragment`], with how the fragment cache was used (None: no cache involved).
     pub fn load_fragment_status(&self, id: &str) -> Result<(Scan, Option<FragmentCacheStatus>)> {
         let spec = self.fragment(id).ok_or_else(|| {
-            Error::Invalid(format!("{}: no fragment with id {id:?}", self.origin()))
+            Error::Missing(format!("{}: no fragment with id {id:?}", self.origin()))
         })?;
         let name = format!("{}/{}", self.name, spec.id);
         match &spec.source {
@@ -1063,7 +1063,7 @@ impl Dataset {
         id: &str,
     ) -> Result<(ScanPair, [Option<FragmentCacheStatus>; 2])> {
         let spec = self.pair(id).ok_or_else(|| {
-            Error::Invalid(format!(
+            Error::Missing(format!(
                 "{}: no pair with id {id:?} (ids look like \"{}/<target>-<source>\")",
                 self.origin(),
                 self.name

@@ -168,7 +168,7 @@ pub fn open_dataset(kind: OpenKind, paths: &[PathBuf]) -> Result<Dataset> {
     let one = |expected: &str| -> Result<&PathBuf> {
         match paths {
             [p] => Ok(p),
-            _ => Err(Error::Invalid(format!(
+            _ => Err(Error::Usage(format!(
                 "{}: expected {expected}, got {} paths",
                 paths
                     .iter()
@@ -208,12 +208,12 @@ pub fn open_dataset(kind: OpenKind, paths: &[PathBuf]) -> Result<Dataset> {
             let (s, t, gt) = split_two_clouds(paths).map_err(Error::Invalid)?;
             Dataset::from_two_files(&s, &t, gt.as_deref())
         }
-        OpenKind::CosmosOutput => Err(Error::Invalid(format!(
+        OpenKind::CosmosOutput => Err(Error::Usage(format!(
             "{}: a Cosmos output folder holds generated frames, not scans: it is opened as the \
              image branch's cached Cosmos backend for the open dataset",
             one("one folder")?.display()
         ))),
-        OpenKind::Comparison => Err(Error::Invalid(format!(
+        OpenKind::Comparison => Err(Error::Usage(format!(
             "{}: two bench runs are compared in the Compare tab, not opened as a dataset",
             paths
                 .iter()

@@ -12,7 +12,7 @@ use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaterni
 /// Weighted Kabsch with full input checking. `weights` default to 1; they must be finite and
 /// non-negative with a positive sum. Points with zero weight are ignored by the degeneracy check.
 ///
-/// Errors: `Error::Invalid` for mismatched lengths or negative weights; `Error::Degenerate` for
+/// Errors: `Error::Shape` for mismatched lengths, `Error::Invalid` for negative weights; `Error::Degenerate` for
 /// fewer than 3 points, all weights zero, non-finite input, and identical or collinear points
 /// (in either cloud), where the rotation is not determined.
 pub fn weighted_kabsch(
@@ -21,7 +21,7 @@ pub fn weighted_kabsch(
     weights: Option<&[f64]>,
 ) -> Result<Isometry3<f64>> {
     if src.len() != tgt.len() {
-        return Err(Error::Invalid(format!(
+        return Err(Error::Shape(format!(
             "kabsch: {} source points but {} target points",
             src.len(),
             tgt.len()
@@ -29,7 +29,7 @@ pub fn weighted_kabsch(
     }
     if let Some(w) = weights {
         if w.len() != src.len() {
-            return Err(Error::Invalid(format!(
+            return Err(Error::Shape(format!(
                 "kabsch: {} weights for {} correspondences",
                 w.len(),
                 src.len()
@@ -313,7 +313,7 @@ mod tests {
         assert!(deg(weighted_kabsch(&src, &tgt, Some(&w))));
         assert!(matches!(
             weighted_kabsch(&src, &tgt[..9], None),
-            Err(Error::Invalid(_))
+            Err(Error::Shape(_))
         ));
         w[2] = -1.0;
         assert!(matches!(

@@ -155,7 +155,7 @@ pub fn estimate_pose(
     method: &EstimatorKind,
 ) -> Result<Estimate> {
     if src.len() != tgt.len() || weights.len() != src.len() {
-        return Err(Error::Invalid(format!(
+        return Err(Error::Shape(format!(
             "estimate_pose: {} source points, {} target points, {} weights",
             src.len(),
             tgt.len(),
@@ -210,7 +210,7 @@ pub fn estimate_pose_with_hypotheses(
 /// 0.10 m under the result.
 pub fn weighted_svd(src: &[Point3<f32>], tgt: &[Point3<f32>], weights: &[f32]) -> Result<Estimate> {
     if src.len() != tgt.len() || weights.len() != src.len() {
-        return Err(Error::Invalid(format!(
+        return Err(Error::Shape(format!(
             "weighted_svd: {} source points, {} target points, {} weights",
             src.len(),
             tgt.len(),
@@ -314,7 +314,7 @@ mod tests {
         }
         assert!(matches!(
             estimate_pose(&line, &line[..3], &[1.0; 10], &EstimatorKind::WeightedSvd),
-            Err(Error::Invalid(_))
+            Err(Error::Shape(_))
         ));
     }
 }

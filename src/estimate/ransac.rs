@@ -88,7 +88,7 @@ pub fn ransac_with(
     top_n: usize,
 ) -> Result<(Estimate, Option<Hypotheses>)> {
     if src.len() != tgt.len() {
-        return Err(Error::Invalid(format!(
+        return Err(Error::Shape(format!(
             "ransac: {} source points but {} target points",
             src.len(),
             tgt.len()
@@ -105,7 +105,7 @@ pub fn ransac_with(
         .at(REFERENCE_VOXEL, RANSAC_PER_VOXEL);
     let valid = thr > 0.0 && params.confidence > 0.0 && params.confidence <= 1.0;
     if !valid {
-        return Err(Error::Invalid(format!(
+        return Err(Error::Param(format!(
             "ransac: invalid parameters {params:?}"
         )));
     }

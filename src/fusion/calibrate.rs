@@ -114,7 +114,7 @@ pub fn calibrate_in_place(
 ) -> Result<()> {
     check_masks("calibrate", m.rows, m.cols, row_valid, col_valid)?;
     if m.data.len() != m.rows * m.cols {
-        return Err(Error::Invalid(format!(
+        return Err(Error::Shape(format!(
             "calibrate: matrix holds {} values, expected {} x {}",
             m.data.len(),
             m.rows,
@@ -123,7 +123,7 @@ pub fn calibrate_in_place(
     }
     let tau = cal.tau();
     if !(tau.is_finite() && tau > 0.0) {
-        return Err(Error::Invalid(format!(
+        return Err(Error::Param(format!(
             "calibrate: temperature must be a positive finite number, found {tau}"
         )));
     }
@@ -234,7 +234,7 @@ pub(crate) fn dual_stats_of(
 ) -> Result<DualStats> {
     check_masks("calibrate", m.rows, m.cols, row_valid, col_valid)?;
     if m.data.len() != m.rows * m.cols {
-        return Err(Error::Invalid(format!(
+        return Err(Error::Shape(format!(
             "calibrate: matrix holds {} values, expected {} x {}",
             m.data.len(),
             m.rows,
@@ -242,7 +242,7 @@ pub(crate) fn dual_stats_of(
         )));
     }
     if !(tau.is_finite() && tau > 0.0) {
-        return Err(Error::Invalid(format!(
+        return Err(Error::Param(format!(
             "calibrate: temperature must be a positive finite number, found {tau}"
         )));
     }

@@ -182,7 +182,7 @@ fn check_prior(prior: f64) -> Result<()> {
     if prior > 0.0 && prior < 1.0 {
         Ok(())
     } else {
-        Err(Error::Invalid(format!(
+        Err(Error::Param(format!(
             "fusion prior must lie strictly between 0 and 1, found {prior}"
         )))
     }
@@ -191,7 +191,7 @@ fn check_prior(prior: f64) -> Result<()> {
 fn same_shape(a: &DenseMatrix, b: &DenseMatrix) -> Result<()> {
     for (what, m) in [("image", a), ("geometric", b)] {
         if m.data.len() != m.rows * m.cols {
-            return Err(Error::Invalid(format!(
+            return Err(Error::Shape(format!(
                 "fusion: {what} posterior holds {} values, expected {} x {}",
                 m.data.len(),
                 m.rows,
@@ -200,7 +200,7 @@ fn same_shape(a: &DenseMatrix, b: &DenseMatrix) -> Result<()> {
         }
     }
     if a.shape() != b.shape() {
-        return Err(Error::Invalid(format!(
+        return Err(Error::Shape(format!(
             "fusion: image posterior is {} x {}, geometric posterior is {} x {}",
             a.rows, a.cols, b.rows, b.cols
         )));
@@ -238,7 +238,7 @@ pub fn fuse_into(
 ) -> Result<()> {
     same_shape(p_img, p_geo)?;
     if out.shape() != p_img.shape() || out.data.len() != p_img.data.len() {
-        return Err(Error::Invalid(format!(
+        return Err(Error::Shape(format!(
             "fusion: output is {} x {}, posteriors are {} x {}",
             out.rows, out.cols, p_img.rows, p_img.cols
         )));
@@ -274,7 +274,7 @@ pub fn fuse_into(
 }
 
 fn need<'a>(m: Option<&'a DenseMatrix>, mode: FusionMode, what: &str) -> Result<&'a DenseMatrix> {
-    m.ok_or_else(|| Error::Invalid(format!("fusion mode {mode:?} needs the {what} posterior")))
+    m.ok_or_else(|| Error::Missing(format!("fusion mode {mode:?} needs the {what} posterior")))
 }
 
 /// Fuses the modality posteriors. `prior` defaults to `1 / (N M)`. `Concat` is rejected here:
@@ -347,7 +347,7 @@ fn check_weight(w_img: f32) -> Result<()> {
     if (0.0..=1.0).contains(&w_img) {
         Ok(())
     } else {
-        Err(Error::Invalid(format!(
+        Err(Error::Param(format!(
             "concatenation: image weight must lie in [0, 1], found {w_img}"
         )))
     }
@@ -365,7 +365,7 @@ pub fn concat_features(
     check_weight(w_img)?;
     let n = geo.len();
     if img.len() != n || img_valid.len() != n {
-        return Err(Error::Invalid(format!(
+        return Err(Error::Shape(format!(
             "concatenation: {} image feature rows, {} validity flags, {} geometric feature rows",
             img.len(),
             img_valid.len(),

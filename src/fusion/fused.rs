@@ -67,7 +67,7 @@ fn check_tau(tau: f32) -> Result<()> {
     if tau.is_finite() && tau > 0.0 {
         Ok(())
     } else {
-        Err(Error::Invalid(format!(
+        Err(Error::Param(format!(
             "calibrate: temperature must be a positive finite number, found {tau}"
         )))
     }
@@ -454,7 +454,7 @@ fn one_pass(
     check_tau(b.tau)?;
     let (rows, cols) = a.sim.shape();
     if b.sim.shape() != (rows, cols) {
-        return Err(Error::Invalid(format!(
+        return Err(Error::Shape(format!(
             "fusion: image similarity is {rows} x {cols}, geometric similarity is {} x {}",
             b.sim.shape().0,
             b.sim.shape().1
@@ -478,7 +478,7 @@ fn one_pass(
     let prior = prior.unwrap_or_else(|| default_prior(rows, cols));
     let prior_ok = prior > 0.0 && prior < 1.0;
     if !only_a && !prior_ok {
-        return Err(Error::Invalid(format!(
+        return Err(Error::Param(format!(
             "fusion prior must lie strictly between 0 and 1, found {prior}"
         )));
     }
@@ -487,7 +487,7 @@ fn one_pass(
     for (what, br) in [("image", a), ("geometric", b)] {
         if let Sim::Features { src, tgt } = br.sim {
             if src.dim != tgt.dim() || src.dim == 0 {
-                return Err(Error::Invalid(format!(
+                return Err(Error::Shape(format!(
                     "fusion: {what} features are {}-D (source) and {}-D (target)",
                     src.dim,
                     tgt.dim()

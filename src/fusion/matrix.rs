@@ -40,7 +40,7 @@ impl DenseMatrix {
     pub fn from_vec(rows: usize, cols: usize, data: Vec<f32>) -> Result<Self> {
         let n = checked_len(rows, cols)?;
         if data.len() != n {
-            return Err(Error::Invalid(format!(
+            return Err(Error::Shape(format!(
                 "matrix data: expected {rows} x {cols} = {n} values, found {}",
                 data.len()
             )));
@@ -159,7 +159,7 @@ pub fn check_masks(
 ) -> Result<()> {
     if let Some(r) = row_valid {
         if r.len() != rows {
-            return Err(Error::Invalid(format!(
+            return Err(Error::Shape(format!(
                 "{what}: row validity has {} entries, the matrix has {rows} rows",
                 r.len()
             )));
@@ -167,7 +167,7 @@ pub fn check_masks(
     }
     if let Some(c) = col_valid {
         if c.len() != cols {
-            return Err(Error::Invalid(format!(
+            return Err(Error::Shape(format!(
                 "{what}: column validity has {} entries, the matrix has {cols} columns",
                 c.len()
             )));

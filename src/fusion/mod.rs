@@ -111,7 +111,7 @@ pub type ImageSimilarity<'a> = (&'a DenseMatrix, Option<&'a [bool]>, Option<&'a 
 /// A similarity matrix must hold exactly rows x cols values.
 fn check_filled(what: &str, m: &DenseMatrix) -> Result<()> {
     if m.data.len() != m.rows * m.cols {
-        return Err(Error::Invalid(format!(
+        return Err(Error::Shape(format!(
             "match-then-fuse: {what} similarity holds {} values, expected {} x {}",
             m.data.len(),
             m.rows,
@@ -133,7 +133,7 @@ pub fn match_then_fuse(
     let params = &params.matrix_params();
     let shape = match (sim_img, sim_geo) {
         (Some((a, _, _)), Some(b)) if a.shape() != b.shape() => {
-            return Err(Error::Invalid(format!(
+            return Err(Error::Shape(format!(
                 "match-then-fuse: image similarity is {} x {}, geometric similarity is {} x {}",
                 a.rows, a.cols, b.rows, b.cols
             )))
@@ -141,7 +141,7 @@ pub fn match_then_fuse(
         (Some((a, _, _)), _) => a.shape(),
         (None, Some(b)) => b.shape(),
         (None, None) => {
-            return Err(Error::Invalid(
+            return Err(Error::Missing(
                 "match-then-fuse: no similarity given".into(),
             ))
         }
@@ -157,7 +157,7 @@ pub fn match_then_fuse(
     let needs_img = !matches!(params.mode, FusionMode::GeometryOnly);
     let needs_geo = !matches!(params.mode, FusionMode::ImageOnly);
     if needs_img && sim_img.is_none() || needs_geo && sim_geo.is_none() {
-        return Err(Error::Invalid(format!(
+        return Err(Error::Missing(format!(
             "match-then-fuse: fusion mode {:?} needs {}",
             params.mode,
             match (
@@ -352,7 +352,7 @@ pub fn match_then_fuse_select_features(
     let (fs, vs, ft, vt) = image;
     let (n, m) = (fs.len(), ft.len());
     if geo.0.len() != n || geo.1.len() != m {
-        return Err(Error::Invalid(format!(
+        return Err(Error::Shape(format!(
             "fusion: image features for {n} x {m} points, geometric features for {} x {}",
             geo.0.len(),
             geo.1.len()
@@ -365,7 +365,7 @@ pub fn match_then_fuse_select_features(
         ("target geometric", geo.1),
     ] {
         if f.dim > 0 && f.data.len() % f.dim != 0 {
-            return Err(Error::Invalid(format!(
+            return Err(Error::Shape(format!(
                 "fusion: {what} features hold {} values, not a multiple of {}",
                 f.data.len(),
                 f.dim
@@ -412,7 +412,7 @@ pub fn match_then_fuse_select_features(
 }
 
 fn missing() -> Error {
-    Error::Invalid("match-then-fuse: a branch posterior is missing".into())
+    Error::Missing("match-then-fuse: a branch posterior is missing".into())
 }
 
 #[cfg(test)]

@@ -121,7 +121,7 @@ impl<'a> PosteriorRows<'a> {
     ) -> Result<Self> {
         let (rows, cols) = match (sim_img, sim_geo) {
             (Some((a, _, _)), Some(b)) if a.shape() != b.shape() => {
-                return Err(Error::Invalid(format!(
+                return Err(Error::Shape(format!(
                     "posterior row: image similarity is {} x {}, geometric similarity is {} x {}",
                     a.rows, a.cols, b.rows, b.cols
                 )))
@@ -129,13 +129,13 @@ impl<'a> PosteriorRows<'a> {
             (Some((a, _, _)), _) => a.shape(),
             (None, Some(b)) => b.shape(),
             (None, None) => {
-                return Err(Error::Invalid("posterior row: no similarity given".into()))
+                return Err(Error::Missing("posterior row: no similarity given".into()))
             }
         };
         for (what, m) in [("image", sim_img.map(|s| s.0)), ("geometric", sim_geo)] {
             if let Some(m) = m {
                 if m.data.len() != m.rows * m.cols {
-                    return Err(Error::Invalid(format!(
+                    return Err(Error::Shape(format!(
                         "posterior row: {what} similarity holds {} values, expected {} x {}",
                         m.data.len(),
                         m.rows,
@@ -186,7 +186,7 @@ impl<'a> PosteriorRows<'a> {
         let (rows, cols, params) = (self.rows, self.cols, &self.params);
         // `new` stored the matrix mode: Union shows Noisy-AND's posterior
         if i >= rows {
-            return Err(Error::Invalid(format!(
+            return Err(Error::Shape(format!(
                 "posterior row: source point {i} out of range (the similarity has {rows} rows)"
             )));
         }
@@ -194,7 +194,7 @@ impl<'a> PosteriorRows<'a> {
         let geometric = self.geometric.as_ref().map(|c| c.row(i)).transpose()?;
         let need = |p: &Option<Vec<f32>>, what: &str| {
             p.clone().ok_or_else(|| {
-                Error::Invalid(format!(
+                Error::Missing(format!(
                     "posterior row: fusion mode {:?} needs the {what} similarity",
                     params.mode
                 ))
@@ -234,7 +234,7 @@ impl<'a> PosteriorRows<'a> {
                 let ((si, rv, cv), sg) = match (self.sim_img, self.sim_geo) {
                     (Some(a), Some(b)) => (a, b),
                     _ => {
-                        return Err(Error::Invalid(
+                        return Err(Error::Missing(
                             "posterior row: fusion mode Concat needs both similarities".into(),
                         ))
                     }

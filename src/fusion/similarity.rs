@@ -133,14 +133,14 @@ fn sgemm_band(a_band: &[f32], b: &[f32], d: usize, out: &mut [f32]) {
 /// source rows, bands run in parallel.
 pub fn cosine_similarity(src: &Features, tgt: &Features) -> Result<DenseMatrix> {
     if src.dim != tgt.dim {
-        return Err(Error::Invalid(format!(
+        return Err(Error::Shape(format!(
             "cosine similarity: source features are {}-D, target features {}-D",
             src.dim, tgt.dim
         )));
     }
     for (what, f) in [("source", src), ("target", tgt)] {
         if f.dim > 0 && f.data.len() % f.dim != 0 {
-            return Err(Error::Invalid(format!(
+            return Err(Error::Shape(format!(
                 "cosine similarity: {what} features hold {} values, not a multiple of {}",
                 f.data.len(),
                 f.dim
@@ -172,13 +172,13 @@ pub fn cosine_similarity(src: &Features, tgt: &Features) -> Result<DenseMatrix> 
 /// `(source view features, target view features)`, all over the same source and target points.
 pub fn max_similarity(pairs: &[(Features, Features)]) -> Result<DenseMatrix> {
     let Some((first, rest)) = pairs.split_first() else {
-        return Err(Error::Invalid("max similarity: no view pairs".into()));
+        return Err(Error::Missing("max similarity: no view pairs".into()));
     };
     let mut acc = cosine_similarity(&first.0, &first.1)?;
     for (k, (s, t)) in rest.iter().enumerate() {
         let sk = cosine_similarity(s, t)?;
         if sk.shape() != acc.shape() {
-            return Err(Error::Invalid(format!(
+            return Err(Error::Shape(format!(
                 "max similarity: view pair {} is {} x {}, view pair 0 is {} x {}",
                 k + 1,
                 sk.rows,

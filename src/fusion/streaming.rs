@@ -17,7 +17,7 @@ const BAND: usize = 128;
 /// (score descending, source, target) like `select`.
 pub fn row_nn_posterior(src: &Features, tgt: &Features, tau: f32) -> Result<Vec<Correspondence>> {
     if src.dim != tgt.dim {
-        return Err(Error::Invalid(format!(
+        return Err(Error::Shape(format!(
             "row-nn: source features are {}-D, target features {}-D",
             src.dim, tgt.dim
         )));
@@ -61,7 +61,7 @@ fn check_tau(tau: f32) -> Result<()> {
     if tau > 0.0 && tau.is_finite() {
         Ok(())
     } else {
-        Err(Error::Invalid(format!(
+        Err(Error::Param(format!(
             "row-nn: temperature must be > 0, got {tau}"
         )))
     }
@@ -138,7 +138,7 @@ pub fn row_nn_from_maxima(
         return Ok(Vec::new());
     }
     if maxima.len() != sim.rows {
-        return Err(Error::Invalid(format!(
+        return Err(Error::Shape(format!(
             "row-nn: {} row maxima for a matrix of {} rows",
             maxima.len(),
             sim.rows

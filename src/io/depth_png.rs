@@ -99,7 +99,7 @@ pub fn encode_depth_png(path: &Path, depth: &DepthImage) -> Result<Vec<u8>> {
         depth.height,
         depth.data.clone(),
     )
-    .ok_or_else(|| Error::Invalid(format!("depth image size mismatch for {}", path.display())))?;
+    .ok_or_else(|| Error::Shape(format!("depth image size mismatch for {}", path.display())))?;
     let mut out = Vec::new();
     image::DynamicImage::ImageLuma16(buf)
         .write_to(&mut std::io::Cursor::new(&mut out), image::ImageFormat::Png)

@@ -49,7 +49,7 @@ impl KittiFields {
         match std::env::var(FIELDS_ENV) {
             Err(std::env::VarError::NotPresent) => Ok(None),
             Ok(v) => Self::from_env_value(&v),
-            Err(e) => Err(Error::Invalid(format!(
+            Err(e) => Err(Error::Param(format!(
                 "environment variable {FIELDS_ENV}: {e}"
             ))),
         }
@@ -66,7 +66,7 @@ impl KittiFields {
             .and_then(KittiFields::from_count)
             .map(Some)
             .ok_or_else(|| {
-                Error::Invalid(format!(
+                Error::Param(format!(
                     "environment variable {FIELDS_ENV}: expected 3 (x, y, z) or 4 (x, y, z, intensity), found {v:?}"
                 ))
             })

@@ -502,7 +502,7 @@ pub fn encode_npy_f64(shape: &[usize], data: &[f64]) -> Vec<u8> {
 /// NumPy's `np.load(..)["meta.json"]` returns as bytes and [`read_npz`] skips).
 pub fn encode_npz(entries: &[(String, Vec<u8>)]) -> Result<Vec<u8>> {
     use std::io::Write;
-    let zerr = |e: &dyn std::fmt::Display| Error::Invalid(format!("encoding an .npz: {e}"));
+    let zerr = |e: &dyn std::fmt::Display| Error::Encode(format!("encoding an .npz: {e}"));
     let mut w = zip::ZipWriter::new(std::io::Cursor::new(Vec::new()));
     let opts = zip::write::SimpleFileOptions::default()
         .compression_method(zip::CompressionMethod::Deflated)
@@ -546,7 +546,7 @@ pub fn parse_npy_f32_matrix(path: &Path, bytes: &[u8]) -> Result<(usize, usize, 
 pub fn write_npy_f32(path: &Path, shape: &[usize], data: &[f32]) -> Result<()> {
     let n: usize = shape.iter().product();
     if n != data.len() {
-        return Err(Error::Invalid(format!(
+        return Err(Error::Shape(format!(
             "writing {}: shape {} needs {n} values, got {}",
             path.display(),
             shape_str(shape),

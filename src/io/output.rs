@@ -108,7 +108,7 @@ fn kind_name(t: &std::fs::FileType) -> &'static str {
 /// the output, so a bad path fails at once.
 pub fn prepare(path: &Path, kind: OutputKind, force: bool) -> Result<()> {
     if path.as_os_str().is_empty() {
-        return Err(Error::Invalid("an empty output path".into()));
+        return Err(Error::Param("an empty output path".into()));
     }
     let dir = path
         .parent()

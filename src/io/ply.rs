@@ -721,7 +721,7 @@ pub fn write_ply(path: &Path, cloud: &PointCloud) -> Result<()> {
         ("intensity", cloud.intensity.as_ref().map(Vec::len)),
     ] {
         if let Some(l) = len.filter(|&l| l != n) {
-            return Err(Error::Invalid(format!(
+            return Err(Error::Shape(format!(
                 "writing {}: {name} has {l} entries for {n} points",
                 path.display()
             )));

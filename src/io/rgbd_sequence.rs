@@ -94,7 +94,7 @@ impl RgbdSequence {
     pub fn world_from_camera(&self, index: usize) -> Result<Isometry3<f64>> {
         let f = self
             .frame(index)
-            .ok_or_else(|| Error::Invalid(format!("{}: no frame {index}", self.dir.display())))?;
+            .ok_or_else(|| Error::Missing(format!("{}: no frame {index}", self.dir.display())))?;
         let p = f.pose.as_ref().ok_or_else(|| {
             Error::format(
                 &f.depth,

@@ -39,7 +39,7 @@ pub fn gt_residuals(
     gt: &Isometry3<f64>,
 ) -> Result<Vec<f64>> {
     if src.len() != tgt.len() {
-        return Err(Error::Invalid(format!(
+        return Err(Error::Shape(format!(
             "metrics: {} source points but {} target points",
             src.len(),
             tgt.len()
@@ -319,7 +319,7 @@ pub fn precision_recall(
     n_gt_matches: Option<usize>,
 ) -> Result<Vec<PrPoint>> {
     if scores.len() != src.len() {
-        return Err(Error::Invalid(format!(
+        return Err(Error::Shape(format!(
             "precision_recall: {} scores for {} correspondences",
             scores.len(),
             src.len()

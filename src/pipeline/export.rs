@@ -121,7 +121,7 @@ pub fn correspondence_table(
         &inputs.target_geo.keypoints.points,
     );
     if sk.len() != res.source_keypoints.len() || tk.len() != res.target_keypoints.len() {
-        return Err(Error::Invalid(format!(
+        return Err(Error::Shape(format!(
             "export: the fusion inputs have {} / {} keypoints, the result {} / {}",
             sk.len(),
             tk.len(),
@@ -190,7 +190,7 @@ pub fn correspondence_table(
         let (sp, tp) = match (sk.get(i), tk.get(j)) {
             (Some(s), Some(t)) => (*s, *t),
             _ => {
-                return Err(Error::Invalid(format!(
+                return Err(Error::Shape(format!(
                     "export: correspondence {i} -> {j} is outside the keypoints ({} / {})",
                     sk.len(),
                     tk.len()
@@ -324,7 +324,7 @@ pub fn npz_entries(t: &CorrespondenceTable) -> Result<Vec<(String, Vec<u8>)>> {
         ),
     ];
     let meta = serde_json::to_vec_pretty(&t.meta)
-        .map_err(|e| Error::Invalid(format!("export: serialising meta.json: {e}")))?;
+        .map_err(|e| Error::Encode(format!("export: serialising meta.json: {e}")))?;
     e.push(("meta.json".into(), meta));
     Ok(e)
 }

@@ -80,7 +80,7 @@ pub fn estimator_hypotheses(
                 tp.push(*t);
             }
             _ => {
-                return Err(Error::Invalid(format!(
+                return Err(Error::Shape(format!(
                     "hypotheses: correspondence {} -> {} is outside the keypoints",
                     c.src, c.tgt
                 )))

@@ -196,7 +196,7 @@ fn register_geometry(
         }
     };
     if src.features.dim != tgt.features.dim {
-        return Err(Error::Invalid(format!(
+        return Err(Error::Shape(format!(
             "source features are {}-D but target features are {}-D",
             src.features.dim, tgt.features.dim
         )));

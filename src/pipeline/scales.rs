@@ -162,7 +162,7 @@ pub(crate) fn register(reg: &Registration, pair: &ScanPair) -> Result<Registrati
     let [src_views, tgt_views] = views.views()?;
     let finest = results
         .first()
-        .ok_or_else(|| Error::Invalid("scales: no hypothesis".into()))?;
+        .ok_or_else(|| Error::Missing("scales: no hypothesis".into()))?;
     // every hypothesis keeps the search's own inlier threshold (`hypothesis_params`)
     let theta = reg.params.inlier_threshold_m();
     let (src_pts, tgt_pts) = (&finest.source_keypoints, &finest.target_keypoints);

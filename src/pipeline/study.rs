@@ -350,7 +350,7 @@ pub enum SettingOutcome {
 /// Checks the settings and resolves them (see [`StudyPlan`]).
 pub fn plan_study(params: &RegisterParams, settings: &[StudySetting]) -> Result<StudyPlan> {
     let base = params.image.as_ref().ok_or_else(|| {
-        Error::Invalid(
+        Error::Usage(
             "a study needs the image branch: choose a WFM backend (e.g. --wfm oracle or \
              --wfm builtin)"
                 .into(),
@@ -359,13 +359,13 @@ pub fn plan_study(params: &RegisterParams, settings: &[StudySetting]) -> Result<
     let kind = match settings.first() {
         Some(StudySetting::K(_)) => StudyKind::K,
         Some(StudySetting::Prompt { .. }) => StudyKind::Prompt,
-        None => return Err(Error::Invalid("a study needs at least one setting".into())),
+        None => return Err(Error::Param("a study needs at least one setting".into())),
     };
     if settings
         .iter()
         .any(|s| matches!(s, StudySetting::K(_)) != (kind == StudyKind::K))
     {
-        return Err(Error::Invalid(
+        return Err(Error::Param(
             "a study varies one parameter: K values and prompts cannot be mixed".into(),
         ));
     }
@@ -551,14 +551,14 @@ pub fn parse_ks(s: &str) -> Result<Vec<usize>> {
         .filter(|t| !t.is_empty())
         .map(|t| {
             t.parse::<usize>().map_err(|_| {
-                Error::Invalid(format!(
+                Error::Param(format!(
                     "K list {s:?}: {t:?} is not a whole number (expected e.g. 1,2,4,8)"
                 ))
             })
         })
         .collect::<Result<_>>()?;
     if ks.is_empty() {
-        return Err(Error::Invalid(format!(
+        return Err(Error::Param(format!(
             "K list {s:?} is empty (expected e.g. 1,2,4,8)"
         )));
     }

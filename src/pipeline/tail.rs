@@ -408,7 +408,7 @@ pub(crate) fn geometry_correspondences(
 }
 
 fn mismatch() -> Error {
-    Error::Invalid(
+    Error::Shape(
         "kept similarities do not match the fusion inputs (image branch on one, off on the other)"
             .into(),
     )

@@ -54,7 +54,7 @@ pub(crate) fn member_sets(
     timer: &mut Timer,
 ) -> Result<(Vec<Correspondence>, Vec<Correspondence>)> {
     if inputs.image.is_none() {
-        return Err(Error::Invalid(
+        return Err(Error::Missing(
             "fusion union: the image branch's descriptors are missing".into(),
         ));
     }

@@ -200,7 +200,7 @@ pub(crate) fn register(
 ) -> Result<RegistrationResult> {
     let t0 = timer.t0;
     let views = inputs.views.as_ref().ok_or_else(|| {
-        Error::Invalid(
+        Error::Missing(
             "fusion visibility: the scans' depth views are missing (the image branch did not \
              run on this pair)"
                 .into(),

@@ -69,7 +69,7 @@ pub fn bench_json(f: &RunFile) -> Result<Vec<u8>> {
         summary,
         records: &f.records,
     };
-    serde_json::to_vec_pretty(&out).map_err(|e| Error::Invalid(format!("serialising results: {e}")))
+    serde_json::to_vec_pretty(&out).map_err(|e| Error::Encode(format!("serialising results: {e}")))
 }
 
 /// Per-split summaries (splits sorted by name). A pair that ran with an error counts as a

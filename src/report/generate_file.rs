@@ -14,5 +14,5 @@ pub fn generate_json(f: &RunFile) -> Result<Vec<u8>> {
         "run": f.run,
         "records": f.records,
     });
-    serde_json::to_vec_pretty(&v).map_err(|e| Error::Invalid(format!("serialising: {e}")))
+    serde_json::to_vec_pretty(&v).map_err(|e| Error::Encode(format!("serialising: {e}")))
 }

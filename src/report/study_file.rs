@@ -84,8 +84,8 @@ pub fn study_report(f: &RunFile) -> Result<StudyReport> {
 pub fn study_json(f: &RunFile) -> Result<Vec<u8>> {
     let rep = study_report(f)?;
     let mut v = serde_json::to_value(&rep)
-        .map_err(|e| Error::Invalid(format!("serialising the study: {e}")))?;
+        .map_err(|e| Error::Encode(format!("serialising the study: {e}")))?;
     v["run"] = serde_json::to_value(&f.run).unwrap_or_default();
     v["records"] = serde_json::to_value(&f.records).unwrap_or_default();
-    serde_json::to_vec_pretty(&v).map_err(|e| Error::Invalid(format!("serialising the study: {e}")))
+    serde_json::to_vec_pretty(&v).map_err(|e| Error::Encode(format!("serialising the study: {e}")))
 }

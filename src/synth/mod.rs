@@ -159,7 +159,7 @@ pub fn render_frame(
 
 fn write_color_png(path: &Path, w: u32, h: u32, rgb: Vec<u8>) -> Result<()> {
     let img = image::RgbImage::from_raw(w, h, rgb).ok_or_else(|| {
-        Error::Invalid(format!("colour image size mismatch for {}", path.display()))
+        Error::Shape(format!("colour image size mismatch for {}", path.display()))
     })?;
     let mut out = Vec::new();
     image::DynamicImage::ImageRgb8(img)
@@ -185,13 +185,13 @@ fn fmt_matrix(t: &Isometry3<f64>) -> String {
 /// Render the demo into `dir` (`target/`, `source/`, `demo.toml`) and return the manifest path.
 pub fn write_demo(dir: &Path, params: &DemoParams) -> Result<PathBuf> {
     if params.width < 16 || params.height < 16 || params.width > 4096 || params.height > 4096 {
-        return Err(Error::Invalid(format!(
+        return Err(Error::Param(format!(
             "demo image size {}x{}: expected 16..4096 pixels per side",
             params.width, params.height
         )));
     }
     if params.frames < 2 {
-        return Err(Error::Invalid(format!(
+        return Err(Error::Param(format!(
             "demo needs at least 2 frames per sequence, got {}",
             params.frames
         )));

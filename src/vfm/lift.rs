@@ -67,7 +67,7 @@ pub fn lifted_pixels(
         )));
     }
     if image_size.0 == 0 || image_size.1 == 0 {
-        return Err(Error::Invalid(format!("image size {image_size:?}")));
+        return Err(Error::Param(format!("image size {image_size:?}")));
     }
     let per_view: Vec<Vec<([f32; 3], PixelLink)>> = views
         .par_iter()
@@ -75,7 +75,7 @@ pub fn lifted_pixels(
         .map(|(vi, view)| {
             let d = view.depth;
             if d.width == 0 || d.height == 0 || d.data.len() != (d.width * d.height) as usize {
-                return Err(Error::Invalid(format!(
+                return Err(Error::Shape(format!(
                     "view {vi}: depth image {}x{} with {} values",
                     d.width,
                     d.height,

@@ -171,7 +171,7 @@ impl PairModel for Mast3r {
         let (pa, pb) = (prepare(a)?, prepare(b)?);
         let mut r = self.run_batch(&[(&pa, &pb)])?;
         r.pop()
-            .ok_or_else(|| Error::Invalid("MASt3R returned no pair".into()))
+            .ok_or_else(|| Error::Missing("MASt3R returned no pair".into()))
     }
 
     /// Each image is preprocessed once; pairs go src-major in batches of `max_batch`.

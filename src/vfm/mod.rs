@@ -63,7 +63,7 @@ impl DenseDescriptors {
     ) -> Result<Self> {
         let n = width as usize * height as usize * dim;
         if data.len() != n || !(stride_x > 0.0 && stride_y > 0.0) {
-            return Err(Error::Invalid(format!(
+            return Err(Error::Shape(format!(
                 "descriptor grid {width}x{height}x{dim} needs {n} values and positive strides, got {} values, strides {stride_x}/{stride_y}",
                 data.len()
             )));

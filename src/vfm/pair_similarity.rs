@@ -43,14 +43,14 @@ pub fn pair_point_descriptors(
     tgt_links: &[Option<PixelLink>],
 ) -> Result<PairPointDescriptors> {
     if pairs.len() != k_src * k_tgt || pairs.is_empty() {
-        return Err(Error::Invalid(format!(
+        return Err(Error::Shape(format!(
             "pair-conditioned descriptors: {} pair outputs for {k_src}x{k_tgt} views",
             pairs.len()
         )));
     }
     let dim = pairs[0].0.dim;
     if pairs.iter().any(|(a, b)| a.dim != dim || b.dim != dim) {
-        return Err(Error::Invalid(
+        return Err(Error::Shape(
             "pair-conditioned descriptors: pair outputs disagree on the descriptor size".into(),
         ));
     }
@@ -58,7 +58,7 @@ pub fn pair_point_descriptors(
     if src_links.iter().flatten().any(|l| bad_view(l, k_src))
         || tgt_links.iter().flatten().any(|l| bad_view(l, k_tgt))
     {
-        return Err(Error::Invalid(
+        return Err(Error::Shape(
             "pair-conditioned descriptors: a pixel link names a view that was not described".into(),
         ));
     }

@@ -536,7 +536,7 @@ impl OnnxModel {
             None => Err(Error::Invalid(format!("output {output} seen twice"))),
         })?
         .pop()
-        .ok_or_else(|| Error::Invalid(format!("no result for output {output}")))
+        .ok_or_else(|| Error::Missing(format!("no result for output {output}")))
     }
 
     /// Run on f32 inputs given as (name, shape, data); returns the named f32 outputs as

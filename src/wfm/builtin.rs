@@ -256,7 +256,7 @@ impl DepthShadeBackend {
             )));
         }
         if self.width < 8 || self.height < 8 {
-            return Err(Error::Invalid(format!(
+            return Err(Error::Param(format!(
                 "{NAME}: output size {}x{} is too small",
                 self.width, self.height
             )));
@@ -266,7 +266,7 @@ impl DepthShadeBackend {
             .enumerate()
             .find(|(_, f)| f.width() == 0 || f.height() == 0)
         {
-            return Err(Error::Invalid(format!(
+            return Err(Error::Shape(format!(
                 "{NAME}: depth frame {i} is {}x{}",
                 f.width(),
                 f.height()

@@ -190,7 +190,7 @@ impl CachedBackend {
             return if i < self.lines.len() {
                 Ok(i)
             } else {
-                Err(Error::Invalid(format!(
+                Err(Error::Missing(format!(
                     "cached backend: pair `{id}` is line {i}, but {} has {} lines",
                     self.spec_path.display(),
                     self.lines.len()
@@ -206,7 +206,7 @@ impl CachedBackend {
                 return Ok(l.line);
             }
         }
-        Err(Error::Invalid(format!(
+        Err(Error::Missing(format!(
             "cached backend: pair `{id}` is not in {}: give its line number, its depth video \
              name (e.g. `{}`), or a depth_video_path with that file name",
             self.spec_path.display(),
@@ -403,7 +403,7 @@ pub fn find_cosmos_spec(dir: &Path) -> Result<PathBuf> {
                 if let [one] = named.as_slice() {
                     return Ok(one.clone());
                 }
-                return Err(Error::Invalid(format!(
+                return Err(Error::Usage(format!(
                     "{}: several JSONL batch specs ({}), none named like {}; choose one under \
                      Image branch > JSONL spec",
                     d.display(),
@@ -413,7 +413,7 @@ pub fn find_cosmos_spec(dir: &Path) -> Result<PathBuf> {
             }
         }
     }
-    Err(Error::Invalid(format!(
+    Err(Error::Missing(format!(
         "no JSONL batch spec (*.jsonl, or a .json of JSON lines) for the Cosmos output folder \
          {}: looked in {}; put the spec there or choose it under Image branch > JSONL spec",
         dir.display(),

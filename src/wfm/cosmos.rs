@@ -131,20 +131,20 @@ static JOB_COUNTER: AtomicUsize = AtomicUsize::new(0);
 impl CosmosBackend {
     pub fn new(config: CosmosConfig) -> Result<Self> {
         if config.command.is_empty() {
-            return Err(Error::Invalid(
+            return Err(Error::Param(
                 "cosmos backend: the command is empty; give the program and its arguments".into(),
             ));
         }
         for a in &config.command {
             if looks_like_placeholder(a) && !PLACEHOLDERS.contains(&a.as_str()) {
-                return Err(Error::Invalid(format!(
+                return Err(Error::Param(format!(
                     "cosmos backend: unknown placeholder argument `{a}`; known: {}",
                     PLACEHOLDERS.join(" ")
                 )));
             }
         }
         if !(config.control_weight.is_finite() && config.control_weight >= 0.0) {
-            return Err(Error::Invalid(format!(
+            return Err(Error::Param(format!(
                 "cosmos backend: control_weight must be a non-negative number, found {}",
                 config.control_weight
             )));
@@ -436,7 +436,7 @@ impl WfmBackend for CosmosBackend {
     fn generate(&self, req: &GenerateRequest) -> Result<Generation> {
         let mut out = self.run_batch(&req.pair_id, std::slice::from_ref(req))?;
         out.pop().unwrap_or_else(|| {
-            Err(Error::Invalid(format!(
+            Err(Error::Missing(format!(
                 "cosmos: no result for pair {} in its batch",
                 req.pair_id
             )))
@@ -570,7 +570,7 @@ impl CosmosBackend {
                     .as_ref()
                     .map(|p| p.to_string_lossy().into_owned())
                     .ok_or_else(|| {
-                        Error::Invalid(
+                        Error::Param(
                             "cosmos backend: the command uses {checkpoint_dir} but no \
                              checkpoint directory is configured"
                                 .into(),
@@ -580,7 +580,7 @@ impl CosmosBackend {
             })
         };
         if !single && c.command.iter().any(|a| a == "{depth_video}") {
-            return Err(Error::Invalid(
+            return Err(Error::Param(
                 "cosmos batch: the command uses {depth_video}, which names one video; a batch \
                  of several pairs needs {batch_input_path}"
                     .into(),

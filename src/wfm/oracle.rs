@@ -27,7 +27,7 @@ impl WfmBackend for OracleBackend {
 
     fn generate(&self, req: &GenerateRequest) -> Result<Generation> {
         let (Some(src), Some(tgt)) = (&req.source_color, &req.target_color) else {
-            return Err(Error::Invalid(format!(
+            return Err(Error::Missing(format!(
                 "oracle backend: pair `{}` has no real colour frames (source_color/target_color); \
                  the oracle needs an RGB-D dataset with colour images",
                 req.pair_id
@@ -35,7 +35,7 @@ impl WfmBackend for OracleBackend {
         };
         let n_depth = req.depth_video.len();
         if n_depth != 0 && src.len() + tgt.len() != n_depth {
-            return Err(Error::Invalid(format!(
+            return Err(Error::Shape(format!(
                 "oracle backend: pair `{}` has {} + {} colour frames but a {n_depth}-frame depth video",
                 req.pair_id,
                 src.len(),

@@ -55,6 +55,8 @@ fn codec_name(fourcc: &str) -> &'static str {
 pub fn write_mp4_h264(path: &Path, frames: &[RgbImage], fps: u32) -> Result<()> {
     let bytes = encode_mp4_h264(frames, fps).map_err(|e| match e {
         Error::Invalid(m) => Error::Invalid(format!("{}: {m}", path.display())),
+        Error::Shape(m) => Error::Shape(format!("{}: {m}", path.display())),
+        Error::Param(m) => Error::Param(format!("{}: {m}", path.display())),
         other => other,
     })?;
     write_atomic(path, &bytes)
@@ -67,19 +69,19 @@ pub fn encode_mp4_h264(frames: &[RgbImage], fps: u32) -> Result<Vec<u8>> {
         .ok_or_else(|| Error::Invalid("cannot write a video with no frames".into()))?;
     let (w, h) = first.dimensions();
     if w == 0 || h == 0 || w % 2 != 0 || h % 2 != 0 || w > 3840 || h > 2160 {
-        return Err(Error::Invalid(format!(
+        return Err(Error::Shape(format!(
             "H.264 frames must have even width and height up to 3840x2160, found {w}x{h}"
         )));
     }
     if fps == 0 {
-        return Err(Error::Invalid("frame rate must be positive".into()));
+        return Err(Error::Param("frame rate must be positive".into()));
     }
     if let Some((i, f)) = frames
         .iter()
         .enumerate()
         .find(|(_, f)| f.dimensions() != (w, h))
     {
-        return Err(Error::Invalid(format!(
+        return Err(Error::Shape(format!(
             "frame {i} is {}x{}, expected {w}x{h} like frame 0",
             f.width(),
             f.height()
@@ -961,7 +963,7 @@ pub fn read_frames(path: &Path) -> Result<Vec<RgbImage>> {
 /// Peak signal-to-noise ratio (dB) between two images of the same size; infinite when equal.
 pub fn psnr(a: &RgbImage, b: &RgbImage) -> Result<f64> {
     if a.dimensions() != b.dimensions() {
-        return Err(Error::Invalid(format!(
+        return Err(Error::Shape(format!(
             "psnr of images of different sizes: {:?} vs {:?}",
             a.dimensions(),
             b.dimensions()

@@ -31,17 +31,17 @@ pub fn select_views(
     k: usize,
 ) -> Result<ViewSelection> {
     if l == 0 {
-        return Err(Error::Invalid(
+        return Err(Error::Param(
             "frames per fragment L must be at least 1".into(),
         ));
     }
     if margin >= l {
-        return Err(Error::Invalid(format!(
+        return Err(Error::Param(format!(
             "safeguard margin m = {margin} leaves no frames: it must be smaller than L = {l}"
         )));
     }
     if n_generated < 2 * l {
-        return Err(Error::Invalid(format!(
+        return Err(Error::Shape(format!(
             "the generated video has {n_generated} frames; {} are needed (L = {l} source then \
              L target frames)",
             2 * l
@@ -49,7 +49,7 @@ pub fn select_views(
     }
     let usable = l - margin;
     if k == 0 || k > usable {
-        return Err(Error::Invalid(format!(
+        return Err(Error::Param(format!(
             "K = {k} views is invalid: K must be between 1 and L - m = {l} - {margin} = {usable}"
         )));
     }

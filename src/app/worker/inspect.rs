@@ -19,7 +19,7 @@ impl PipelineWorker {
         let cur = self
             .current
             .as_mut()
-            .ok_or_else(|| crate::Error::Invalid("no registered pair to inspect".into()))?;
+            .ok_or_else(|| crate::Error::Missing("no registered pair to inspect".into()))?;
         if src >= cur.result.source_keypoints.len() {
             return Err(crate::Error::Invalid(format!(
                 "point {src} is a display point, not a keypoint (keypoints: 0..{}); click a matched point",
@@ -140,9 +140,9 @@ impl PipelineWorker {
         let cur = self
             .current
             .as_ref()
-            .ok_or_else(|| crate::Error::Invalid("no registered pair to export".into()))?;
+            .ok_or_else(|| crate::Error::Missing("no registered pair to export".into()))?;
         let kept = cur.kept.as_ref().ok_or_else(|| {
-            crate::Error::Invalid("the fusion inputs of this pair were not kept".into())
+            crate::Error::Missing("the fusion inputs of this pair were not kept".into())
         })?;
         let t = crate::pipeline::export::export_correspondences(
             path,
@@ -162,7 +162,7 @@ impl PipelineWorker {
         let cur = self
             .current
             .as_mut()
-            .ok_or_else(|| crate::Error::Invalid("no registered pair".into()))?;
+            .ok_or_else(|| crate::Error::Missing("no registered pair".into()))?;
         let list = match crate::pipeline::hypotheses::estimator_hypotheses(
             &cur.result,
             &params,

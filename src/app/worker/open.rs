@@ -85,7 +85,7 @@ impl PipelineWorker {
                 }
                 Ok(s)
             }),
-            _ => Err(crate::Error::Invalid(format!(
+            _ => Err(crate::Error::Usage(format!(
                 "expected one Cosmos output folder, got {} paths",
                 paths.len()
             ))),

@@ -193,7 +193,7 @@ impl PipelineWorker {
                 }
             };
             let inputs = r.inputs.take().ok_or_else(|| {
-                crate::Error::Invalid("the registration kept no fusion inputs".into())
+                crate::Error::Missing("the registration kept no fusion inputs".into())
             })?;
             if fpfh {
                 // its geometric branch serves later geometry-only runs of this pair

@@ -128,7 +128,7 @@ pub fn sc2pcr_with(
     top_n: usize,
 ) -> Result<(Estimate, Option<Hypotheses>)> {
     if src.len() != tgt.len() {
-        return Err(Error::Invalid(format!(
+        return Err(Error::Shape(format!(
             "sc2pcr: {} source points but {} target points",
             src.len(),
             tgt.len()
@@ -154,7 +154,7 @@ pub fn sc2pcr_with(
         || p.k2 == 0
         || max_points == 0
     {
-        return Err(Error::Invalid(format!("sc2pcr: invalid parameters {p:?}")));
+        return Err(Error::Param(format!("sc2pcr: invalid parameters {p:?}")));
     }
     let n = src.len().min(max_points);
     let (src, tgt) = (&src[..n], &tgt[..n]);

@@ -76,7 +76,7 @@ impl SpinNet {
     pub fn run_grouped(&self, grouped: Vec<f32>, batch: usize) -> Result<Vec<f32>> {
         let g = self.protocol.geometry();
         if grouped.len() != batch * g.grouped_len() {
-            return Err(Error::Invalid(format!(
+            return Err(Error::Shape(format!(
                 "SpinNet input holds {} floats, expected {batch} x {}",
                 grouped.len(),
                 g.grouped_len()

@@ -18,7 +18,7 @@ pub struct Merged {
 /// in several inputs is kept once when its results agree and is an error when they differ.
 pub fn merge(inputs: &[(String, RunFile)]) -> Result<Merged> {
     let Some((first_name, first)) = inputs.first() else {
-        return Err(Error::Invalid("merge: no inputs".into()));
+        return Err(Error::Missing("merge: no inputs".into()));
     };
     let id = &first.run.identity;
     for (name, f) in &inputs[1..] {

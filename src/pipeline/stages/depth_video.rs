@@ -58,14 +58,14 @@ pub fn depth_video_clip(camera: &CameraModel) -> f64 {
 /// The scan's frames, at least `l` of them.
 pub(crate) fn frames_of(scan: &Scan, l: usize) -> Result<&FrameSet> {
     let fs = scan.frames.as_ref().ok_or_else(|| {
-        Error::Invalid(format!(
+        Error::Missing(format!(
             "{}: the image branch needs the RGB-D frames the scan was made from (a raw-sequence \
              fragment, or a cloud with `frames` in the manifest)",
             scan.name
         ))
     })?;
     if fs.frames.len() < l {
-        return Err(Error::Invalid(format!(
+        return Err(Error::Param(format!(
             "{}: {} frames, but the depth video needs L = {l} per fragment (set \
              frames_per_fragment / --frames)",
             scan.name,

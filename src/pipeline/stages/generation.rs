@@ -43,11 +43,11 @@ impl GenOut {
             return f
                 .get(i)
                 .cloned()
-                .ok_or_else(|| Error::Invalid(format!("generated frame {i} out of range")));
+                .ok_or_else(|| Error::Shape(format!("generated frame {i} out of range")));
         }
         match &self.entry {
             Some(e) => e.read_png(&frame_name(i)),
-            None => Err(Error::Invalid("generated frames are not available".into())),
+            None => Err(Error::Missing("generated frames are not available".into())),
         }
     }
 }
@@ -67,7 +67,7 @@ fn encode_png_fast(img: &RgbImage) -> Result<Vec<u8>> {
             img.height(),
             image::ExtendedColorType::Rgb8,
         )
-        .map_err(|e| Error::Invalid(format!("encoding a frame as PNG: {e}")))?;
+        .map_err(|e| Error::Encode(format!("encoding a frame as PNG: {e}")))?;
     Ok(buf)
 }
 
@@ -158,13 +158,13 @@ fn store(g: &GenOut, c: &Cache, k: &CacheKey) -> Result<()> {
     let frames = g
         .frames
         .as_ref()
-        .ok_or_else(|| Error::Invalid("no frames".into()))?;
+        .ok_or_else(|| Error::Missing("no frames".into()))?;
     let pngs: Vec<Vec<u8>> = frames
         .par_iter()
         .map(encode_png_fast)
         .collect::<Result<_>>()?;
     let prov = serde_json::to_value(&g.provenance)
-        .map_err(|e| Error::Invalid(format!("provenance: {e}")))?;
+        .map_err(|e| Error::Encode(format!("provenance: {e}")))?;
     let mut ne = c.put(k, prov)?;
     for (i, b) in pngs.iter().enumerate() {
         ne.add_bytes(&frame_name(i), b)?;
@@ -261,7 +261,7 @@ pub(crate) fn plan(
     if is_oracle {
         // The oracle's output is the colour frames, so they (not the depth) key it.
         let (Some(s), Some(t)) = (&src_col, &tgt_col) else {
-            return Err(Error::Invalid(format!(
+            return Err(Error::Missing(format!(
                 "oracle backend: pair `{}` has no colour frames",
                 pair.id
             )));

@@ -194,7 +194,7 @@ fn prepare<'a>(
                 .frames
                 .get(i)
                 .map(|f| f.depth_path.as_path())
-                .ok_or_else(|| Error::Invalid(format!("depth frame {i} out of range")))
+                .ok_or_else(|| Error::Shape(format!("depth frame {i} out of range")))
         })
         .collect::<Result<_>>()?;
     let hashes: Vec<String> = paths

@@ -110,7 +110,7 @@ fn no_onnx(path: &Path) -> Error {
 pub fn vfm_id(memo: &Memo, spec: &VfmSpec) -> Result<String> {
     let model = spec.model();
     if !model.is_file() {
-        return Err(Error::Invalid(format!(
+        return Err(Error::Missing(format!(
             "{}: {} ONNX model not found (see models/README.md, or pass --vfm-model)",
             model.display(),
             spec.name()

@@ -106,7 +106,7 @@ impl<'a> FrameStore<'a> {
         }
         match &self.scratch {
             Some((c, _)) => Ok(c),
-            None => Err(Error::Invalid("no scratch folder".into())),
+            None => Err(Error::Missing("no scratch folder".into())),
         }
     }
 
@@ -249,7 +249,7 @@ pub fn virtual_frames(
         return pinhole_frames(store, scan, l);
     }
     if l == 0 || cameras == 0 || cameras > l {
-        return Err(Error::Invalid(format!(
+        return Err(Error::Param(format!(
             "virtual f-theta frames: {cameras} cameras for L = {l} frames; need 1 <= cameras <= L"
         )));
     }

@@ -152,11 +152,11 @@ pub fn save_plot_pngs(
         }
         let rgba: Vec<u8> = part.pixels.iter().flat_map(|c| c.to_array()).collect();
         let img = image::RgbaImage::from_raw(w as u32, h as u32, rgba).ok_or_else(|| {
-            crate::Error::Invalid(format!("plot {name}: {w} x {h} pixels do not match"))
+            crate::Error::Shape(format!("plot {name}: {w} x {h} pixels do not match"))
         })?;
         let mut png = Vec::new();
         img.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
-            .map_err(|e| crate::Error::Invalid(format!("encoding {name}.png: {e}")))?;
+            .map_err(|e| crate::Error::Encode(format!("encoding {name}.png: {e}")))?;
         let p = dir.join(format!("{name}.png"));
         crate::error::write_atomic(&p, &png)?;
         out.push(p);
