@@ -7,14 +7,15 @@
 //! `plan` (the stage graph: the ordered steps of a registration with their keys, and what a
 //! change invalidates), `image_branch` (runs the image branch's steps), `register` (the entry
 //! point, [`Registration`]: plan, then run; `scales` runs it at several voxels and keeps the
-//! most visibility-consistent pose), then
-//! `study` and `shard` (many pairs).
+//! most visibility-consistent pose), then `pair_loop` (the one loop over many pairs: cancel,
+//! panic guard, timing), `study` and `shard` (many pairs).
 
 pub mod export;
 pub mod geo;
 pub mod hypotheses;
 pub mod image_branch;
 pub mod memo;
+pub mod pair_loop;
 pub mod params;
 pub mod plan;
 pub mod register;

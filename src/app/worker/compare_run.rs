@@ -1,8 +1,11 @@
 //! Two settings over the open dataset (the Compare tab's "Run A vs B"): each pair registered
-//! with settings A, then with settings B, by the "Run all" machinery (loaded pairs reused,
-//! the stage cache and the in-memory geometry shared by both), Cancel honoured between
-//! registrations. The rows come back as two bench runs; the parameters in force, the pair
-//! browser's rows and the current pair stay as they were.
+//! with settings A, then with settings B, by the "Run all" machinery as items of the shared
+//! pair loop (`pipeline::pair_loop`): loaded pairs reused, the stage cache and the in-memory
+//! geometry shared by both, Cancel honoured between registrations. The rows come back as two
+//! bench runs; the parameters in force, the pair browser's rows and the current pair stay as
+//! they were.
+
+use std::sync::atomic::Ordering;
 
 use serde_json::json;
 
@@ -10,6 +13,7 @@ use super::PipelineWorker;
 use crate::app::channel::{EventSink, LogLevel, WorkerEvent};
 use crate::app::model::{CompareEvent, SettingsCompareRequest, SettingsRuns, Side};
 use crate::app::model::{PairEntry, PairStatus};
+use crate::pipeline::pair_loop::run_items;
 use crate::pipeline::{RegisterParams, WfmSpec};
 use crate::report::compare::{BenchRun, PairRow};
 
@@ -42,6 +46,26 @@ fn generates(p: &RegisterParams) -> bool {
         p.image.as_ref().map(|i| &i.backend),
         Some(WfmSpec::Cosmos { .. })
     )
+}
+
+/// A settings comparison's state, shared by the pair loop's hooks.
+struct Comparing<'a> {
+    worker: &'a mut PipelineWorker,
+    progress: &'a mut dyn FnMut(CompareEvent),
+    /// The pair loaded for this comparison (dropped after its B, or when the loop stops).
+    loaded_here: Option<String>,
+    /// The current pair's row under A, waiting for its B.
+    row_a: Option<PairRow>,
+    rows_a: Vec<PairRow>,
+    rows_b: Vec<PairRow>,
+}
+
+impl Comparing<'_> {
+    fn drop_loaded(&mut self) {
+        if let Some(id) = self.loaded_here.take() {
+            self.worker.loaded.remove(&id);
+        }
+    }
 }
 
 impl PipelineWorker {
@@ -78,59 +102,84 @@ impl PipelineWorker {
         req: &SettingsCompareRequest,
         progress: &mut dyn FnMut(CompareEvent),
     ) -> SettingsRuns {
-        use std::sync::atomic::Ordering;
         self.cancel.store(false, Ordering::Relaxed);
         let ids: Vec<String> = match &req.pairs {
             Some(ids) => ids.clone(),
             None => self.pairs.iter().map(|p| p.id.clone()).collect(),
         };
         let saved = self.params.clone();
-        let total = 2 * ids.len();
-        let (mut rows_a, mut rows_b) = (Vec::new(), Vec::new());
-        let mut cancelled = false;
-        'pairs: for (i, id) in ids.iter().enumerate() {
-            // loaded once for both settings (kept only while they run, as "Run all" keeps none)
-            let keep = !self.loaded.contains_key(id);
-            if keep {
-                if let Ok(p) = self.dataset.load_pair(id) {
-                    self.loaded.insert(id.clone(), p);
-                }
-            }
-            let mut rows = Vec::with_capacity(2);
-            for (k, (side, params)) in [(Side::A, &req.a), (Side::B, &req.b)]
-                .into_iter()
-                .enumerate()
-            {
-                if self.cancel.load(Ordering::Relaxed) {
-                    cancelled = true;
-                    if keep {
-                        self.loaded.remove(id);
-                    }
-                    break 'pairs;
-                }
-                progress(CompareEvent::Progress {
-                    side,
-                    pair: id.clone(),
-                    done: 2 * i + k,
+        // one registration per item: pair i under A, then under B
+        let items: Vec<(&str, Side, &RegisterParams)> = ids
+            .iter()
+            .flat_map(|id| {
+                [
+                    (id.as_str(), Side::A, &req.a),
+                    (id.as_str(), Side::B, &req.b),
+                ]
+            })
+            .collect();
+        let total = items.len();
+        let cancel = self.cancel.clone();
+        let mut state = Comparing {
+            worker: self,
+            progress,
+            loaded_here: None,
+            row_a: None,
+            rows_a: Vec::new(),
+            rows_b: Vec::new(),
+        };
+        let end = run_items(
+            &mut state,
+            &items,
+            Some(&cancel),
+            |s, i, (id, side, _)| {
+                (s.progress)(CompareEvent::Progress {
+                    side: *side,
+                    pair: id.to_string(),
+                    done: i,
                     total,
-                });
-                self.params = params.clone();
-                rows.push(bench_row(&self.run_row(id, generates(params))));
-            }
-            if keep {
-                self.loaded.remove(id);
-            }
-            if let (Some(b), Some(a)) = (rows.pop(), rows.pop()) {
-                rows_a.push(a);
-                rows_b.push(b);
-            }
-        }
-        self.params = saved;
+                })
+            },
+            |s, _, (id, side, params)| {
+                // loaded once for both settings (kept only while they run, as "Run all" keeps
+                // none); a load that fails is the registration's error
+                if *side == Side::A && !s.worker.loaded.contains_key(*id) {
+                    if let Ok(p) = s.worker.dataset.load_pair(id) {
+                        s.worker.loaded.insert(id.to_string(), p);
+                        s.loaded_here = Some(id.to_string());
+                    }
+                }
+                s.worker.params = (*params).clone();
+                s.worker.run_row(id, generates(params))
+            },
+            |s, _, (id, side, _), r, elapsed| {
+                let row = bench_row(&s.worker.pair_row(id, r, elapsed));
+                match side {
+                    Side::A => s.row_a = Some(row),
+                    Side::B => {
+                        if let Some(a) = s.row_a.take() {
+                            s.rows_a.push(a);
+                            s.rows_b.push(row);
+                        }
+                        s.drop_loaded();
+                    }
+                }
+            },
+        );
+        // cancelled between a pair's A and B: that pair is in neither run, nor kept loaded
+        state.drop_loaded();
+        let Comparing {
+            worker,
+            rows_a,
+            rows_b,
+            ..
+        } = state;
+        worker.params = saved;
         SettingsRuns {
-            a: self.settings_bench_run("settings A", &req.a, rows_a),
-            b: self.settings_bench_run("settings B", &req.b, rows_b),
+            a: worker.settings_bench_run("settings A", &req.a, rows_a),
+            b: worker.settings_bench_run("settings B", &req.b, rows_b),
             request: req.clone(),
-            cancelled,
+            cancelled: end.cancelled,
         }
     }
 

@@ -1,15 +1,19 @@
 //! "Run all": every pair of the dataset (or only those failed, in error or not run yet)
-//! registered with the current parameters through the stage cache, one progress event per
-//! pair, Cancel honoured between pairs. Each pair fills its row of the pair browser (status,
-//! RRE, RTE, success, inlier ratio, correspondences, time); a pair that fails or panics
-//! becomes an error row and the run goes on. The current pair (and its model) is unchanged.
+//! registered with the current parameters through the stage cache by the shared pair loop
+//! (`pipeline::pair_loop`), one progress event before and after each pair, Cancel honoured
+//! between pairs. Each pair fills its row of the pair browser (status, RRE, RTE, success,
+//! inlier ratio, correspondences, time); a pair that fails or panics becomes an error row and
+//! the run goes on. The current pair (and its model) is unchanged.
 
-use std::time::Instant;
+use std::sync::atomic::Ordering;
+use std::time::{Duration, Instant};
 
 use super::model_build::fill_row;
+use super::session::Registered;
 use super::PipelineWorker;
 use crate::app::channel::{EventSink, LogLevel, RunProgress, RunSelection, WorkerEvent};
 use crate::app::model::{InspectorModel, PairEntry, PairOutcome, PairStatus};
+use crate::pipeline::pair_loop::run_items;
 use crate::pipeline::WfmSpec;
 
 /// What a run over the dataset did.
@@ -73,24 +77,32 @@ impl PipelineWorker {
         &self.pairs
     }
 
-    /// One pair's row: registered with the current parameters (loaded pairs are reused, others
-    /// loaded and not kept), or an error row saying why not. `generate`: produce a missing
-    /// generation (not for a Cosmos command, as in studies).
-    pub(super) fn run_row(&mut self, id: &str, generate: bool) -> PairEntry {
+    /// Registers one pair with the current parameters (loaded pairs are reused, others loaded
+    /// and not kept). `generate`: produce a missing generation (not for a Cosmos command, as in
+    /// studies). Not guarded against panics: its callers run it in the
+    /// [pair loop](crate::pipeline::pair_loop::run_items), whose guard turns one into an error.
+    pub(super) fn run_row(&mut self, id: &str, generate: bool) -> crate::Result<Registered> {
+        let pair = match self.loaded.get(id) {
+            Some(p) => p.clone(),
+            None => self.dataset.load_pair(id)?,
+        };
+        self.register(id, &pair, generate)
+    }
+
+    /// The row of pair `id` after [`run_row`](Self::run_row) gave `run` in `elapsed`: its
+    /// numbers, or an error row saying why not, tagged with the current parameters.
+    pub(super) fn pair_row(
+        &self,
+        id: &str,
+        run: crate::Result<Registered>,
+        elapsed: Duration,
+    ) -> PairEntry {
         let mut row = self
             .pairs
             .iter()
             .find(|p| p.id == id)
             .cloned()
             .unwrap_or_else(|| PairEntry::pending(id, ""));
-        let t = Instant::now();
-        let run = crate::error::catch_panic(|| {
-            let pair = match self.loaded.get(id) {
-                Some(p) => p.clone(),
-                None => self.dataset.load_pair(id)?,
-            };
-            self.register(id, &pair, generate)
-        });
         match run {
             Ok(r) if self.params.image.is_some() && r.result.image.is_none() => {
                 // the row must not show geometry-only numbers as the image branch's
@@ -98,12 +110,12 @@ impl PipelineWorker {
                     .note
                     .unwrap_or_else(|| "the image branch did not run".to_string());
                 row.reset(PairStatus::Failed(why));
-                row.time_ms = Some(t.elapsed().as_secs_f64() * 1e3);
+                row.time_ms = Some(elapsed.as_secs_f64() * 1e3);
             }
             Ok(r) => fill_row(&mut row, &r.result),
             Err(e) => {
                 row.reset(PairStatus::Failed(e.to_string()));
-                row.time_ms = Some(t.elapsed().as_secs_f64() * 1e3);
+                row.time_ms = Some(elapsed.as_secs_f64() * 1e3);
             }
         }
         row.settings = Some(crate::app::model::SettingsTag::of(&self.params));
@@ -119,46 +131,58 @@ impl PipelineWorker {
         sel: RunSelection,
         progress: &mut dyn FnMut(RunProgress),
     ) -> RunAllSummary {
-        use std::sync::atomic::Ordering;
         self.cancel.store(false, Ordering::Relaxed);
         let ids = self.selected_pairs(sel);
         let generate = !matches!(
             self.params.image.as_ref().map(|i| &i.backend),
             Some(WfmSpec::Cosmos { .. })
         );
-        let mut summary = RunAllSummary {
-            total: ids.len(),
-            ..Default::default()
-        };
-        let mut last = String::new();
-        for (i, id) in ids.iter().enumerate() {
-            if self.cancel.load(Ordering::Relaxed) {
-                summary.cancelled = true;
-                break;
-            }
-            progress(RunProgress {
-                done: i,
-                total: ids.len(),
-                pair: id.clone(),
-                row: None,
-                finished: false,
-                cancelled: false,
-            });
-            let row = self.run_row(id, generate);
-            summary.count(&row);
-            if let Some(r) = self.pairs.iter_mut().find(|p| p.id == *id) {
-                *r = row.clone();
-            }
-            progress(RunProgress {
-                done: i + 1,
-                total: ids.len(),
-                pair: id.clone(),
-                row: Some(row),
-                finished: false,
-                cancelled: false,
-            });
-            last = id.clone();
-        }
+        let total = ids.len();
+        // the loop's state holds the worker mutably, so it reads the flag through its own Arc
+        let cancel = self.cancel.clone();
+        let mut state = (
+            self,
+            progress,
+            RunAllSummary {
+                total,
+                ..Default::default()
+            },
+            String::new(),
+        );
+        let end = run_items(
+            &mut state,
+            &ids,
+            Some(&cancel),
+            |(_, progress, _, _), i, id| {
+                progress(RunProgress {
+                    done: i,
+                    total,
+                    pair: id.clone(),
+                    row: None,
+                    finished: false,
+                    cancelled: false,
+                })
+            },
+            |(w, ..), _, id| w.run_row(id, generate),
+            |(w, progress, summary, last), i, id, r, elapsed| {
+                let row = w.pair_row(id, r, elapsed);
+                summary.count(&row);
+                if let Some(r) = w.pairs.iter_mut().find(|p| p.id == *id) {
+                    *r = row.clone();
+                }
+                progress(RunProgress {
+                    done: i + 1,
+                    total,
+                    pair: id.clone(),
+                    row: Some(row),
+                    finished: false,
+                    cancelled: false,
+                });
+                *last = id.clone();
+            },
+        );
+        let (_, progress, mut summary, last) = state;
+        summary.cancelled = end.cancelled;
         progress(RunProgress {
             done: summary.done,
             total: summary.total,

@@ -1,5 +1,5 @@
 //! A run in progress: resume from an existing output, the records so far, the atomic rewrite
-//! after every pair, and the loop over the pending pairs.
+//! after every pair, and the pending pairs run through the shared pair loop.
 
 use super::{
     host_name, now_unix, read_run_file, PairRecord, RunFile, RunHeader, RunIdentity, Shard, DONE,
@@ -179,7 +179,33 @@ impl Progress {
     }
 }
 
-/// Runs the pending pairs of `progress` one after the other: marks each in flight, runs
+/// A run's state shared by the pair loop's hooks: the progress, the log, the pairs done so far
+/// and the last write problem (warned about once, the run goes on).
+struct Pending<'a> {
+    progress: &'a mut Progress,
+    log: &'a mut dyn FnMut(&str),
+    done: usize,
+    write_problem: Option<String>,
+}
+
+impl Pending<'_> {
+    /// Notes the outcome of a write of the output.
+    fn saved(&mut self, r: Result<()>) {
+        if let Err(e) = r {
+            if self.write_problem.is_none() {
+                (self.log)(&format!(
+                    "warning: could not write the output: {e} (the run goes on)"
+                ));
+            }
+            self.write_problem = Some(e.to_string());
+        } else {
+            self.write_problem = None;
+        }
+    }
+}
+
+/// Runs the pending pairs of `progress` one after the other through the
+/// [pair loop](crate::pipeline::pair_loop::run_items): marks each in flight, runs
 /// `run(position, id)` under [`catch_panic`](crate::error::catch_panic), records the outcome (a failure as
 /// `failed_result(position, reason)`), and rewrites the output. A pair that errors or panics is
 /// recorded as failed and the run goes on; `log` gets one line per pair for a log reader.
@@ -191,53 +217,56 @@ pub fn run_pending(
     failed_result: &dyn Fn(usize, &str) -> Value,
     log: &mut dyn FnMut(&str),
 ) -> Result<()> {
-    let pending = progress.pending();
+    let pending: Vec<(usize, String)> = progress
+        .pending()
+        .into_iter()
+        .map(|pos| (pos, progress.id(pos).to_string()))
+        .collect();
     let total = progress.positions.len();
-    let mut done = total - pending.len();
     let shard = progress.header.shard;
-    let mut write_problem: Option<String> = None;
-    let mut save = |r: Result<()>, log: &mut dyn FnMut(&str)| {
-        if let Err(e) = r {
-            if write_problem.is_none() {
-                log(&format!(
-                    "warning: could not write the output: {e} (the run goes on)"
-                ));
-            }
-            write_problem = Some(e.to_string());
-        } else {
-            write_problem = None;
-        }
+    let mut state = Pending {
+        done: total - pending.len(),
+        progress,
+        log,
+        write_problem: None,
     };
-    for pos in pending {
-        let id = progress.id(pos).to_string();
-        let r = progress.begin(pos, write);
-        save(r, log);
-        let t = std::time::Instant::now();
-        let rec = match crate::error::catch_panic(|| run(pos, &id)) {
-            Ok(rec) => rec,
-            Err(e) => PairRecord {
-                id: id.clone(),
-                status: FAILED.into(),
-                error: Some(e.to_string()),
-                time_s: t.elapsed().as_secs_f64(),
-                stages: Vec::new(),
-                result: failed_result(pos, &e.to_string()),
-            },
-        };
-        done += 1;
-        log(&match &rec.error {
-            None => format!(
-                "[shard {shard}] {done}/{total} {id}: done in {:.2} s",
-                rec.time_s
-            ),
-            Some(e) => format!("[shard {shard}] {done}/{total} {id}: FAILED: {e}"),
-        });
-        let r = progress.finish(pos, rec, write);
-        save(r, log);
-    }
-    let r = progress.save(write);
-    save(r, log);
-    match write_problem {
+    crate::pipeline::pair_loop::run_items(
+        &mut state,
+        &pending,
+        None,
+        |s, _, (pos, _)| {
+            let r = s.progress.begin(*pos, write);
+            s.saved(r);
+        },
+        |_, _, (pos, id)| run(*pos, id),
+        |s, _, (pos, id), r, elapsed| {
+            let rec = match r {
+                Ok(rec) => rec,
+                Err(e) => PairRecord {
+                    id: id.clone(),
+                    status: FAILED.into(),
+                    error: Some(e.to_string()),
+                    time_s: elapsed.as_secs_f64(),
+                    stages: Vec::new(),
+                    result: failed_result(*pos, &e.to_string()),
+                },
+            };
+            s.done += 1;
+            let line = match &rec.error {
+                None => format!(
+                    "[shard {shard}] {}/{total} {id}: done in {:.2} s",
+                    s.done, rec.time_s
+                ),
+                Some(e) => format!("[shard {shard}] {}/{total} {id}: FAILED: {e}", s.done),
+            };
+            (s.log)(&line);
+            let r = s.progress.finish(*pos, rec, write);
+            s.saved(r);
+        },
+    );
+    let r = state.progress.save(write);
+    state.saved(r);
+    match state.write_problem {
         Some(e) => Err(Error::Invalid(format!(
             "the output could not be written: {e}"
         ))),
