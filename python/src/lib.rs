@@ -209,10 +209,7 @@ impl RegResult {
     /// Selected correspondences: (source keypoint index uint32, target keypoint index
     /// uint32, score float32), sorted by score (highest first).
     #[getter]
-    fn correspondences(
-        &self,
-        py: Python<'_>,
-    ) -> CorrespondenceArrays {
+    fn correspondences(&self, py: Python<'_>) -> CorrespondenceArrays {
         (
             self.corr_source.clone_ref(py),
             self.corr_target.clone_ref(py),

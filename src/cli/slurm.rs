@@ -208,7 +208,7 @@ pub fn run(a: SlurmArgs) -> Result<()> {
     if std::fs::symlink_metadata(&plan_path).is_ok() {
         let old: Plan = crate::io::output::read_json(&plan_path, "cgenreg slurm plan")?;
         if old != plan {
-            return Err(Error::Invalid(format!(
+            return Err(Error::Usage(format!(
                 "{} holds another plan (old: {} {} --array {} -- {:?}); use another --out, \
                  or remove the folder to start over",
                 plan_path.display(),

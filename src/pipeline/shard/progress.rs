@@ -65,7 +65,7 @@ impl Progress {
                             old.run.shard.label()
                         ));
                     }
-                    return Err(Error::Invalid(format!(
+                    return Err(Error::Usage(format!(
                         "{} holds a run with other parameters, so it cannot be resumed:\n  {}\n\
                          pass --no-resume to start over (it is then overwritten), or choose \
                          another output",
