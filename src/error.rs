@@ -87,6 +87,17 @@ pub enum Error {
 }
 
 impl Error {
+    /// The command line's exit status for this error: 2 when what the user typed cannot run
+    /// (a flag that needs another one, a value out of range), as for a command line the parser
+    /// refuses; 1 for every other failure. A script or a job array can tell "called wrongly"
+    /// from "failed".
+    pub fn exit_status(&self) -> i32 {
+        match self {
+            Error::Usage(_) | Error::Param(_) => 2,
+            _ => 1,
+        }
+    }
+
     pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
         Error::Io {
             path: path.into(),

@@ -241,7 +241,7 @@ pub fn main_with_args(argv: Vec<std::ffi::OsString>) -> i32 {
     match (result, out_err) {
         (Err(e), _) => {
             eprintln!("cgenreg: error: {e}");
-            1
+            e.exit_status()
         }
         // The reader went away (`| head`): the output it wanted was written.
         (Ok(()), Some(e)) if e.kind() == std::io::ErrorKind::BrokenPipe => 0,

@@ -167,3 +167,61 @@ fn a_cloud_against_its_mirror_image_is_flagged() {
         r.warnings
     );
 }
+
+/// The command line's exit status tells "called wrongly" (2, as for what the parser refuses)
+/// from "failed" (1): a flag that needs another one and a value out of range are 2, a missing
+/// input file is 1, and the message says which.
+#[test]
+fn command_line_mistakes_exit_with_2_and_failures_with_1() {
+    let dir = tempfile::tempdir().unwrap();
+    let xyz = dir.path().join("a.xyz");
+    write_xyz(&xyz, &block());
+    let run = |args: &[&std::ffi::OsStr]| {
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_cgenreg"))
+            .args(args)
+            .output()
+            .unwrap();
+        (
+            o.status.code(),
+            String::from_utf8_lossy(&o.stderr).into_owned(),
+        )
+    };
+    let s = xyz.as_os_str();
+    // a flag that needs another one (the library's usage error)
+    let (code, err) = run(&[
+        "register".as_ref(),
+        "--source".as_ref(),
+        s,
+        "--target".as_ref(),
+        s,
+        "--wfm".as_ref(),
+        "cached".as_ref(),
+    ]);
+    assert_eq!(code, Some(2), "{err}");
+    assert!(err.contains("--wfm cached needs --wfm-dir"), "{err}");
+    // a value out of range, checked by the library (not the parser)
+    let (code, err) = run(&[
+        "screenshot".as_ref(),
+        "--panel".as_ref(),
+        "no-such-panel".as_ref(),
+        "--out".as_ref(),
+        dir.path().join("x.png").as_os_str(),
+    ]);
+    assert_eq!(code, Some(2), "{err}");
+    assert!(err.contains("invalid parameter: --panel"), "{err}");
+    // what the parser refuses: the same status
+    let (code, err) = run(&["register".as_ref(), "--no-such-flag".as_ref()]);
+    assert_eq!(code, Some(2), "{err}");
+    // a failure: the input file is not there
+    let missing = dir.path().join("missing.ply");
+    let (code, err) = run(&[
+        "register".as_ref(),
+        "--source".as_ref(),
+        missing.as_os_str(),
+        "--target".as_ref(),
+        s,
+    ]);
+    assert_eq!(code, Some(1), "{err}");
+    assert!(err.contains("missing.ply"), "{err}");
+    assert!(!dir.path().join("x.png").exists());
+}
