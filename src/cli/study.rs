@@ -5,7 +5,6 @@ use super::args::{ImageArgs, PipelineArgs};
 use super::bench::{log_line, progress_bar, PairsArgs, RunArgs};
 use crate::cli::args::ManifestSettings;
 use crate::error::{Error, Result};
-use crate::pipeline::params::WfmSpec;
 use crate::pipeline::shard::{run_pending, PairRecord, Progress, RunFile, RunIdentity, DONE};
 use crate::pipeline::study::{
     k_settings, markdown_table, parse_ks, plan_study, prompt_settings, study_pair, StudySetting,
@@ -114,11 +113,7 @@ fn run_common(a: &CommonArgs, settings: Vec<StudySetting>, command: &str) -> Res
     let (params, cache) = a
         .image
         .params_and_cache_for(&a.pipeline, &ManifestSettings::of(&ds))?;
-    let generate = a.generate
-        || !matches!(
-            params.image.as_ref().map(|i| &i.backend),
-            Some(WfmSpec::Cosmos { .. })
-        );
+    let generate = a.generate || params.generates_missing();
     let plan = plan_study(&params, &settings)?;
     let shard = a.run.shard();
     let identity = RunIdentity::new(

@@ -193,6 +193,16 @@ impl Preset {
 }
 
 impl RegisterParams {
+    /// Whether a run over many pairs produces a generation missing from the cache by default:
+    /// yes for every backend but a Cosmos command, whose batches take hours (a study or
+    /// `generate` asks for them explicitly). Run all, the settings comparison and studies use it.
+    pub fn generates_missing(&self) -> bool {
+        !matches!(
+            self.image.as_ref().map(|i| &i.backend),
+            Some(WfmSpec::Cosmos { .. })
+        )
+    }
+
     /// The defaults of `preset`.
     pub fn preset(preset: Preset) -> RegisterParams {
         let mut p = RegisterParams::default();

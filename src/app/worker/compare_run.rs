@@ -14,7 +14,7 @@ use crate::app::channel::{EventSink, LogLevel, WorkerEvent};
 use crate::app::model::{CompareEvent, SettingsCompareRequest, SettingsRuns, Side};
 use crate::app::model::{PairEntry, PairStatus};
 use crate::pipeline::pair_loop::run_items;
-use crate::pipeline::{RegisterParams, WfmSpec};
+use crate::pipeline::RegisterParams;
 use crate::report::compare::{BenchRun, PairRow};
 
 /// A pair browser row as a bench run's row (what `cgenreg bench --json` records per pair).
@@ -37,15 +37,6 @@ pub fn bench_row(e: &PairEntry) -> PairRow {
         error,
         ..Default::default()
     }
-}
-
-/// A generation missing from the cache is produced, except by a Cosmos command (as in studies
-/// and "Run all").
-fn generates(p: &RegisterParams) -> bool {
-    !matches!(
-        p.image.as_ref().map(|i| &i.backend),
-        Some(WfmSpec::Cosmos { .. })
-    )
 }
 
 /// A settings comparison's state, shared by the pair loop's hooks.
@@ -150,7 +141,7 @@ impl PipelineWorker {
                     }
                 }
                 s.worker.params = (*params).clone();
-                s.worker.run_row(id, generates(params))
+                s.worker.run_row(id, params.generates_missing())
             },
             |s, _, (id, side, _), r, elapsed| {
                 let row = bench_row(&s.worker.pair_row(id, r, elapsed));

@@ -14,7 +14,6 @@ use super::PipelineWorker;
 use crate::app::channel::{EventSink, LogLevel, RunProgress, RunSelection, WorkerEvent};
 use crate::app::model::{InspectorModel, PairEntry, PairOutcome, PairStatus};
 use crate::pipeline::pair_loop::run_items;
-use crate::pipeline::WfmSpec;
 
 /// What a run over the dataset did.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -133,10 +132,7 @@ impl PipelineWorker {
     ) -> RunAllSummary {
         self.cancel.store(false, Ordering::Relaxed);
         let ids = self.selected_pairs(sel);
-        let generate = !matches!(
-            self.params.image.as_ref().map(|i| &i.backend),
-            Some(WfmSpec::Cosmos { .. })
-        );
+        let generate = self.params.generates_missing();
         let total = ids.len();
         // the loop's state holds the worker mutably, so it reads the flag through its own Arc
         let cancel = self.cancel.clone();
@@ -147,13 +143,12 @@ impl PipelineWorker {
                 total,
                 ..Default::default()
             },
-            String::new(),
         );
         let end = run_items(
             &mut state,
             &ids,
             Some(&cancel),
-            |(_, progress, _, _), i, id| {
+            |(_, progress, _), i, id| {
                 progress(RunProgress {
                     done: i,
                     total,
@@ -164,7 +159,7 @@ impl PipelineWorker {
                 })
             },
             |(w, ..), _, id| w.run_row(id, generate),
-            |(w, progress, summary, last), i, id, r, elapsed| {
+            |(w, progress, summary), i, id, r, elapsed| {
                 let row = w.pair_row(id, r, elapsed);
                 summary.count(&row);
                 if let Some(r) = w.pairs.iter_mut().find(|p| p.id == *id) {
@@ -178,15 +173,16 @@ impl PipelineWorker {
                     finished: false,
                     cancelled: false,
                 });
-                *last = id.clone();
             },
         );
-        let (_, progress, mut summary, last) = state;
+        let (_, progress, mut summary) = state;
         summary.cancelled = end.cancelled;
+        // the last pair that ran ("" when none did)
+        let last = end.ran.checked_sub(1).and_then(|i| ids.get(i));
         progress(RunProgress {
             done: summary.done,
             total: summary.total,
-            pair: last,
+            pair: last.cloned().unwrap_or_default(),
             row: None,
             finished: true,
             cancelled: summary.cancelled,

@@ -9,7 +9,7 @@ use crate::app::model::{InspectorModel, KPoint, PlotData, PromptBar};
 use crate::pipeline::study::{
     k_settings, prompt_settings, run_study_with, StudyReport, StudySetting,
 };
-use crate::pipeline::{ImageBranchParams, WfmSpec};
+use crate::pipeline::ImageBranchParams;
 
 /// What the plots panel shows of the studies run on the open dataset.
 #[derive(Clone, Debug, Default)]
@@ -113,10 +113,7 @@ impl PipelineWorker {
     ) -> crate::Result<StudyReport> {
         let params = self.params.clone();
         let settings = self.study_settings(req);
-        let generate = !matches!(
-            params.image.as_ref().map(|i| &i.backend),
-            Some(WfmSpec::Cosmos { .. })
-        );
+        let generate = params.generates_missing();
         let ids = self.pair_ids();
         let (loaded, dataset) = (&self.loaded, &self.dataset);
         let rep = run_study_with(
