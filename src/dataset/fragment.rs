@@ -10,7 +10,7 @@
 
 use super::{FrameSet, RgbdFrame, Scan};
 use crate::error::{Error, Result};
-use crate::geometry::PointCloud;
+use crate::geometry::{floor_i64, PointCloud};
 use crate::io::depth_png::read_depth_png;
 use crate::io::rgbd_sequence::RgbdSequence;
 use nalgebra::{Isometry3, Point3};
@@ -313,22 +313,39 @@ fn merge_voxel(parts: &[FramePoints], voxel: f64, with_color: bool) -> PointClou
     }
     // 21 bits per axis: 2^21 voxels of >= 1 mm is 2 km, far beyond any fragment.
     let key = |q: &Point3<f64>| -> u64 {
-        let k = |a: f64, l: f64| (((a - l) / voxel).floor() as i64).clamp(0, (1 << 21) - 1) as u64;
+        let k = |a: f64, l: f64| floor_i64((a - l) / voxel).clamp(0, (1 << 21) - 1) as u64;
         k(q.x, lo.x) | (k(q.y, lo.y) << 21) | (k(q.z, lo.z) << 42)
     };
     let maps: Vec<KeyMap> = parts
         .par_iter()
         .zip(offsets.par_iter())
         .map(|((pts, cols), &off)| {
-            let mut m = KeyMap::with_capacity_and_hasher(pts.len() / 8, Default::default());
+            // A frame has about one voxel per two to four of its points: room for that many,
+            // so the map is not rehashed while it fills.
+            let mut m = KeyMap::with_capacity_and_hasher(pts.len() / 2, Default::default());
+            // Neighbouring pixels of a row mostly fall in the same voxel: a run of them is added
+            // into a copy of the voxel's accumulator, written back when the voxel changes. The
+            // accumulator sees the same additions in the same order as with a lookup per
+            // point, so the sums are the same to the bit.
+            let mut run: Option<(u64, Acc)> = None;
             for (i, p) in pts.iter().enumerate() {
                 let q = p.cast::<f64>();
-                let a = m.entry(key(&q)).or_insert(Acc {
-                    n: 0,
-                    p: [0.0; 3],
-                    c: [0; 3],
-                    first: off + i,
-                });
+                let k = key(&q);
+                let a = match &mut run {
+                    Some((rk, a)) if *rk == k => a,
+                    _ => {
+                        if let Some((rk, a)) = run.take() {
+                            m.insert(rk, a);
+                        }
+                        let a = m.get(&k).copied().unwrap_or(Acc {
+                            n: 0,
+                            p: [0.0; 3],
+                            c: [0; 3],
+                            first: off + i,
+                        });
+                        &mut run.insert((k, a)).1
+                    }
+                };
                 a.n += 1;
                 for k in 0..3 {
                     a.p[k] += q[k];
@@ -338,6 +355,9 @@ fn merge_voxel(parts: &[FramePoints], voxel: f64, with_color: bool) -> PointClou
                         *acc += c as u32;
                     }
                 }
+            }
+            if let Some((rk, a)) = run {
+                m.insert(rk, a);
             }
             m
         })

@@ -105,7 +105,7 @@ pub fn voxel_downsample(cloud: &PointCloud, voxel: f64) -> PointCloud {
         // (`as` saturates beyond, so far outliers share the extreme cells, never a real one).
         const HALF: i64 = 1 << 41;
         let c = |v: f64, l: f64| {
-            ((((v - l) / voxel).floor() as i64).clamp(-HALF, HALF - 1) + HALF) as u128
+            ((super::floor_i64((v - l) / voxel)).clamp(-HALF, HALF - 1) + HALF) as u128
         };
         let key = c(q.x, lo.x) | (c(q.y, lo.y) << 42) | (c(q.z, lo.z) << 84);
         let a = cells.entry(key).or_insert_with(|| Acc {

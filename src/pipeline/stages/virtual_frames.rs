@@ -256,10 +256,12 @@ pub fn virtual_frames(
     let cam = FThetaCamera::default();
     let mut paths = Vec::with_capacity(cameras);
     let mut poses = Vec::with_capacity(cameras);
+    // The splat size of every camera's image, estimated once, on the first cache miss.
+    let splat = SplatOnce::default();
     for camera_from_scan in ftheta_poses(scan, cameras, origin)? {
         // With one camera an empty image means the scan is not in its sensor frame; with
         // several, a camera facing away from a partial scan may see nothing.
-        let e = ftheta_range_image(store, scan, &cam, &camera_from_scan, cameras == 1)?;
+        let e = ftheta_range_image(store, scan, &cam, &camera_from_scan, cameras == 1, &splat)?;
         paths.push(e.path(RANGE_IMAGE));
         poses.push(camera_from_scan.inverse());
     }
@@ -281,6 +283,21 @@ pub fn virtual_frames(
 }
 
 const RANGE_IMAGE: &str = "range.depth.png";
+
+/// The splat options of one scan's renders, with its point spacing estimated once: the
+/// estimate (a k-d tree over the whole cloud) would otherwise be repeated for every view,
+/// and it is a function of the points alone, so every view gets the same value as before.
+#[derive(Default)]
+struct SplatOnce(std::sync::OnceLock<crate::camera::render::SplatOptions>);
+
+impl SplatOnce {
+    fn get(&self, points: &[nalgebra::Point3<f32>]) -> &crate::camera::render::SplatOptions {
+        self.0.get_or_init(|| crate::camera::render::SplatOptions {
+            point_spacing: crate::camera::render::estimate_point_spacing(points),
+            ..Default::default()
+        })
+    }
+}
 
 /// `camera_from_scan` of each of the `cameras` f-theta cameras of `scan`, evenly spaced in yaw
 /// from the scan frame's +x, standing at the scan frame's origin (bit for bit the poses used
@@ -378,14 +395,12 @@ fn ftheta_range_image(
     cam: &FThetaCamera,
     camera_from_scan: &Isometry3<f64>,
     empty_is_error: bool,
+    splat: &SplatOnce,
 ) -> Result<Entry> {
     let key = ftheta_key(scan, cam, camera_from_scan)?;
     let render = || -> Result<Vec<u8>> {
-        let mut d = cam.render_depth(
-            &scan.cloud.points,
-            camera_from_scan,
-            &crate::camera::render::SplatOptions::default(),
-        );
+        let points = &scan.cloud.points;
+        let mut d = cam.render_depth(points, camera_from_scan, splat.get(points));
         // Rings of a spinning LiDAR are a few degrees apart: about 2-20 px at 1280x640.
         crate::camera::ftheta::fill_ring_gaps(&mut d, FTHETA_RING_GAP_PX, 0.1);
         if empty_is_error && d.data.iter().all(|&v| v == 0) {
@@ -440,11 +455,14 @@ pub fn pinhole_frames(store: &mut FrameStore, scan: &Scan, l: usize) -> Result<F
     }
     let poses = virtual_trajectory(&scan.cloud, l, &opts)?;
     let records: Vec<PoseRecord> = poses.iter().map(pose_record).collect();
+    let splat = SplatOnce::default();
     let render = |i: usize| -> Result<Vec<u8>> {
-        let d = crate::camera::render::render_depth(
-            &scan.cloud.points,
+        let points = &scan.cloud.points;
+        let d = crate::camera::render::render_depth_with(
+            points,
             &opts.intrinsics,
             &poses[i].inverse(),
+            splat.get(points),
         );
         crate::io::depth_png::encode_depth_png(Path::new(&frame_name(i)), &d)
     };
