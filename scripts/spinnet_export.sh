@@ -10,9 +10,8 @@ set -euo pipefail
 root="$(cd "$(dirname "$0")/.." && pwd)"
 venv="${SPINNET_VENV:-$root/target/spinnet-venv}"
 if [ ! -x "$venv/bin/python" ] || ! "$venv/bin/python" -c 'import torch, onnx, onnxruntime' 2>/dev/null; then
-    python3 -m venv "$venv"
-    # --no-compile: torch's thousands of modules are byte-compiled on first import instead
-    "$venv/bin/pip" install --disable-pip-version-check --no-compile \
+    # Not byte-compiled: torch's thousands of modules are compiled on first import instead.
+    bash "$root/scripts/venv_install.sh" "$venv" \
         'torch==2.15.0' 'onnx==1.23.2' 'onnxruntime==1.31.1' numpy
 fi
 out="${SPINNET_OUT:-$root/target/spinnet}"

@@ -33,22 +33,58 @@ prep_pid=$!
 # Test targets only: the crate has no doc tests, the binary has no tests of its own (it is
 # built for the integration tests all the same), and the examples (built by a bare `cargo test`
 # only to see that they compile; clippy --all-targets does that) cost a link each.
+# The library's unit tests start the moment their binary is linked (scripts/cargo_messages.py
+# says when), on the core the integration tests' compile, the build's last unit, leaves free.
 step "test build"
-cargo "${cargo_config[@]}" test --lib --tests --no-run 2>&1 || status=$?
+unit_log=target/test-unit.log
+unit_exe=""
+unit_pid=""
+build_status=1
+while IFS= read -r line; do
+  case "$line" in
+  "UNIT_TEST_EXE "*)
+    unit_exe="${line#UNIT_TEST_EXE }"
+    step "unit tests: started beside the rest of the build"
+    (nice -n 5 "$unit_exe" >"$unit_log" 2>&1) &
+    unit_pid=$!
+    ;;
+  "BUILD_STATUS "*) build_status="${line#BUILD_STATUS }" ;;
+  *) printf '%s\n' "$line" ;;
+  esac
+done < <(
+  cargo "${cargo_config[@]}" test --lib --tests --no-run --message-format=json-render-diagnostics 2>&1 |
+    python3 scripts/cargo_messages.py
+  echo "BUILD_STATUS ${PIPESTATUS[0]}"
+)
+if [ "$build_status" != 0 ]; then status=$build_status; fi
 step "waiting for the background preparation"
 prep_status=0
 wait "$prep_pid" || prep_status=$?
 echo "== background preparation (SpinNet export, Python venv): exit $prep_status"
 cat "$prep_log"
-step "tests"
-# The Python extension (the binding crate and its link: mostly one core) builds in the background,
-# at a lower priority, while the Rust tests run and leave part of the second core idle; the Python
-# step below then finds it built. It starts once `cargo test` has checked that its own targets are
-# fresh (cargo holds the build folder's lock for that check, not while the tests run).
-py_build_log=target/test-python-build.log
-(sleep 15 && nice -n 10 bash scripts/test_python.sh --build) >"$py_build_log" 2>&1 &
-py_build_pid=$!
-cargo "${cargo_config[@]}" test --lib --tests --no-fail-fast 2>&1 || status=$?
+step "integration tests"
+# The Python package's tests (pip install . gives it: built in the dev profile into target/,
+# tested with pytest in a private virtual environment under target/) run beside the Rust
+# integration tests, which leave part of the second core idle (a test waiting on a process or
+# a daemon, the last tests of a binary). The extension build starts once `cargo test` has
+# checked that its own targets are fresh (cargo holds the build folder's lock for that check,
+# not while the tests run).
+py_log=target/test-python.log
+(sleep 15 && nice -n 10 bash scripts/test_python.sh --build && bash scripts/test_python.sh) \
+  >"$py_log" 2>&1 &
+py_pid=$!
+cargo "${cargo_config[@]}" test --test '*' --no-fail-fast 2>&1 || status=$?
+step "unit tests: results"
+if [ -n "$unit_pid" ]; then
+  unit_status=0
+  wait "$unit_pid" || unit_status=$?
+  cat "$unit_log"
+  echo "== unit tests: exit $unit_status"
+  if [ "$unit_status" != 0 ]; then status=$unit_status; fi
+else
+  echo "== unit tests: their binary was not built"
+  status=1
+fi
 # Result tables are generated from the committed JSONs; a hand edit or a new JSON without a rerun fails.
 step "result tables"
 python3 scripts/tables.py --check || status=$?
@@ -56,15 +92,15 @@ python3 scripts/tables.py --check || status=$?
 # the fusion and SC2-PCR kernels must give the same bits at every width.
 for isa in avx2 scalar; do
   step "CGENREG_SIMD=$isa: fusion, estimate and simd unit tests"
-  CGENREG_SIMD=$isa cargo "${cargo_config[@]}" test --lib --no-fail-fast -- fusion:: estimate:: simd:: 2>&1 || status=$?
+  if [ -n "$unit_exe" ]; then
+    CGENREG_SIMD=$isa "$unit_exe" fusion:: estimate:: simd:: 2>&1 || status=$?
+  fi
 done
-# The Python package (pip install . gives it): built in the dev profile into target/, tested
-# with pytest in a private virtual environment under target/.
 step "Python package: tests/python"
-py_build_status=0
-wait "$py_build_pid" || py_build_status=$?
-echo "== background Python extension build: exit $py_build_status"
-cat "$py_build_log"
-bash scripts/test_python.sh 2>&1 || status=$?
+py_status=0
+wait "$py_pid" || py_status=$?
+cat "$py_log"
+echo "== Python package: exit $py_status"
+if [ "$py_status" != 0 ]; then status=$py_status; fi
 step "done (exit $status)"
 exit $status
