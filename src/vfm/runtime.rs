@@ -462,12 +462,19 @@ impl OnnxModel {
             message: e.to_string(),
         })?;
         if rt.info.kind == "onnxruntime" {
+            // No spin-waiting between a run's parallel sections: the pipeline runs sessions beside
+            // its own rayon work (and several sessions at once), where ONNX Runtime's spinning
+            // threads only take cores from the work (a `pause` loop was 2-3 % of the test suite's
+            // CPU time). How a run is split over threads, and so its results, do not change.
+            let external = |e: ort::Error| Error::External {
+                what: rt.info.describe(),
+                message: e.to_string(),
+            };
             builder = builder
                 .with_intra_threads(threads())
-                .map_err(|e| Error::External {
-                    what: rt.info.describe(),
-                    message: e.to_string(),
-                })?;
+                .map_err(|e| external(e.into()))?
+                .with_intra_op_spinning(false)
+                .map_err(|e| external(e.into()))?;
             if rt.info.provider == Provider::Cuda {
                 // an error, not a silent CPU run, when the GPU cannot take the session: the
                 // results say CUDA
