@@ -1,7 +1,7 @@
 //! Voxel-grid downsampling: one point per occupied voxel at the centroid of its points
 //! (Open3D's `voxel_down_sample`), with colours, normals and intensity averaged.
 
-use super::PointCloud;
+use super::{floor_i64, PointCloud};
 use nalgebra::{Point3, Vector3};
 use std::collections::HashMap;
 use std::hash::{BuildHasherDefault, Hasher};
@@ -104,9 +104,7 @@ pub fn voxel_downsample(cloud: &PointCloud, voxel: f64) -> PointCloud {
         // (signed, 2e12 voxels either way) is more than any cloud at a sane voxel size needs
         // (`as` saturates beyond, so far outliers share the extreme cells, never a real one).
         const HALF: i64 = 1 << 41;
-        let c = |v: f64, l: f64| {
-            ((super::floor_i64((v - l) / voxel)).clamp(-HALF, HALF - 1) + HALF) as u128
-        };
+        let c = |v: f64, l: f64| (floor_i64((v - l) / voxel).clamp(-HALF, HALF - 1) + HALF) as u128;
         let key = c(q.x, lo.x) | (c(q.y, lo.y) << 42) | (c(q.z, lo.z) << 84);
         let a = cells.entry(key).or_insert_with(|| Acc {
             first: idx,
