@@ -7,7 +7,7 @@
 # in-memory tail. MODES (default "visibility union noisy-and image geometry") picks the runs.
 # Tables: python3 scripts/fusion_tables.py OUT
 #
-#   bash scripts/fusion_eval.sh SET [OUT_DIR]   # SET: staged-clouds rgbd-3dlomatch lidar staged rgbd-3dmatch kitti07
+#   bash scripts/fusion_eval.sh SET [OUT_DIR]   # SET: staged-clouds rgbd-3dlomatch lidar staged rgbd-3dmatch kitti07 revisit revisit-clouds
 #
 # Env: CGENREG_BIN (default target/debug/cgenreg), CGENREG_CACHE (stage cache folder),
 # CGENREG_DATA. A run cut short resumes (bench --json resumes).
@@ -25,6 +25,9 @@ case "$SET" in
     rgbd-3dmatch) M=assets/manifests/redkitchen-rgbd.toml; O=(--split 3DMatch --wfm oracle) ;;
     staged) M=assets/manifests/redkitchen-staged.toml; O=(--wfm oracle) ;;
     lidar) M=assets/manifests/small-gicp-lidar.toml; O=(--wfm builtin) ;;
+    revisit) M=assets/manifests/redkitchen-revisit.toml; O=(--wfm oracle) ;;
+    # the revisit pairs as plain PLY files (scripts/revisit_set.sh writes them; derived from the data)
+    revisit-clouds) M=target/revisit/clouds.toml; O=(--wfm builtin) ;;
     # xyz-only LiDAR: `auto` would pick the pinhole trajectory (it looks for intensity)
     kitti07) M=assets/manifests/kitti07.toml; O=(--virtual-camera ftheta --wfm builtin) ;;
     *) echo "unknown set $SET" >&2; exit 2 ;;

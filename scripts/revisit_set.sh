@@ -1,0 +1,46 @@
+#!/usr/bin/env bash
+# The revisit set (docs/ablation.md, "Revisits"): the candidate fragments and pairs, their GT
+# overlap, the pairs the frozen rule picks (assets/manifests/redkitchen-revisit.toml), and every
+# fragment of it written as PLY with a clouds-only manifest (target/revisit/clouds.toml) for the
+# clouds-only rows and Open3D.
+#
+#   bash scripts/revisit_set.sh [CACHE_DIR]
+set -euo pipefail
+cd "$(dirname "$0")/.."
+CACHE="${1:-${CGENREG_CACHE:-$HOME/.cache/cgenreg}}"
+export CGENREG_DATA="${CGENREG_DATA:-$(cd .. && pwd)/shared/data}"
+OUT=target/revisit
+M=assets/manifests/redkitchen-revisit.toml
+EX="${CGENREG_EXAMPLE_DIR:-target/debug/examples}"
+mkdir -p "$OUT"
+C="$OUT/candidates.toml"
+{
+    echo 'name = "redkitchen-revisit-candidates"'
+    echo 'root = "$CGENREG_DATA"'
+    echo
+    echo '[fragment_options]'
+    echo 'voxel = 0.01'
+    echo 'max_depth = 4.0'
+    echo 'crop = "3dmatch"'
+    starts=()
+    for k in $(seq 0 8); do
+        for o in 10 20 30 40; do
+            starts+=($((50 * k + o)))
+        done
+    done
+    for f in "${starts[@]}"; do
+        printf '\n[[fragments]]\nid = "f%03d"\nsequence = "7scenes-redkitchen-rgbd"\nfirst = %d\ncount = 50\n' "$f" "$f"
+    done
+    for a in "${starts[@]}"; do
+        for b in "${starts[@]}"; do
+            if [ $((b - a)) -ge 200 ]; then
+                printf '\n[[pairs]]\ntarget = "f%03d"\nsource = "f%03d"\ngt_poses = true\n' "$a" "$b"
+            fi
+        done
+    done
+} > "$C"
+if [ ! -e "$M" ]; then
+    nice -n 10 "$EX/pair_overlap" "$C" "$CACHE" > "$OUT/overlap.tsv"
+    python3 scripts/revisit_select.py "$C" "$OUT/overlap.tsv" "$M"
+fi
+nice -n 10 "$EX/export_fragments" "$M" "$OUT" "$CACHE"
