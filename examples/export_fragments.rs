@@ -29,7 +29,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let scan = ds.load_fragment(&f.id)?;
         let file = format!("{}.ply", f.id);
         cgenreg::io::ply::write_ply(&out.join(&file), &scan.cloud)?;
-        let _ = write!(m, "\n[[fragments]]\nid = \"{}\"\ncloud = \"{file}\"\n", f.id);
+        let _ = write!(
+            m,
+            "\n[[fragments]]\nid = \"{}\"\ncloud = \"{file}\"\n",
+            f.id
+        );
         eprintln!("{}: {} points", f.id, scan.cloud.len());
     }
     for p in ds.pairs() {

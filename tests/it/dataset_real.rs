@@ -354,3 +354,65 @@ fn dev_manifest_uses_other_fragment_boundaries(file: &str, offsets: [usize; 2], 
         assert!(p.gt_target_from_source.is_some(), "{}", p.id);
     }
 }
+
+/// The revisit set (docs/ablation.md, "Revisits") follows its frozen rule: fragments at
+/// 50k+10/20/30/40 (no evaluated or development boundary), ten pairs at least 200 frames apart
+/// (earlier = target), in order of GT rotation, no two nearly the same revisit, GT from the poses;
+/// the rotations and overlaps it records are the data's.
+#[test]
+fn revisit_manifest_follows_its_rule() {
+    use cgenreg::dataset::manifest::FragmentSource;
+    use cgenreg::metrics::overlap::pair_overlap;
+    let Some(root) = cgenreg::testing::test_data_root() else {
+        return;
+    };
+    let ds = Dataset::load(&manifest("redkitchen-revisit.toml")).unwrap();
+    let first = |id: &str| match &ds.fragment(id).unwrap().source {
+        FragmentSource::Rgbd { range, .. } => (range.first, range.count),
+        _ => panic!("{id}: not an RGB-D fragment"),
+    };
+    for f in ds.fragments() {
+        let (s, n) = first(&f.id);
+        assert!(
+            [10, 20, 30, 40].contains(&(s % 50)) && n == 50,
+            "{}: {s} {n}",
+            f.id
+        );
+    }
+    let seq = RgbdSequence::open(&root.join("7scenes-redkitchen-rgbd")).unwrap();
+    assert_eq!(ds.pairs().len(), 10);
+    let mut taken: Vec<(usize, usize)> = Vec::new();
+    let mut last_angle = f64::INFINITY;
+    for p in ds.pairs() {
+        let (t, s) = (first(&p.target).0, first(&p.source).0);
+        assert!(s >= t + 200, "{}: {t} {s}", p.id);
+        assert!(
+            taken
+                .iter()
+                .all(|&(a, b)| a.abs_diff(t) >= 50 || b.abs_diff(s) >= 50),
+            "{}: nearly the same revisit as an earlier pair",
+            p.id
+        );
+        taken.push((t, s));
+        let from_poses =
+            seq.world_from_camera(t).unwrap().inverse() * seq.world_from_camera(s).unwrap();
+        let gt = p.gt_target_from_source.unwrap();
+        assert!((gt.to_homogeneous() - from_poses.to_homogeneous()).amax() < 1e-12);
+        let angle = gt.rotation.angle().to_degrees();
+        assert!(
+            angle <= last_angle + 1e-9,
+            "{}: not in rotation order",
+            p.id
+        );
+        last_angle = angle;
+        assert!(angle > 15.0, "{}: {angle}°", p.id);
+    }
+    // The overlap rule on the pair that passes it most narrowly.
+    let pair = ds.load_pair("redkitchen-revisit/f020-f380").unwrap();
+    let o = pair_overlap(
+        &pair.source.cloud,
+        &pair.target.cloud,
+        &pair.gt_target_from_source.unwrap(),
+    );
+    assert!(o.max() >= 0.1 && o.max() < 0.11, "{o:?}");
+}
