@@ -16,6 +16,7 @@ mod corruption_campaign;
 mod dataset_real;
 mod docs_hygiene;
 mod export_corr;
+mod fusion_revisit;
 mod fusion_union;
 mod fuzz_smoke;
 mod geometry_cache;
