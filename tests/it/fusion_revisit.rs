@@ -40,7 +40,7 @@ fn default_fusion_registers_a_revisit_and_loses_to_no_branch() {
     let p = params(FusionMode::DEFAULT_WITH_IMAGE);
     let mut v = Registration::new(&p).keep(true).run(&pair).unwrap();
     let inputs = v.inputs.take().unwrap();
-    let metrics = |r: &cgenreg::pipeline::RegistrationResult| r.metrics.clone().unwrap();
+    let metrics = |r: &cgenreg::pipeline::RegistrationResult| r.metrics.unwrap();
     let alone = |mode, sel: Option<Selection>| {
         let mut q = params(mode);
         if let Some(s) = sel {
