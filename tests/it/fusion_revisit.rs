@@ -3,28 +3,12 @@
 //! its row: the default registers it as every branch alone does, and keeps the pose its views
 //! favour (Noisy-AND's, closer than geometry's). Skipped without the real data, failing under CI=true.
 
+use crate::common::{oracle_alike_params, refuse_with};
 use cgenreg::dataset::Dataset;
-use cgenreg::fusion::{FusionMode, FusionParams, Selection};
+use cgenreg::fusion::{FusionMode, Selection};
 use cgenreg::pipeline::visibility::Candidate;
-use cgenreg::pipeline::{ImageBranchParams, RegisterParams, Registration, VfmSpec, WfmSpec};
+use cgenreg::pipeline::Registration;
 use std::path::Path;
-
-fn params(mode: FusionMode) -> RegisterParams {
-    RegisterParams {
-        image: Some(ImageBranchParams {
-            backend: WfmSpec::Oracle,
-            vfm: VfmSpec::Alike {
-                model: cgenreg::vfm::default_model_path("alike-t.onnx"),
-            },
-            ..Default::default()
-        }),
-        fusion: FusionParams {
-            mode,
-            ..Default::default()
-        },
-        ..Default::default()
-    }
-}
 
 #[test]
 fn default_fusion_registers_a_revisit_and_loses_to_no_branch() {
@@ -37,19 +21,11 @@ fn default_fusion_registers_a_revisit_and_loses_to_no_branch() {
         .unwrap()
         .load_pair("redkitchen-revisit/f160-f360")
         .unwrap();
-    let p = params(FusionMode::DEFAULT_WITH_IMAGE);
+    let p = oracle_alike_params(FusionMode::DEFAULT_WITH_IMAGE);
     let mut v = Registration::new(&p).keep(true).run(&pair).unwrap();
     let inputs = v.inputs.take().unwrap();
     let metrics = |r: &cgenreg::pipeline::RegistrationResult| r.metrics.unwrap();
-    let alone = |mode, sel: Option<Selection>| {
-        let mut q = params(mode);
-        if let Some(s) = sel {
-            q.fusion.selection = s;
-        }
-        Registration::new(&q)
-            .refuse_from_memory(&pair, &inputs, None)
-            .unwrap()
-    };
+    let alone = |mode, sel| refuse_with(&p, &pair, &inputs, mode, sel);
     let m = metrics(&v);
     assert!(m.success, "{m:?} {:?}", v.fusion_provenance());
     let geo = alone(FusionMode::GeometryOnly, Some(Selection::RowNn));

@@ -3,12 +3,13 @@
 //! Noisy-AND and geometric sets merged; each result says what it compared or merged and
 //! where its inliers came from. Skipped without the real data, failing under CI=true.
 
+use crate::common::{oracle_alike_params, refuse_with};
 use cgenreg::dataset::Dataset;
 use cgenreg::fusion::union::merge;
 use cgenreg::fusion::{FusionMode, FusionParams, Selection};
 use cgenreg::pipeline::union::{geometry_params, mode_correspondences, noisy_and_params};
 use cgenreg::pipeline::visibility::Candidate;
-use cgenreg::pipeline::{ImageBranchParams, RegisterParams, Registration, VfmSpec, WfmSpec};
+use cgenreg::pipeline::{RegisterParams, Registration, WfmSpec};
 use std::path::Path;
 
 /// A development pair (3DLoMatch-like) where geometry alone registers and Noisy-AND does not,
@@ -29,43 +30,18 @@ fn dev_pair() -> &'static cgenreg::dataset::ScanPair {
     })
 }
 
-fn params(mode: FusionMode) -> RegisterParams {
-    RegisterParams {
-        image: Some(ImageBranchParams {
-            backend: WfmSpec::Oracle,
-            vfm: VfmSpec::Alike {
-                model: cgenreg::vfm::default_model_path("alike-t.onnx"),
-            },
-            ..Default::default()
-        }),
-        fusion: FusionParams {
-            mode,
-            ..Default::default()
-        },
-        ..Default::default()
-    }
-}
-
 #[test]
 fn union_is_never_worse_than_its_best_branch_on_a_development_pair() {
     let Some(_) = cgenreg::testing::test_data_root() else {
         return;
     };
-    let p = params(FusionMode::Union);
+    let p = oracle_alike_params(FusionMode::Union);
     let pair = dev_pair().clone();
     let mut res = Registration::new(&p).keep(true).run(&pair).unwrap();
     let inputs = res.inputs.take().unwrap();
     let ok = |r: &cgenreg::pipeline::RegistrationResult| r.metrics.as_ref().unwrap().success;
     // each branch alone, and the paper's Noisy-AND, from the same inputs
-    let alone = |mode, sel: Option<Selection>| {
-        let mut q = params(mode);
-        if let Some(s) = sel {
-            q.fusion.selection = s;
-        }
-        Registration::new(&q)
-            .refuse_from_memory(&pair, &inputs, None)
-            .unwrap()
-    };
+    let alone = |mode, sel| refuse_with(&p, &pair, &inputs, mode, sel);
     let geo = alone(FusionMode::GeometryOnly, Some(Selection::RowNn));
     let img = alone(FusionMode::ImageOnly, None);
     let and = alone(FusionMode::NoisyAnd, None);
@@ -143,15 +119,11 @@ fn visibility_keeps_the_small_correct_cluster_the_union_outvotes() {
         Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/manifests/redkitchen-dev3.toml");
     let ds = Dataset::load(&manifest).unwrap();
     let pair = ds.load_pair("redkitchen-dev3/f137-f287").unwrap();
-    let p = params(FusionMode::Visibility);
+    let p = oracle_alike_params(FusionMode::Visibility);
     let mut v = Registration::new(&p).keep(true).run(&pair).unwrap();
     let inputs = v.inputs.take().unwrap();
     let ok = |r: &cgenreg::pipeline::RegistrationResult| r.metrics.as_ref().unwrap().success;
-    let other = |mode| {
-        Registration::new(&params(mode))
-            .refuse_from_memory(&pair, &inputs, None)
-            .unwrap()
-    };
+    let other = |mode| refuse_with(&p, &pair, &inputs, mode, None);
     let (union, and) = (other(FusionMode::Union), other(FusionMode::NoisyAnd));
     assert!(
         ok(&and) && !ok(&union),
@@ -184,7 +156,7 @@ fn visibility_keeps_the_union_pose_with_virtual_views() {
     let mut pair = dev_pair().clone();
     pair.source.frames = None;
     pair.target.frames = None;
-    let mut p = params(FusionMode::Visibility);
+    let mut p = oracle_alike_params(FusionMode::Visibility);
     p.image.as_mut().unwrap().backend = WfmSpec::Builtin;
     let mut v = Registration::new(&p).keep(true).run(&pair).unwrap();
     let inputs = v.inputs.take().unwrap();
@@ -197,16 +169,7 @@ fn visibility_keeps_the_union_pose_with_virtual_views() {
         .fusion_provenance()
         .unwrap()
         .starts_with("fusion: visibility (virtual views: kept the union pose"));
-    let other = |mode, sel: Option<Selection>| {
-        let mut q = p.clone();
-        q.fusion.mode = mode;
-        if let Some(s) = sel {
-            q.fusion.selection = s;
-        }
-        Registration::new(&q)
-            .refuse_from_memory(&pair, &inputs, None)
-            .unwrap()
-    };
+    let other = |mode, sel| refuse_with(&p, &pair, &inputs, mode, sel);
     let union = other(FusionMode::Union, None);
     assert_eq!(v.target_from_source, union.target_from_source);
     let geo = other(FusionMode::GeometryOnly, Some(Selection::RowNn));

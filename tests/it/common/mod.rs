@@ -177,3 +177,41 @@ pub fn overlap(
         .count();
     hits as f64 / sub.len() as f64
 }
+
+/// Oracle RGB + ALIKE-t with `mode` and every other option the default: the image branch of the
+/// fusion study's rows (docs/ablation.md).
+pub fn oracle_alike_params(mode: cgenreg::fusion::FusionMode) -> RegisterParams {
+    RegisterParams {
+        image: Some(ImageBranchParams {
+            backend: WfmSpec::Oracle,
+            vfm: cgenreg::pipeline::VfmSpec::Alike {
+                model: cgenreg::vfm::default_model_path("alike-t.onnx"),
+            },
+            ..Default::default()
+        }),
+        fusion: cgenreg::fusion::FusionParams {
+            mode,
+            ..Default::default()
+        },
+        ..Default::default()
+    }
+}
+
+/// `pair` registered again from kept `inputs` under `params` with `mode` (and `selection`, when
+/// given): a branch alone or another fusion, from the same descriptors.
+pub fn refuse_with(
+    params: &RegisterParams,
+    pair: &cgenreg::dataset::ScanPair,
+    inputs: &cgenreg::pipeline::tail::FusionInputs,
+    mode: cgenreg::fusion::FusionMode,
+    selection: Option<cgenreg::fusion::Selection>,
+) -> cgenreg::pipeline::RegistrationResult {
+    let mut q = params.clone();
+    q.fusion.mode = mode;
+    if let Some(s) = selection {
+        q.fusion.selection = s;
+    }
+    cgenreg::pipeline::Registration::new(&q)
+        .refuse_from_memory(pair, inputs, None)
+        .unwrap()
+}
