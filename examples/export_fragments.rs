@@ -9,6 +9,7 @@
 use std::fmt::Write as _;
 use std::path::Path;
 
+use cgenreg::dataset::manifest::gt_matrix_toml;
 use cgenreg::dataset::Dataset;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
@@ -40,20 +41,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let Some(gt) = p.gt_target_from_source else {
             continue;
         };
-        let h = gt.to_homogeneous();
-        let rows: Vec<String> = (0..4)
-            .map(|r| {
-                let c: Vec<String> = (0..4).map(|c| format!("{:e}", h[(r, c)])).collect();
-                format!("[{}]", c.join(", "))
-            })
-            .collect();
         let _ = write!(
             m,
-            "\n[[pairs]]\ntarget = \"{}\"\nsource = \"{}\"\nsplit = \"{}\"\ngt_matrix = [{}]\n",
+            "\n[[pairs]]\ntarget = \"{}\"\nsource = \"{}\"\nsplit = \"{}\"\ngt_matrix = {}\n",
             p.target,
             p.source,
             p.split,
-            rows.join(", ")
+            gt_matrix_toml(&gt)
         );
     }
     std::fs::write(out.join("clouds.toml"), m)?;

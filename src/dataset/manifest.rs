@@ -318,6 +318,19 @@ fn apply_options(
     Ok(r)
 }
 
+/// `t` as a manifest's inline `gt_matrix` value (`[[r0], [r1], [r2], [r3]]`, row-major, every
+/// number written so it reads back to the same `f64`): for code that writes manifests.
+pub fn gt_matrix_toml(t: &Isometry3<f64>) -> String {
+    let m = t.to_homogeneous();
+    let rows: Vec<String> = (0..4)
+        .map(|r| {
+            let v: Vec<String> = (0..4).map(|c| format!("{:?}", m[(r, c)])).collect();
+            format!("[{}]", v.join(", "))
+        })
+        .collect();
+    format!("[{}]", rows.join(", "))
+}
+
 fn matrix_field(manifest: &Path, field: &str, rows: &[Vec<f64>]) -> Result<Isometry3<f64>> {
     let flat: Vec<f64> = rows.iter().flatten().copied().collect();
     if rows.len() != 4 || rows.iter().any(|r| r.len() != 4) {
@@ -1094,6 +1107,32 @@ mod tests {
         let p = dir.join(name);
         std::fs::write(&p, text).unwrap();
         p
+    }
+
+    /// What `gt_matrix_toml` writes reads back as the same numbers, to the bit (the reader then
+    /// makes the rotation exactly orthonormal, a change at the 1e-12 level).
+    #[test]
+    fn gt_matrix_toml_reads_back_exactly() {
+        let t = Isometry3::new(
+            nalgebra::Vector3::new(0.1, -2.0 / 3.0, 1e-9),
+            nalgebra::Vector3::new(0.3, -1.1, 0.7),
+        );
+        #[derive(Deserialize)]
+        struct Row {
+            gt_matrix: Vec<Vec<f64>>,
+        }
+        let text = format!("gt_matrix = {}", gt_matrix_toml(&t));
+        let row: Row = toml::from_str(&text).unwrap();
+        let h = t.to_homogeneous();
+        for (r, v) in row.gt_matrix.iter().enumerate() {
+            assert_eq!(
+                v.as_slice(),
+                h.row(r).iter().copied().collect::<Vec<_>>(),
+                "{text}"
+            );
+        }
+        let back = matrix_field(Path::new("m.toml"), "gt_matrix", &row.gt_matrix).unwrap();
+        assert!((back.to_homogeneous() - h).amax() < 1e-12, "{text}");
     }
 
     const GTLOG: &str = "0 1 3\n1 0 0 0.5\n0 1 0 0\n0 0 1 0\n0 0 0 1\n";

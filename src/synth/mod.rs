@@ -171,17 +171,6 @@ fn write_color_png(path: &Path, w: u32, h: u32, rgb: Vec<u8>) -> Result<()> {
     crate::error::write_atomic(path, &out)
 }
 
-fn fmt_matrix(t: &Isometry3<f64>) -> String {
-    let m = t.to_homogeneous();
-    let rows: Vec<String> = (0..4)
-        .map(|r| {
-            let v: Vec<String> = (0..4).map(|c| format!("{:?}", m[(r, c)])).collect();
-            format!("[{}]", v.join(", "))
-        })
-        .collect();
-    format!("[{}]", rows.join(", "))
-}
-
 /// Render the demo into `dir` (`target/`, `source/`, `demo.toml`) and return the manifest path.
 pub fn write_demo(dir: &Path, params: &DemoParams) -> Result<PathBuf> {
     if params.width < 16 || params.height < 16 || params.width > 4096 || params.height > 4096 {
@@ -254,7 +243,7 @@ gt_matrix = {gt}
         h = params.height,
         n = params.frames,
         noise = params.sensor_noise,
-        gt = fmt_matrix(&gt),
+        gt = crate::dataset::manifest::gt_matrix_toml(&gt),
     );
     let path = dir.join("demo.toml");
     crate::error::write_atomic(&path, manifest.as_bytes())?;
