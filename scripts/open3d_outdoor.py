@@ -97,11 +97,11 @@ def main():
                     help="success criterion (repeatable); default 5:2 and 5:0.6")
     ap.add_argument("--json")
     a = ap.parse_args()
-    global CRITERIA
+    criteria = CRITERIA
     if a.success:
         try:
-            CRITERIA = [tuple(float(x) for x in c.split(":", 1)) for c in a.success]
-            if any(len(c) != 2 for c in CRITERIA):
+            criteria = [tuple(float(x) for x in c.split(":", 1)) for c in a.success]
+            if any(len(c) != 2 for c in criteria):
                 raise ValueError
         except ValueError:
             ap.error(f"--success: expected RRE_DEG:RTE_M (e.g. 15:0.3), got {a.success}")
@@ -131,7 +131,7 @@ def main():
                 "split": p.get("split", ""),
                 "gt_distance_m": float(np.linalg.norm(gt[:3, 3])),
                 "rre_deg": rre, "rte_m": rte,
-                "success": [rre <= r and rte <= t for r, t in CRITERIA],
+                "success": [rre <= r and rte <= t for r, t in criteria],
                 "keypoints": [ns, nt],
                 "time_s": dt,
             })
@@ -139,14 +139,14 @@ def main():
                   file=sys.stderr)
     print(f"Open3D {o3d.__version__} FPFH + RANSAC, voxel {a.voxel} m, seed {a.seed}")
     print("| pair | distance m | RRE ° | RTE m | "
-          + "".join(f"success {r_:g}°/{t_:g}m | " for r_, t_ in CRITERIA) + "s |")
-    print("|---" * (5 + len(CRITERIA)) + "|")
+          + "".join(f"success {r_:g}°/{t_:g}m | " for r_, t_ in criteria) + "s |")
+    print("|---" * (5 + len(criteria)) + "|")
     yn = {True: "yes", False: "no"}
     for r in rows:
         print(f"| {r['id']} | {r['gt_distance_m']:.1f} | {r['rre_deg']:.2f} | {r['rte_m']:.3f} | "
               + "".join(f"{yn[ok]} | " for ok in r["success"]) + f"{r['time_s']:.2f} |")
     n = len(rows)
-    for i, (r_, t_) in enumerate(CRITERIA):
+    for i, (r_, t_) in enumerate(criteria):
         k = sum(r["success"][i] for r in rows)
         print(f"registered at RRE <= {r_:g}°, RTE <= {t_:g} m: {k}/{n}")
     if n:
@@ -159,7 +159,7 @@ def main():
             "voxel_m": a.voxel,
             "ransac_distance_m": 1.5 * a.voxel,
             "seed": a.seed,
-            "criteria": [{"max_rre_deg": r_, "max_rte_m": t_} for r_, t_ in CRITERIA],
+            "criteria": [{"max_rre_deg": r_, "max_rte_m": t_} for r_, t_ in criteria],
             "manifests": [os.path.basename(m) for m in a.manifests],
             "pairs": rows,
         }
