@@ -13,11 +13,9 @@ repo="$(dirname "$here")"
 venv="${O3D_VENV:-$repo/target/open3d-venv}"
 version="${O3D_VERSION:-0.20.0}"
 package="${O3D_PACKAGE:-open3d-cpu}"
-if [ ! -x "$venv/bin/python" ]; then
-    python3 -m venv "$venv"
-fi
-if ! "$venv/bin/python" -c "import open3d, sys; sys.exit(open3d.__version__ != sys.argv[1])" "$version" 2>/dev/null; then
-    "$venv/bin/pip" install --quiet "$package==$version"
+if [ ! -x "$venv/bin/python" ] ||
+    ! "$venv/bin/python" -c "import open3d, sys; sys.exit(open3d.__version__ != sys.argv[1])" "$version" 2>/dev/null; then
+    bash "$here/venv_install.sh" "$venv" "$package==$version"
 fi
 args=("$@")
 has_manifest=0
