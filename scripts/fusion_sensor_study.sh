@@ -8,14 +8,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 CACHE="${1:?usage: fusion_sensor_study.sh CACHE_DIR}"
 O=docs/ablation/fusion
-BIN="${CGENREG_EXAMPLE_BIN:-target/debug/examples/fusion_study}"
-D5=assets/manifests/redkitchen-dev5.toml
-if [ ! -e "$D5" ]; then
-    OFFSETS="18 43" DEV_NAME=redkitchen-dev5 DEV_MANIFEST="$D5" \
-        LOMATCH_ONLY=1 bash scripts/devset_candidates.sh target/devset5 "$CACHE"
-fi
-nice -n 5 "$BIN" "$D5" --wfm oracle --cache-dir "$CACHE" --out "$O/vis-D5.jsonl"
-nice -n 5 "$BIN" "$D5" --wfm builtin --cache-dir "$CACHE" --out "$O/vis-D5c.jsonl" --clouds-only
+bash scripts/fusion_dev_round.sh 5 "18 43" "$CACHE"
 python3 scripts/fusion_study5.py --virtual D2,D3c,D4c,D5c --fresh D5,D5c \
     D5="$O/vis-D5.jsonl" D5c="$O/vis-D5c.jsonl" D1="$O/vis-D1.jsonl" D2="$O/vis-D2.jsonl" \
     D3="$O/vis-D3.jsonl" D3c="$O/vis-D3c.jsonl" D4="$O/vis-D4.jsonl" D4c="$O/vis-D4c.jsonl" \
