@@ -35,9 +35,25 @@ pub struct Visibility {
 }
 
 impl Visibility {
-    /// Support minus conflict: the pose's visibility score.
+    /// Support minus conflict (V): a count, which grows with the overlap a pose creates as well
+    /// as with its consistency.
     pub fn score(&self) -> i64 {
         self.consistent as i64 - self.conflict as i64
+    }
+
+    /// F: the Wilson lower bound, at the 95 % level (z = 1.96), of the share of seen points that
+    /// are consistent, consistent / (consistent + conflict); 0 when no point was seen. The share
+    /// measures consistency whatever the overlap; the bound keeps a pose that shows only a few
+    /// points from winning on a small sample.
+    pub fn share_lower_bound(&self) -> f64 {
+        const Z: f64 = 1.96;
+        let n = (self.consistent + self.conflict) as f64;
+        if n == 0.0 {
+            return 0.0;
+        }
+        let p = self.consistent as f64 / n;
+        let z2 = Z * Z;
+        (p + z2 / (2.0 * n) - Z * (p * (1.0 - p) / n + z2 / (4.0 * n * n)).sqrt()) / (1.0 + z2 / n)
     }
 }
 
@@ -134,6 +150,26 @@ mod tests {
             data: vec![2000; 64 * 48],
         };
         (k.into(), depth)
+    }
+
+    #[test]
+    fn the_share_bound_matches_the_study_and_grows_with_the_sample() {
+        let v = |consistent, conflict| Visibility {
+            consistent,
+            conflict,
+            unseen: 7,
+        };
+        // the study's F (scripts/fusion_study6.py) of two poses of one development pair
+        assert!((v(2245, 461).share_lower_bound() - 0.8150076541061555).abs() < 1e-12);
+        assert!((v(1876, 2563).share_lower_bound() - 0.4081589581605628).abs() < 1e-12);
+        // nothing seen: no evidence; all consistent: below 1, and rising with the sample
+        assert_eq!(v(0, 0).share_lower_bound(), 0.0);
+        let (few, many) = (v(3, 0).share_lower_bound(), v(300, 0).share_lower_bound());
+        assert!((few - 0.4384939195509822).abs() < 1e-12, "{few}");
+        assert!(few < many && many < 1.0, "{few} {many}");
+        assert!(v(0, 9).share_lower_bound().abs() < 1e-12);
+        // a bound below the observed share
+        assert!(v(80, 20).share_lower_bound() < 0.8);
     }
 
     #[test]

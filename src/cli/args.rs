@@ -106,9 +106,9 @@ pub struct PipelineArgs {
     #[arg(long, default_value_t = 0.1)]
     pub tau_geo: f32,
     /// Fusion of the two branches. Default: `visibility` when the image branch runs (the
-    /// union's, the geometric branch's and Noisy-AND's poses; the one most consistent with both
-    /// scans' depth views is kept; with virtual views of cloud-only scans, the union's pose),
-    /// Noisy-AND with `--reference` (the authors' code), `geometry` without the image branch.
+    /// union's, the geometric branch's, Noisy-AND's and the image branch's poses; the one most
+    /// consistent with both scans' depth views is kept), Noisy-AND with `--reference` (the
+    /// authors' code), `geometry` without the image branch.
     #[arg(long, value_enum)]
     pub fusion: Option<FusionMode>,
     /// Noisy-AND prior; default 1/(N*M).

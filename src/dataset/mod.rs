@@ -40,7 +40,8 @@ pub struct FrameSet {
 }
 
 /// Where a frame set's cameras stand. A depth pixel says "this ray is empty up to depth d" only
-/// along a ray the sensor cast; the `visibility` fusion weighs free space only for sensor views.
+/// along a ray the sensor cast; in a virtual view an empty pixel is only where the cloud has no
+/// points. The `visibility` fusion's report says which views it compared poses in.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum ViewOrigin {

@@ -41,10 +41,10 @@ pub enum FusionMode {
     /// together: a weak image branch cannot veto the geometric matches.
     /// Its posterior (inspector, export) is Noisy-AND's.
     Union,
-    /// The union's, the geometric branch's and Noisy-AND's poses, of which the one most
-    /// consistent with both scans' depth views is kept (fewest points put into the space a
-    /// sensor saw through; `camera::visibility`). With virtual views of a cloud-only scan
-    /// (rays no sensor cast) the union's pose, nothing compared. Its posterior is Noisy-AND's.
+    /// The union's, the geometric branch's, Noisy-AND's and the image branch's poses, of which
+    /// the one most consistent with both scans' depth views is kept (the largest share of seen
+    /// keypoints on an observed surface rather than in observed free space, as a 95 % lower
+    /// bound; `camera::visibility`). Its posterior is Noisy-AND's.
     Visibility,
 }
 
@@ -84,7 +84,7 @@ impl FusionMode {
             FusionMode::ImageOnly => "Image only",
             FusionMode::GeometryOnly => "Geometry only",
             FusionMode::Union => "Union (Noisy-AND + geometry correspondences)",
-            FusionMode::Visibility => "Visibility (union, geometry or Noisy-AND pose)",
+            FusionMode::Visibility => "Visibility (union, geometry, Noisy-AND or image pose)",
         }
     }
 

@@ -243,9 +243,9 @@ fn register_with_frames(
     ];
     let coverage = coverage_warnings(&image);
     let views = PairViews::new(src_fs.clone(), tgt_fs.clone());
-    // Now: virtual frames of a run without a cache are gone after it. Only views from the sensor's
-    // position are ever compared (the visibility fusion keeps the union's pose with virtual ones).
-    if params.fusion.mode == FusionMode::Visibility && views.origin().is_sensor() {
+    // Now for the visibility fusion, and for virtual frames in any mode: those of a run without a
+    // cache are gone after it, and a later re-fusion to `visibility` compares poses in them.
+    if params.fusion.mode == FusionMode::Visibility || !views.origin().is_sensor() {
         views.load()?;
     }
     let inputs = FusionInputs {

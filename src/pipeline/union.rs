@@ -30,6 +30,13 @@ pub fn noisy_and_params(fusion: &FusionParams) -> FusionParams {
     p
 }
 
+/// The image branch alone with the run's selection (the `image` mode's set).
+pub fn image_params(fusion: &FusionParams) -> FusionParams {
+    let mut p = *fusion;
+    p.mode = FusionMode::ImageOnly;
+    p
+}
+
 /// The correspondences `fusion` (one of the matrix modes) selects from `inputs`, untimed (the
 /// union's members, and studies of other rules).
 pub fn mode_correspondences(
@@ -44,28 +51,44 @@ pub fn mode_correspondences(
     }
 }
 
-/// The union's two sets (Noisy-AND, geometry) from `inputs` (image descriptors required). The
-/// similarity matrices are formed once (or taken from `sims`), except for a large pair whose
-/// Noisy-AND streams from the features.
+/// The union's two sets (Noisy-AND, geometry) from `inputs` (image descriptors required).
 pub(crate) fn member_sets(
     params: &RegisterParams,
     inputs: &FusionInputs,
     sims: Option<&Similarities>,
     timer: &mut Timer,
 ) -> Result<(Vec<Correspondence>, Vec<Correspondence>)> {
+    let named = [
+        ("noisy-and", noisy_and_params(&params.fusion)),
+        ("geometry", geometry_params(&params.fusion)),
+    ];
+    let [a, g] = branch_sets(inputs, sims, timer, named)?;
+    Ok((a, g))
+}
+
+/// The sets of several fusions (`named`: the timing row's name and the fusion) from the same
+/// `inputs` (image descriptors required). The similarity matrices are formed once (or taken from
+/// `sims`), except for a large pair whose image-using sets all stream from the features.
+pub(crate) fn branch_sets<const N: usize>(
+    inputs: &FusionInputs,
+    sims: Option<&Similarities>,
+    timer: &mut Timer,
+    named: [(&str, FusionParams); N],
+) -> Result<[Vec<Correspondence>; N]> {
     if inputs.image.is_none() {
         return Err(Error::Missing(
-            "fusion union: the image branch's descriptors are missing".into(),
+            "fusion: the image branch's descriptors are missing (the union and visibility modes need them)".into(),
         ));
     }
     let (n, m) = (
         inputs.source_geo.features.len(),
         inputs.target_geo.features.len(),
     );
-    let and = noisy_and_params(&params.fusion);
     let streams = matches!(inputs.image, Some(ImageInputs::PerImage(..)))
         && n.saturating_mul(m) > STREAM_ENTRIES
-        && crate::fusion::streams_from_features(&and);
+        && named.iter().all(|(_, f)| {
+            f.mode == FusionMode::GeometryOnly || crate::fusion::streams_from_features(f)
+        });
     let computed;
     let sims = match sims {
         Some(s) => Some(s),
@@ -77,13 +100,14 @@ pub(crate) fn member_sets(
             Some(&computed)
         }
     };
-    let t = Instant::now();
-    let a = mode_correspondences(inputs, sims, &and)?;
-    timer.record("fusion: noisy-and", t.elapsed(), false);
-    let t = Instant::now();
-    let g = mode_correspondences(inputs, sims, &geometry_params(&params.fusion))?;
-    timer.record("fusion: geometry", t.elapsed(), false);
-    Ok((a, g))
+    let mut sets = Vec::with_capacity(N);
+    for (name, fusion) in &named {
+        let t = Instant::now();
+        sets.push(mode_correspondences(inputs, sims, fusion)?);
+        timer.record(&format!("fusion: {name}"), t.elapsed(), false);
+    }
+    sets.try_into()
+        .map_err(|_| Error::Shape("fusion: a branch set is missing".into()))
 }
 
 /// The `union` registration of `pair` from `inputs` (image descriptors present).

@@ -1,20 +1,22 @@
 //! The `visibility` fusion mode in the in-memory tail: the `union` pose, the geometric
-//! branch's pose (its row-NN set) and Noisy-AND's pose, each estimated by the run's estimator;
-//! the one most consistent with both scans' depth views is kept ([`crate::camera::visibility`]:
-//! consistent minus conflicting keypoints, both directions; ties in the order union,
-//! geometry, Noisy-AND).
+//! branch's pose (its row-NN set), Noisy-AND's pose and the image branch's pose, each estimated
+//! by the run's estimator; the one most consistent with both scans' depth views is kept
+//! ([`crate::camera::visibility`]: F, the 95 % lower bound of the share of seen keypoints that
+//! lie on an observed surface rather than in observed free space, both directions; ties in the
+//! order union, geometry, Noisy-AND, image).
 //!
-//! Chosen on development pairs by the written protocol (docs/ablation.md, "The fusion study,
-//! fourth round"): counts of correspondences cannot tell a correct small Noisy-AND cluster
-//! from a wrong but consistent large geometric one; whether a pose puts one scan into the
-//! space the other's sensor saw through can. Only along the sensor's own rays, though (fifth
-//! round): when either scan's views are a virtual trajectory around a cloud, empty pixels are
-//! only where the cloud has no points, and the union's pose is kept without comparing.
+//! Chosen on development pairs by the written protocol (docs/ablation.md, "The fusion study",
+//! fourth to sixth rounds): counts of correspondences cannot tell a correct small cluster from
+//! a wrong but consistent large one; whether a pose puts one scan into the space the other's
+//! views saw through can. The share, not the count (consistent minus conflicting, V), decides:
+//! a count grows with the overlap a pose creates, so a pose sliding one scan along a wall could
+//! win by it. The share is compared in every depth view the image branch has, the sensor's
+//! frames or the virtual frames rendered around a cloud; the report says which.
 
 use super::params::RegisterParams;
 use super::result::{RegistrationResult, StageTiming, Timer};
 use super::tail::{finish, EstimateMemo, FusionInputs, Similarities};
-use super::union::{from_sets, member_sets};
+use super::union::{branch_sets, from_sets, geometry_params, image_params, noisy_and_params};
 use crate::camera::visibility::{both_ways, DepthView};
 use crate::dataset::{FrameSet, ScanPair, ViewOrigin};
 use crate::error::{Error, Result};
@@ -30,17 +32,24 @@ pub enum Candidate {
     Union,
     Geometry,
     NoisyAnd,
+    Image,
 }
 
 impl Candidate {
     /// The tie order.
-    pub const ALL: [Candidate; 3] = [Candidate::Union, Candidate::Geometry, Candidate::NoisyAnd];
+    pub const ALL: [Candidate; 4] = [
+        Candidate::Union,
+        Candidate::Geometry,
+        Candidate::NoisyAnd,
+        Candidate::Image,
+    ];
 
     pub fn label(self) -> &'static str {
         match self {
             Candidate::Union => "union",
             Candidate::Geometry => "geometry",
             Candidate::NoisyAnd => "Noisy-AND",
+            Candidate::Image => "image",
         }
     }
 }
@@ -52,8 +61,12 @@ pub struct CandidateScore {
     pub pose: Candidate,
     pub consistent: usize,
     pub conflict: usize,
-    /// consistent - conflict.
+    /// V = consistent - conflict (shown; not what decides).
     pub score: i64,
+    /// F: the 95 % lower bound of consistent / (consistent + conflict), what decides (0 in a
+    /// report written before the share decided).
+    #[serde(default)]
+    pub share: f64,
     /// The estimator's inliers of this pose on its own correspondences.
     pub inliers: usize,
 }
@@ -62,13 +75,14 @@ pub struct CandidateScore {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct VisibilityReport {
     pub chosen: Candidate,
-    /// Every candidate, in the tie order (none when the views are virtual: nothing compared).
+    /// Every candidate, in the tie order (none in a report of a version that kept the union's
+    /// pose with virtual views without comparing).
     pub candidates: Vec<CandidateScore>,
     /// The depth views each side was checked against.
     pub source_views: usize,
     pub target_views: usize,
-    /// Where the views' cameras stand (the weaker side's); poses are compared only for the
-    /// sensor's rays. Results written before this field existed compared every pose.
+    /// Where the views' cameras stand (the weaker side's): the sensor's frames, or a virtual
+    /// trajectory around a cloud. Results written before this field existed had sensor views.
     #[serde(default = "sensor_views")]
     pub views: ViewOrigin,
 }
@@ -89,37 +103,45 @@ pub fn pair_view_origin(source: ViewOrigin, target: ViewOrigin) -> ViewOrigin {
 }
 
 impl VisibilityReport {
-    /// "fusion: visibility (kept the Noisy-AND pose; V = consistent - conflicting keypoints:
-    /// union -399, geometry -323, Noisy-AND 2056)", or with virtual views "fusion: visibility
-    /// (virtual views: kept the union pose, poses not compared ...)".
+    /// "fusion: visibility (kept the image pose; F = 95 % lower bound of the share of seen
+    /// keypoints consistent with 50 + 50 sensor depth views: union 0.409, geometry 0.408,
+    /// Noisy-AND 0.437, image 0.815)".
     pub fn provenance(&self) -> String {
-        if !self.views.is_sensor() {
+        if self.candidates.is_empty() {
             return format!(
-                "fusion: visibility ({}: kept the union pose; poses are compared only in views \
-                 from the sensor's position, where an empty pixel is a ray the sensor cast)",
-                self.views.label()
+                "fusion: visibility ({}: kept the {} pose; poses not compared)",
+                self.views.label(),
+                self.chosen.label()
             );
         }
-        let v: Vec<String> = self
+        let f: Vec<String> = self
             .candidates
             .iter()
-            .map(|c| format!("{} {}", c.pose.label(), c.score))
+            .map(|c| format!("{} {:.3}", c.pose.label(), c.share))
             .collect();
         format!(
-            "fusion: visibility (kept the {} pose; V = consistent - conflicting keypoints in \
-             {} + {} depth views: {})",
+            "fusion: visibility (kept the {} pose; F = 95 % lower bound of the share of seen \
+             keypoints consistent with {} + {} depth views ({}): {})",
             self.chosen.label(),
             self.source_views,
             self.target_views,
-            v.join(", ")
+            self.views.label(),
+            f.join(", ")
         )
     }
 }
 
-/// The index of the largest score; ties go to the earliest. None for no scores.
-pub fn choose(scores: &[i64]) -> Option<usize> {
-    let best = *scores.iter().max()?;
-    scores.iter().position(|&s| s == best)
+/// The index of the largest score; ties go to the earliest. None for no scores or a NaN.
+pub fn choose<T: PartialOrd + Copy>(scores: &[T]) -> Option<usize> {
+    let mut best: Option<(usize, T)> = None;
+    for (i, &s) in scores.iter().enumerate() {
+        // a NaN is not ordered, not even with itself
+        s.partial_cmp(&s)?;
+        if best.is_none_or(|(_, b)| s > b) {
+            best = Some((i, s));
+        }
+    }
+    best.map(|(i, _)| i)
 }
 
 /// The depth frames of both scans of a pair (every frame the image branch has: the sensor's, or
@@ -208,36 +230,21 @@ pub(crate) fn register(
     })?;
     let t = Instant::now();
     let origin = views.origin();
-    if !origin.is_sensor() {
-        // Nothing to compare: the union's pose, one estimate.
-        let (and, geo) = member_sets(params, inputs, sims, &mut timer)?;
-        let (n_src, n_tgt) = (views.source.frames.len(), views.target.frames.len());
-        let res = from_sets(pair, params, inputs, (&and, &geo), timer, memo)?;
-        let report = VisibilityReport {
-            chosen: Candidate::Union,
-            candidates: Vec::new(),
-            source_views: n_src,
-            target_views: n_tgt,
-            views: origin,
-        };
-        return Ok(with_report(res, inputs, report, t0));
-    }
     let [src_views, tgt_views] = views.views()?;
     timer.record("visibility: depth views", t.elapsed(), false);
-    let (and, geo) = member_sets(params, inputs, sims, &mut timer)?;
+    let named = [
+        ("noisy-and", noisy_and_params(&params.fusion)),
+        ("geometry", geometry_params(&params.fusion)),
+        ("image", image_params(&params.fusion)),
+    ];
+    let [and, geo, img] = branch_sets(inputs, sims, &mut timer, named)?;
     let union = from_sets(pair, params, inputs, (&and, &geo), timer, memo)?;
     let src_tgt = (&inputs.source_geo, &inputs.target_geo);
-    let label = inputs.image_label.clone();
-    let g = finish(
-        pair,
-        params,
-        Timer::new(),
-        src_tgt,
-        geo,
-        label.clone(),
-        None,
-    )?;
-    let a = finish(pair, params, Timer::new(), src_tgt, and, label, None)?;
+    let alone = |corr| {
+        let label = inputs.image_label.clone();
+        finish(pair, params, Timer::new(), src_tgt, corr, label, None)
+    };
+    let (g, a, i) = (alone(geo)?, alone(and)?, alone(img)?);
 
     let t = Instant::now();
     let theta = params.inlier_threshold_m();
@@ -245,7 +252,7 @@ pub(crate) fn register(
         &inputs.source_geo.keypoints.points,
         &inputs.target_geo.keypoints.points,
     );
-    let results = [union, g, a];
+    let results = [union, g, a, i];
     let candidates: Vec<CandidateScore> = Candidate::ALL
         .iter()
         .zip(&results)
@@ -261,12 +268,13 @@ pub(crate) fn register(
                 consistent: v.consistent,
                 conflict: v.conflict,
                 score: v.score(),
+                share: v.share_lower_bound(),
                 inliers: r.n_inliers,
             }
         })
         .collect();
-    let scores: Vec<i64> = candidates.iter().map(|c| c.score).collect();
-    let k = choose(&scores).unwrap_or(0);
+    let shares: Vec<f64> = candidates.iter().map(|c| c.share).collect();
+    let k = choose(&shares).unwrap_or(0);
     let vis_elapsed = t.elapsed();
     let report = VisibilityReport {
         chosen: Candidate::ALL[k],
@@ -276,11 +284,12 @@ pub(crate) fn register(
         views: origin,
     };
 
-    let [union, g, a] = results;
+    let [union, g, a, i] = results;
     let mut timings = union.timings.clone();
     for (name, r) in [
         ("estimate: geometry pose", &g),
         ("estimate: Noisy-AND pose", &a),
+        ("estimate: image pose", &i),
     ] {
         timings.extend(r.timings.iter().map(|t| StageTiming {
             stage: name.to_string(),
@@ -297,6 +306,7 @@ pub(crate) fn register(
         Candidate::Union => union,
         Candidate::Geometry => g,
         Candidate::NoisyAnd => a,
+        Candidate::Image => i,
     };
     res.timings = timings;
     Ok(with_report(res, inputs, report, t0))
@@ -324,27 +334,33 @@ mod tests {
 
     #[test]
     fn the_largest_score_wins_and_ties_go_to_the_earliest() {
+        assert_eq!(choose(&[0.41, 0.41, 0.44, 0.82]), Some(3));
+        assert_eq!(choose(&[0.5, 0.5, 0.4]), Some(0));
+        assert_eq!(choose(&[0.1, 0.7, 0.7]), Some(1));
+        assert_eq!(choose::<f64>(&[]), None);
+        assert_eq!(choose(&[0.2, f64::NAN]), None);
+        // the scale search's integer V
         assert_eq!(choose(&[-399, -323, 2056]), Some(2));
         assert_eq!(choose(&[5, 5, 4]), Some(0));
-        assert_eq!(choose(&[1, 7, 7]), Some(1));
-        assert_eq!(choose(&[]), None);
     }
 
     #[test]
-    fn the_provenance_names_the_kept_pose_and_every_score() {
-        let c = |pose, score| CandidateScore {
+    fn the_provenance_names_the_kept_pose_the_views_and_every_share() {
+        let c = |pose, share| CandidateScore {
             pose,
             consistent: 10,
             conflict: 3,
-            score,
+            score: 7,
+            share,
             inliers: 4,
         };
         let r = VisibilityReport {
-            chosen: Candidate::NoisyAnd,
+            chosen: Candidate::Image,
             candidates: vec![
-                c(Candidate::Union, -399),
-                c(Candidate::Geometry, -323),
-                c(Candidate::NoisyAnd, 2056),
+                c(Candidate::Union, 0.4093),
+                c(Candidate::Geometry, 0.4082),
+                c(Candidate::NoisyAnd, 0.4374),
+                c(Candidate::Image, 0.8150),
             ],
             source_views: 50,
             target_views: 50,
@@ -352,23 +368,34 @@ mod tests {
         };
         let p = r.provenance();
         assert!(
-            p.starts_with("fusion: visibility (kept the Noisy-AND pose"),
+            p.starts_with("fusion: visibility (kept the image pose"),
             "{p}"
         );
         assert!(
-            p.contains("union -399, geometry -323, Noisy-AND 2056"),
+            p.contains("50 + 50 depth views (sensor frames): union 0.409, geometry 0.408, Noisy-AND 0.437, image 0.815)"),
             "{p}"
         );
-        // With virtual views nothing is compared, and the provenance says why.
         let v = VisibilityReport {
+            views: ViewOrigin::Virtual,
+            ..r.clone()
+        };
+        assert!(
+            v.provenance().contains("(virtual views)"),
+            "{}",
+            v.provenance()
+        );
+        // a report of a version that compared nothing with virtual views says so
+        let old = VisibilityReport {
             chosen: Candidate::Union,
             candidates: Vec::new(),
             views: ViewOrigin::Virtual,
             ..r
         };
-        let p = v.provenance();
+        let p = old.provenance();
         assert!(
-            p.starts_with("fusion: visibility (virtual views: kept the union pose"),
+            p.starts_with(
+                "fusion: visibility (virtual views: kept the union pose; poses not compared"
+            ),
             "{p}"
         );
     }
@@ -394,5 +421,9 @@ mod tests {
         let old = r#"{"chosen":"noisy-and","candidates":[],"source_views":50,"target_views":50}"#;
         let r: VisibilityReport = serde_json::from_str(old).unwrap();
         assert_eq!(r.views, ViewOrigin::Sensor);
+        // ... and one written before the share decided reads with F = 0
+        let old = r#"{"chosen":"geometry","candidates":[{"pose":"geometry","consistent":5,"conflict":1,"score":4,"inliers":9}],"source_views":50,"target_views":50}"#;
+        let r: VisibilityReport = serde_json::from_str(old).unwrap();
+        assert_eq!(r.candidates[0].share, 0.0);
     }
 }

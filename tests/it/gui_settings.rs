@@ -266,6 +266,11 @@ fn an_image_branch_that_cannot_run_is_an_error_row_with_its_reason() {
         e.contains("image branch cannot run") && e.contains("oracle"),
         "{e}"
     );
+    // ... naming the scans without RGB and what to use instead
+    assert!(
+        e.contains("neither scan has real RGB frames") && e.contains("use `builtin`"),
+        "{e}"
+    );
     assert!(
         w.result().is_none(),
         "no geometry-only result under the oracle label"

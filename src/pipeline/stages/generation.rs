@@ -261,8 +261,14 @@ pub(crate) fn plan(
     if is_oracle {
         // The oracle's output is the colour frames, so they (not the depth) key it.
         let (Some(s), Some(t)) = (&src_col, &tgt_col) else {
+            let side = match (&src_col, &tgt_col) {
+                (None, None) => "neither scan has",
+                (None, _) => "its source scan has no",
+                _ => "its target scan has no",
+            };
             return Err(Error::Missing(format!(
-                "oracle backend: pair `{}` has no colour frames",
+                "oracle backend: pair `{}` has no colour frames ({side} real RGB frames; the \
+                 oracle only shows a dataset's own RGB: use `builtin` or a WFM for this pair)",
                 pair.id
             )));
         };
