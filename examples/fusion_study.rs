@@ -24,11 +24,13 @@ use cgenreg::camera::visibility::visibility;
 use cgenreg::dataset::manifest::Dataset;
 use cgenreg::estimate::estimate_pose;
 use cgenreg::fusion::union::merge;
-use cgenreg::fusion::{Correspondence, FusionMode};
+use cgenreg::fusion::Correspondence;
 use cgenreg::metrics::{rre_deg, rte_m};
 use cgenreg::pipeline::stages::virtual_frames::{with_virtual_frames, FrameStore};
 use cgenreg::pipeline::tail::{endpoints, similarities};
-use cgenreg::pipeline::union::{geometry_params, mode_correspondences, noisy_and_params};
+use cgenreg::pipeline::union::{
+    geometry_params, image_params, mode_correspondences, noisy_and_params,
+};
 use cgenreg::pipeline::visibility::PairViews;
 use cgenreg::pipeline::{ImageBranchParams, Memo, RegisterParams, Registration, VfmSpec, WfmSpec};
 use clap::Parser;
@@ -132,11 +134,9 @@ fn study_pair(
         .ok_or_else(|| cgenreg::Error::Missing("the study needs ground truth".into()))?;
     let sims = similarities(&inputs)?;
     let set = |f| mode_correspondences(&inputs, Some(&sims), &f);
-    let mut image = params.fusion;
-    image.mode = FusionMode::ImageOnly;
     let geo = &set(geometry_params(&params.fusion))?;
     let and = &set(noisy_and_params(&params.fusion))?;
-    let img = &set(image)?;
+    let img = &set(image_params(&params.fusion))?;
     // (b): Noisy-AND's set, then the geometry set's pairs not in it (the `union` mode's merge)
     let b: Vec<Correspondence> = merge(and, geo).0;
     // The depth views of each side (the sensor's frames, or the virtual frames the image branch

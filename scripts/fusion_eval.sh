@@ -7,7 +7,7 @@
 # in-memory tail. MODES (default "visibility union noisy-and image geometry") picks the runs.
 # Tables: python3 scripts/fusion_tables.py OUT
 #
-#   bash scripts/fusion_eval.sh SET [OUT_DIR]   # SET: staged-clouds rgbd-3dlomatch lidar staged rgbd-3dmatch kitti07 revisit revisit-clouds
+#   bash scripts/fusion_eval.sh SET [OUT_DIR]   # SET: staged-clouds rgbd-3dlomatch lidar staged staged-builtin rgbd-3dmatch kitti07 revisit revisit-clouds
 #
 # Env: CGENREG_BIN (default target/debug/cgenreg), CGENREG_CACHE (stage cache folder),
 # CGENREG_DATA. A run cut short resumes (bench --json resumes).
@@ -24,6 +24,9 @@ case "$SET" in
     rgbd-3dlomatch) M=assets/manifests/redkitchen-rgbd.toml; O=(--split 3DLoMatch --wfm oracle) ;;
     rgbd-3dmatch) M=assets/manifests/redkitchen-rgbd.toml; O=(--split 3DMatch --wfm oracle) ;;
     staged) M=assets/manifests/redkitchen-staged.toml; O=(--wfm oracle) ;;
+    # the same pairs with built-in frames shaded from the sensor's depth: the image branch for
+    # the pair without colour frames (21-34), which the oracle cannot run
+    staged-builtin) M=assets/manifests/redkitchen-staged.toml; O=(--wfm builtin) ;;
     lidar) M=assets/manifests/small-gicp-lidar.toml; O=(--wfm builtin) ;;
     revisit) M=assets/manifests/redkitchen-revisit.toml; O=(--wfm oracle) ;;
     # the revisit pairs as plain PLY files (scripts/revisit_set.sh writes them; derived from the data)

@@ -16,8 +16,8 @@ import sys
 MODES = [("geometry", "geometry alone"), ("image", "image alone"), ("noisy-and", "Noisy-AND"),
          ("union", "union")]
 DEFAULT = "visibility"
-SETS = ["staged-clouds", "rgbd-3dlomatch", "lidar", "staged", "rgbd-3dmatch", "kitti07", "revisit",
-        "revisit-clouds"]
+SETS = ["staged-clouds", "rgbd-3dlomatch", "lidar", "staged", "staged-builtin", "rgbd-3dmatch", "kitti07",
+        "revisit", "revisit-clouds"]
 
 
 def load(path):

@@ -44,7 +44,7 @@ pub enum FusionMode {
     /// The union's, the geometric branch's, Noisy-AND's and the image branch's poses, of which
     /// the one most consistent with both scans' depth views is kept (the largest share of seen
     /// keypoints on an observed surface rather than in observed free space, as a 95 % lower
-    /// bound; `camera::visibility`). Its posterior is Noisy-AND's.
+    /// bound). Its posterior is Noisy-AND's.
     Visibility,
 }
 

@@ -17,6 +17,7 @@ mod dataset_real;
 mod docs_hygiene;
 mod export_corr;
 mod fusion_revisit;
+mod fusion_share;
 mod fusion_union;
 mod fuzz_smoke;
 mod geometry_cache;
