@@ -4,7 +4,9 @@
 //! tens of metres apart finds a repeated structure (a street shifted along itself) before the
 //! true one.
 //!
-//! The arbitration is the `visibility` fusion's rule ([`crate::camera::visibility`]): every
+//! The arbitration is the visibility score V ([`crate::camera::visibility`]: consistent minus
+//! conflicting keypoints, as its own protocol fixed it; the `visibility` fusion has since moved
+//! to the share of seen keypoints that agree, chosen on indoor pairs): every
 //! pose is scored with the same points and distance (the finest hypothesis's keypoints and
 //! inlier threshold), so a coarser hypothesis gains nothing from having fewer, larger cells;
 //! a tie goes to the finest voxel (the preset's own). The protocol that fixed all of this is
