@@ -243,9 +243,11 @@ fn register_with_frames(
     ];
     let coverage = coverage_warnings(&image);
     let views = PairViews::new(src_fs.clone(), tgt_fs.clone());
-    // Now for the visibility fusion, and for virtual frames in any mode: those of a run without a
-    // cache are gone after it, and a later re-fusion to `visibility` compares poses in them.
-    if params.fusion.mode == FusionMode::Visibility || !views.origin().is_sensor() {
+    // Now for the visibility fusion, and for virtual frames of a run without a cache in any mode:
+    // their scratch folder is gone after the run, and a later re-fusion to `visibility` compares
+    // poses in them. Otherwise they are read on first use (sensor frames and cached ones stay).
+    let scratch = reg.cache.is_none() && !views.origin().is_sensor();
+    if params.fusion.mode == FusionMode::Visibility || scratch {
         views.load()?;
     }
     let inputs = FusionInputs {

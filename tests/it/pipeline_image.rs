@@ -532,3 +532,33 @@ fn a_callers_memo_loads_the_model_once_and_its_bound_changes_no_result() {
         assert_eq!(r.correspondences.len(), a.correspondences.len());
     }
 }
+
+/// A run without a cache keeps its virtual frames only in a scratch folder that is gone after the
+/// run; the inputs it keeps must still let a re-fusion to `visibility` compare the poses in those
+/// views (read during the run).
+#[test]
+fn a_refusion_to_visibility_after_an_uncached_clouds_only_run_compares_in_its_views() {
+    use cgenreg::fusion::FusionMode;
+    use cgenreg::pipeline::visibility::Candidate;
+    let ds = Dataset::load(&common::demo_manifest()).unwrap();
+    let mut pair = ds.load_pair(&ds.pairs()[0].id.clone()).unwrap();
+    pair.source.frames = None;
+    pair.target.frames = None;
+    let mut p = params();
+    p.fusion.mode = FusionMode::NoisyAnd;
+    let mut r = Registration::new(&p).keep(true).run(&pair).unwrap();
+    let inputs = r.inputs.take().unwrap();
+    p.fusion.mode = FusionMode::Visibility;
+    let v = Registration::new(&p)
+        .refuse_from_memory(&pair, &inputs, None)
+        .unwrap();
+    let rep = v.visibility.as_ref().unwrap();
+    assert_eq!(rep.views, cgenreg::dataset::ViewOrigin::Virtual);
+    let poses: Vec<Candidate> = rep.candidates.iter().map(|c| c.pose).collect();
+    assert_eq!(poses, Candidate::ALL);
+    assert!(
+        rep.candidates.iter().all(|c| c.consistent > 0),
+        "{:?}",
+        rep.candidates
+    );
+}
