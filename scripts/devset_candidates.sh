@@ -25,25 +25,18 @@ NAME="${DEV_NAME:-redkitchen-dev}"
 LOMATCH_ONLY="${LOMATCH_ONLY:-0}"
 mkdir -p "$OUT"
 M="$OUT/candidates.toml"
+. scripts/redkitchen_fragments.sh
 {
-    printf 'name = "%s"\n' "$NAME"
-    echo 'root = "$CGENREG_DATA"'
-    echo
-    echo '[fragment_options]'
-    echo 'voxel = 0.01'
-    echo 'max_depth = 4.0'
-    echo 'crop = "3dmatch"'
+    fragments_header "$NAME"
     for o in $OFFSETS; do
         for k in $(seq 0 8); do
-            f=$((50 * k + o))
-            printf '\n[[fragments]]\nid = "f%03d"\nsequence = "7scenes-redkitchen-rgbd"\nfirst = %d\ncount = 50\n' "$f" "$f"
+            fragment_entry $((50 * k + o))
         done
     done
     for o in $OFFSETS; do
         for i in $(seq 0 8); do
             for j in $(seq $((i + 1)) 8); do
-                printf '\n[[pairs]]\ntarget = "f%03d"\nsource = "f%03d"\ngt_poses = true\n' \
-                    $((50 * i + o)) $((50 * j + o))
+                gt_pose_pair $((50 * i + o)) $((50 * j + o))
             done
         done
     done

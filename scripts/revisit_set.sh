@@ -14,14 +14,9 @@ M=assets/manifests/redkitchen-revisit.toml
 EX="${CGENREG_EXAMPLE_DIR:-target/debug/examples}"
 mkdir -p "$OUT"
 C="$OUT/candidates.toml"
+. scripts/redkitchen_fragments.sh
 {
-    echo 'name = "redkitchen-revisit-candidates"'
-    echo 'root = "$CGENREG_DATA"'
-    echo
-    echo '[fragment_options]'
-    echo 'voxel = 0.01'
-    echo 'max_depth = 4.0'
-    echo 'crop = "3dmatch"'
+    fragments_header redkitchen-revisit-candidates
     starts=()
     for k in $(seq 0 8); do
         for o in 10 20 30 40; do
@@ -29,12 +24,12 @@ C="$OUT/candidates.toml"
         done
     done
     for f in "${starts[@]}"; do
-        printf '\n[[fragments]]\nid = "f%03d"\nsequence = "7scenes-redkitchen-rgbd"\nfirst = %d\ncount = 50\n' "$f" "$f"
+        fragment_entry "$f"
     done
     for a in "${starts[@]}"; do
         for b in "${starts[@]}"; do
             if [ $((b - a)) -ge 200 ]; then
-                printf '\n[[pairs]]\ntarget = "f%03d"\nsource = "f%03d"\ngt_poses = true\n' "$a" "$b"
+                gt_pose_pair "$a" "$b"
             fi
         done
     done
