@@ -4,7 +4,7 @@
 //! largest share of keypoints consistent with the views (the union's, as committed). Skipped
 //! without the real data, failing under CI=true.
 
-use crate::common::{oracle_alike_params, refuse_with};
+use crate::common::{assert_largest_share, oracle_alike_params, refuse_with};
 use cgenreg::dataset::Dataset;
 use cgenreg::fusion::{FusionMode, Selection};
 use cgenreg::pipeline::visibility::Candidate;
@@ -45,12 +45,7 @@ fn default_fusion_registers_a_revisit_and_loses_to_no_branch() {
     let rep = v.visibility.as_ref().unwrap();
     assert_eq!((rep.source_views, rep.target_views), (50, 50));
     assert_eq!(rep.chosen, Candidate::Union, "{:?}", v.fusion_provenance());
-    let best = rep
-        .candidates
-        .iter()
-        .map(|c| c.share)
-        .fold(f64::MIN, f64::max);
-    assert_eq!(best, rep.candidates[0].share);
+    assert_largest_share(rep, Candidate::Union);
     assert!(v
         .fusion_provenance()
         .unwrap()

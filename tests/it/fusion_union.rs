@@ -3,7 +3,7 @@
 //! Noisy-AND and geometric sets merged; each result says what it compared or merged and
 //! where its inliers came from. Skipped without the real data, failing under CI=true.
 
-use crate::common::{oracle_alike_params, refuse_with};
+use crate::common::{assert_largest_share, oracle_alike_params, refuse_with};
 use cgenreg::dataset::Dataset;
 use cgenreg::fusion::union::merge;
 use cgenreg::fusion::{FusionMode, FusionParams, Selection};
@@ -102,12 +102,7 @@ fn union_is_never_worse_than_its_best_branch_on_a_development_pair() {
     assert_eq!((rep.source_views, rep.target_views), (50, 50));
     let poses: Vec<Candidate> = rep.candidates.iter().map(|c| c.pose).collect();
     assert_eq!(poses, Candidate::ALL);
-    let best = rep
-        .candidates
-        .iter()
-        .map(|c| c.share)
-        .fold(f64::MIN, f64::max);
-    assert_eq!(best, rep.candidates[1].share);
+    assert_largest_share(rep, Candidate::Geometry);
     assert!(v
         .fusion_provenance()
         .unwrap()

@@ -215,3 +215,18 @@ pub fn refuse_with(
         .refuse_from_memory(pair, inputs, None)
         .unwrap()
 }
+
+/// Asserts that `pose`'s share (F) is the largest of the visibility report's candidates: the
+/// pose the rule keeps.
+pub fn assert_largest_share(
+    rep: &cgenreg::pipeline::visibility::VisibilityReport,
+    pose: cgenreg::pipeline::visibility::Candidate,
+) {
+    let best = rep
+        .candidates
+        .iter()
+        .map(|c| c.share)
+        .fold(f64::MIN, f64::max);
+    let kept = rep.candidates.iter().find(|c| c.pose == pose);
+    assert_eq!(kept.map(|c| c.share), Some(best), "{:?}", rep.candidates);
+}
