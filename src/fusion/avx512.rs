@@ -271,7 +271,7 @@ pub(crate) unsafe fn row_nn_band(
     const BLOCK: usize = 256;
     let rows = out.len();
     assert!(
-        rows % TILE_ROWS == 0 && a.len() == rows * d && bt.len() == d * m && d > 0,
+        rows.is_multiple_of(TILE_ROWS) && a.len() == rows * d && bt.len() == d * m && d > 0,
         "row-nn band: {rows} rows of {d} values in {}, a {d} x {m} transpose in {}",
         a.len(),
         bt.len()

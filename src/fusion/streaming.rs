@@ -87,7 +87,8 @@ pub fn row_nn_posterior(src: &Features, tgt: &Features, tau: f32) -> Result<Vec<
 fn fused_row_nn<'r>(rhs: &'r super::similarity::DotRhs<'_>) -> Option<&'r [f32]> {
     let f = crate::simd::features();
     let wide = f.float_isa() == crate::simd::Isa::Avx512 && f.fma_isa() == crate::simd::Isa::Avx512;
-    rhs.transposed().filter(|_| wide && cfg!(target_arch = "x86_64"))
+    rhs.transposed()
+        .filter(|_| wide && cfg!(target_arch = "x86_64"))
 }
 
 /// The row-NN paths' temperature check (one message for all three).

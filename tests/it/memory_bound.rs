@@ -17,13 +17,16 @@ fn register_limited(extra: &[&str], env: &[(&str, &str)]) -> Output {
         Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/manifests/pandaset-lidar.toml");
     let mut c = Command::new("sh");
     // the binary and its arguments reach the shell as positional parameters, never as code
-    c.args(["-c", &format!("ulimit -v {LIMIT_KIB} && exec \"$0\" \"$@\"")])
-        .arg(env!("CARGO_BIN_EXE_cgenreg"))
-        .args(["register", "--manifest"])
-        .arg(&manifest)
-        .args(["--pair", PAIR, "--preset", "indoor", "--no-cache", "--json"])
-        .args(extra)
-        .env_remove("CGENREG_MATRIX_BUDGET_MB");
+    c.args([
+        "-c",
+        &format!("ulimit -v {LIMIT_KIB} && exec \"$0\" \"$@\""),
+    ])
+    .arg(env!("CARGO_BIN_EXE_cgenreg"))
+    .args(["register", "--manifest"])
+    .arg(&manifest)
+    .args(["--pair", PAIR, "--preset", "indoor", "--no-cache", "--json"])
+    .args(extra)
+    .env_remove("CGENREG_MATRIX_BUDGET_MB");
     for (k, v) in env {
         c.env(k, v);
     }
