@@ -65,10 +65,10 @@ fn pandaset_at_the_indoor_voxel_errors_clearly_where_it_would_need_a_dense_matri
 }
 
 /// The default geometry-alone registration streams the similarity band by band: a result in
-/// bounded memory. Ignored by default: about 25 s in a release build on 2 cores, several
+/// bounded memory. Ignored by default: about 15 s in a release build on 2 cores, several
 /// minutes in the test build (`cargo test --release --test it memory_bound -- --ignored`).
 #[test]
-#[ignore = "slow: a 100k x 100k streamed match (about 25 s in release)"]
+#[ignore = "slow: a 100k x 100k streamed match (about 15 s in release)"]
 fn pandaset_at_the_indoor_voxel_registers_in_bounded_memory() {
     if cgenreg::testing::test_data_root().is_none() {
         return;
