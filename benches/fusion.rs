@@ -251,7 +251,7 @@ fn main() {
             t,
             p,
         );
-        let (t, p, _) = measure(7, || s_img.duplicate());
+        let (t, p, _) = measure(7, || s_img.duplicate().unwrap());
         stage("duplicate one N x M matrix (huge pages)", t, p);
         let (t, p, _) = measure(7, || calibrate(&s_img, None, None, row).unwrap());
         stage("row softmax into a new matrix", t, p);

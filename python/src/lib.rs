@@ -568,6 +568,17 @@ fn match_then_fuse<'py>(
         .detach(|| -> cgenreg::Result<_> {
             match &image {
                 Some((ia, va, ib, vb)) => {
+                    // the paper's configuration streams from the features (same
+                    // correspondences, no N x M matrix); others form the matrices within the
+                    // dense-matrix budget
+                    let streamed = cgenreg::fusion::match_then_fuse_select_features(
+                        (ia, va.as_slice(), ib, vb.as_slice()),
+                        (&fs, &ft),
+                        &params.fusion,
+                    )?;
+                    if let Some(c) = streamed {
+                        return Ok(c);
+                    }
                     let geo = cosine_similarity(&fs, &ft)?;
                     let img = cosine_similarity(ia, ib)?;
                     match_then_fuse_select(

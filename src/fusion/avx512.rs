@@ -239,6 +239,149 @@ pub(crate) unsafe fn max_first_positive(x: &[f32]) -> Option<(usize, f32)> {
         .map(|j| (full + j, mx))
 }
 
+fn lanes16i(v: __m512i) -> [i32; 16] {
+    // SAFETY: __m512i and [i32; 16] have the same size; any bits are a valid i32.
+    unsafe { std::mem::transmute::<__m512i, [i32; 16]>(v) }
+}
+
+/// Each row's first maximum and its row-softmax probability, `streaming::row_best` of every
+/// similarity row bit for bit, for a band of unit source rows `a` (rows x d, rows a multiple
+/// of 8) against the transposed unit target features `bt` (d x m), `it` = 1 / tau, without
+/// storing a similarity row: pass 1 forms the dot products tile by tile
+/// (`simd::x86_64_avx512::dot_tile`, the FMA chains of `cosine_similarity`) and keeps per-lane
+/// maxima with their first columns; pass 2 forms them again and sums `fast_exp((s - max) *
+/// it)` into the scalar code's 8 accumulators, chunks of 8 columns in order. Column blocks of
+/// 256 keep a block of `bt` in L1 for every row of the band. A maximum may differ from the
+/// scalar fold's only in the sign of a zero, which changes neither the position (`==`) nor
+/// the sum (`v - 0` and `v + 0` agree after `fast_exp`).
+///
+/// # Safety
+/// The CPU must support AVX-512 F and DQ, AVX2 and FMA.
+#[target_feature(enable = "avx512f,avx512dq,avx2,fma")]
+pub(crate) unsafe fn row_nn_band(
+    a: &[f32],
+    d: usize,
+    bt: &[f32],
+    m: usize,
+    it: f32,
+    out: &mut [Option<(usize, f32)>],
+) {
+    use crate::simd::scalar::dot_one;
+    use crate::simd::x86_64_avx512::{dot_tile, TILE_COLS, TILE_ROWS};
+    const BLOCK: usize = 256;
+    let rows = out.len();
+    assert!(
+        rows.is_multiple_of(TILE_ROWS) && a.len() == rows * d && bt.len() == d * m && d > 0,
+        "row-nn band: {rows} rows of {d} values in {}, a {d} x {m} transpose in {}",
+        a.len(),
+        bt.len()
+    );
+    let m32 = m - m % TILE_COLS;
+    let m8 = m - m % 8;
+    let mut tile = [0.0f32; TILE_ROWS * TILE_COLS];
+    let iota = _mm512_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
+    // Runs `$body` with `$g` (first row), `$j` (first column) and `tile` filled, over every
+    // tile, column blocks outermost, so each row sees its columns in ascending order. (A
+    // macro, not a closure: a closure would not be compiled with this function's features.)
+    macro_rules! tiles {
+        (|$g:ident, $j:ident| $body:block) => {{
+            let mut j0 = 0;
+            while j0 < m32 {
+                let j1 = (j0 + BLOCK).min(m32);
+                for $g in (0..rows).step_by(TILE_ROWS) {
+                    let ag = &a[$g * d..($g + TILE_ROWS) * d];
+                    for $j in (j0..j1).step_by(TILE_COLS) {
+                        // SAFETY: ag holds 8 d values, j + 32 <= m32 <= m, bt holds d m
+                        // values; the CPU has AVX-512F and FMA (this function's contract).
+                        unsafe { dot_tile(ag, d, bt, m, $j, &mut tile) };
+                        $body
+                    }
+                }
+                j0 = j1;
+            }
+        }};
+    }
+    // pass 1: per-lane maxima (lane = column mod 16) and their first columns
+    let mut vmax = vec![_mm512_set1_ps(f32::NEG_INFINITY); rows];
+    let mut vidx = vec![_mm512_setzero_si512(); rows];
+    tiles!(|g, j| {
+        for i in 0..TILE_ROWS {
+            for h in 0..2 {
+                // SAFETY: the tile holds 8 x 32 values.
+                let v = unsafe { _mm512_loadu_ps(tile.as_ptr().add(i * TILE_COLS + 16 * h)) };
+                // NaN never replaces, as in `max_lanes`
+                let gt = _mm512_cmp_ps_mask::<_CMP_GT_OQ>(v, vmax[g + i]);
+                vmax[g + i] = _mm512_mask_blend_ps(gt, vmax[g + i], v);
+                let at = _mm512_add_epi32(_mm512_set1_epi32((j + 16 * h) as i32), iota);
+                vidx[g + i] = _mm512_mask_blend_epi32(gt, vidx[g + i], at);
+            }
+        }
+    });
+    // the columns past the last tile, per row
+    let tw = m - m32;
+    let mut tail = vec![0.0f32; rows * tw];
+    for r in 0..rows {
+        for (q, j) in (m32..m).enumerate() {
+            tail[r * tw + q] = dot_one(&a[r * d..(r + 1) * d], bt, m, j);
+        }
+    }
+    let mut mx = vec![f32::NAN; rows];
+    for r in 0..rows {
+        let (lv, li) = (lanes16(vmax[r]), lanes16i(vidx[r]));
+        let t = &tail[r * tw..(r + 1) * tw];
+        let mut best = f32::NEG_INFINITY;
+        for &v in lv.iter().chain(t) {
+            best = if v > best { v } else { best };
+        }
+        out[r] = None;
+        if !best.is_finite() {
+            continue;
+        }
+        let first = (0..16)
+            .filter(|&k| lv[k] == best)
+            .map(|k| li[k] as usize)
+            .min()
+            .or_else(|| t.iter().position(|&v| v == best).map(|q| m32 + q));
+        if let Some(j) = first {
+            out[r] = Some((j, 0.0));
+            mx[r] = best;
+        }
+    }
+    // pass 2: the sums, each 16-lane step adding its low then its high half
+    let vit = _mm512_set1_ps(it);
+    let vmx: Vec<__m512> = mx.iter().map(|&x| _mm512_set1_ps(x)).collect();
+    let mut acc = vec![_mm256_setzero_ps(); rows];
+    tiles!(|g, _j| {
+        for i in 0..TILE_ROWS {
+            if out[g + i].is_none() {
+                continue;
+            }
+            for h in 0..2 {
+                // SAFETY: the tile holds 8 x 32 values; AVX-512 F/DQ are enabled here.
+                unsafe {
+                    let v = _mm512_loadu_ps(tile.as_ptr().add(i * TILE_COLS + 16 * h));
+                    let e = fast_exp16(_mm512_mul_ps(_mm512_sub_ps(v, vmx[g + i]), vit));
+                    acc[g + i] = _mm256_add_ps(acc[g + i], _mm512_castps512_ps256(e));
+                    acc[g + i] = _mm256_add_ps(acc[g + i], _mm512_extractf32x8_ps::<1>(e));
+                }
+            }
+        }
+    });
+    for r in 0..rows {
+        let Some((j, _)) = out[r] else { continue };
+        let (x, t) = (mx[r], &tail[r * tw..(r + 1) * tw]);
+        let mut l = lanes8(acc[r]);
+        let (full, rem) = t.split_at(m8 - m32);
+        for c in full.chunks_exact(8) {
+            for k in 0..8 {
+                l[k] += fast_exp((c[k] - x) * it);
+            }
+        }
+        let z = l.iter().sum::<f32>() + rem.iter().map(|&v| fast_exp((v - x) * it)).sum::<f32>();
+        out[r] = Some((j, 1.0 / z));
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

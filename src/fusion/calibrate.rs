@@ -100,7 +100,7 @@ pub fn calibrate(
     cal: Calibration,
 ) -> Result<DenseMatrix> {
     check_masks("calibrate", sim.rows, sim.cols, row_valid, col_valid)?;
-    let mut out = sim.duplicate();
+    let mut out = sim.duplicate()?;
     calibrate_in_place(&mut out, row_valid, col_valid, cal)?;
     Ok(out)
 }

@@ -16,24 +16,43 @@ pub struct DenseMatrix {
 }
 
 impl DenseMatrix {
-    /// A zero matrix; errors when `rows * cols` overflows.
+    /// A zero matrix; errors when `rows * cols` overflows, when the matrix is above the
+    /// dense-matrix budget ([`budget_bytes`]) or when the memory cannot be had (never an
+    /// abort).
     pub fn zeros(rows: usize, cols: usize) -> Result<Self> {
         let n = checked_len(rows, cols)?;
+        within_budget(rows, cols)?;
         // Zeroed allocation: large ones come as fresh zero pages, so nothing is written here.
-        let data = vec![0.0f32; n];
+        let data = zeroed_vec(n).ok_or_else(|| {
+            Error::Invalid(format!(
+                "could not allocate a {rows} x {cols} matrix ({}): not enough memory",
+                gib(n * 4)
+            ))
+        })?;
         advise_huge(&data);
         Ok(DenseMatrix { rows, cols, data })
     }
 
-    /// A copy whose buffer may use huge pages (see [`big_vec`]); `clone` does not.
-    pub fn duplicate(&self) -> Self {
-        let mut data = big_vec(self.data.len());
+    /// A copy whose buffer may use huge pages (see [`advise_huge`]); `clone` does not. Errors as
+    /// [`Self::zeros`].
+    pub fn duplicate(&self) -> Result<Self> {
+        within_budget(self.rows, self.cols)?;
+        let mut data = Vec::new();
+        if data.try_reserve_exact(self.data.len()).is_err() {
+            return Err(Error::Invalid(format!(
+                "could not allocate a copy of a {} x {} matrix ({}): not enough memory",
+                self.rows,
+                self.cols,
+                gib(self.bytes())
+            )));
+        }
+        advise_huge(data.spare_capacity_mut());
         data.extend_from_slice(&self.data);
-        DenseMatrix {
+        Ok(DenseMatrix {
             rows: self.rows,
             cols: self.cols,
             data,
-        }
+        })
     }
 
     /// Wraps `data` (row-major); errors when its length is not `rows * cols`.
@@ -55,6 +74,7 @@ impl DenseMatrix {
         mut f: impl FnMut(usize, usize) -> f32,
     ) -> Result<Self> {
         let n = checked_len(rows, cols)?;
+        within_budget(rows, cols)?;
         let mut data = Vec::with_capacity(n);
         for i in 0..rows {
             for j in 0..cols {
@@ -114,17 +134,64 @@ impl DenseMatrix {
     }
 }
 
-/// An empty Vec with room for `n` values. On Linux a large buffer is advised to use
-/// transparent huge pages: first-touch page faults on 4 KiB pages cost about as much as the
-/// softmax itself on a 100 MB matrix.
-pub(crate) fn big_vec(n: usize) -> Vec<f32> {
-    let mut v = Vec::with_capacity(n);
-    advise_huge(v.spare_capacity_mut());
-    v
+/// The dense-matrix budget when `CGENREG_MATRIX_BUDGET_MB` is not set: 2 GiB per N x M f32
+/// matrix (2^29 entries, e.g. 23k x 23k keypoints). The pipeline streams larger pairs band by
+/// band where its configuration allows ([`crate::fusion::streams_from_features`]); what needs
+/// whole matrices (other fusion configurations, the inspector's kept similarities, the
+/// correspondence export) stops with an error naming the sizes instead.
+pub const DEFAULT_BUDGET_BYTES: usize = 2 << 30;
+
+/// Bytes one N x M matrix may hold: `CGENREG_MATRIX_BUDGET_MB` (MiB) when set to a number,
+/// else [`DEFAULT_BUDGET_BYTES`]. At most a few such matrices are held at once (a fusion holds
+/// the two similarities, the two posteriors and the fused scores).
+pub fn budget_bytes() -> usize {
+    std::env::var("CGENREG_MATRIX_BUDGET_MB")
+        .ok()
+        .and_then(|v| v.trim().parse::<usize>().ok())
+        .map_or(DEFAULT_BUDGET_BYTES, |mb| mb.saturating_mul(1 << 20))
+}
+
+/// Whether a `rows x cols` f32 matrix fits [`budget_bytes`]; the error names the sizes and
+/// the setting.
+pub fn within_budget(rows: usize, cols: usize) -> Result<()> {
+    let bytes = rows.saturating_mul(cols).saturating_mul(4);
+    let budget = budget_bytes();
+    if bytes > budget {
+        return Err(Error::Invalid(format!(
+            "a dense {rows} x {cols} matrix ({}) is above the dense-matrix budget of {} \
+             (set CGENREG_MATRIX_BUDGET_MB to change it, or use a larger voxel for fewer \
+             keypoints); geometry alone and the default Noisy-AND stream without it",
+            gib(bytes),
+            gib(budget)
+        )));
+    }
+    Ok(())
+}
+
+fn gib(bytes: usize) -> String {
+    format!("{:.2} GiB", bytes as f64 / (1u64 << 30) as f64)
+}
+
+/// `n` zeros from the allocator's zeroed allocation (fresh pages, nothing written), or None
+/// when the memory cannot be had.
+fn zeroed_vec(n: usize) -> Option<Vec<f32>> {
+    if n == 0 {
+        return Some(Vec::new());
+    }
+    let layout = std::alloc::Layout::array::<f32>(n).ok()?;
+    // SAFETY: the layout has a non-zero size (n > 0).
+    let p = unsafe { std::alloc::alloc_zeroed(layout) }.cast::<f32>();
+    if p.is_null() {
+        return None;
+    }
+    // SAFETY: p comes from the global allocator with the layout of n f32 (capacity n), and all
+    // n values are initialised (zero bits are 0.0).
+    Some(unsafe { Vec::from_raw_parts(p, n, n) })
 }
 
 /// Advises the kernel to back the pages inside `buf` with transparent huge pages (Linux,
-/// buffers of 4 MiB or more; elsewhere nothing).
+/// buffers of 4 MiB or more; elsewhere nothing): first-touch page faults on 4 KiB pages cost
+/// about as much as the softmax itself on a 100 MB matrix.
 fn advise_huge<T>(buf: &[T]) {
     #[cfg(target_os = "linux")]
     {
@@ -196,6 +263,17 @@ mod tests {
         assert_eq!(m.rows_iter().count(), 3);
         assert!(DenseMatrix::from_vec(2, 2, vec![0.0; 3]).is_err());
         assert!(DenseMatrix::zeros(usize::MAX, 2).is_err());
+        // above the budget (16 GiB; unless the environment raised it): an error naming the
+        // sizes and the setting, nothing allocated
+        let big = 1 << 16;
+        if budget_bytes() < big * big * 4 {
+            let e = DenseMatrix::zeros(big, big).unwrap_err().to_string();
+            assert!(
+                e.contains("65536 x 65536") && e.contains("CGENREG_MATRIX_BUDGET_MB"),
+                "{e}"
+            );
+        }
+        assert_eq!(m.duplicate().unwrap(), m);
         assert!(check_masks("t", 3, 4, Some(&[true; 2]), None).is_err());
         assert!(check_masks("t", 3, 4, Some(&[true; 3]), Some(&[false; 4])).is_ok());
     }

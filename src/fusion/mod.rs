@@ -4,7 +4,10 @@
 //!
 //! Memory: a dense N x M f32 matrix is used only for the two posteriors and the fused scores
 //! (never N x M x K^2: view pairs are reduced by an element-wise max as they are computed).
-//! [`FusionOutput::peak_bytes`] accounts for those matrices.
+//! [`FusionOutput::peak_bytes`] accounts for those matrices. Every such matrix is within the
+//! dense-matrix budget ([`matrix::budget_bytes`]; an error above it, never an abort). Geometry
+//! alone with row NN ([`streaming`]) and the paper's configuration from features
+//! ([`match_then_fuse_select_features`]) hold no N x M matrix at all.
 
 #[cfg(target_arch = "x86_64")]
 mod avx2;

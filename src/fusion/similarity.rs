@@ -76,6 +76,12 @@ impl<'a> DotRhs<'a> {
     pub fn dim(&self) -> usize {
         self.d
     }
+
+    /// The target features transposed (d x m) for the FMA kernels; None where `dot_band`
+    /// takes the sgemm.
+    pub fn transposed(&self) -> Option<&[f32]> {
+        (self.isa != Isa::Scalar).then_some(&self.bt[..])
+    }
 }
 
 /// `out[r][j] = a_band[r] · b[j]` for a band of rows `a_band` (rows x d, row-major) against all

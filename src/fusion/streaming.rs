@@ -31,18 +31,43 @@ pub fn row_nn_posterior(src: &Features, tgt: &Features, tau: f32) -> Result<Vec<
     let b = normalize_rows(tgt);
     let rhs = super::similarity::DotRhs::new(&b);
     let it = 1.0 / tau;
+    let fused = fused_row_nn(&rhs);
     let mut out: Vec<Correspondence> = a
         .data
         .par_chunks(BAND * d)
         .enumerate()
-        .flat_map_iter(|(t, a_band)| {
+        .map_init(Vec::new, |s, (t, a_band)| {
             let rows = a_band.len() / d;
-            let mut s = vec![0.0f32; rows * m];
-            super::similarity::dot_band(a_band, &rhs, &mut s);
+            let mut best = vec![None; rows];
+            // The fused kernel takes the rows in multiples of 8 and holds no similarity row;
+            // the rest (and every row without it) goes through one band buffer per task.
+            let done = match fused {
+                #[cfg(target_arch = "x86_64")]
+                Some(bt) => {
+                    let r8 = rows - rows % 8;
+                    // SAFETY: `fused_row_nn` gave `bt` only on a CPU with AVX-512 F/DQ, AVX2
+                    // and FMA; the lengths are the band's.
+                    unsafe {
+                        super::avx512::row_nn_band(&a_band[..r8 * d], d, bt, m, it, &mut best[..r8])
+                    };
+                    r8
+                }
+                _ => 0,
+            };
+            if done < rows {
+                // grows once per task; the kernel writes every value it reads
+                s.resize((rows - done) * m, 0.0);
+                let s = &mut s[..(rows - done) * m];
+                super::similarity::dot_band(&a_band[done * d..], &rhs, s);
+                for (r, b) in best[done..].iter_mut().enumerate() {
+                    *b = row_best(&s[r * m..(r + 1) * m], it);
+                }
+            }
             let base = t * BAND;
-            (0..rows)
-                .filter_map(|r| {
-                    let (j, score) = row_best(&s[r * m..(r + 1) * m], it)?;
+            best.into_iter()
+                .enumerate()
+                .filter_map(|(r, b)| {
+                    let (j, score) = b?;
                     Some(Correspondence {
                         src: (base + r) as u32,
                         tgt: j as u32,
@@ -51,9 +76,19 @@ pub fn row_nn_posterior(src: &Features, tgt: &Features, tau: f32) -> Result<Vec<
                 })
                 .collect::<Vec<_>>()
         })
+        .flatten_iter()
         .collect();
     out.sort_unstable_by(super::select::order);
     Ok(out)
+}
+
+/// The transposed target features for `avx512::row_nn_band` when this CPU runs it (AVX-512
+/// F/DQ with the FMA dot kernel), else None.
+fn fused_row_nn<'r>(rhs: &'r super::similarity::DotRhs<'_>) -> Option<&'r [f32]> {
+    let f = crate::simd::features();
+    let wide = f.float_isa() == crate::simd::Isa::Avx512 && f.fma_isa() == crate::simd::Isa::Avx512;
+    rhs.transposed()
+        .filter(|_| wide && cfg!(target_arch = "x86_64"))
 }
 
 /// The row-NN paths' temperature check (one message for all three).
@@ -247,6 +282,81 @@ mod tests {
             }
         }
         assert!(row_nn_from_maxima(&sim, &maxima[1..], 0.1).is_err());
+    }
+
+    /// The streamed row NN against brute force bit for bit: every similarity an FMA chain
+    /// written out, then `max_lanes`, the first position and `row_p_scalar`. Shapes leave every
+    /// edge of the fused kernel (rows mod 8 and past a band, columns mod 32, mod 8, fewer
+    /// than 32) and of the band path; rows with planted ties, a zero row, a NaN row. Repro:
+    /// `CGENREG_TEST_SEED=<seed>` (printed on failure).
+    #[test]
+    fn streamed_row_nn_is_brute_force_bit_for_bit() {
+        let (seed, mut rng) = crate::estimate::rng::seeded_for_test("streamed-row-nn");
+        for (case, (n, m, d)) in [
+            (8, 32, 33),
+            (139, 517, 33),
+            (17, 7, 33),
+            (300, 64, 5),
+            (9, 1000, 32),
+            (3, 41, 33),
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            // non-negative like FPFH, quantised so that ties occur
+            let mut q = |k: usize| {
+                let v: Vec<f32> = (0..k)
+                    .map(|_| (rng.unit_f64() * 8.0).floor() as f32 / 8.0)
+                    .collect();
+                v
+            };
+            let mut src = Features::new(d, q(n * d));
+            let mut tgt = Features::new(d, q(m * d));
+            if n > 2 {
+                src.data[..d].iter_mut().for_each(|v| *v = 0.0);
+                src.data[d..2 * d].iter_mut().for_each(|v| *v = f32::NAN);
+            }
+            if m > 3 {
+                // two equal targets: ties in every row
+                let (x, y) = tgt.data.split_at_mut(2 * d);
+                y[..d].copy_from_slice(&x[d..2 * d]);
+            }
+            for tau in [0.1f32, 0.03] {
+                let got = row_nn_posterior(&src, &tgt, tau).unwrap();
+                let (a, b) = (normalize_rows(&src), normalize_rows(&tgt));
+                let mut want = Vec::new();
+                for i in 0..n {
+                    let row: Vec<f32> = (0..m)
+                        .map(|j| {
+                            let mut acc = 0.0f32;
+                            for k in 0..d {
+                                acc = a.data[i * d + k].mul_add(b.data[j * d + k], acc);
+                            }
+                            acc
+                        })
+                        .collect();
+                    let mx = crate::fusion::calibrate::max_lanes(&row);
+                    if !mx.is_finite() {
+                        continue;
+                    }
+                    let j = row.iter().position(|&v| v == mx).unwrap();
+                    want.push(Correspondence {
+                        src: i as u32,
+                        tgt: j as u32,
+                        score: row_p_scalar(&row, mx, 1.0 / tau),
+                    });
+                }
+                want.sort_unstable_by(crate::fusion::select::order);
+                assert_eq!(got.len(), want.len(), "seed {seed} case {case} tau {tau}");
+                for (x, y) in got.iter().zip(&want) {
+                    assert_eq!(
+                        (x.src, x.tgt, x.score.to_bits()),
+                        (y.src, y.tgt, y.score.to_bits()),
+                        "seed {seed} case {case} ({n} x {m} x {d}) tau {tau}"
+                    );
+                }
+            }
+        }
     }
 
     #[test]

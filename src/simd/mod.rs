@@ -93,11 +93,13 @@ impl Features {
         }
     }
 
-    /// Dot products as exact fused multiply-add chains ([`dot_rows`]): AVX2 + FMA (an AVX-512
-    /// CPU has both), else [`Isa::Scalar`], where `dot_rows` is correct but slow (a C library
-    /// call per product) and callers keep a faster fallback of their own.
+    /// Dot products as exact fused multiply-add chains ([`dot_rows`]): AVX-512F with AVX2 +
+    /// FMA (8 x 32 tiles), else AVX2 + FMA, else [`Isa::Scalar`], where `dot_rows` is correct
+    /// but slow (a C library call per product) and callers keep a faster fallback of their own.
     pub fn fma_isa(&self) -> Isa {
-        if self.avx2 && self.fma {
+        if self.avx512f && self.avx2 && self.fma {
+            Isa::Avx512
+        } else if self.avx2 && self.fma {
             Isa::Avx2
         } else {
             Isa::Scalar
@@ -146,7 +148,9 @@ pub fn dot_rows(isa: Isa, a: &[f32], d: usize, bt: &[f32], m: usize, out: &mut [
     #[cfg(target_arch = "x86_64")]
     match isa {
         // SAFETY: the CPU supports AVX2 and FMA (fma_isa checked them at run time).
-        Isa::Avx512 | Isa::Avx2 => return unsafe { x86_64_avx2::dot_rows(a, d, bt, m, out) },
+        Isa::Avx512 => return unsafe { x86_64_avx512::dot_rows(a, d, bt, m, out) },
+        // SAFETY: as above (AVX2 and FMA).
+        Isa::Avx2 => return unsafe { x86_64_avx2::dot_rows(a, d, bt, m, out) },
         Isa::Scalar => {}
     }
     let _ = isa;

@@ -37,6 +37,7 @@ mod io_malformed;
 mod kitti07_lidar;
 mod layering;
 mod mast3r_export;
+mod memory_bound;
 mod pandaset_lidar;
 mod pipeline_image;
 mod properties;
