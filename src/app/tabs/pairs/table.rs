@@ -319,6 +319,24 @@ fn rows(
         current_settings,
         id_prefix,
     } = ctx;
+    // ids that share a long start (PandaSet's "ego_000000-world_000040" and "...070") differ
+    // at the end: keep it in view
+    let shared_start = {
+        let mut ids = v
+            .rows
+            .iter()
+            .map(|&i| &v.model.pairs[i].id[id_prefix.len()..]);
+        let first: Vec<char> = ids.next().map(|s| s.chars().collect()).unwrap_or_default();
+        let common = ids.fold(first.len(), |n, id| {
+            first
+                .iter()
+                .zip(id.chars())
+                .take(n)
+                .take_while(|(a, b)| *a == b)
+                .count()
+        });
+        v.rows.len() > 1 && common >= 4
+    };
     for (k, &i) in v.rows.iter().enumerate() {
         let p = &v.model.pairs[i];
         let stale = super::is_stale(p, current_settings);
@@ -330,7 +348,11 @@ fn rows(
             let r = fixed_cell(ui, id_w, row_h, false, |ui| {
                 ui.style_mut().wrap_mode = Some(egui::TextWrapMode::Truncate);
                 let pad = 2.0 * ui.spacing().button_padding.x + 2.0;
-                let shown = keep_end(ui, shown_id, id_w - pad);
+                let shown = if shared_start {
+                    keep_end(ui, shown_id, id_w - pad)
+                } else {
+                    shown_id.to_string()
+                };
                 ui.selectable_label(current, shown).on_hover_text(&p.id)
             });
             for (&c, &w) in v.columns.iter().zip(widths).skip(1) {
