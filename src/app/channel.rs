@@ -176,6 +176,12 @@ pub trait Worker: Send + 'static {
     fn cancel_flag(&self) -> Option<std::sync::Arc<std::sync::atomic::AtomicBool>> {
         None
     }
+    /// Work left for when no command is queued (refining a preview the last command showed):
+    /// one step per call; false when there was none. A queued command goes first, so a slider
+    /// drag shows a preview per value and refines the last one only.
+    fn idle(&mut self, _events: &EventSink) -> bool {
+        false
+    }
 }
 
 /// A worker that only logs what it receives (for a UI without a pipeline).
@@ -238,25 +244,44 @@ pub fn spawn_worker(mut worker: Box<dyn Worker>, ctx: Option<egui::Context>) -> 
     let cancel = worker.cancel_flag();
     let thread = std::thread::Builder::new()
         .name("cgenreg-worker".into())
-        .spawn(move || {
-            while let Ok(first) = cmd_rx.recv() {
-                let mut batch = vec![first];
-                while let Ok(c) = cmd_rx.try_recv() {
-                    batch.retain(|b| !b.coalesces_with(&c));
-                    batch.push(c);
-                }
-                for c in batch {
-                    let desc = format!("{c:?}");
+        .spawn(move || loop {
+            let first = match cmd_rx.try_recv() {
+                Ok(c) => c,
+                Err(TryRecvError::Disconnected) => break,
+                Err(TryRecvError::Empty) => {
+                    let mut did = false;
                     let r = crate::error::catch_panic(|| {
-                        worker.handle(c, &sink);
+                        did = worker.idle(&sink);
                         Ok(())
                     });
                     if let Err(e) = r {
-                        sink.log(
-                            LogLevel::Error,
-                            format!("worker {e} (while handling {desc})"),
-                        );
+                        sink.log(LogLevel::Error, format!("worker {e} (while refining)"));
                     }
+                    if did {
+                        continue;
+                    }
+                    match cmd_rx.recv() {
+                        Ok(c) => c,
+                        Err(_) => break,
+                    }
+                }
+            };
+            let mut batch = vec![first];
+            while let Ok(c) = cmd_rx.try_recv() {
+                batch.retain(|b| !b.coalesces_with(&c));
+                batch.push(c);
+            }
+            for c in batch {
+                let desc = format!("{c:?}");
+                let r = crate::error::catch_panic(|| {
+                    worker.handle(c, &sink);
+                    Ok(())
+                });
+                if let Err(e) = r {
+                    sink.log(
+                        LogLevel::Error,
+                        format!("worker {e} (while handling {desc})"),
+                    );
                 }
             }
         })

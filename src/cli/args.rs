@@ -197,9 +197,7 @@ impl PipelineArgs {
         p.fusion.exact_reference = self.reference;
         p.fusion.prior = self.prior;
         p.estimator = self.estimator.clone();
-        self.preset
-            .or(manifest_preset)
-            .unwrap_or_default()
+        crate::pipeline::manifest_settings::resolve_preset(self.preset, manifest_preset)
             .apply(&mut p);
         self.apply_overrides(&mut p);
         // --reference: SC2-PCR in the authors' score order (their tie-breaking)
@@ -440,34 +438,8 @@ impl ImageArgs {
     }
 }
 
-/// What a data set's manifest sets for its runs unless an option does: its protocol
-/// (`preset`), its scene description (`scene_prompt`) and its geometric features
-/// (`geo_features`).
-#[derive(Clone, Debug, Default, PartialEq)]
-pub struct ManifestSettings {
-    pub preset: Option<Preset>,
-    pub scene_prompt: Option<String>,
-    pub geo_features: Option<DescriptorName>,
-}
-
-impl ManifestSettings {
-    /// The data set's settings.
-    pub fn of(ds: &crate::dataset::manifest::Dataset) -> Self {
-        ManifestSettings {
-            preset: ds.preset,
-            scene_prompt: ds.scene_prompt.clone(),
-            geo_features: ds.geo_features,
-        }
-    }
-
-    /// The settings of pair `id` (its own preset, else the data set's).
-    pub fn of_pair(ds: &crate::dataset::manifest::Dataset, id: &str) -> Self {
-        ManifestSettings {
-            preset: ds.preset_of(id),
-            ..Self::of(ds)
-        }
-    }
-}
+/// What a data set's manifest sets for its runs (the library's one resolution of them).
+pub use crate::pipeline::manifest_settings::ManifestSettings;
 
 #[cfg(test)]
 mod tests {

@@ -68,7 +68,17 @@ pub fn apply_named(
     if has("voxel") {
         p.voxel = given.voxel;
     }
-    if has("learned_source") || has("learned_target") || has("geotransformer_pkl") {
+    if [
+        "learned_source",
+        "learned_target",
+        "geotransformer_pkl",
+        "geo_features",
+        "spinnet_model",
+        "spinnet_keypoints",
+    ]
+    .iter()
+    .any(|id| has(id))
+    {
         p.geo_features = given.geo_features.clone();
     }
     if has("reference") {
@@ -91,6 +101,23 @@ pub fn apply_named(
     }
     if has("estimator") {
         p.estimator = given.estimator.clone();
+    }
+    // the scale options over the protocol (as `register` applies them over its preset)
+    if has("scales") {
+        p.scales = given.scales;
+    }
+    if has("inlier_threshold") {
+        p.inlier_threshold = given.inlier_threshold;
+    }
+    if let (crate::estimate::EstimatorKind::Sc2Pcr(s), crate::estimate::EstimatorKind::Sc2Pcr(gs)) =
+        (&mut p.estimator, &given.estimator)
+    {
+        if has("inlier_threshold") {
+            s.inlier_threshold = gs.inlier_threshold;
+        }
+        if has("d_thre") {
+            s.d_thre = gs.d_thre;
+        }
     }
     let image_named: Vec<&str> = [
         "wfm_dir",
@@ -325,20 +352,42 @@ pub fn demo_manifest() -> PathBuf {
     }
 }
 
+/// The settings `screenshot` runs `pair` of `manifest` with: what the manifest names for the
+/// pair (preset, scene description, geometric features) unless an option names its own, the
+/// settings `register --manifest --pair` runs it with.
+pub fn screenshot_params(
+    manifest: Option<&Path>,
+    pair: Option<&str>,
+    pipeline: &PipelineArgs,
+    image: &ImageArgs,
+) -> Result<RegisterParams> {
+    let settings = match manifest {
+        Some(m) => manifest_settings(m, pair)?,
+        None => ManifestSettings::default(),
+    };
+    Ok(image.params_and_cache_for(pipeline, &settings)?.0)
+}
+
 fn open(
     manifest: Option<&Path>,
     pair: Option<&str>,
     pipeline: &PipelineArgs,
     image: &ImageArgs,
 ) -> Result<(PipelineWorker, String)> {
-    // what the manifest names (preset, scene description, geometric features), unless an
-    // option names its own
-    let settings = match manifest {
-        Some(m) => ManifestSettings::of(&crate::dataset::manifest::Dataset::load(m)?),
-        None => ManifestSettings::default(),
-    };
-    let (params, _) = image.params_and_cache_for(pipeline, &settings)?;
+    let params = screenshot_params(manifest, pair, pipeline, image)?;
     open_with(manifest, pair, params, image)
+}
+
+/// What the manifest at `path` names for `pair` (its first pair when None): the settings
+/// `register --manifest --pair` resolves, through the same function.
+pub fn manifest_settings(path: &Path, pair: Option<&str>) -> Result<ManifestSettings> {
+    let ds = crate::dataset::manifest::Dataset::load(path)?;
+    Ok(
+        match pair.or_else(|| ds.pairs().first().map(|p| p.id.as_str())) {
+            Some(id) => ManifestSettings::of_pair(&ds, id),
+            None => ManifestSettings::of(&ds),
+        },
+    )
 }
 
 fn open_with(
@@ -388,15 +437,44 @@ fn default_args() -> (PipelineArgs, ImageArgs) {
     (p.p, p.i)
 }
 
-/// The settings `inspect` starts with: the saved ones (else the paper's defaults) with each
-/// option named on the command line replacing its own setting.
+/// The settings `inspect` starts with: the saved ones (else the paper's defaults), under the
+/// protocol of the data opened (`manifest`: `--preset` when named, else what the manifest names
+/// for the pair, else indoor, as `register` resolves it), with each option named on the command
+/// line replacing its own setting. The notice says when the protocol changed.
 pub fn inspect_settings(
     saved: Option<&RegisterParams>,
     pipeline: &PipelineArgs,
     image: &ImageArgs,
     named: &[String],
-) -> Result<RegisterParams> {
-    let base = saved.cloned().unwrap_or_else(crate::app::paper_defaults);
+    manifest: Option<(&str, &ManifestSettings)>,
+) -> Result<(RegisterParams, Option<String>)> {
+    let mut base = saved.cloned().unwrap_or_else(crate::app::paper_defaults);
+    let notice = match (
+        named.iter().any(|n| n == "preset"),
+        pipeline.preset,
+        manifest,
+    ) {
+        (true, Some(pr), _) => {
+            pr.apply(&mut base);
+            None
+        }
+        (_, _, Some((what, m))) => {
+            crate::pipeline::manifest_settings::adopt_preset(&mut base, what, m)
+        }
+        _ => None,
+    };
+    // the geometric features and the scene the manifest names, as `register` and Open… take
+    // them (a named option replaces them below)
+    if let Some(g) = manifest.and_then(|(_, m)| m.geo_features) {
+        base.geo_features = crate::pipeline::params::GeoFeatureSource::from(g);
+    }
+    let scene = manifest.and_then(|(_, m)| m.scene_prompt.as_deref());
+    if let (Some(ib), Some(scene)) = (base.image.as_mut(), scene) {
+        let default = crate::wfm::PromptPreset::SceneSpecific.default_scene();
+        if ib.prompt.scene.trim() == default.trim() {
+            ib.prompt.scene = scene.to_owned();
+        }
+    }
     let mut given = pipeline.to_params(image.wfm.is_some(), None);
     given.image = image.to_image_params()?;
     // the image options' values even without --wfm (they then change the saved branch)
@@ -405,7 +483,7 @@ pub fn inspect_settings(
         with_wfm.wfm = Some(crate::pipeline::params::WfmSpec::Builtin);
     }
     let given_image = with_wfm.to_image_params()?.unwrap_or_default();
-    apply_named(&base, &given, &given_image, named)
+    Ok((apply_named(&base, &given, &given_image, named)?, notice))
 }
 
 pub fn run_inspect(a: InspectArgs) -> Result<()> {
@@ -417,7 +495,33 @@ pub fn run_inspect(a: InspectArgs) -> Result<()> {
         .as_deref()
         .filter(|p| p.is_file())
         .map(|p| crate::app::load_persisted(p).0.params);
-    let params = inspect_settings(saved.as_ref(), &pipeline, &image, &a.named)?;
+    // the data opened now: a manifest, or the demo (not at a relaunch that reopens the data of
+    // last time: that open resolves its protocol, as Open… does)
+    let reopens = a.manifest.is_none()
+        && !a.demo
+        && matches!(
+            crate::app::startup_commands(settings_path.as_deref(), "")[..],
+            [Command::OpenOrFallback { .. }]
+        );
+    let opened = match &a.manifest {
+        Some(m) => Some(m.clone()),
+        None if !reopens => Some(demo_manifest()),
+        None => None,
+    };
+    let ms = match &opened {
+        Some(m) => Some((
+            m.display().to_string(),
+            manifest_settings(m, a.pair.as_deref())?,
+        )),
+        None => None,
+    };
+    let (params, notice) = inspect_settings(
+        saved.as_ref(),
+        &pipeline,
+        &image,
+        &a.named,
+        ms.as_ref().map(|(w, m)| (w.as_str(), m)),
+    )?;
     let (mut worker, id) = open_with(a.manifest.as_deref(), a.pair.as_deref(), params, &image)?;
     if a.manifest.is_none() {
         // the bundled demo runs under its own protocol (8 frames per sequence); other data
@@ -436,6 +540,9 @@ pub fn run_inspect(a: InspectArgs) -> Result<()> {
     let worker_settings = Some(worker.params().clone());
     let compare = a.compare.map(|v| (v[0].clone(), v[1].clone()));
     crate::app::run_gui_configured(model, Box::new(worker), initial, worker_settings, |app| {
+        if let Some(n) = notice {
+            app.push_log(crate::app::LogLevel::Warn, n);
+        }
         if let Some((x, y)) = compare {
             app.compare_runs(x, y);
         }

@@ -14,6 +14,7 @@ pub mod export;
 pub mod geo;
 pub mod hypotheses;
 pub mod image_branch;
+pub mod manifest_settings;
 pub mod memo;
 pub mod pair_loop;
 pub mod params;

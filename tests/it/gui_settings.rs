@@ -46,7 +46,7 @@ fn inspect_settings(
     // an Option of flattened options is None when none of them is given
     let (dp, di) = default_args();
     let (p, i) = (a.pipeline.unwrap_or(dp), a.image.unwrap_or(di));
-    cgenreg::cli::gui::inspect_settings(saved, &p, &i, &named)
+    cgenreg::cli::gui::inspect_settings(saved, &p, &i, &named, None).map(|(p, _)| p)
 }
 
 #[derive(clap::Parser)]

@@ -400,6 +400,15 @@ pub struct InspectorModel {
     pub fusion_note: Option<String>,
     /// The estimator's ranked hypotheses (computed on demand by the hypothesis browser).
     pub hypotheses: Option<HypothesisList>,
+    /// How the shown result is judged: its criterion and the run's second one, with the outcome
+    /// under each ("success (RRE ≤ 5°, RTE ≤ 2 m); also RRE ≤ 5°, RTE ≤ 0.6 m: fails").
+    pub criteria_note: Option<String>,
+    /// A scale search's hypotheses (voxel, V, the one kept): shown beside the metrics and in the
+    /// Hypotheses tab.
+    pub scale_note: Option<String>,
+    /// Set on a fast answer shown while the settings' own result is computed (a temperature
+    /// change under the visibility rule): what it is; the refined model clears it.
+    pub preview_note: Option<String>,
     /// What actually ran for the shown result ("geometry (FPFH) + image (oracle, XFeat)"):
     /// the pair's header shows it next to the settings asked for.
     pub branches_ran: Option<String>,
@@ -435,6 +444,9 @@ impl Default for InspectorModel {
             convention_warning: None,
             fusion_note: None,
             hypotheses: None,
+            criteria_note: None,
+            scale_note: None,
+            preview_note: None,
             branches_ran: None,
             settings: None,
             demo_protocol: None,

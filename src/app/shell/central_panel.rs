@@ -7,6 +7,9 @@ impl App {
     pub(super) fn central_panel(&mut self, ui: &mut egui::Ui, commands: &mut Vec<Command>) {
         self.tab_bar(ui);
         self.pair_header(ui);
+        if let Some(p) = &self.model.preview_note {
+            ui.colored_label(controls::STATUS_WARN, p);
+        }
         if let Some(w) = &self.model.convention_warning {
             // next to the metrics: the GT they are computed against may be inverted
             ui.colored_label(egui::Color32::from_rgb(240, 150, 60), w);
@@ -14,6 +17,10 @@ impl App {
         if let Some(f) = &self.model.fusion_note {
             // which branch's pose the result is, and why
             ui.label(f);
+        }
+        if let Some(s) = &self.model.scale_note {
+            // which scale hypothesis the result is, and each one's V
+            ui.label(s);
         }
         ui.separator();
         self.current_tab(ui, commands);
@@ -31,6 +38,9 @@ impl App {
                     ui.label(egui::RichText::new(&p.id).strong());
                     if let (Some(r), Some(t)) = (p.rre_deg, p.rte_m) {
                         ui.label(format!("RRE {r:.2}° · RTE {:.1} cm", t * 100.0));
+                    }
+                    if let Some(c) = &self.model.criteria_note {
+                        ui.weak(c);
                     }
                 }
             }

@@ -49,6 +49,13 @@ fn hypotheses_panel(
         shared.commands.push(Command::Hypotheses);
         state.asked_for = Some(shared.model_gen);
     }
+    if let Some(s) = &model.scale_note {
+        // a scale search: the estimator's hypotheses below are those of the voxel kept
+        ui.label(format!(
+            "{s}; the estimator's hypotheses below are those of the voxel kept"
+        ));
+        ui.separator();
+    }
     let list_w = 360.0_f32.min(ui.available_width() * 0.45);
     ui.horizontal_top(|ui| {
         ui.vertical(|ui| {

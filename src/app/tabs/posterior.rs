@@ -90,12 +90,15 @@ pub fn value_rgb(v: f32, kind: PosteriorKind) -> [u8; 3] {
 }
 
 /// A candidate counts as the ground truth within the run's inlier threshold.
-fn near_gt(model: &InspectorModel, cand: usize, gt: usize) -> bool {
-    let r = model.gt_inlier_m as f32;
-    match (model.target.get(cand), model.target.get(gt)) {
-        (Some(a), Some(b)) => (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f32>() < r * r,
-        _ => cand == gt,
-    }
+/// Whether target point `cand` is where the ground truth puts source point `src` (within the
+/// run's GT inlier distance): the test a match's GT inlier flag uses, so a match and its
+/// argmax are never called both "fails under GT" and "at GT". None without ground truth.
+fn near_gt(model: &InspectorModel, src: usize, cand: usize) -> Option<bool> {
+    let g = model.ground_truth?;
+    let (s, t) = (model.source.get(src)?, model.target.get(cand)?);
+    let p = g.cast::<f32>() * nalgebra::Point3::new(s[0], s[1], s[2]);
+    let d = (p - nalgebra::Point3::new(t[0], t[1], t[2])).norm();
+    Some(f64::from(d) <= model.gt_inlier_m)
 }
 
 fn argmax(v: &[f32]) -> Option<usize> {
@@ -373,26 +376,21 @@ pub fn posterior_panel(
             ("fused", &p.fused),
         ] {
             if let Some(i) = argmax(row) {
-                let hit = p
-                    .gt_target
-                    .is_some_and(|g| near_gt(model, p.candidates[i], g));
+                let hit = near_gt(model, p.source_point, p.candidates[i]);
                 ui.separator();
-                ui.colored_label(
-                    if hit {
-                        egui::Color32::from_rgb(90, 210, 110)
-                    } else {
-                        egui::Color32::from_rgb(240, 80, 70)
-                    },
-                    format!(
-                        "{name} argmax #{} {}",
-                        p.candidates[i],
-                        if hit {
-                            format!("at GT (< {})", model.gt_inlier_label())
-                        } else {
-                            "off GT".to_string()
-                        }
+                let r = model.gt_inlier_label();
+                let (color, what) = match hit {
+                    Some(true) => (
+                        egui::Color32::from_rgb(90, 210, 110),
+                        format!("GT inlier (within {r} of GT)"),
                     ),
-                );
+                    Some(false) => (
+                        egui::Color32::from_rgb(240, 80, 70),
+                        format!("fails under GT (> {r} off)"),
+                    ),
+                    None => (ui.visuals().text_color(), "no GT".to_string()),
+                };
+                ui.colored_label(color, format!("{name} argmax #{} {what}", p.candidates[i]));
             }
         }
         ui.separator();

@@ -4,7 +4,7 @@ use std::sync::Arc;
 
 use nalgebra::Point3;
 
-use super::{apply, point3, rgba, CloudColorMode, OCCLUDED_RGB, RESIDUAL_CAP_M, VISIBLE_RGB};
+use super::{apply, point3, rgba, CloudColorMode, OCCLUDED_RGB, VISIBLE_RGB};
 use crate::app::colormap::{self, NEUTRAL_RGB, SOURCE_RGB, TARGET_RGB};
 use crate::app::model::{Branch, InspectorModel};
 use crate::app::state::MatchColorMode;
@@ -125,14 +125,15 @@ pub fn cloud_colors(
                 (&model.target, &model.source, t.inverse())
             };
             let index = KdIndex::new(&to.iter().map(|p| point3(*p)).collect::<Vec<_>>());
+            let cap = super::residual_cap_m(model);
             use rayon::prelude::*;
             from.par_iter()
                 .map(|p| {
                     // no point in the other cloud: as far as the colormap goes
                     let d = index
                         .nearest(&point3(apply(&xf, *p)))
-                        .map_or(RESIDUAL_CAP_M, |(_, d)| d.min(RESIDUAL_CAP_M));
-                    rgba(colormap::turbo(d / RESIDUAL_CAP_M))
+                        .map_or(cap, |(_, d)| d.min(cap));
+                    rgba(colormap::turbo(d / cap))
                 })
                 .collect()
         }

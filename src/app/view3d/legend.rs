@@ -2,7 +2,7 @@
 
 use eframe::egui;
 
-use super::{CloudColorMode, View3dPrefs, OCCLUDED_RGB, RESIDUAL_CAP_M, VISIBLE_RGB};
+use super::{CloudColorMode, View3dPrefs, OCCLUDED_RGB, VISIBLE_RGB};
 use crate::app::colormap::{quantile_value, to_color32, turbo, INLIER_RGB, OUTLIER_RGB};
 use crate::app::model::{Branch, InspectorModel};
 use crate::app::state::MatchColorMode;
@@ -154,7 +154,7 @@ impl ColorBar {
 
 /// The colour bar of a cloud colour mode, None for discrete modes.
 pub fn cloud_bar(model: &InspectorModel, mode: CloudColorMode, who: &str) -> Option<ColorBar> {
-    let cap_cm = RESIDUAL_CAP_M * 100.0;
+    let cap_cm = super::residual_cap_m(model) * 100.0;
     let residual = |what: &str| {
         let key =
             format!("residual under the {what}: distance to the nearest point of the other cloud");

@@ -67,8 +67,19 @@ impl CloudColorMode {
 pub const VISIBLE_RGB: [u8; 3] = [90, 235, 110];
 pub const OCCLUDED_RGB: [u8; 3] = [235, 90, 70];
 
-/// Residuals saturate the colormap at this distance (metres).
+/// Residuals saturate the colormap at this distance (metres) when a model names no GT inlier distance.
 pub const RESIDUAL_CAP_M: f32 = 0.1;
+
+/// The residual colour scale's top for `model`: the run's GT inlier distance (10 cm at the indoor
+/// voxel, 60 cm outdoors), so a good LiDAR result is not all at the top of a 10 cm scale.
+pub fn residual_cap_m(model: &InspectorModel) -> f32 {
+    let t = model.gt_inlier_m as f32;
+    if t.is_finite() && t > 0.0 {
+        t
+    } else {
+        RESIDUAL_CAP_M
+    }
+}
 
 /// Persisted options of the 3D panel.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

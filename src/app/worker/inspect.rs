@@ -163,6 +163,12 @@ impl PipelineWorker {
             .current
             .as_mut()
             .ok_or_else(|| crate::Error::Missing("no registered pair".into()))?;
+        // a scale search's result is the kept hypothesis's registration: its estimator ran at
+        // that voxel
+        let params = match &cur.result.scales {
+            Some(s) => crate::pipeline::scales::hypothesis_params(&params, s.chosen_voxel),
+            None => params,
+        };
         let list = match crate::pipeline::hypotheses::estimator_hypotheses(
             &cur.result,
             &params,

@@ -23,6 +23,7 @@ mod compare_run;
 mod inspect;
 mod model_build;
 mod open;
+mod preview;
 mod run_all;
 mod session;
 mod study;
@@ -134,6 +135,12 @@ pub struct PipelineWorker {
     /// While the bundled demo is open under its own protocol ([`demo_protocol`]): the user's
     /// settings it replaced, restored when other data is opened.
     demo_user: Option<RegisterParams>,
+    /// The pair last asked for, kept when its run fails (an error row): the generator, a
+    /// geometry-only run and every settings change still run it.
+    selected: Option<String>,
+    /// The pair whose preview is shown and whose settings' own result is still to compute
+    /// (when no command is queued: [`Worker::idle`]).
+    refine: Option<String>,
 }
 
 /// The bundled demo's protocol: its sequences have 8 frames, so L = 8, m = 1 and K = 2 views
@@ -226,6 +233,8 @@ impl PipelineWorker {
             cancel: Arc::default(),
             invalidated: None,
             demo_user: None,
+            selected: None,
+            refine: None,
         }
     }
 
@@ -301,6 +310,35 @@ impl PipelineWorker {
         self.demo_user = Some(user);
     }
 
+    /// The pair shown: the one registered, else the one last asked for (its run failed).
+    pub fn selected_pair(&self) -> Option<String> {
+        self.current
+            .as_ref()
+            .map(|c| c.result.pair_id.clone())
+            .or_else(|| self.selected.clone())
+    }
+
+    /// Pair `id` under the protocol its manifest names, when that differs from the previous
+    /// pair's (a pair with its own `preset`): resolved as `register` resolves it, saying so.
+    fn follow_pair_preset(&mut self, id: &str, events: &EventSink) {
+        let prev = self.selected_pair();
+        let (now, before) = (
+            self.dataset.preset_of(id),
+            prev.as_deref().and_then(|p| self.dataset.preset_of(p)),
+        );
+        if prev.is_none() || now == before {
+            return;
+        }
+        let ms = crate::pipeline::manifest_settings::ManifestSettings::of_pair(&self.dataset, id);
+        let what = format!("pair {id}");
+        if let Some(n) =
+            crate::pipeline::manifest_settings::adopt_preset(&mut self.params, &what, &ms)
+        {
+            events.log(LogLevel::Warn, n);
+            events.send(WorkerEvent::Settings(Box::new(self.params.clone())));
+        }
+    }
+
     /// Whether the demo's protocol is in force.
     pub fn demo_protocol_active(&self) -> bool {
         self.demo_user.is_some()
@@ -317,9 +355,29 @@ impl Worker for PipelineWorker {
         Some(self.cancel.clone())
     }
 
+    fn idle(&mut self, events: &EventSink) -> bool {
+        self.refine(events)
+    }
+
     fn handle(&mut self, command: Command, events: &EventSink) {
+        // a preview's refinement: dropped by what replaces it (new settings, another pair or
+        // data), finished before anything that reads the result
+        match &command {
+            Command::ApplySettings(_)
+            | Command::SelectPair(_)
+            | Command::OpenPairWith { .. }
+            | Command::Open { .. }
+            | Command::OpenOrFallback { .. } => self.refine = None,
+            Command::Cancel => {}
+            _ => {
+                self.refine(events);
+            }
+        }
         match command {
-            Command::SelectPair(id) => self.run_and_report(&id, true, events),
+            Command::SelectPair(id) => {
+                self.follow_pair_preset(&id, events);
+                self.run_and_report(&id, true, events)
+            }
             Command::OpenPairWith { pair, params } => {
                 self.params = params;
                 self.run_and_report(&pair, true, events);
@@ -333,10 +391,14 @@ impl Worker for PipelineWorker {
                     *user = user_settings_under_demo(user, &s);
                 }
                 self.params = s;
-                let Some(id) = self.current.as_ref().map(|c| c.result.pair_id.clone()) else {
+                let Some(id) = self.selected_pair() else {
                     events.log(LogLevel::Info, "settings stored; no pair selected yet");
                     return;
                 };
+                // under the visibility rule: the fast answer first, refined when idle
+                if self.send_preview(&id, events) {
+                    return;
+                }
                 let t = Instant::now();
                 match self.refuse_from_memory() {
                     Some(r) => self.report(&id, t, r, "re-fuse from memory", events),
@@ -385,7 +447,7 @@ impl Worker for PipelineWorker {
                         "the prompt changed since the request; generating for the prompt in the editor",
                     );
                 }
-                match self.current.as_ref().map(|c| c.result.pair_id.clone()) {
+                match self.selected_pair() {
                     Some(id) => {
                         events.log(
                             LogLevel::Info,

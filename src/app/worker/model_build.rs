@@ -249,11 +249,29 @@ pub fn result_to_model(
         convention_warning: result.convention.as_ref().and_then(|c| c.warning.clone()),
         fusion_note: result.fusion_provenance(),
         hypotheses: None,
+        criteria_note: result.metrics.as_ref().map(criteria_note),
+        scale_note: result.scales.as_ref().map(|s| s.provenance()),
+        preview_note: None,
         branches_ran: None,
         settings: None,
         demo_protocol: None,
         scene_prompt: None,
     }
+}
+
+/// "success (RRE ≤ 5°, RTE ≤ 2 m); also RRE ≤ 5°, RTE ≤ 0.6 m: fails": the result's outcome
+/// under the run's criterion and its second one, as `register` prints them.
+pub fn criteria_note(m: &crate::metrics::PairMetrics) -> String {
+    let word = |ok: bool| if ok { "success" } else { "fails" };
+    let mut s = format!("{} ({})", word(m.success), m.criterion.label());
+    if let Some(a) = &m.also {
+        s.push_str(&format!(
+            "; also {}: {}",
+            a.criterion.label(),
+            word(a.success)
+        ));
+    }
+    s
 }
 
 /// The views of both scans as the model shows them (generated image, depth frame, visibility

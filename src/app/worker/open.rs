@@ -11,8 +11,9 @@ use crate::app::channel::{EventSink, LogLevel, WorkerEvent};
 use crate::cache::Cache;
 use crate::dataset::manifest::Dataset;
 use crate::dataset::ScanPair;
+use crate::pipeline::manifest_settings::{adopt_preset, ManifestSettings};
 use crate::pipeline::params::cosmos_output_settings;
-use crate::pipeline::WfmSpec;
+use crate::pipeline::{RegisterParams, WfmSpec};
 use crate::wfm::PromptPreset;
 
 impl PipelineWorker {
@@ -113,15 +114,63 @@ impl PipelineWorker {
         self.params = s.clone();
         events.send(WorkerEvent::Settings(Box::new(s)));
         let id = self
-            .current
-            .as_ref()
-            .map(|c| c.result.pair_id.clone())
+            .selected_pair()
             .or_else(|| self.pairs.first().map(|p| p.id.clone()));
         match id {
             Some(id) => self.run_and_report(&id, true, events),
             None => events.log(LogLevel::Warn, "the dataset lists no pairs"),
         }
         true
+    }
+
+    /// The settings the data `d` (named `what`) open with, from those in force, and the notices
+    /// saying what changed: the protocol the manifest names for the first pair (indoor when
+    /// none), resolved as `register` resolves it, so a preset chosen on other data is replaced
+    /// (the Scale & success controls follow; edit them after); the geometric features it
+    /// names; a scene-specific prompt that described the previous data's scene describes its.
+    pub fn settings_for(
+        &self,
+        d: &Dataset,
+        what: &str,
+    ) -> (RegisterParams, Vec<(LogLevel, String)>) {
+        let mut p = self.params.clone();
+        let mut notices = Vec::new();
+        let ms = match d.pairs().first() {
+            Some(pair) => ManifestSettings::of_pair(d, &pair.id),
+            None => ManifestSettings::of(d),
+        };
+        if let Some(n) = adopt_preset(&mut p, what, &ms) {
+            notices.push((LogLevel::Warn, n));
+        }
+        if let Some(g) = ms.geo_features {
+            if p.geo_features.descriptor() != Some(g) {
+                p.geo_features = crate::pipeline::params::GeoFeatureSource::from(g);
+                notices.push((
+                    LogLevel::Warn,
+                    format!(
+                        "{what} names its geometric features: {} (Settings, \u{201c}Geometric \
+                         features\u{201d})",
+                        g.name()
+                    ),
+                ));
+            }
+        }
+        let scene_of = |ds: &Dataset| {
+            ds.scene_prompt
+                .clone()
+                .unwrap_or_else(|| PromptPreset::SceneSpecific.default_scene().to_owned())
+        };
+        let (old_scene, new_scene) = (scene_of(&self.dataset), scene_of(d));
+        if let Some(ib) = p.image.as_mut() {
+            if ib.prompt.scene.trim() == old_scene.trim() && old_scene != new_scene {
+                ib.prompt.scene = new_scene;
+                notices.push((
+                    LogLevel::Info,
+                    format!("{what}: the scene-specific prompt now describes its scene"),
+                ));
+            }
+        }
+        (p, notices)
     }
 
     fn replace_dataset(
@@ -148,60 +197,13 @@ impl PipelineWorker {
                 events.send(WorkerEvent::Settings(Box::new(self.params.clone())));
             }
         }
-        // a data set whose manifest names a preset opens under it, as `gui MANIFEST` and
-        // `bench MANIFEST` do (the Scale & success controls follow; edit them after)
-        if let Some(pr) = d.preset {
-            if crate::pipeline::params::Preset::of(&self.params) != Some(pr) {
-                pr.apply(&mut self.params);
-                events.log(
-                    LogLevel::Warn,
-                    format!(
-                        "{what} names the {} preset: voxel {} m, every distance following it, \
-                         success {} (Settings, “Scale & success”)",
-                        pr.label(),
-                        pr.voxel(),
-                        self.params.success.primary.label()
-                    ),
-                );
-                events.send(WorkerEvent::Settings(Box::new(self.params.clone())));
+        let (params, notices) = self.settings_for(&d, what);
+        if params != self.params {
+            for (level, n) in notices {
+                events.log(level, n);
             }
-        }
-        // a data set whose manifest names its geometric features opens with them, as
-        // `gui MANIFEST` and `bench MANIFEST` do (the Geometric features control follows)
-        if let Some(g) = d.geo_features {
-            if self.params.geo_features.descriptor() != Some(g) {
-                self.params.geo_features = crate::pipeline::params::GeoFeatureSource::from(g);
-                events.log(
-                    LogLevel::Warn,
-                    format!(
-                        "{what} names its geometric features: {} (Settings, \u{201c}Geometric \
-                         features\u{201d})",
-                        g.name()
-                    ),
-                );
-                events.send(WorkerEvent::Settings(Box::new(self.params.clone())));
-            }
-        }
-        // "scene-specific" means this data set's scene: a prompt that is the previous data
-        // set's scene-specific text (or the pipeline's) follows the new data set's
-        let old_scene = self
-            .dataset
-            .scene_prompt
-            .clone()
-            .unwrap_or_else(|| PromptPreset::SceneSpecific.default_scene().to_owned());
-        let new_scene = d
-            .scene_prompt
-            .clone()
-            .unwrap_or_else(|| PromptPreset::SceneSpecific.default_scene().to_owned());
-        if let Some(ib) = self.params.image.as_mut() {
-            if ib.prompt.scene.trim() == old_scene.trim() && old_scene != new_scene {
-                ib.prompt.scene = new_scene;
-                events.log(
-                    LogLevel::Info,
-                    format!("{what}: the scene-specific prompt now describes its scene"),
-                );
-                events.send(WorkerEvent::Settings(Box::new(self.params.clone())));
-            }
+            self.params = params;
+            events.send(WorkerEvent::Settings(Box::new(self.params.clone())));
         }
         let params = self.params.clone();
         let cache = self.cache.take();

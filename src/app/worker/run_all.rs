@@ -233,7 +233,12 @@ impl PipelineWorker {
                 c.model.pairs = pairs;
                 c.model.clone()
             }
+            // after an error row the pair stays selected
             None => InspectorModel {
+                current_pair: self
+                    .selected
+                    .as_ref()
+                    .and_then(|id| pairs.iter().position(|p| &p.id == id)),
                 pairs,
                 ..Default::default()
             },

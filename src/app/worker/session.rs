@@ -187,8 +187,9 @@ impl PipelineWorker {
                 (Err(e), Some(ib)) => {
                     return Err(crate::Error::Invalid(format!(
                         "the image branch cannot run for {id} (WFM: {}): {e}; nothing \
-                         was registered (“Run geometry only” runs the geometric branch alone)",
-                        ib.backend.label()
+                         was registered (“Run geometry only” runs the geometric branch alone){}",
+                        ib.backend.label(),
+                        virtual_camera_hint(pair, ib)
                     )))
                 }
             };
@@ -473,6 +474,7 @@ impl PipelineWorker {
     }
 
     pub(super) fn run_and_report(&mut self, id: &str, generate: bool, events: &EventSink) {
+        self.selected = Some(id.to_string());
         events.send(WorkerEvent::Stage(StageInfo {
             name: "load + register".into(),
             stage: None,
@@ -512,6 +514,26 @@ pub fn branches_ran(
         ),
         (None, Some(_)) => format!("ran: {geo} only — the image branch asked for did not run"),
         (None, None) => format!("ran: {geo} only (image branch off)"),
+    }
+}
+
+/// Where it matters, what the virtual camera choice does: a point-cloud-only scan without
+/// intensity (KITTI's downsampled xyz scans) gets the pinhole camera under `auto`, which LiDAR
+/// needs replaced by f-theta.
+fn virtual_camera_hint(
+    pair: &ScanPair,
+    ib: &crate::pipeline::params::ImageBranchParams,
+) -> &'static str {
+    use crate::pipeline::params::VirtualCamera;
+    let xyz_only = |s: &crate::dataset::Scan| s.frames.is_none() && s.cloud.intensity.is_none();
+    if ib.virtual_camera == VirtualCamera::Auto
+        && (xyz_only(&pair.source) || xyz_only(&pair.target))
+    {
+        "; a scan is a point cloud without intensity, so “auto” renders it with the pinhole \
+         camera: for LiDAR (e.g. KITTI's xyz scans) choose the f-theta virtual camera (Views, \
+         “Virtual camera”, or --virtual-camera ftheta)"
+    } else {
+        ""
     }
 }
 

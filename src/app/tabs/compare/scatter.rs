@@ -78,7 +78,16 @@ pub(super) fn scatter(ui: &mut egui::Ui, st: &mut CompareTab, rows: &[usize], si
         .map(|(p, x, y)| (p, axis_value(x, log), axis_value(y, log)))
         .collect();
     let unplotted = rows.len() - pts.len();
-    let thr = axis_value(crate::metrics::RECALL_RRE_DEG, log);
+    // the runs' own criterion (an outdoor run: 5° / 2 m), not 3DMatch's
+    let crit_of = |r: &super::load::LoadedRun| {
+        r.params
+            .as_ref()
+            .map(|p| p.success.primary)
+            .unwrap_or_default()
+    };
+    let (crit, crit_b) = (crit_of(&l.a), crit_of(&l.b));
+    let thr_label = format!("{} deg (success)", crit.max_rre_deg);
+    let thr = axis_value(crit.max_rre_deg, log);
     let (mut lo, mut hi) = (thr, thr);
     for &(_, x, y) in &pts {
         lo = lo.min(x).min(y);
@@ -116,13 +125,13 @@ pub(super) fn scatter(ui: &mut egui::Ui, st: &mut CompareTab, rows: &[usize], si
         );
         let thr_color = egui::Color32::from_rgb(230, 190, 60);
         p.vline(
-            VLine::new("15 deg (success)", thr)
+            VLine::new(thr_label.clone(), thr)
                 .color(thr_color)
                 .style(LineStyle::dashed_loose())
                 .allow_hover(false),
         );
         p.hline(
-            HLine::new("15 deg (success)", thr)
+            HLine::new(thr_label.clone(), thr)
                 .color(thr_color)
                 .style(LineStyle::dashed_loose())
                 .allow_hover(false),
@@ -191,8 +200,13 @@ pub(super) fn scatter(ui: &mut egui::Ui, st: &mut CompareTab, rows: &[usize], si
         ));
     }
     ui.weak(format!(
-        "success: RRE <= {} deg and RTE <= {} cm",
-        crate::metrics::RECALL_RRE_DEG,
-        crate::metrics::RECALL_RTE_M * 100.0
+        "success (run A's criterion): RRE <= {} deg and RTE <= {} cm{}",
+        crit.max_rre_deg,
+        crit.max_rte_m * 100.0,
+        if crit_b == crit {
+            String::new()
+        } else {
+            format!("; run B judges by {}", crit_b.label())
+        }
     ));
 }

@@ -261,6 +261,39 @@ pub fn table(
     }
 }
 
+/// `text` as it fits `w` points: whole, else "…" and its end (ids that share a long start,
+/// like PandaSet's "ego_000000-world_000040" and "…070", differ at the end).
+fn keep_end(ui: &egui::Ui, text: &str, w: f32) -> String {
+    let font = egui::TextStyle::Button.resolve(ui.style());
+    let width = |t: &str| {
+        ui.ctx().fonts_mut(|f| {
+            f.layout_no_wrap(t.to_string(), font.clone(), egui::Color32::WHITE)
+                .size()
+                .x
+        })
+    };
+    if width(text) <= w {
+        return text.to_string();
+    }
+    let chars: Vec<char> = text.chars().collect();
+    // the longest end that fits after the ellipsis (binary search on its length)
+    let (mut lo, mut hi) = (0usize, chars.len());
+    while lo < hi {
+        let mid = (lo + hi).div_ceil(2);
+        let t: String = std::iter::once('…')
+            .chain(chars[chars.len() - mid..].iter().copied())
+            .collect();
+        if width(&t) <= w {
+            lo = mid;
+        } else {
+            hi = mid - 1;
+        }
+    }
+    std::iter::once('…')
+        .chain(chars[chars.len() - lo..].iter().copied())
+        .collect()
+}
+
 /// The narrowest the pair column gets in a table that does not scroll sideways.
 const MIN_ID_WIDTH: f32 = 80.0;
 
@@ -286,6 +319,24 @@ fn rows(
         current_settings,
         id_prefix,
     } = ctx;
+    // ids that share a long start (PandaSet's "ego_000000-world_000040" and "...070") differ
+    // at the end: keep it in view
+    let shared_start = {
+        let mut ids = v
+            .rows
+            .iter()
+            .map(|&i| &v.model.pairs[i].id[id_prefix.len()..]);
+        let first: Vec<char> = ids.next().map(|s| s.chars().collect()).unwrap_or_default();
+        let common = ids.fold(first.len(), |n, id| {
+            first
+                .iter()
+                .zip(id.chars())
+                .take(n)
+                .take_while(|(a, b)| *a == b)
+                .count()
+        });
+        v.rows.len() > 1 && common >= 4
+    };
     for (k, &i) in v.rows.iter().enumerate() {
         let p = &v.model.pairs[i];
         let stale = super::is_stale(p, current_settings);
@@ -296,7 +347,13 @@ fn rows(
             let id_w = widths.first().copied().unwrap_or(120.0);
             let r = fixed_cell(ui, id_w, row_h, false, |ui| {
                 ui.style_mut().wrap_mode = Some(egui::TextWrapMode::Truncate);
-                ui.selectable_label(current, shown_id).on_hover_text(&p.id)
+                let pad = 2.0 * ui.spacing().button_padding.x + 2.0;
+                let shown = if shared_start {
+                    keep_end(ui, shown_id, id_w - pad)
+                } else {
+                    shown_id.to_string()
+                };
+                ui.selectable_label(current, shown).on_hover_text(&p.id)
             });
             for (&c, &w) in v.columns.iter().zip(widths).skip(1) {
                 fixed_cell(ui, w, row_h, is_number(c), |ui| match c {
@@ -319,7 +376,8 @@ fn rows(
             );
         }
         let r = row.inner;
-        if r.clicked() && !current {
+        // the current row runs again when it is an error row (after a settings change)
+        if r.clicked() && (!current || matches!(p.status, PairStatus::Failed(_))) {
             out.push(Command::SelectPair(p.id.clone()));
         }
         if current && scrolled.as_deref() != Some(p.id.as_str()) {

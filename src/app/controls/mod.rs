@@ -6,6 +6,8 @@ use std::path::PathBuf;
 
 use eframe::egui;
 
+mod scale;
+
 use super::channel::Command;
 use crate::estimate::scale::{
     Metres, Scaled, LIFT_RADIUS_PER_VOXEL, RANSAC_PER_VOXEL, THRESHOLD_PER_VOXEL,
@@ -18,6 +20,7 @@ use crate::pipeline::params::{
 };
 use crate::vfm::VfmSpec;
 use crate::wfm::PromptPreset;
+use scale::scale_controls;
 
 /// k of top-k selection when the inspector switches to it (the reference's 8000).
 pub const DEFAULT_TOPK: usize = crate::fusion::select::REFERENCE_TOP_K;
@@ -32,9 +35,12 @@ fn choice<T: Clone>(
     same: impl Fn(&T, &T) -> bool,
     text: impl Fn(&T) -> &'static str,
 ) {
-    egui::ComboBox::from_label(label)
+    // the label on its own line: beside a wide box in a narrow panel it wrapped one letter per
+    // line and moved the controls under the pointer
+    let l = ui.label(label);
+    let r = egui::ComboBox::from_id_salt(label)
         .selected_text(text(value))
-        .width(220.0)
+        .width(combo_width(ui))
         .show_ui(ui, |ui| {
             for o in options {
                 let selected = same(value, &o);
@@ -43,6 +49,12 @@ fn choice<T: Clone>(
                 }
             }
         });
+    r.response.labelled_by(l.id);
+}
+
+/// A combo box's width in the side panel: the panel's, at most 260 px.
+fn combo_width(ui: &egui::Ui) -> f32 {
+    (ui.available_width() - 8.0).clamp(80.0, 260.0)
 }
 
 fn same_variant<T>(a: &T, b: &T) -> bool {
@@ -189,7 +201,8 @@ fn image_branch_controls(
     }
     ui.horizontal(|ui| {
         let l = ui.label("Seed");
-        ui.add(egui::DragValue::new(&mut ib.seed)).labelled_by(l.id);
+        ui.add(egui::DragValue::new(&mut ib.seed).update_while_editing(false))
+            .labelled_by(l.id);
     });
 }
 
@@ -203,6 +216,7 @@ fn view_controls(ui: &mut egui::Ui, ib: &mut ImageBranchParams) {
     let max_l = MAX_FRAMES_SLIDER.max(ib.frames_per_fragment);
     ui.add(
         egui::Slider::new(&mut ib.frames_per_fragment, 2..=max_l)
+            .update_while_editing(false)
             .logarithmic(true)
             .text("L frames per fragment"),
     )
@@ -210,12 +224,19 @@ fn view_controls(ui: &mut egui::Ui, ib: &mut ImageBranchParams) {
     clamp_views(ib);
     let l = ib.frames_per_fragment;
     ui.add(
-        egui::Slider::new(&mut ib.margin, 0..=(l - 1).min(10)).text("Safeguard margin m (frames)"),
+        egui::Slider::new(&mut ib.margin, 0..=(l - 1).min(10))
+            .update_while_editing(false)
+            .text("Safeguard margin m (frames)"),
     );
     clamp_views(ib);
     let usable = ib.frames_per_fragment - ib.margin;
-    ui.add(egui::Slider::new(&mut ib.k, 1..=usable.min(16)).text("K views"))
-        .on_hover_text(format!("at most L - m = {usable} views per side"));
+    ui.add(
+        egui::Slider::new(&mut ib.k, 1..=usable.min(16))
+            .update_while_editing(false)
+            .text("K views"),
+    )
+    .on_hover_text(format!("at most L - m = {usable} views per side"));
+    virtual_camera_controls(ui, ib);
     // the lift radius is in "Scale & success" (it follows the voxel unless set)
     let options = VfmSpec::all().map(|v| match v {
         v if v.same_kind(&ib.vfm) => ib.vfm.clone(),
@@ -233,11 +254,49 @@ fn view_controls(ui: &mut egui::Ui, ib: &mut ImageBranchParams) {
     if ib.vfm.is_dense() {
         ui.add(
             egui::Slider::new(&mut ib.dense_stride, 1..=16)
+                .update_while_editing(false)
                 .text("Dense read cell (px; 1 = per pixel)"),
         )
         .on_hover_text(
             "1 reads the dense map at the lifted pixel; s > 1 interpolates between the centres \
              of s x s cells",
+        );
+    }
+}
+
+/// How depth frames are made for a scan that is only a point cloud, and where a LiDAR scan's
+/// f-theta rig stands (`--virtual-camera`, `--lidar-origin`), with what `auto` does.
+fn virtual_camera_controls(ui: &mut egui::Ui, ib: &mut ImageBranchParams) {
+    use crate::pipeline::params::{LidarOrigin, VirtualCamera};
+    let label = |v: &VirtualCamera| match v {
+        VirtualCamera::Auto => "auto (f-theta with intensity, else pinhole)",
+        VirtualCamera::Pinhole => "pinhole arc (RGB-D-like clouds)",
+        VirtualCamera::Ftheta => "f-theta 360° (LiDAR)",
+    };
+    let all = [
+        VirtualCamera::Auto,
+        VirtualCamera::Pinhole,
+        VirtualCamera::Ftheta,
+    ];
+    choice(
+        ui,
+        "Virtual camera (point clouds only)",
+        &mut ib.virtual_camera,
+        all,
+        |a, b| a == b,
+        label,
+    );
+    if ib.virtual_camera == VirtualCamera::Auto {
+        ui.weak("LiDAR scans without intensity (KITTI's xyz .bin) need f-theta");
+    }
+    if ib.virtual_camera != VirtualCamera::Pinhole {
+        choice(
+            ui,
+            "LiDAR rig position",
+            &mut ib.lidar_origin,
+            LidarOrigin::ALL,
+            |a, b| a == b,
+            |o| o.label(),
         );
     }
 }
@@ -260,6 +319,7 @@ fn geometry_controls(ui: &mut egui::Ui, params: &mut RegisterParams) {
         if let Some(p) = params.fusion.prior.as_mut() {
             ui.add(
                 egui::DragValue::new(p)
+                    .update_while_editing(false)
                     .range(1e-12..=0.5)
                     .speed(1e-6)
                     .custom_formatter(|v, _| format!("{v:.2e}")),
@@ -307,6 +367,7 @@ fn geo_feature_control(ui: &mut egui::Ui, geo: &mut GeoFeatureSource) {
     if let GeoFeatureSource::Spinnet { keypoints, .. } = geo {
         ui.add(
             egui::Slider::new(keypoints, 16..=5000)
+                .update_while_editing(false)
                 .logarithmic(true)
                 .text("SpinNet keypoints per scan"),
         );
@@ -331,6 +392,7 @@ fn fusion_controls(ui: &mut egui::Ui, params: &mut RegisterParams) {
         );
         ui.add(
             egui::Slider::new(cal.tau_mut(), 0.005..=1.0)
+                .update_while_editing(false)
                 .logarithmic(true)
                 .text(format!("{name} temperature")),
         );
@@ -359,137 +421,6 @@ fn fusion_controls(ui: &mut egui::Ui, params: &mut RegisterParams) {
     );
 }
 
-/// The preset (indoor / outdoor / outdoor-search), the keypoint voxel, the scale hypotheses, every distance that follows it (with
-/// its value at the voxel, or set by hand) and the success criterion: all fields of
-/// `params` itself ([`Preset::apply`], [`Scaled`]).
-fn scale_controls(ui: &mut egui::Ui, params: &mut RegisterParams) {
-    let current = Preset::of(params);
-    egui::ComboBox::from_label("Preset")
-        .selected_text(current.map_or("custom", Preset::label))
-        .width(220.0)
-        .show_ui(ui, |ui| {
-            for p in Preset::ALL {
-                if ui.selectable_label(current == Some(p), p.label()).clicked() {
-                    p.apply(params);
-                }
-            }
-        });
-    ui.horizontal(|ui| {
-        let l = ui.label("Keypoint voxel (m)");
-        ui.add(
-            egui::DragValue::new(&mut params.voxel)
-                .speed(0.005)
-                .range(0.001..=10.0),
-        )
-        .labelled_by(l.id)
-        .on_hover_text("FPFH radii follow it (2 v, 5 v), and so does every distance ticked below");
-    });
-    ui.horizontal(|ui| {
-        let l = ui.label("Scale hypotheses");
-        ui.add(egui::DragValue::new(&mut params.scales).range(1..=6))
-            .labelled_by(l.id)
-            .on_hover_text(
-                "1: the voxel alone; N: the voxels v, 2 v, ..., 2^(N-1) v, the pose most \
-                 consistent with both scans' range views kept",
-            );
-    });
-    let v = params.voxel;
-    if let EstimatorKind::Sc2Pcr(s) = &mut params.estimator {
-        scaled_field(ui, "SC2-PCR d_thre", &mut s.d_thre, v, THRESHOLD_PER_VOXEL);
-        scaled_field(
-            ui,
-            "SC2-PCR inlier threshold",
-            &mut s.inlier_threshold,
-            v,
-            THRESHOLD_PER_VOXEL,
-        );
-    }
-    if let EstimatorKind::Ransac(r) = &mut params.estimator {
-        scaled_field(
-            ui,
-            "RANSAC inlier distance",
-            &mut r.distance_threshold,
-            v,
-            RANSAC_PER_VOXEL,
-        );
-    }
-    scaled_field(
-        ui,
-        "GT inlier-ratio threshold",
-        &mut params.inlier_threshold,
-        v,
-        THRESHOLD_PER_VOXEL,
-    );
-    if let Some(ib) = &mut params.image {
-        scaled_field(
-            ui,
-            "Lift radius",
-            &mut ib.lift_radius,
-            v,
-            LIFT_RADIUS_PER_VOXEL,
-        );
-    }
-    let c = &mut params.success.primary;
-    ui.horizontal(|ui| {
-        ui.label("Success: RRE ≤");
-        ui.add(
-            egui::DragValue::new(&mut c.max_rre_deg)
-                .speed(0.5)
-                .range(0.0..=180.0)
-                .suffix("°"),
-        );
-        ui.label("RTE ≤");
-        ui.add(
-            egui::DragValue::new(&mut c.max_rte_m)
-                .speed(0.01)
-                .range(0.0..=100.0)
-                .suffix(" m"),
-        );
-    });
-    if let Some(a) = params.success.also {
-        ui.label(format!("also reported: {}", a.label()));
-    }
-}
-
-/// One distance: "follows voxel" ticked shows its value at the voxel; unticked, the value is
-/// the user's (starting from the one it had).
-fn scaled_field<T: Metres + egui::emath::Numeric>(
-    ui: &mut egui::Ui,
-    label: &str,
-    value: &mut Scaled<T>,
-    voxel: f64,
-    per_voxel: f64,
-) {
-    ui.horizontal(|ui| {
-        let mut follows = value.follows_voxel();
-        let now = value.at(voxel, per_voxel);
-        if ui
-            .checkbox(&mut follows, format!("{label} = {per_voxel} v"))
-            .on_hover_text("ticked: follows the keypoint voxel; unticked: the value set here")
-            .changed()
-        {
-            *value = if follows {
-                Scaled::FollowVoxel
-            } else {
-                Scaled::Set(now)
-            };
-        }
-        match value {
-            Scaled::Set(x) => {
-                ui.add(
-                    egui::DragValue::new(x)
-                        .speed(0.005)
-                        .range(0.001..=100.0)
-                        .suffix(" m"),
-                );
-            }
-            Scaled::FollowVoxel => {
-                ui.label(format!("{:.3} m", now.to_m()));
-            }
-        }
-    });
-}
-
 /// The selection rule, and k for top-k.
 fn selection_controls(ui: &mut egui::Ui, selection: &mut Selection) {
     let k = match *selection {
@@ -507,6 +438,7 @@ fn selection_controls(ui: &mut egui::Ui, selection: &mut Selection) {
     if let Selection::TopK(k) = selection {
         ui.add(
             egui::Slider::new(k, 100..=20_000)
+                .update_while_editing(false)
                 .logarithmic(true)
                 .text("top-k"),
         );
