@@ -37,6 +37,10 @@ pub fn row_nn_posterior(src: &Features, tgt: &Features, tau: f32) -> Result<Vec<
         .enumerate()
         .flat_map_iter(|(t, a_band)| {
             let rows = a_band.len() / d;
+            // a cancelled run skips the remaining bands (checked after the loop)
+            if crate::cancel::requested() {
+                return Vec::new();
+            }
             let mut s = vec![0.0f32; rows * m];
             super::similarity::dot_band(a_band, &rhs, &mut s);
             let base = t * BAND;
@@ -52,6 +56,7 @@ pub fn row_nn_posterior(src: &Features, tgt: &Features, tau: f32) -> Result<Vec<
                 .collect::<Vec<_>>()
         })
         .collect();
+    crate::cancel::check()?;
     out.sort_unstable_by(super::select::order);
     Ok(out)
 }
