@@ -281,13 +281,18 @@ pub fn native_library_candidates() -> Vec<PathBuf> {
     // scripts/setup.sh installs the wheel into a private venv in the build folder
     // (`target/ortvenv`), never into the system Python: look beside the running binary first
     // (target/release/cgenreg, target/debug/deps/<test>).
-    if let Ok(exe) = std::env::current_exe() {
-        for a in exe.ancestors().skip(1).take(4) {
-            let lib = a.join("ortvenv").join("lib");
-            if lib.is_dir() {
-                dirs.extend(site_packages(&lib));
-                break;
-            }
+    // The Python extension is a shared object in the source tree (python/cgenreg/), its
+    // process the interpreter: look beside the object holding this code too.
+    let here = [std::env::current_exe().ok(), this_object()];
+    for exe in here.iter().flatten() {
+        let found = exe.ancestors().skip(1).take(4).find_map(|a| {
+            [a.join("ortvenv/lib"), a.join("target/ortvenv/lib")]
+                .into_iter()
+                .find(|lib| lib.is_dir())
+        });
+        if let Some(lib) = found {
+            dirs.extend(site_packages(&lib));
+            break;
         }
     }
     if let Some(d) = python_onnxruntime_dir() {
@@ -349,6 +354,28 @@ pub fn python_onnxruntime_dir() -> Option<PathBuf> {
     let s = String::from_utf8_lossy(&o.stdout).trim().to_string();
     let dir = PathBuf::from(s);
     (o.status.success() && dir.is_absolute()).then_some(dir)
+}
+
+/// The file of the executable or shared object this code was loaded from (the Python
+/// extension's `.so` inside an interpreter).
+#[cfg(unix)]
+fn this_object() -> Option<PathBuf> {
+    let mut info: libc::Dl_info = unsafe { std::mem::zeroed() };
+    let addr = this_object as *const () as *const libc::c_void;
+    // SAFETY: dladdr reads the address and fills `info` with pointers into the loader's data.
+    if unsafe { libc::dladdr(addr, &mut info) } == 0 || info.dli_fname.is_null() {
+        return None;
+    }
+    // SAFETY: a NUL-terminated path owned by the loader.
+    let name = unsafe { std::ffi::CStr::from_ptr(info.dli_fname) };
+    use std::os::unix::ffi::OsStrExt;
+    let p = PathBuf::from(std::ffi::OsStr::from_bytes(name.to_bytes()));
+    p.canonicalize().ok()
+}
+
+#[cfg(not(unix))]
+fn this_object() -> Option<PathBuf> {
+    None
 }
 
 /// `name` in the absolute folders of `PATH` (relative entries, `.` and empty ones included, are
