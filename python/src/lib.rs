@@ -82,6 +82,8 @@ fn interruptible<T: Send>(
 ) -> PyResult<T> {
     use std::sync::mpsc::{channel, RecvTimeoutError};
     let (tx, rx) = channel();
+    // shared with the GIL-released waits below, which need a `Sync` reference
+    let rx = std::sync::Mutex::new(rx);
     std::thread::scope(|s| {
         // the caller's stack size: the library recursed on the interpreter's main thread before
         let worker = std::thread::Builder::new()
@@ -95,9 +97,13 @@ fn interruptible<T: Send>(
             })
             .map_err(|e| PyRuntimeError::new_err(format!("cannot start a thread: {e}")))?;
         loop {
-            match py.detach(|| rx.recv_timeout(std::time::Duration::from_millis(50))) {
+            let got = py.detach(|| match rx.lock() {
+                Ok(rx) => rx.recv_timeout(std::time::Duration::from_millis(50)),
+                Err(_) => Err(RecvTimeoutError::Disconnected),
+            });
+            match got {
                 Ok(r) => {
-                    let _ = py.detach(|| worker.join());
+                    let _ = py.detach(move || worker.join());
                     return r.map_err(to_py);
                 }
                 Err(RecvTimeoutError::Disconnected) => {
@@ -109,7 +115,7 @@ fn interruptible<T: Send>(
             }
             if let Err(interrupt) = py.check_signals() {
                 cgenreg::cancel::request();
-                let _ = py.detach(|| worker.join());
+                let _ = py.detach(move || worker.join());
                 cgenreg::cancel::clear();
                 return Err(interrupt);
             }

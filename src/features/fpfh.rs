@@ -211,9 +211,11 @@ impl Neighbourhoods {
                 let mut d2 = Vec::with_capacity(idx.capacity());
                 let mut nb = Vec::new();
                 for (o, p) in chunk.iter().enumerate() {
-                    // a cancelled run stops here; the stage discards what was computed
+                    // a cancelled run searches no more (an empty neighbourhood per point);
+                    // the stage discards what was computed
                     if crate::cancel::requested() {
-                        break;
+                        counts.push(0);
+                        continue;
                     }
                     let i = c * CHUNK + o;
                     index.hybrid_sq_unsorted_into(p, radius, max_nn, &mut nb);
