@@ -519,7 +519,10 @@ mod tests {
         write(&victim, OutputKind::Png, true, &plain).unwrap();
         assert!(write(&victim, OutputKind::Png, false, &plain).is_err());
         let marked = png_with_marker(&plain).unwrap();
-        assert!(image::load_from_memory(&marked).is_ok(), "still a valid PNG");
+        assert!(
+            image::load_from_memory(&marked).is_ok(),
+            "still a valid PNG"
+        );
         write(&victim, OutputKind::Png, true, &marked).unwrap();
         write(&victim, OutputKind::Png, false, &marked).unwrap();
         // the same for archives: the archive comment, not the ZIP signature
@@ -528,8 +531,11 @@ mod tests {
         write(&npz, OutputKind::Npz, false, &ours).unwrap();
         write(&npz, OutputKind::Npz, false, &ours).unwrap();
         let mut zip = zip::ZipWriter::new(std::io::Cursor::new(Vec::new()));
-        zip.start_file("word/document.xml", zip::write::SimpleFileOptions::default())
-            .unwrap();
+        zip.start_file(
+            "word/document.xml",
+            zip::write::SimpleFileOptions::default(),
+        )
+        .unwrap();
         let docx = zip.finish().unwrap().into_inner();
         write(&npz, OutputKind::Npz, true, &docx).unwrap();
         assert!(write(&npz, OutputKind::Npz, false, &ours).is_err());
