@@ -110,13 +110,13 @@ pub struct PipelineArgs {
     pub scales: Option<u32>,
     /// Keypoint voxel size in metres (default: the preset's). FPFH radii follow it (normals
     /// 2v, features 5v), and so do the thresholds not set below (2v) and the lift radius (1v).
-    #[arg(long, value_parser = positive_f64, allow_negative_numbers = true)]
+    #[arg(long, value_parser = positive_f64, allow_hyphen_values = true)]
     pub voxel: Option<f64>,
     /// SC2-PCR's inlier threshold and the GT inlier-ratio threshold, metres (default: 2 x voxel).
-    #[arg(long, value_parser = positive_f64, allow_negative_numbers = true)]
+    #[arg(long, value_parser = positive_f64, allow_hyphen_values = true)]
     pub inlier_threshold: Option<f64>,
     /// SC2-PCR's compatibility threshold d_thre, metres (default: 2 x voxel).
-    #[arg(long, value_parser = positive_f64, allow_negative_numbers = true)]
+    #[arg(long, value_parser = positive_f64, allow_hyphen_values = true)]
     pub d_thre: Option<f64>,
     /// Learned features for the source scan (.npz with points/feats, or .pkl); needs --learned-target.
     #[arg(long, requires = "learned_target")]
@@ -143,10 +143,10 @@ pub struct PipelineArgs {
     #[arg(long, value_enum, default_value = "row")]
     pub calibration: Calibration,
     /// Softmax temperature of the image branch.
-    #[arg(long, default_value_t = 0.1, value_parser = positive_number, allow_negative_numbers = true)]
+    #[arg(long, default_value_t = 0.1, value_parser = positive_number, allow_hyphen_values = true)]
     pub tau_img: f32,
     /// Softmax temperature of the geometric branch.
-    #[arg(long, default_value_t = 0.1, value_parser = positive_number, allow_negative_numbers = true)]
+    #[arg(long, default_value_t = 0.1, value_parser = positive_number, allow_hyphen_values = true)]
     pub tau_geo: f32,
     /// Fusion of the two branches. Default: `visibility` when the image branch runs (the
     /// union's, the geometric branch's, Noisy-AND's and the image branch's poses; the one most
@@ -155,14 +155,14 @@ pub struct PipelineArgs {
     #[arg(long, value_enum)]
     pub fusion: Option<FusionMode>,
     /// Noisy-AND prior; default 1/(N*M).
-    #[arg(long, value_parser = probability, allow_negative_numbers = true)]
+    #[arg(long, value_parser = probability, allow_hyphen_values = true)]
     pub prior: Option<f64>,
     /// Correspondence selection. Default: `nn` when only the geometric branch runs (the
     /// SC2-PCR FPFH protocol), `mutual` when branches are fused (the paper).
     #[arg(long, value_enum)]
     pub selection: Option<Selection>,
     /// k of --selection topk.
-    #[arg(long, default_value_t = 8000, value_parser = count_from_1, allow_negative_numbers = true)]
+    #[arg(long, default_value_t = 8000, value_parser = count_from_1, allow_hyphen_values = true)]
     pub topk: usize,
     #[arg(long, value_enum, default_value = "sc2pcr")]
     pub estimator: EstimatorKind,
@@ -321,17 +321,17 @@ pub struct ImageArgs {
     #[arg(long)]
     pub vfm_model: Option<PathBuf>,
     /// Views per side.
-    #[arg(long, default_value_t = 4, value_parser = count_from_1, allow_negative_numbers = true)]
+    #[arg(long, default_value_t = 4, value_parser = count_from_1, allow_hyphen_values = true)]
     pub k: usize,
     /// Safeguard margin m (frames dropped on each side of the source/target seam).
-    #[arg(long, default_value_t = 3, value_parser = count_from_0, allow_negative_numbers = true)]
+    #[arg(long, default_value_t = 3, value_parser = count_from_0, allow_hyphen_values = true)]
     pub margin: usize,
     /// Frames per fragment in the depth video (L); at most 1000 unless CGENREG_MAX_FRAMES
     /// allows more.
-    #[arg(long, default_value_t = 50, value_parser = frame_count, allow_negative_numbers = true)]
+    #[arg(long, default_value_t = 50, value_parser = frame_count, allow_hyphen_values = true)]
     pub frames: usize,
     /// Lifting radius in metres (default: the keypoint voxel).
-    #[arg(long, value_parser = positive_f32, allow_negative_numbers = true)]
+    #[arg(long, value_parser = positive_f32, allow_hyphen_values = true)]
     pub lift_radius: Option<f32>,
     /// Virtual camera for scans with no depth frames: f-theta for LiDAR-like clouds (they
     /// carry intensity) and a pinhole trajectory otherwise (auto), or force one.
