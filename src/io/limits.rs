@@ -174,7 +174,10 @@ pub fn memory_headroom() -> Option<u64> {
                 .ok()
                 .and_then(|s| s.split_whitespace().next()?.parse::<u64>().ok())
                 .map_or(0, |pages| pages * page);
-            bounds.push((lim.rlim_cur as u64).saturating_sub(used));
+            // rlim_t is u64 here and u32 on 32-bit targets
+            #[allow(clippy::unnecessary_cast)]
+            let cur = lim.rlim_cur as u64;
+            bounds.push(cur.saturating_sub(used));
         }
         if let Ok(info) = std::fs::read_to_string("/proc/meminfo") {
             let kib = |key: &str| {

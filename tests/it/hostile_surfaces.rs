@@ -633,7 +633,7 @@ fn manifests_are_bounded_confined_and_ids_plain() {
     assert!(e.contains("root") && e.contains("confines nothing"), "{e}");
     std::fs::write(
         &rooted,
-        format!("root = \"/\"\nallow_outside_root = true\nname = \"m\"\n"),
+        "root = \"/\"\nallow_outside_root = true\nname = \"m\"\n",
     )
     .unwrap();
     Dataset::load(&rooted).unwrap();
