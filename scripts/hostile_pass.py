@@ -1,6 +1,7 @@
 #!/usr/bin/env python3
-"""A hostile pass over cgenreg's output files, run-file readers, stdout and the paths that go
-into Slurm scripts, through the real binary. Prints one line per failed case and the counts
+"""A hostile pass over cgenreg's output files, run-file readers, stdout, the paths that go
+into Slurm scripts, and the later surfaces (code in the working directory, outputs judged by
+cgenreg's marker, manifests, inputs, option values, concurrent runs), through the real binary. Prints one line per failed case and the counts
 per class; exits 1 when a case fails.
 
     python3 scripts/hostile_pass.py target/debug/cgenreg
@@ -339,8 +340,147 @@ def pass_stdout(t):
         record("D stdout", cname + " > /dev/full", ok, f"rc={rc} {err[-200:]}")
 
 
+# ------------------------------------------------------------------ E. the later surfaces
+def pass_surfaces(t):
+    """Planted code in the working directory, outputs judged by cgenreg's marker, manifests
+    (size, root, ids, confinement), inputs that are FIFOs, numeric options' errors, two
+    processes on one run file."""
+    import zipfile
+    import zlib
+    import struct
+
+    # E1: planted onnxruntime.py / onnxruntime/ / python3 with "." on PATH
+    cwd = os.path.join(t, "planted")
+    os.makedirs(os.path.join(cwd, "onnxruntime"))
+    marks = [os.path.join(cwd, m) for m in ("M1", "M2", "M3")]
+    open(os.path.join(cwd, "onnxruntime.py"), "w").write(f"open({marks[0]!r}, 'w')\n")
+    open(os.path.join(cwd, "onnxruntime", "__init__.py"), "w").write(f"open({marks[1]!r}, 'w')\n")
+    py3 = os.path.join(cwd, "python3")
+    open(py3, "w").write(f"#!/bin/sh\ntouch '{marks[2]}'\n")
+    os.chmod(py3, 0o755)
+    env = dict(ENV, PATH=".::" + ENV.get("PATH", ""))
+    for args in (["register", "--manifest", DEMO, "--pair", "synth-room/0-1", "--wfm", "builtin",
+                  "--frames", "8", "--margin", "1", "--k", "2", "--voxel", "0.3", "--no-cache"],
+                 ["register", "--source", "nope.ply", "--target", "nope.ply", "--wfm", "builtin"]):
+        rc, _, err = run(args, timeout=120, env=env, cwd=cwd)
+        ran = [m for m in marks if os.path.exists(m)]
+        record("E surfaces", "planted code in cwd: " + args[1], rc is not None and not ran,
+               f"ran {ran} rc={rc} {err[-200:]}")
+
+    # E2: files of the output's container format that cgenreg did not write
+    d = os.path.join(t, "foreign")
+    os.makedirs(d)
+
+    def png_bytes():
+        raw = b"\x00\x00\x00\x00"
+        ch = lambda k, x: struct.pack(">I", len(x)) + k + x + struct.pack(">I", zlib.crc32(k + x))
+        return (b"\x89PNG\r\n\x1a\n" + ch(b"IHDR", struct.pack(">IIBBBBB", 1, 1, 8, 0, 0, 0, 0))
+                + ch(b"IDAT", zlib.compress(raw[:2])) + ch(b"IEND", b""))
+
+    foreign = {}
+    foreign["a figure (PNG)"] = ("fig.png", png_bytes())
+    z = os.path.join(t, "z.zip")
+    with zipfile.ZipFile(z, "w") as zf:
+        zf.writestr("word/document.xml", "<w/>")
+    foreign["a .docx (ZIP)"] = ("doc.npz", open(z, "rb").read())
+    foreign["JSON with a run key"] = ("run.json", b'{"run": {"mine": 1}, "records": []}')
+    foreign["JSON like a result"] = ("res.json", b'{"pair_id": "x"}')
+    foreign["a text file"] = ("notes.txt", b"keep me")
+    outs = {
+        "screenshot --out": lambda o: ["screenshot", "--panel", "pairs", "--out", o],
+        "screenshot --result-json": lambda o: [
+            "screenshot", "--panel", "pairs", "--out", os.path.join(d, "new.png"), "--result-json", o],
+        "register --export-corr": lambda o: [
+            "register", "--manifest", DEMO, "--pair", "synth-room/0-1", "--voxel", "0.3",
+            "--no-cache", "--export-corr", o],
+        "bench --json": lambda o: ["bench", DEMO, "--voxel", "0.3", "--no-cache", "--json", o],
+    }
+    for cname, mk in outs.items():
+        for fname, (name, data) in foreign.items():
+            p = os.path.join(d, name)
+            with open(p, "wb") as f:
+                f.write(data)
+            rc, _, err = run(mk(p), timeout=60)
+            same = open(p, "rb").read() == data
+            record("E surfaces", f"{cname} -> {fname}",
+                   rc not in (0, None) and same and "panicked" not in err and not tmp_left(d),
+                   f"rc={rc} same={same} {err[-200:]}")
+
+    # E3: manifests
+    m = os.path.join(t, "manifests")
+    os.makedirs(m)
+    open(os.path.join(m, "a.xyz"), "w").write("0 0 0\n1 0 0\n0 1 0\n0 0 1\n")
+    head = 'name = "m"\n[[fragments]]\nid = "a"\ncloud = "a.xyz"\n[[fragments]]\nid = "b"\ncloud = "a.xyz"\n'
+    cases = {
+        "a 60 MB gt_matrix": (head + '[[pairs]]\ntarget = "a"\nsource = "b"\ngt_matrix = ['
+                              + "[1.0, 0.0, 0.0, 0.0], " * 2_800_000 + "]\n", "file size"),
+        'root = "/"': ('root = "/"\n' + head, "confines nothing"),
+    }
+    for i, bad in enumerate(["\\u001b[2J", "a\\u0000b", "a\\nb", "a\\rb", "a\\u202eb",
+                             "a\\u200bb", "a\\u0085b", "a\\u007fb", "x" * 300]):
+        cases[f"id {bad[:12]}"] = (f'name = "m"\n[[fragments]]\nid = "{bad}"\ncloud = "a.xyz"\n', ".id")
+        cases[f"split {bad[:12]}"] = (head + f'[[pairs]]\ntarget = "a"\nsource = "b"\nsplit = "{bad}"\n',
+                                      ".split" if len(bad) < 300 else None)
+    for cname, (text, want) in cases.items():
+        if want is None:
+            continue
+        p = os.path.join(m, "m.toml")
+        open(p, "w").write(text)
+        rc, _, err = run(["bench", p, "--list"], timeout=30)
+        raw = any(c in err for c in ("\x1b", "\x00", "\u202e", "\u200b", "\x85", "\x7f"))
+        record("E surfaces", "manifest: " + cname,
+               rc not in (0, None) and want in err and not raw and "panicked" not in err,
+               f"rc={rc} raw={raw} {err[-200:]}")
+
+    # E4: inputs that are FIFOs where the readers' own checks did not reach
+    f = os.path.join(t, "inputs")
+    os.makedirs(f)
+    fifo = os.path.join(f, "fifo.onnx")
+    os.mkfifo(fifo)
+    for cname, args in {
+        "--vfm-model FIFO": ["register", "--manifest", DEMO, "--pair", "synth-room/0-1", "--wfm",
+                             "builtin", "--frames", "8", "--margin", "1", "--k", "2", "--voxel", "0.3",
+                             "--no-cache", "--vfm-model", fifo],
+        "--gt FIFO": ["register", "--source", os.path.join(m, "a.xyz"), "--target",
+                      os.path.join(m, "a.xyz"), "--gt", fifo],
+        "--source FIFO": ["register", "--source", fifo, "--target", os.path.join(m, "a.xyz")],
+        "--manifest /dev/zero": ["bench", "/dev/zero", "--list"],
+    }.items():
+        rc, _, err = run(args, timeout=30)
+        record("E surfaces", "input: " + cname, rc not in (0, None) and "panicked" not in err,
+               f"rc={rc} {err[-200:]}")
+
+    # E5: neighbouring values of numeric options: all exit 2 with "must be"
+    for opt, values in {
+        "--frames": ["-1", "0", "1.5", "x", "1001"], "--k": ["-1", "0", "1e3"],
+        "--topk": ["-1", "0", "1" + "0" * 30], "--margin": ["-1", "0.5"],
+        "--tau-img": ["-1", "0", "nan", "inf", "-inf", "1e-50"], "--tau-geo": ["0", "nan"],
+        "--prior": ["-1", "0", "1", "2", "nan"], "--voxel": ["-0.05", "0", "nan", "1e400"],
+    }.items():
+        for v in values:
+            rc, _, err = run(["register", "--source", "a.ply", "--target", "b.ply", opt, v], timeout=10)
+            record("E surfaces", f"option {opt} {v}",
+                   rc == 2 and opt in err and ("must be" in err or "exceeds" in err),
+                   f"rc={rc} {err[-200:]}")
+
+    # E6: two processes given one run file
+    j = os.path.join(t, "two", "run.json")
+    os.makedirs(os.path.dirname(j))
+    args = [BIN, "bench", DEMO, "--voxel", "0.1", "--no-cache", "--json", j]
+    first = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=ENV)
+    import time
+    time.sleep(0.5)
+    second = subprocess.run(args, capture_output=True, env=ENV, timeout=120)
+    first_err = first.communicate(timeout=120)[1]
+    rcs = sorted([first.returncode, second.returncode])
+    both = (first_err + second.stderr).decode(errors="replace")
+    record("E surfaces", "two processes, one --json",
+           rcs[0] == 0 and rcs[1] != 0 and "another running cgenreg process" in both,
+           f"rcs={rcs} {both[-300:]}")
+
+
 with tempfile.TemporaryDirectory() as t:
-    for f in (pass_scripts, pass_outputs, pass_readers, pass_stdout):
+    for f in (pass_scripts, pass_outputs, pass_readers, pass_stdout, pass_surfaces):
         sub = os.path.join(t, f.__name__)
         os.makedirs(sub)
         f(sub)

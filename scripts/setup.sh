@@ -28,7 +28,7 @@ for pkg in libegl1 libegl-mesa0 libgl1-mesa-dri libgles2 libgl1 slurm-wlm munge;
   dpkg -s "$pkg" >/dev/null 2>&1 || need_apt+=("$pkg")
 done
 # `python3 -m venv` needs ensurepip, which Debian ships in python3-venv.
-if ! python3 -c 'import ensurepip, venv' >/dev/null 2>&1; then need_apt+=(python3-venv); fi
+if ! python3 -I -c 'import ensurepip, venv' >/dev/null 2>&1; then need_apt+=(python3-venv); fi
 if [ ${#need_apt[@]} -gt 0 ]; then
   SUDO=""
   if [ "$(id -u)" -ne 0 ]; then

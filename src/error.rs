@@ -75,6 +75,23 @@ pub enum Error {
         prompt: String,
         seed: u64,
     },
+    /// The run was interrupted (Ctrl-C in the Python package, see [`crate::cancel`]): it stopped
+    /// between two steps and wrote nothing more.
+    #[error("interrupted")]
+    Cancelled,
+    /// A step whose memory, estimated before it allocates, exceeds what the process may still
+    /// allocate (its address-space limit, or the machine's available memory): an error instead
+    /// of an abort of the process (and of a Python interpreter around it).
+    #[error(
+        "out of memory: {what} needs about {} MiB, only about {} MiB can still be allocated",
+        need / (1 << 20),
+        available / (1 << 20)
+    )]
+    OutOfMemory {
+        what: String,
+        need: u64,
+        available: u64,
+    },
     /// A cache command that deletes was pointed at a directory without the marker file a
     /// cgenreg cache holds (`cgenreg cache init` marks an existing cache).
     #[error(
@@ -94,6 +111,8 @@ impl Error {
     pub fn exit_status(&self) -> i32 {
         match self {
             Error::Usage(_) | Error::Param(_) => 2,
+            // as a shell reports a command ended by SIGINT
+            Error::Cancelled => 130,
             _ => 1,
         }
     }

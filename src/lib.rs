@@ -12,6 +12,7 @@
 
 pub mod cache;
 pub mod camera;
+pub mod cancel;
 pub mod cli;
 pub mod dataset;
 pub mod error;

@@ -180,11 +180,25 @@ def read_cloud(
     return pts
 
 
-def write_cloud(path: PathLike, points: np.ndarray, intensity: Optional[np.ndarray] = None) -> None:
+def write_cloud(
+    path: PathLike,
+    points: np.ndarray,
+    intensity: Optional[np.ndarray] = None,
+    *,
+    force: bool = False,
+) -> None:
     """Write points with the library's writers: .ply (binary), .npy ((N, 3) float32) or
-    .xyz/.txt/.pts (text). Points are stored as float32."""
+    .xyz/.txt/.pts (text). Points are stored as float32.
+
+    The command line's output guard: the folder must exist; a link, FIFO, device or folder is
+    refused; the file is written to a temporary file beside it and renamed. An existing file is
+    replaced only when it is a PLY this package wrote (``.npy`` and text files carry no mark of
+    who wrote them), else only with ``force=True``."""
     _cgenreg.write_cloud(
-        os.fspath(path), _f32(points, "points", 3), _vec(intensity, np.float32, "intensity")
+        os.fspath(path),
+        _f32(points, "points", 3),
+        _vec(intensity, np.float32, "intensity"),
+        bool(force),
     )
 
 

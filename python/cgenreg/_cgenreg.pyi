@@ -58,7 +58,10 @@ def read_cloud(
     Optional[npt.NDArray[np.float32]],
 ]: ...
 def write_cloud(
-    path: str, points: npt.NDArray[np.float32], intensity: Optional[npt.NDArray[np.float32]] = None
+    path: str,
+    points: npt.NDArray[np.float32],
+    intensity: Optional[npt.NDArray[np.float32]] = None,
+    force: bool = False,
 ) -> None: ...
 def register_files(
     source: str, target: str, gt: Optional[str], options: List[str]

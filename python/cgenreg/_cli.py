@@ -26,18 +26,23 @@ def main(argv: Optional[List[str]] = None) -> int:
     args = list(sys.argv[1:] if argv is None else argv)
     if not _cgenreg.HAS_GUI and _wants_gui(args):
         from .errors import CgenregError
-        from .inspector import inspector_command
+        from .inspector import HANDOFF_ENV, inspector_command
 
         try:
             cmd = inspector_command()
         except CgenregError as e:
             print("cgenreg: error: %s" % e, file=sys.stderr)
             return 1
+        # the program handed to knows it was: if it is this console script again, it stops
+        # instead of handing the command on forever
+        env = dict(os.environ)
+        env[HANDOFF_ENV] = "1"
         if os.name == "posix":
-            os.execvp(cmd[0], cmd + args)  # replaces this process; an argument vector, no shell
+            # replaces this process; an argument vector, no shell
+            os.execvpe(cmd[0], cmd + args, env)
         import subprocess
 
-        return subprocess.call(cmd + args)
+        return subprocess.call(cmd + args, env=env)
     return _cgenreg.cli_main(["cgenreg"] + args)
 
 

@@ -18,6 +18,10 @@ from .errors import CgenregError
 
 PathLike = Union[str, "os.PathLike[str]"]
 
+# Set in the environment of a program this package hands a GUI command to (see _cli.main): a
+# console script that finds it set was started by itself.
+HANDOFF_ENV = "CGENREG_HANDED_OFF"
+
 
 def _is_native(path: str) -> bool:
     try:
@@ -36,6 +40,13 @@ def inspector_command() -> List[str]:
     """
     env = os.environ.get("CGENREG_BIN")
     if env:
+        if os.environ.get(HANDOFF_ENV):
+            # this package's console script handed the command to $CGENREG_BIN, which is the
+            # console script again: it would hand it on forever
+            raise CgenregError(
+                "CGENREG_BIN=%s is this Python package's console script, which has no "
+                "inspector: set CGENREG_BIN to the native cgenreg binary built with the GUI" % env
+            )
         return [env]
     if _cgenreg.HAS_GUI:
         return [sys.executable, "-m", "cgenreg"]
@@ -52,7 +63,17 @@ def inspector_command() -> List[str]:
 
 
 def _toml_str(s: str) -> str:
-    return json.dumps(s)  # a TOML basic string uses JSON's escapes
+    """``s`` as a TOML basic string. Not ``json.dumps``: it writes a character outside the BMP as
+    a surrogate pair (``\\ud83d\\ude00``), which TOML refuses, and leaves DEL unescaped."""
+    out = []
+    for c in s:
+        if c == '"' or c == "\\":
+            out.append("\\" + c)
+        elif ord(c) < 0x20 or ord(c) == 0x7F:
+            out.append("\\u%04X" % ord(c))
+        else:
+            out.append(c)
+    return '"' + "".join(out) + '"'
 
 
 def _write_pair(
@@ -171,6 +192,7 @@ def screenshot(
     result_json: Optional[PathLike] = None,
     force: bool = False,
     command: Optional[Sequence[str]] = None,
+    timeout: Optional[float] = 600.0,
     **params: Any,
 ) -> Optional[dict]:
     """Render the inspector headless to a PNG, on a manifest pair or two clouds (arrays or files).
@@ -183,7 +205,8 @@ def screenshot(
     result the picture shows, parsed from ``register --json``'s format, when ``result_json`` is
     given (that file is written too). Runs the GUI-capable binary (see
     :func:`inspector_command`, or ``command``) with an argument vector; a failure raises
-    :class:`CgenregError` with the program's message.
+    :class:`CgenregError` with the program's message, and so does a program still running after
+    ``timeout`` seconds (it is killed; ``None`` waits without a limit).
     """
     tmp, manifest, pair = _pair_manifest(manifest, pair, source, target, gt, "screenshot")
     try:
@@ -200,7 +223,15 @@ def screenshot(
         if force:
             argv.append("--force")
         argv += to_options(params)
-        done = subprocess.run(argv, capture_output=True, text=True)
+        env = dict(os.environ)
+        env[HANDOFF_ENV] = "1"
+        try:
+            done = subprocess.run(argv, capture_output=True, text=True, timeout=timeout, env=env)
+        except subprocess.TimeoutExpired:
+            raise CgenregError(
+                "screenshot: %s did not finish within %s s and was stopped (pass a larger "
+                "timeout, or None)" % (argv[0], timeout)
+            ) from None
         if done.returncode != 0:
             msg = done.stderr.strip() or done.stdout.strip()
             raise CgenregError("screenshot failed (exit %d): %s" % (done.returncode, msg))

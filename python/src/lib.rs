@@ -13,7 +13,7 @@ use numpy::ndarray::{Array1, Array2};
 use numpy::{
     IntoPyArray, PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods,
 };
-use pyo3::exceptions::PyRuntimeError;
+use pyo3::exceptions::{PyKeyboardInterrupt, PyMemoryError, PyRuntimeError};
 use pyo3::prelude::*;
 use std::path::PathBuf;
 
@@ -28,6 +28,13 @@ type CorrespondenceArrays = (Py<PyArray1<u32>>, Py<PyArray1<u32>>, Py<PyArray1<f
 /// The library's error as the Python package's exception (`cgenreg.errors`): the same
 /// message, and for a file format error its path, field, expectation and finding.
 fn to_py(e: cgenreg::Error) -> PyErr {
+    match &e {
+        // Python's own exceptions: an allocation refused before it was tried, and a call that
+        // stopped at a Ctrl-C (see `interruptible`)
+        cgenreg::Error::OutOfMemory { .. } => return PyMemoryError::new_err(e.to_string()),
+        cgenreg::Error::Cancelled => return PyKeyboardInterrupt::new_err(e.to_string()),
+        _ => {}
+    }
     Python::attach(|py| {
         let build = || -> PyResult<PyErr> {
             let m = py.import("cgenreg.errors")?;
@@ -61,6 +68,58 @@ fn to_py(e: cgenreg::Error) -> PyErr {
             Ok(PyErr::from_value(obj))
         };
         build().unwrap_or_else(|err| err)
+    })
+}
+
+/// Runs `f` (the library's work, GIL released) on a worker thread while this thread checks for
+/// signals every 50 ms: a Ctrl-C asks the library to stop ([`cgenreg::cancel`]), which it does
+/// at its next step or loop check, and then raises `KeyboardInterrupt`. Without this a call ran
+/// on the interpreter's thread with the GIL released and no signal checks, so Ctrl-C waited for
+/// it to return.
+fn interruptible<T: Send>(
+    py: Python<'_>,
+    f: impl FnOnce() -> cgenreg::Result<T> + Send,
+) -> PyResult<T> {
+    use std::sync::mpsc::{channel, RecvTimeoutError};
+    let (tx, rx) = channel();
+    // shared with the GIL-released waits below, which need a `Sync` reference
+    let rx = std::sync::Mutex::new(rx);
+    std::thread::scope(|s| {
+        // the caller's stack size: the library recursed on the interpreter's main thread before
+        let worker = std::thread::Builder::new()
+            .name("cgenreg".into())
+            .stack_size(8 << 20)
+            .spawn_scoped(s, move || {
+                let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(f)).map_err(|p| {
+                    cgenreg::Error::Panicked(cgenreg::error::panic_message(p.as_ref()))
+                });
+                let _ = tx.send(r.and_then(|r| r));
+            })
+            .map_err(|e| PyRuntimeError::new_err(format!("cannot start a thread: {e}")))?;
+        loop {
+            let got = py.detach(|| match rx.lock() {
+                Ok(rx) => rx.recv_timeout(std::time::Duration::from_millis(50)),
+                Err(_) => Err(RecvTimeoutError::Disconnected),
+            });
+            match got {
+                Ok(r) => {
+                    let _ = py.detach(move || worker.join());
+                    return r.map_err(to_py);
+                }
+                Err(RecvTimeoutError::Disconnected) => {
+                    return Err(PyRuntimeError::new_err(
+                        "the computation ended without a result",
+                    ))
+                }
+                Err(RecvTimeoutError::Timeout) => {}
+            }
+            if let Err(interrupt) = py.check_signals() {
+                cgenreg::cancel::request();
+                let _ = py.detach(move || worker.join());
+                cgenreg::cancel::clear();
+                return Err(interrupt);
+            }
+        }
     })
 }
 
@@ -308,9 +367,7 @@ impl RegResult {
 /// The pipeline's settings for these `cgenreg register` options, as JSON.
 #[pyfunction]
 fn settings(py: Python<'_>, options: Vec<String>) -> PyResult<String> {
-    let p = py
-        .detach(|| cgenreg::cli::register_settings(&options))
-        .map_err(to_py)?;
+    let p = interruptible(py, || cgenreg::cli::register_settings(&options))?;
     serde_json::to_string(&p).map_err(|e| PyRuntimeError::new_err(e.to_string()))
 }
 
@@ -324,9 +381,7 @@ type CloudArrays<'py> = (
 /// A cloud file by the CLI's readers: points (N, 3) float64, intensity, colours, normals.
 #[pyfunction]
 fn read_cloud(py: Python<'_>, path: PathBuf) -> PyResult<CloudArrays<'_>> {
-    let c = py
-        .detach(|| cgenreg::io::cloud::load_cloud(&path))
-        .map_err(to_py)?;
+    let c = interruptible(py, || cgenreg::io::cloud::load_cloud(&path))?;
     let pts: Vec<f64> = c
         .points
         .iter()
@@ -348,18 +403,21 @@ fn read_cloud(py: Python<'_>, path: PathBuf) -> PyResult<CloudArrays<'_>> {
     ))
 }
 
-/// Writes points by the library's writers (.ply, .npy, .xyz/.txt/.pts).
+/// Writes points by the library's writers (.ply, .npy, .xyz/.txt/.pts), through the command
+/// line's output guard (`force` replaces a file cgenreg did not write).
 #[pyfunction]
-#[pyo3(signature = (path, points, intensity=None))]
+#[pyo3(signature = (path, points, intensity=None, force=false))]
 fn write_cloud(
     py: Python<'_>,
     path: PathBuf,
     points: PyReadonlyArray2<'_, f32>,
     intensity: Option<PyReadonlyArray1<'_, f32>>,
+    force: bool,
 ) -> PyResult<()> {
     let cloud = cloud_from(&points, intensity.as_ref(), "points")?;
-    py.detach(|| cgenreg::io::cloud::save_cloud(&path, &cloud))
-        .map_err(to_py)
+    interruptible(py, || {
+        cgenreg::io::cloud::save_cloud_guarded(&path, &cloud, force)
+    })
 }
 
 fn cloud_from(
@@ -367,7 +425,19 @@ fn cloud_from(
     intensity: Option<&PyReadonlyArray1<'_, f32>>,
     what: &str,
 ) -> PyResult<PointCloud> {
-    let mut c = PointCloud::from_points(points_view(points, what)?.to_vec());
+    let view = points_view(points, what)?;
+    // the registration's own copies of the points, estimated before any is made: an
+    // allocation that fails would abort the interpreter
+    cgenreg::io::limits::check_memory(
+        &format!("{what}: {} points", view.len()),
+        (view.len() as u64).saturating_mul(cgenreg::io::limits::BYTES_PER_INPUT_POINT),
+    )
+    .map_err(to_py)?;
+    let mut copy =
+        cgenreg::io::limits::try_vec(&format!("{what}: a copy of the points"), view.len())
+            .map_err(to_py)?;
+    copy.extend_from_slice(view);
+    let mut c = PointCloud::from_points(copy);
     if let Some(i) = intensity {
         let v = i.as_array().to_vec();
         if v.len() != c.len() {
@@ -393,9 +463,7 @@ fn cloud_from(
 }
 
 fn run_registration(py: Python<'_>, input: PairInput, options: Vec<String>) -> PyResult<RegResult> {
-    let reg = py
-        .detach(|| cgenreg::cli::register_with_options(input, &options))
-        .map_err(to_py)?;
+    let reg = interruptible(py, || cgenreg::cli::register_with_options(input, &options))?;
     RegResult::new(py, reg)
 }
 
@@ -505,9 +573,7 @@ fn fpfh<'py>(
         )));
     }
     let cloud = cloud_from(&points, None, "points")?;
-    let b = py
-        .detach(|| cgenreg::pipeline::geo::fpfh_branch(&cloud, voxel))
-        .map_err(to_py)?;
+    let b = interruptible(py, || cgenreg::pipeline::geo::fpfh_branch(&cloud, voxel))?;
     let dim = b.features.dim;
     Ok((
         rows(py, flat_points(&b.keypoints.points), 3)?,
@@ -564,44 +630,38 @@ fn match_then_fuse<'py>(
     if image.is_none() {
         params.fusion.mode = FusionMode::GeometryOnly;
     }
-    let corr = py
-        .detach(|| -> cgenreg::Result<_> {
-            match &image {
-                Some((ia, va, ib, vb)) => {
-                    // the paper's configuration streams from the features (same
-                    // correspondences, no N x M matrix); others form the matrices within the
-                    // dense-matrix budget
-                    let streamed = cgenreg::fusion::match_then_fuse_select_features(
-                        (ia, va.as_slice(), ib, vb.as_slice()),
-                        (&fs, &ft),
-                        &params.fusion,
-                    )?;
-                    if let Some(c) = streamed {
-                        return Ok(c);
-                    }
-                    let geo = cosine_similarity(&fs, &ft)?;
-                    let img = cosine_similarity(ia, ib)?;
-                    match_then_fuse_select(
-                        Some((&img, Some(va), Some(vb))),
-                        Some(&geo),
-                        &params.fusion,
-                    )
+    let corr = interruptible(py, || -> cgenreg::Result<_> {
+        match &image {
+            Some((ia, va, ib, vb)) => {
+                // the paper's configuration streams from the features (same
+                // correspondences, no N x M matrix); others form the matrices within the
+                // dense-matrix budget
+                let streamed = cgenreg::fusion::match_then_fuse_select_features(
+                    (ia, va.as_slice(), ib, vb.as_slice()),
+                    (&fs, &ft),
+                    &params.fusion,
+                )?;
+                if let Some(c) = streamed {
+                    return Ok(c);
                 }
-                None => match (params.fusion.selection, params.fusion.calibration_geo) {
-                    // as the pipeline's geometric-only tail: row softmax keeps each row's
-                    // argmax, so row NN needs no N x M matrix (same correspondences)
-                    (Selection::RowNn, Calibration::RowSoftmax { tau }) => {
-                        cgenreg::fusion::streaming::row_nn_posterior(&fs, &ft, tau)
-                    }
-                    _ => match_then_fuse_select(
-                        None,
-                        Some(&cosine_similarity(&fs, &ft)?),
-                        &params.fusion,
-                    ),
-                },
+                let geo = cosine_similarity(&fs, &ft)?;
+                let img = cosine_similarity(ia, ib)?;
+                match_then_fuse_select(Some((&img, Some(va), Some(vb))), Some(&geo), &params.fusion)
             }
-        })
-        .map_err(to_py)?;
+            None => match (params.fusion.selection, params.fusion.calibration_geo) {
+                // as the pipeline's geometric-only tail: row softmax keeps each row's
+                // argmax, so row NN needs no N x M matrix (same correspondences)
+                (Selection::RowNn, Calibration::RowSoftmax { tau }) => {
+                    cgenreg::fusion::streaming::row_nn_posterior(&fs, &ft, tau)
+                }
+                _ => match_then_fuse_select(
+                    None,
+                    Some(&cosine_similarity(&fs, &ft)?),
+                    &params.fusion,
+                ),
+            },
+        }
+    })?;
     let (mut a, mut b, mut s) = (Vec::new(), Vec::new(), Vec::new());
     for c in corr {
         a.push(c.src);
@@ -645,9 +705,9 @@ fn estimate<'py>(
         None => vec![1.0; s.len()],
     };
     let params = cgenreg::cli::fusion_settings(&options, false).map_err(to_py)?;
-    let e = py
-        .detach(|| cgenreg::estimate::estimate_pose(s, t, &w, &params.estimator))
-        .map_err(to_py)?;
+    let e = interruptible(py, || {
+        cgenreg::estimate::estimate_pose(s, t, &w, &params.estimator)
+    })?;
     let m = cgenreg::pipeline::result::matrix_rows(&e.target_from_source);
     let inl: Vec<u64> = e.inliers.iter().map(|&i| i as u64).collect();
     Ok((
@@ -662,9 +722,7 @@ fn estimate<'py>(
 /// label, params, identity, manifest and the per-pair rows.
 #[pyfunction]
 fn load_bench(py: Python<'_>, path: PathBuf) -> PyResult<String> {
-    let run = py
-        .detach(|| cgenreg::report::compare::load_bench_run(&path))
-        .map_err(to_py)?;
+    let run = interruptible(py, || cgenreg::report::compare::load_bench_run(&path))?;
     let v = serde_json::json!({
         "label": run.label,
         "params": run.params,
@@ -690,9 +748,7 @@ fn manifest_pairs<'py>(
         Option<Bound<'py, PyArray2<f64>>>,
     )>,
 > {
-    let ds = py
-        .detach(|| cgenreg::dataset::Dataset::load(&manifest))
-        .map_err(to_py)?;
+    let ds = interruptible(py, || cgenreg::dataset::Dataset::load(&manifest))?;
     ds.pairs()
         .iter()
         .map(|p| {
@@ -714,9 +770,9 @@ fn manifest_pairs<'py>(
 
 /// The command line in-process (`argv[0]` is the program name); returns the exit code.
 #[pyfunction]
-fn cli_main(py: Python<'_>, argv: Vec<String>) -> i32 {
+fn cli_main(py: Python<'_>, argv: Vec<String>) -> PyResult<i32> {
     let argv = argv.into_iter().map(Into::into).collect();
-    py.detach(|| cgenreg::cli::main_with_args(argv))
+    interruptible(py, || Ok(cgenreg::cli::main_with_args(argv)))
 }
 
 #[pymodule]

@@ -388,13 +388,24 @@ pub fn render_screenshot_with(
     out: &Path,
     configure: impl FnOnce(&mut App),
 ) -> Result<(), String> {
+    let png = render_screenshot_png(model, panel, size, configure)?;
+    crate::error::write_atomic(out, &png).map_err(|e| e.to_string())
+}
+
+/// One panel of the inspector for `model` as PNG bytes carrying cgenreg's marker
+/// ([`crate::io::output::png_with_marker`]), for a guarded write.
+pub fn render_screenshot_png(
+    model: &InspectorModel,
+    panel: Panel,
+    size: (u32, u32),
+    configure: impl FnOnce(&mut App),
+) -> Result<Vec<u8>, String> {
     let mut r = HeadlessRenderer::new(model.clone(), size)?;
     r.app.ui_state.tab = panel;
     configure(&mut r.app);
     let img = r.settled_frame()?;
-    if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
-    }
-    img.save_with_format(out, image::ImageFormat::Png)
-        .map_err(|e| format!("{}: {e}", out.display()))
+    let mut png = std::io::Cursor::new(Vec::new());
+    img.write_to(&mut png, image::ImageFormat::Png)
+        .map_err(|e| format!("encoding the screenshot: {e}"))?;
+    crate::io::output::png_with_marker(png.get_ref()).map_err(|e| e.to_string())
 }

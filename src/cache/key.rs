@@ -60,8 +60,9 @@ pub fn hash_bytes(bytes: &[u8]) -> String {
 /// blake3 of a file's content, hex.
 pub fn hash_file(path: &Path) -> Result<String> {
     let mut h = blake3::Hasher::new();
-    let f = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
-    h.update_reader(f).map_err(|e| Error::io(path, e))?;
+    // an input: regular files only (a FIFO would block the hash forever), bounded
+    let (f, len) = crate::io::limits::open_input(path)?;
+    std::io::copy(&mut std::io::Read::take(f, len), &mut h).map_err(|e| Error::io(path, e))?;
     Ok(h.finalize().to_hex().to_string())
 }
 

@@ -24,8 +24,10 @@ use std::path::PathBuf;
 fn positive_f64(s: &str) -> Result<f64, String> {
     match s.trim().parse::<f64>() {
         Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
-        Ok(v) => Err(format!("must be a positive length in metres, got {v}")),
-        Err(e) => Err(e.to_string()),
+        _ => Err(format!(
+            "must be a positive length in metres, got {}",
+            s.trim()
+        )),
     }
 }
 
@@ -33,14 +35,55 @@ fn positive_f32(s: &str) -> Result<f32, String> {
     positive_f64(s).map(|v| v as f32)
 }
 
+/// A finite number > 0 that is not a length (softmax temperatures).
+fn positive_number(s: &str) -> Result<f32, String> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if v.is_finite() && v > 0.0 && (v as f32) > 0.0 => Ok(v as f32),
+        _ => Err(format!("must be a positive number, got {}", s.trim())),
+    }
+}
+
+/// A probability strictly between 0 and 1 (the Noisy-AND prior).
+fn probability(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if v > 0.0 && v < 1.0 => Ok(v),
+        _ => Err(format!(
+            "must be a probability between 0 and 1 (exclusive), got {}",
+            s.trim()
+        )),
+    }
+}
+
+/// A whole number of at least `min`: one message for every value that is not one (-1, 1.5,
+/// "x", 2^70), naming what is accepted and what was given.
+fn whole_number(s: &str, min: usize) -> Result<usize, String> {
+    let t = s.trim();
+    match t.parse::<usize>() {
+        Ok(n) if n >= min => Ok(n),
+        Ok(n) => Err(format!("must be a whole number of at least {min}, got {n}")),
+        Err(_) if t.parse::<i128>().is_ok_and(|v| v > 0) => Err(format!(
+            "must be a whole number of at least {min} and at most {}, got {t}",
+            usize::MAX
+        )),
+        Err(_) => Err(format!("must be a whole number of at least {min}, got {t}")),
+    }
+}
+
+/// A count of at least 1 (views per side, top-k).
+fn count_from_1(s: &str) -> Result<usize, String> {
+    whole_number(s, 1)
+}
+
+/// A count of at least 0 (the safeguard margin).
+fn count_from_0(s: &str) -> Result<usize, String> {
+    whole_number(s, 0)
+}
+
 /// Frames per fragment: 1 ..= the frame limit (checked before any work starts; every frame
 /// is rendered, written and generated, so 100,000 would run for hours and fill the disk).
 fn frame_count(s: &str) -> Result<usize, String> {
-    let n: usize = s.trim().parse().map_err(|e| format!("{e}"))?;
+    let n = whole_number(s, 1)?;
     let max = crate::io::limits::max_frames();
-    if n == 0 {
-        return Err("must be at least 1".into());
-    }
     if n > max {
         return Err(format!(
             "{n} frames per fragment exceeds the limit of {max} (set {}=N to allow more)",
@@ -67,13 +110,13 @@ pub struct PipelineArgs {
     pub scales: Option<u32>,
     /// Keypoint voxel size in metres (default: the preset's). FPFH radii follow it (normals
     /// 2v, features 5v), and so do the thresholds not set below (2v) and the lift radius (1v).
-    #[arg(long, value_parser = positive_f64, allow_negative_numbers = true)]
+    #[arg(long, value_parser = positive_f64, allow_hyphen_values = true)]
     pub voxel: Option<f64>,
     /// SC2-PCR's inlier threshold and the GT inlier-ratio threshold, metres (default: 2 x voxel).
-    #[arg(long, value_parser = positive_f64, allow_negative_numbers = true)]
+    #[arg(long, value_parser = positive_f64, allow_hyphen_values = true)]
     pub inlier_threshold: Option<f64>,
     /// SC2-PCR's compatibility threshold d_thre, metres (default: 2 x voxel).
-    #[arg(long, value_parser = positive_f64, allow_negative_numbers = true)]
+    #[arg(long, value_parser = positive_f64, allow_hyphen_values = true)]
     pub d_thre: Option<f64>,
     /// Learned features for the source scan (.npz with points/feats, or .pkl); needs --learned-target.
     #[arg(long, requires = "learned_target")]
@@ -100,10 +143,10 @@ pub struct PipelineArgs {
     #[arg(long, value_enum, default_value = "row")]
     pub calibration: Calibration,
     /// Softmax temperature of the image branch.
-    #[arg(long, default_value_t = 0.1)]
+    #[arg(long, default_value_t = 0.1, value_parser = positive_number, allow_hyphen_values = true)]
     pub tau_img: f32,
     /// Softmax temperature of the geometric branch.
-    #[arg(long, default_value_t = 0.1)]
+    #[arg(long, default_value_t = 0.1, value_parser = positive_number, allow_hyphen_values = true)]
     pub tau_geo: f32,
     /// Fusion of the two branches. Default: `visibility` when the image branch runs (the
     /// union's, the geometric branch's, Noisy-AND's and the image branch's poses; the one most
@@ -112,14 +155,14 @@ pub struct PipelineArgs {
     #[arg(long, value_enum)]
     pub fusion: Option<FusionMode>,
     /// Noisy-AND prior; default 1/(N*M).
-    #[arg(long)]
+    #[arg(long, value_parser = probability, allow_hyphen_values = true)]
     pub prior: Option<f64>,
     /// Correspondence selection. Default: `nn` when only the geometric branch runs (the
     /// SC2-PCR FPFH protocol), `mutual` when branches are fused (the paper).
     #[arg(long, value_enum)]
     pub selection: Option<Selection>,
     /// k of --selection topk.
-    #[arg(long, default_value_t = 8000)]
+    #[arg(long, default_value_t = 8000, value_parser = count_from_1, allow_hyphen_values = true)]
     pub topk: usize,
     #[arg(long, value_enum, default_value = "sc2pcr")]
     pub estimator: EstimatorKind,
@@ -276,17 +319,17 @@ pub struct ImageArgs {
     #[arg(long)]
     pub vfm_model: Option<PathBuf>,
     /// Views per side.
-    #[arg(long, default_value_t = 4)]
+    #[arg(long, default_value_t = 4, value_parser = count_from_1, allow_hyphen_values = true)]
     pub k: usize,
     /// Safeguard margin m (frames dropped on each side of the source/target seam).
-    #[arg(long, default_value_t = 3)]
+    #[arg(long, default_value_t = 3, value_parser = count_from_0, allow_hyphen_values = true)]
     pub margin: usize,
     /// Frames per fragment in the depth video (L); at most 1000 unless CGENREG_MAX_FRAMES
     /// allows more.
-    #[arg(long, default_value_t = 50, value_parser = frame_count, allow_negative_numbers = true)]
+    #[arg(long, default_value_t = 50, value_parser = frame_count, allow_hyphen_values = true)]
     pub frames: usize,
     /// Lifting radius in metres (default: the keypoint voxel).
-    #[arg(long, value_parser = positive_f32, allow_negative_numbers = true)]
+    #[arg(long, value_parser = positive_f32, allow_hyphen_values = true)]
     pub lift_radius: Option<f32>,
     /// Virtual camera for scans with no depth frames: f-theta for LiDAR-like clouds (they
     /// carry intensity) and a pinhole trajectory otherwise (auto), or force one.

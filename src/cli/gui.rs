@@ -582,19 +582,14 @@ fn run_compare_screenshot(a: &ScreenshotArgs, runs: &[PathBuf], panel: Panel) ->
     eprint!("{}", crate::report::compare::table(c));
     // the controls show what the worker would run (nothing runs for this screenshot)
     let params = worker.params().clone();
-    crate::io::output::prepare(&a.out, crate::io::output::OutputKind::Png, a.force)?;
-    crate::app::headless::render_screenshot_with(
-        &model,
-        panel,
-        (a.width, a.height),
-        &a.out,
-        |app| {
+    let png =
+        crate::app::headless::render_screenshot_png(&model, panel, (a.width, a.height), |app| {
             app.params = params;
             app.tabs.compare.set_loaded(loaded);
             app.tabs.compare.selected = selected;
-        },
-    )
-    .map_err(|e| Error::Invalid(format!("cannot render the screenshot headless: {e}")))?;
+        })
+        .map_err(|e| Error::Invalid(format!("cannot render the screenshot headless: {e}")))?;
+    crate::io::output::write(&a.out, crate::io::output::OutputKind::Png, a.force, &png)?;
     eprintln!("wrote {}", a.out.display());
     Ok(())
 }
@@ -602,6 +597,9 @@ fn run_compare_screenshot(a: &ScreenshotArgs, runs: &[PathBuf], panel: Panel) ->
 pub fn run_screenshot(a: ScreenshotArgs) -> Result<()> {
     // before the work, and again right before the write below
     crate::io::output::prepare(&a.out, crate::io::output::OutputKind::Png, a.force)?;
+    if let Some(p) = &a.result_json {
+        crate::io::output::prepare(p, crate::io::output::OutputKind::ResultJson, a.force)?;
+    }
     let panel = Panel::from_name(&a.panel).ok_or_else(|| {
         Error::Param(format!(
             "--panel {:?}: expected pairs, views, 3d, posterior, plots, stages, compare or hypotheses",
@@ -698,7 +696,12 @@ pub fn run_screenshot(a: ScreenshotArgs) -> Result<()> {
             .ok_or_else(|| Error::Missing(format!("{id}: no registration result to write")))?;
         let text = serde_json::to_string_pretty(r)
             .map_err(|e| Error::Encode(format!("serialising the result: {e}")))?;
-        crate::error::write_atomic(path, format!("{text}\n").as_bytes())?;
+        crate::io::output::write(
+            path,
+            crate::io::output::OutputKind::ResultJson,
+            a.force,
+            format!("{text}\n").as_bytes(),
+        )?;
         eprintln!("wrote {}", path.display());
     }
     // Figure 7 (Noisy-AND against Noisy-OR), as the inspector shows it after a run.
@@ -741,13 +744,8 @@ pub fn run_screenshot(a: ScreenshotArgs) -> Result<()> {
             )));
         }
     }
-    crate::io::output::prepare(&a.out, crate::io::output::OutputKind::Png, a.force)?;
-    crate::app::headless::render_screenshot_with(
-        &model,
-        panel,
-        (a.width, a.height),
-        &a.out,
-        |app| {
+    let png =
+        crate::app::headless::render_screenshot_png(&model, panel, (a.width, a.height), |app| {
             app.params = params;
             // unset options keep the inspector's own defaults (one set for both)
             if let Some(m) = mode {
@@ -772,9 +770,10 @@ pub fn run_screenshot(a: ScreenshotArgs) -> Result<()> {
             if let Some(s) = sort {
                 app.ui_state.pair_sort = s;
             }
-        },
-    )
-    .map_err(|e| Error::Invalid(format!("cannot render the screenshot headless: {e}")))?;
+        })
+        .map_err(|e| Error::Invalid(format!("cannot render the screenshot headless: {e}")))?;
+    // checked again and written atomically: a link planted while the pair ran is refused
+    crate::io::output::write(&a.out, crate::io::output::OutputKind::Png, a.force, &png)?;
     eprintln!("wrote {}", a.out.display());
     Ok(())
 }

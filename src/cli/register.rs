@@ -167,9 +167,8 @@ pub fn run(a: RegisterArgs) -> Result<()> {
         inputs,
     } = register_input(input, &a.pipeline, &a.image)?;
     if let Some(path) = &a.export_corr {
-        crate::io::output::prepare(path, crate::io::output::OutputKind::Npz, a.force)?;
         let t = crate::pipeline::export::export_correspondences(
-            path, &pair, &params, &inputs, None, &res,
+            path, a.force, &pair, &params, &inputs, None, &res,
         )?;
         // stderr: stdout stays the result (JSON with --json)
         eprintln!("wrote {} correspondences to {}", t.len(), path.display());

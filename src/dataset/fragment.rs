@@ -149,7 +149,8 @@ fn backproject_frame(
     }
     let color = match (&frame.color_path, opts.with_color) {
         (Some(p), true) => {
-            let img = image::open(p)
+            let bytes = crate::io::limits::read_file(p)?;
+            let img = image::load_from_memory(&bytes)
                 .map_err(|e| Error::format(p, "image", "a readable colour image", e.to_string()))?
                 .to_rgb8();
             if img.width() != k.width || img.height() != k.height {
@@ -228,7 +229,10 @@ pub fn build_fragment_with(
     let parts = fs
         .frames
         .par_iter()
-        .map(|f| backproject_frame(&fs, f, opts))
+        .map(|f| {
+            crate::cancel::check()?;
+            backproject_frame(&fs, f, opts)
+        })
         .collect::<Result<Vec<_>>>()?;
     let name = name.into();
     if parts.iter().all(|(p, _)| p.is_empty()) {

@@ -410,6 +410,20 @@ fn gt_from_poses(
     ))
 }
 
+/// The longest fragment id a manifest may give (ids become file and pair names).
+const MAX_ID_BYTES: usize = 255;
+
+/// Whether `s` holds a character that would act on a terminal or hide what is printed: a
+/// control character (C0, DEL, C1: ESC, NUL, line breaks) or a direction or invisible
+/// formatting mark (U+200B-U+200F, U+202A-U+202E, U+2060-U+2069, U+FEFF).
+pub fn has_hidden_characters(s: &str) -> bool {
+    s.chars().any(|c| {
+        c.is_control()
+            || matches!(c, '\u{200B}'..='\u{200F}' | '\u{202A}'..='\u{202E}'
+                | '\u{2060}'..='\u{2069}' | '\u{FEFF}')
+    })
+}
+
 /// Paths of a manifest, resolved against its root: they must exist with the kind asked for and,
 /// unless the manifest allows otherwise, lie inside the root once symlinks are resolved.
 struct Resolver<'a> {
@@ -442,6 +456,9 @@ impl Resolver<'_> {
             ));
         }
         if !self.allow_outside {
+            // the readers check the file they open against the root again (a file swapped
+            // for a link after this check, a frame inside a sequence folder)
+            crate::io::limits::confine(&p, &self.real_root);
             let real = p.canonicalize().map_err(|e| Error::io(&p, e))?;
             if !real.starts_with(&self.real_root) {
                 return Err(bad(
@@ -621,6 +638,20 @@ impl Dataset {
 
     /// Load a manifest, with `root` (when given) replacing the manifest's `root` field.
     pub fn load_with_root(path: &Path, root: Option<&Path>) -> Result<Dataset> {
+        // before the parse: the TOML document takes about 60 times its bytes in memory
+        let len = crate::io::limits::check_regular(path)?;
+        let max = crate::io::limits::max_manifest_bytes();
+        if len > max {
+            return Err(bad(
+                path,
+                "file size",
+                format!(
+                    "a manifest of at most {max} bytes (raise {} if it is real)",
+                    crate::io::limits::ENV_MAX_MANIFEST_BYTES
+                ),
+                format!("{len} bytes"),
+            ));
+        }
         let text = crate::io::limits::read_text(path)?;
         Self::parse_with_root(path, &text, root)
     }
@@ -657,7 +688,19 @@ impl Dataset {
                 root.display().to_string(),
             ));
         }
-        if raw.name.is_empty() || raw.name.contains('/') {
+        let allow_outside = raw.allow_outside_root.unwrap_or(false);
+        let real_root = root.canonicalize().map_err(|e| Error::io(&root, e))?;
+        if !allow_outside && real_root.parent().is_none() {
+            // every file is inside "/": the confinement would confine nothing
+            return Err(bad(
+                path,
+                "root",
+                "the data's folder (the file system's root confines nothing; put \
+                 `allow_outside_root = true` in the manifest to read any file)",
+                root.display().to_string(),
+            ));
+        }
+        if raw.name.is_empty() || raw.name.contains('/') || has_hidden_characters(&raw.name) {
             return Err(bad(
                 path,
                 "name",
@@ -674,9 +717,9 @@ impl Dataset {
 
         let resolver = Resolver {
             manifest: path,
-            allow_outside: raw.allow_outside_root.unwrap_or(false),
+            allow_outside,
             // resolved once: every path is checked against the real root (symlinks resolved)
-            real_root: root.canonicalize().map_err(|e| Error::io(&root, e))?,
+            real_root,
             root: &root,
         };
         let resolve = |field: &str, rel: &str, dir: bool| resolver.resolve(field, rel, dir);
@@ -685,12 +728,21 @@ impl Dataset {
         let mut seen = HashMap::new();
         for (i, f) in raw.fragments.iter().enumerate() {
             let field = format!("fragments[{i}] (id {:?})", f.id);
-            if f.id.is_empty() || f.id.contains('/') || f.id.contains('-') {
+            if f.id.is_empty()
+                || f.id.contains('/')
+                || f.id.contains('-')
+                || f.id.len() > MAX_ID_BYTES
+                || has_hidden_characters(&f.id)
+            {
                 return Err(bad(
                     path,
                     format!("{field}.id"),
-                    "a non-empty id without '/' or '-'",
-                    format!("{:?}", f.id),
+                    format!(
+                        "a non-empty id of at most {MAX_ID_BYTES} bytes without '/', '-' or \
+                         control characters (ESC, NUL, line breaks, direction marks)"
+                    ),
+                    // escaped: the id may hold terminal escapes
+                    format!("{:?}", f.id.escape_default().to_string()),
                 ));
             }
             if seen.insert(f.id.clone(), i).is_some() {
@@ -713,7 +765,11 @@ impl Dataset {
         let mut pairs = Vec::with_capacity(raw.pairs.len());
         let mut pair_ids = HashMap::new();
         for (i, p) in raw.pairs.iter().enumerate() {
-            let field = format!("pairs[{i}] ({} <- {})", p.target, p.source);
+            let field = format!(
+                "pairs[{i}] ({} <- {})",
+                p.target.escape_debug(),
+                p.source.escape_debug()
+            );
             for (which, id) in [("target", &p.target), ("source", &p.source)] {
                 if !seen.contains_key(id) {
                     return Err(bad(
@@ -723,6 +779,14 @@ impl Dataset {
                         format!("{id:?} (unknown)"),
                     ));
                 }
+            }
+            if let Some(split) = p.split.as_deref().filter(|s| has_hidden_characters(s)) {
+                return Err(bad(
+                    path,
+                    format!("{field}.split"),
+                    "a split name without control characters or direction marks",
+                    format!("{:?}", split.escape_default().to_string()),
+                ));
             }
             let gt_poses = p.gt_poses.unwrap_or(false);
             let n_gt = [

@@ -211,6 +211,12 @@ impl Neighbourhoods {
                 let mut d2 = Vec::with_capacity(idx.capacity());
                 let mut nb = Vec::new();
                 for (o, p) in chunk.iter().enumerate() {
+                    // a cancelled run searches no more (an empty neighbourhood per point);
+                    // the stage discards what was computed
+                    if crate::cancel::requested() {
+                        counts.push(0);
+                        continue;
+                    }
                     let i = c * CHUNK + o;
                     index.hybrid_sq_unsorted_into(p, radius, max_nn, &mut nb);
                     let before = idx.len();
@@ -252,7 +258,7 @@ fn spfh_from(points: &[Point3<f32>], normals: &[Vector3<f32>], nbh: &Neighbourho
     let mut out = vec![0.0f32; points.len() * FPFH_DIM];
     out.par_chunks_mut(FPFH_DIM).enumerate().for_each(|(i, h)| {
         let (nb, _) = nbh.of(i);
-        if nb.is_empty() {
+        if nb.is_empty() || crate::cancel::requested() {
             return;
         }
         let incr = 100.0 / nb.len() as f64;
@@ -315,7 +321,7 @@ pub fn compute_fpfh(
     let mut out = vec![0.0f32; points.len() * FPFH_DIM];
     out.par_chunks_mut(FPFH_DIM).enumerate().for_each(|(i, h)| {
         let (nb, d2) = nbh.of(i);
-        if nb.is_empty() {
+        if nb.is_empty() || crate::cancel::requested() {
             return;
         }
         let mut acc = [0.0f32; FPFH_DIM];

@@ -38,6 +38,10 @@ pub fn row_nn_posterior(src: &Features, tgt: &Features, tau: f32) -> Result<Vec<
         .enumerate()
         .map_init(Vec::new, |s, (t, a_band)| {
             let rows = a_band.len() / d;
+            // a cancelled run skips the remaining bands (checked after the loop)
+            if crate::cancel::requested() {
+                return Vec::new();
+            }
             let mut best = vec![None; rows];
             // The fused kernel takes the rows in multiples of 8 and holds no similarity row;
             // the rest (and every row without it) goes through one band buffer per task.
@@ -78,6 +82,7 @@ pub fn row_nn_posterior(src: &Features, tgt: &Features, tau: f32) -> Result<Vec<
         })
         .flatten_iter()
         .collect();
+    crate::cancel::check()?;
     out.sort_unstable_by(super::select::order);
     Ok(out)
 }

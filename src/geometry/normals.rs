@@ -22,6 +22,10 @@ pub fn estimate_normals(
     points
         .par_iter()
         .map_init(Vec::new, |nb, p| {
+            // a cancelled run stops here (a zero normal); its stage discards the result
+            if crate::cancel::requested() {
+                return Vector3::zeros();
+            }
             index.hybrid_sq_unsorted_into(p, radius, max_nn, nb);
             normal_of(points, p, nb.iter().map(|e| e.0))
         })

@@ -139,6 +139,33 @@ pub fn save_cloud(path: &Path, cloud: &PointCloud) -> Result<()> {
     }
 }
 
+/// [`save_cloud`] through the output guard ([`crate::io::output::write`], kind `Cloud`): the
+/// folder must exist, links, FIFOs and devices are refused, the write is atomic, and an
+/// existing file is replaced only when it is a PLY cgenreg wrote, or with `force`. What the
+/// Python package's `write_cloud` runs.
+pub fn save_cloud_guarded(path: &Path, cloud: &PointCloud, force: bool) -> Result<()> {
+    use super::output::{prepare, write, OutputKind};
+    // before encoding: a bad path fails at once
+    prepare(path, OutputKind::Cloud, force)?;
+    let bytes = match extension(path).as_str() {
+        "ply" => super::ply::encode_ply(cloud),
+        "npy" => {
+            let flat: Vec<f32> = cloud.points.iter().flat_map(|p| [p.x, p.y, p.z]).collect();
+            super::npy::encode_npy_f32(&[cloud.len(), 3], &flat)
+        }
+        "xyz" | "txt" | "pts" => super::xyz::encode_xyz(cloud).into_bytes(),
+        other => {
+            return Err(Error::format(
+                path,
+                "extension",
+                "one of .ply, .npy, .xyz, .txt, .pts",
+                format!("{other:?}"),
+            ))
+        }
+    };
+    write(path, OutputKind::Cloud, force, &bytes)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

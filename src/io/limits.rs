@@ -36,6 +36,10 @@ pub const ENV_MAX_NESTING: &str = "CGENREG_MAX_NESTING";
 pub const ENV_MAX_DECODED_BYTES: &str = "CGENREG_MAX_DECODED_BYTES";
 pub const ENV_MAX_INPUT_BYTES: &str = "CGENREG_MAX_INPUT_BYTES";
 pub const ENV_MAX_FRAMES: &str = "CGENREG_MAX_FRAMES";
+pub const ENV_MAX_MANIFEST_BYTES: &str = "CGENREG_MAX_MANIFEST_BYTES";
+/// Default maximum size of a dataset manifest: 16 MiB (a manifest of 1,600 pairs with their
+/// GT matrices is about 0.5 MB). Checked before the TOML is parsed.
+pub const DEFAULT_MAX_MANIFEST_BYTES: u64 = 16 << 20;
 
 thread_local! {
     static OVERRIDES: std::cell::RefCell<Vec<(&'static str, u64)>> =
@@ -99,6 +103,11 @@ pub fn max_input_bytes() -> u64 {
     env_or(ENV_MAX_INPUT_BYTES, DEFAULT_MAX_INPUT_BYTES)
 }
 
+/// Maximum size of a dataset manifest (capped by the input limit).
+pub fn max_manifest_bytes() -> u64 {
+    env_or(ENV_MAX_MANIFEST_BYTES, DEFAULT_MAX_MANIFEST_BYTES).min(max_input_bytes())
+}
+
 /// Maximum frames per fragment.
 pub fn max_frames() -> usize {
     env_or(ENV_MAX_FRAMES, DEFAULT_MAX_FRAMES as u64) as usize
@@ -142,6 +151,79 @@ pub fn check_count(
             format!("{count} (file truncated or header wrong)"),
         )),
     }
+}
+
+/// Bytes this process can still allocate, as far as the system says: the address-space limit
+/// (`ulimit -v`) less the address space in use, and the machine's available memory plus free
+/// swap; None where neither is known.
+pub fn memory_headroom() -> Option<u64> {
+    let mut bounds: Vec<u64> = Vec::new();
+    #[cfg(target_os = "linux")]
+    {
+        let mut lim = libc::rlimit {
+            rlim_cur: 0,
+            rlim_max: 0,
+        };
+        // SAFETY: getrlimit writes the struct it is given.
+        if unsafe { libc::getrlimit(libc::RLIMIT_AS, &mut lim) } == 0
+            && lim.rlim_cur != libc::RLIM_INFINITY
+        {
+            // SAFETY: sysconf has no preconditions.
+            let page = unsafe { libc::sysconf(libc::_SC_PAGESIZE) }.max(4096) as u64;
+            let used = std::fs::read_to_string("/proc/self/statm")
+                .ok()
+                .and_then(|s| s.split_whitespace().next()?.parse::<u64>().ok())
+                .map_or(0, |pages| pages * page);
+            // rlim_t is u64 here and u32 on 32-bit targets
+            #[allow(clippy::unnecessary_cast)]
+            let cur = lim.rlim_cur as u64;
+            bounds.push(cur.saturating_sub(used));
+        }
+        if let Ok(info) = std::fs::read_to_string("/proc/meminfo") {
+            let kib = |key: &str| {
+                info.lines()
+                    .find(|l| l.starts_with(key))
+                    .and_then(|l| l.split_whitespace().nth(1)?.parse::<u64>().ok())
+            };
+            if let Some(avail) = kib("MemAvailable:") {
+                bounds.push((avail + kib("SwapFree:").unwrap_or(0)) * 1024);
+            }
+        }
+    }
+    bounds.into_iter().min()
+}
+
+/// Fail with [`Error::OutOfMemory`] when `need` bytes (what `what` will allocate, estimated
+/// before it does) exceed [`memory_headroom`]: an allocation that fails aborts the process (a
+/// Rust program cannot catch it), which would take a Python interpreter with it.
+pub fn check_memory(what: &str, need: u64) -> Result<()> {
+    match memory_headroom() {
+        Some(available) if need > available => Err(Error::OutOfMemory {
+            what: what.to_string(),
+            need,
+            available,
+        }),
+        _ => Ok(()),
+    }
+}
+
+/// Memory a registration may use per input point, at most: its copy of the point (12 bytes),
+/// the voxel grid's accumulators, keys and order, and the reader's or caller's own buffers,
+/// rounded up. Checked with [`check_memory`] before an array of points enters the library.
+pub const BYTES_PER_INPUT_POINT: u64 = 96;
+
+/// A vector of `n` copies of `T` reserved without aborting: [`check_memory`], then a fallible
+/// reservation, either failing as [`Error::OutOfMemory`].
+pub fn try_vec<T>(what: &str, n: usize) -> Result<Vec<T>> {
+    let need = (n as u64).saturating_mul(std::mem::size_of::<T>() as u64);
+    check_memory(what, need)?;
+    let mut v = Vec::new();
+    v.try_reserve_exact(n).map_err(|_| Error::OutOfMemory {
+        what: what.to_string(),
+        need,
+        available: memory_headroom().unwrap_or(0),
+    })?;
+    Ok(v)
 }
 
 /// What kind of non-regular file `m` is, for error messages.
@@ -194,12 +276,91 @@ pub fn check_regular(path: &Path) -> Result<u64> {
     Ok(m.len())
 }
 
-/// Read a whole regular file (see [`check_regular`]); the read stops at the size limit even
+/// Paths a manifest confined to its root (a file, or a folder whose files are confined too),
+/// with the root they must stay in: [`open_input`] checks what it opened against it.
+static CONFINED: std::sync::Mutex<
+    Option<std::collections::HashMap<std::path::PathBuf, std::path::PathBuf>>,
+> = std::sync::Mutex::new(None);
+
+/// Notes that `path` (a file, or a folder and everything under it), as a manifest resolved it,
+/// must stay inside `real_root` (resolved) when opened: a file swapped for a link after the
+/// manifest's check is then refused by [`open_input`], which checks the file it opened.
+pub fn confine(path: &Path, real_root: &Path) {
+    if let Ok(mut m) = CONFINED.lock() {
+        m.get_or_insert_with(Default::default)
+            .insert(path.to_path_buf(), real_root.to_path_buf());
+    }
+}
+
+/// The root `path` or a folder above it was confined to, if any.
+fn confinement(path: &Path) -> Option<std::path::PathBuf> {
+    let m = CONFINED.lock().ok()?;
+    let m = m.as_ref()?;
+    path.ancestors().find_map(|a| m.get(a).cloned())
+}
+
+/// Opens an input file once and checks what was opened: a regular file (a FIFO is opened
+/// without blocking and refused, a device refused before any read), no larger than the input
+/// limit, and, when a manifest confined the path ([`confine`]), a file inside its root (the
+/// opened file's real path, so a link swapped in after the manifest's check is refused).
+/// Every reader of an input goes through this (or [`read_file`]).
+pub fn open_input(path: &Path) -> Result<(std::fs::File, u64)> {
+    // a device or FIFO is refused by its metadata before it is opened (opening some devices
+    // has effects)
+    check_regular(path)?;
+    let mut o = std::fs::File::options();
+    o.read(true);
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::OpenOptionsExt;
+        // a FIFO swapped in after the check must not block the open
+        o.custom_flags(libc::O_NONBLOCK | libc::O_NOCTTY);
+    }
+    let f = o.open(path).map_err(|e| Error::io(path, e))?;
+    let m = f.metadata().map_err(|e| Error::io(path, e))?;
+    if !m.is_file() {
+        return Err(Error::format(
+            path,
+            "file type",
+            "a regular file",
+            kind_name(&m),
+        ));
+    }
+    let max = max_input_bytes();
+    if m.len() > max {
+        return Err(Error::format(
+            path,
+            "file size",
+            format!("at most {max} bytes (raise {ENV_MAX_INPUT_BYTES} if the file is real)"),
+            format!("{} bytes", m.len()),
+        ));
+    }
+    #[cfg(target_os = "linux")]
+    if let Some(root) = confinement(path) {
+        use std::os::unix::io::AsRawFd;
+        let opened = std::fs::read_link(format!("/proc/self/fd/{}", f.as_raw_fd()))
+            .map_err(|e| Error::io(path, e))?;
+        if !opened.starts_with(&root) {
+            return Err(Error::format(
+                path,
+                "path",
+                format!(
+                    "a file inside the manifest's root {} (the file opened is checked, links \
+                     resolved)",
+                    root.display()
+                ),
+                format!("{} (outside the root)", opened.display()),
+            ));
+        }
+    }
+    Ok((f, m.len()))
+}
+
+/// Read a whole regular file (see [`open_input`]); the read stops at the size limit even
 /// if the file grows meanwhile.
 pub fn read_file(path: &Path) -> Result<Vec<u8>> {
     use std::io::Read;
-    let len = check_regular(path)?;
-    let f = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+    let (f, len) = open_input(path)?;
     let max = max_input_bytes();
     let mut buf = Vec::with_capacity(len as usize);
     f.take(max + 1)
@@ -303,6 +464,60 @@ impl Drop for ScratchDir {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// What was opened is checked, not only what the path named before: a confined path
+    /// swapped for a link out of its root after the check is refused, as is a FIFO (without
+    /// blocking); a file inside the root, or reached by a link inside it, is read.
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn open_input_checks_what_it_opened() {
+        let d = tempfile::tempdir().unwrap();
+        let root = d.path().join("root");
+        std::fs::create_dir_all(root.join("seq")).unwrap();
+        let outside = d.path().join("secret.txt");
+        std::fs::write(&outside, "secret").unwrap();
+        let frame = root.join("seq/frame.txt");
+        std::fs::write(&frame, "frame").unwrap();
+        let real_root = root.canonicalize().unwrap();
+        confine(&root.join("seq"), &real_root);
+        assert_eq!(read_file(&frame).unwrap(), b"frame");
+        // swapped for a link out of the root after the manifest's check
+        std::fs::remove_file(&frame).unwrap();
+        std::os::unix::fs::symlink(&outside, &frame).unwrap();
+        let e = read_file(&frame).unwrap_err().to_string();
+        assert!(
+            e.contains("outside the root") && e.contains("secret.txt"),
+            "{e}"
+        );
+        // a link that stays inside the root is fine
+        std::fs::write(root.join("seq/other.txt"), "other").unwrap();
+        std::fs::remove_file(&frame).unwrap();
+        std::os::unix::fs::symlink(root.join("seq/other.txt"), &frame).unwrap();
+        assert_eq!(read_file(&frame).unwrap(), b"other");
+        // a FIFO is refused at once
+        let fifo = root.join("seq/fifo");
+        let c = std::ffi::CString::new(fifo.to_str().unwrap()).unwrap();
+        assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+        let t = std::time::Instant::now();
+        let e = open_input(&fifo).unwrap_err().to_string();
+        assert!(e.contains("FIFO"), "{e}");
+        assert!(t.elapsed().as_secs() < 2);
+        // an unconfined path may be a link anywhere
+        let free = d.path().join("free.txt");
+        std::os::unix::fs::symlink(&outside, &free).unwrap();
+        assert_eq!(read_file(&free).unwrap(), b"secret");
+    }
+
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn memory_checks_refuse_what_cannot_fit() {
+        let e = check_memory("a test", u64::MAX).unwrap_err();
+        assert!(matches!(e, Error::OutOfMemory { .. }), "{e}");
+        assert!(e.to_string().contains("a test"), "{e}");
+        check_memory("a test", 1024).unwrap();
+        assert!(try_vec::<u64>("huge", usize::MAX / 4).is_err());
+        assert_eq!(try_vec::<u8>("small", 16).unwrap().capacity(), 16);
+    }
 
     #[test]
     fn counts_must_fit_the_data() {

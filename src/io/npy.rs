@@ -507,6 +507,8 @@ pub fn encode_npz(entries: &[(String, Vec<u8>)]) -> Result<Vec<u8>> {
     let opts = zip::write::SimpleFileOptions::default()
         .compression_method(zip::CompressionMethod::Deflated)
         .large_file(entries.iter().any(|(_, b)| b.len() >= u32::MAX as usize));
+    // cgenreg's marker: an output guard replaces an archive only when it carries it
+    w.set_comment(crate::io::output::NPZ_MARKER);
     for (name, bytes) in entries {
         w.start_file(name.as_str(), opts).map_err(|e| zerr(&e))?;
         w.write_all(bytes).map_err(|e| zerr(&e))?;

@@ -86,12 +86,17 @@ pub fn parse_xyz(path: &Path, text: &str) -> Result<PointCloud> {
 
 /// Write `x y z` lines with full f32 precision, atomically.
 pub fn write_xyz(path: &Path, cloud: &PointCloud) -> Result<()> {
+    write_atomic(path, encode_xyz(cloud).as_bytes())
+}
+
+/// `x y z` lines with full f32 precision.
+pub fn encode_xyz(cloud: &PointCloud) -> String {
     use std::fmt::Write;
     let mut s = String::with_capacity(cloud.len() * 30);
     for p in &cloud.points {
         let _ = writeln!(s, "{} {} {}", p.x, p.y, p.z);
     }
-    write_atomic(path, s.as_bytes())
+    s
 }
 
 #[cfg(test)]

@@ -329,17 +329,21 @@ pub fn npz_entries(t: &CorrespondenceTable) -> Result<Vec<(String, Vec<u8>)>> {
     Ok(e)
 }
 
-/// [`correspondence_table`] written to `path` as an `.npz` (atomically: a temporary file in
-/// the same folder, then a rename). Returns the table.
+/// [`correspondence_table`] written to `path` as an `.npz` through the output guard
+/// ([`crate::io::output::write`]: atomic, never through a link or over a device; a file
+/// cgenreg did not write only with `force`). Returns the table.
 pub fn export_correspondences(
     path: &Path,
+    force: bool,
     pair: &ScanPair,
     params: &RegisterParams,
     inputs: &FusionInputs,
     sims: Option<&Similarities>,
     res: &RegistrationResult,
 ) -> Result<CorrespondenceTable> {
+    use crate::io::output::{write, OutputKind};
     let t = correspondence_table(pair, params, inputs, sims, res)?;
-    crate::io::npy::write_npz(path, &npz_entries(&t)?)?;
+    let bytes = crate::io::npy::encode_npz(&npz_entries(&t)?)?;
+    write(path, OutputKind::Npz, force, &bytes)?;
     Ok(t)
 }

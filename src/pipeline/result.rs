@@ -200,9 +200,11 @@ impl Timer {
         label: &str,
         f: impl FnOnce() -> Result<T>,
     ) -> Result<T> {
+        crate::cancel::check()?;
         let t = Instant::now();
         let out = f()?;
         self.record_as(name, label, t.elapsed(), false);
+        crate::cancel::check()?;
         Ok(out)
     }
 }

@@ -85,6 +85,17 @@ pub struct VisibilityReport {
     /// trajectory around a cloud. Results written before this field existed had sensor views.
     #[serde(default = "sensor_views")]
     pub views: ViewOrigin,
+    /// The candidates whose pose could not be estimated (too few correspondences, a degenerate
+    /// set), with the reason: left out of the comparison, never fatal while another pose is.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub skipped: Vec<SkippedCandidate>,
+}
+
+/// A candidate the visibility mode could not estimate, and why.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SkippedCandidate {
+    pub pose: Candidate,
+    pub reason: String,
 }
 
 fn sensor_views() -> ViewOrigin {
@@ -119,9 +130,14 @@ impl VisibilityReport {
             .iter()
             .map(|c| format!("{} {:.3}", c.pose.label(), c.share))
             .collect();
+        let skipped: String = self
+            .skipped
+            .iter()
+            .map(|c| format!("; {} pose not estimated: {}", c.pose.label(), c.reason))
+            .collect();
         format!(
             "fusion: visibility (kept the {} pose; F = 95 % lower bound of the share of seen \
-             keypoints consistent with {} + {} depth views ({}): {})",
+             keypoints consistent with {} + {} depth views ({}): {}{skipped})",
             self.chosen.label(),
             self.source_views,
             self.target_views,
@@ -129,6 +145,12 @@ impl VisibilityReport {
             f.join(", ")
         )
     }
+}
+
+/// Whether a candidate's failure leaves it out of the comparison (an estimate that cannot be
+/// made from its correspondences) rather than ending the run (a cancelled run).
+fn skippable(e: &Error) -> bool {
+    !matches!(e, Error::Cancelled)
 }
 
 /// The index of the largest score; ties go to the earliest. None for no scores or a NaN.
@@ -238,13 +260,36 @@ pub(crate) fn register(
         ("image", image_params(&params.fusion)),
     ];
     let [and, geo, img] = branch_sets(inputs, sims, &mut timer, named)?;
-    let union = from_sets(pair, params, inputs, (&and, &geo), timer, memo)?;
+    let union = from_sets(pair, params, inputs, (&and, &geo), timer, memo);
     let src_tgt = (&inputs.source_geo, &inputs.target_geo);
     let alone = |corr| {
         let label = inputs.image_label.clone();
         finish(pair, params, Timer::new(), src_tgt, corr, label, None)
     };
-    let (g, a, i) = (alone(geo)?, alone(and)?, alone(img)?);
+    // A candidate that cannot be estimated (no correspondences: an image branch that saw
+    // nothing, a set too small for SC2-PCR) is left out and reported; the run fails only when
+    // no candidate has a pose.
+    let results = [union, alone(geo), alone(and), alone(img)];
+    let mut skipped = Vec::new();
+    let mut first_err = None;
+    let mut kept: Vec<(Candidate, RegistrationResult)> = Vec::new();
+    for (&pose, r) in Candidate::ALL.iter().zip(results) {
+        match r {
+            Ok(r) => kept.push((pose, r)),
+            Err(e) if skippable(&e) => {
+                skipped.push(SkippedCandidate {
+                    pose,
+                    reason: e.to_string(),
+                });
+                first_err.get_or_insert(e);
+            }
+            Err(e) => return Err(e),
+        }
+    }
+    if kept.is_empty() {
+        return Err(first_err
+            .unwrap_or_else(|| Error::Degenerate("fusion visibility: no candidate pose".into())));
+    }
 
     let t = Instant::now();
     let theta = params.inlier_threshold_m();
@@ -252,11 +297,9 @@ pub(crate) fn register(
         &inputs.source_geo.keypoints.points,
         &inputs.target_geo.keypoints.points,
     );
-    let results = [union, g, a, i];
-    let candidates: Vec<CandidateScore> = Candidate::ALL
+    let candidates: Vec<CandidateScore> = kept
         .iter()
-        .zip(&results)
-        .map(|(&pose, r)| {
+        .map(|(pose, r)| {
             let v = both_ways(
                 (src_pts, tgt_pts),
                 &r.estimate,
@@ -264,7 +307,7 @@ pub(crate) fn register(
                 theta,
             );
             CandidateScore {
-                pose,
+                pose: *pose,
                 consistent: v.consistent,
                 conflict: v.conflict,
                 score: v.score(),
@@ -276,23 +319,31 @@ pub(crate) fn register(
     let shares: Vec<f64> = candidates.iter().map(|c| c.share).collect();
     let k = choose(&shares).unwrap_or(0);
     let vis_elapsed = t.elapsed();
+    let warnings: Vec<String> = skipped
+        .iter()
+        .map(|c| {
+            format!(
+                "fusion visibility: the {} pose could not be estimated and was left out ({})",
+                c.pose.label(),
+                c.reason
+            )
+        })
+        .collect();
     let report = VisibilityReport {
-        chosen: Candidate::ALL[k],
+        chosen: kept[k].0,
         candidates,
         source_views: src_views.len(),
         target_views: tgt_views.len(),
         views: origin,
+        skipped,
     };
 
-    let [union, g, a, i] = results;
-    let mut timings = union.timings.clone();
-    for (name, r) in [
-        ("estimate: geometry pose", &g),
-        ("estimate: Noisy-AND pose", &a),
-        ("estimate: image pose", &i),
-    ] {
+    // the union's timings (or the first estimated candidate's), then the others' estimates
+    let mut timings = kept[0].1.timings.clone();
+    for (pose, r) in kept.iter().skip(1) {
+        let name = format!("estimate: {} pose", pose.label());
         timings.extend(r.timings.iter().map(|t| StageTiming {
-            stage: name.to_string(),
+            stage: name.clone(),
             ..t.clone()
         }));
     }
@@ -302,12 +353,8 @@ pub(crate) fn register(
         ms: vis_elapsed.as_secs_f64() * 1e3,
         status: super::result::status_word(false).into(),
     });
-    let mut res = match report.chosen {
-        Candidate::Union => union,
-        Candidate::Geometry => g,
-        Candidate::NoisyAnd => a,
-        Candidate::Image => i,
-    };
+    let mut res = kept.swap_remove(k).1;
+    res.warnings.extend(warnings);
     res.timings = timings;
     Ok(with_report(res, inputs, report, t0))
 }
@@ -365,6 +412,7 @@ mod tests {
             source_views: 50,
             target_views: 50,
             views: ViewOrigin::Sensor,
+            skipped: Vec::new(),
         };
         let p = r.provenance();
         assert!(

@@ -104,6 +104,8 @@ impl DenseModel {
     pub fn load(path: &Path, kind: DenseKind) -> Result<DenseModel> {
         let expected = kind.expected();
         let on_tract = super::runtime::backend_info()?.kind == "tract";
+        // an input like any other: a FIFO or device would block or never end the read
+        crate::io::limits::check_regular(path)?;
         let model = match OnnxModel::load(path, &[INPUT], &[OUTPUT], &expected) {
             Ok(m) => m,
             Err(e @ Error::Format { .. }) if on_tract && path.is_file() => {

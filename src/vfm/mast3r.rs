@@ -105,6 +105,8 @@ impl Mast3r {
     pub fn load(path: &Path) -> Result<Mast3r> {
         // The id first: it reads the external-data file (all the weights) and names it when it
         // is missing, which the runtimes report less plainly.
+        // an input like any other: a FIFO or device would block or never end the read
+        crate::io::limits::check_regular(path)?;
         let id = format!("mast3r@{}", file_id(path)?);
         let model = OnnxModel::load(path, &INPUTS, &OUTPUTS, EXPECTED)?;
         Ok(Mast3r {

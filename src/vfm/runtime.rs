@@ -4,8 +4,9 @@
 //! per process on first use:
 //! 1. native ONNX Runtime (>= 1.24, C API 24), from `ORT_DYLIB_PATH`, else the shared library of
 //!    a pip-installed `onnxruntime` wheel (`onnxruntime/capi/libonnxruntime.so.*`), found in the
-//!    build folder's private venv (`target/ortvenv`, made by scripts/setup.sh), through
-//!    `python3 -c 'import onnxruntime'` and by globbing the usual site-packages folders;
+//!    build folder's private venv (`target/ortvenv`, made by scripts/setup.sh), through the
+//!    `python3` on `PATH` (isolated, run from `/`, asked where the package is without importing
+//!    it: see [`python_onnxruntime_dir`]) and by globbing the usual site-packages folders;
 //! 2. tract (pure Rust), when no native library loads, in a build with the opt-in `tract`
 //!    feature; without it a missing native library is an error that says how to get one.
 //!
@@ -280,29 +281,22 @@ pub fn native_library_candidates() -> Vec<PathBuf> {
     // scripts/setup.sh installs the wheel into a private venv in the build folder
     // (`target/ortvenv`), never into the system Python: look beside the running binary first
     // (target/release/cgenreg, target/debug/deps/<test>).
-    if let Ok(exe) = std::env::current_exe() {
-        for a in exe.ancestors().skip(1).take(4) {
-            let lib = a.join("ortvenv").join("lib");
-            if lib.is_dir() {
-                dirs.extend(site_packages(&lib));
-                break;
-            }
+    // The Python extension is a shared object in the source tree (python/cgenreg/), its
+    // process the interpreter: look beside the object holding this code too.
+    let here = [std::env::current_exe().ok(), this_object()];
+    for exe in here.iter().flatten() {
+        let found = exe.ancestors().skip(1).take(4).find_map(|a| {
+            [a.join("ortvenv/lib"), a.join("target/ortvenv/lib")]
+                .into_iter()
+                .find(|lib| lib.is_dir())
+        });
+        if let Some(lib) = found {
+            dirs.extend(site_packages(&lib));
+            break;
         }
     }
-    if let Ok(o) = std::process::Command::new("python3")
-        .args([
-            "-c",
-            "import onnxruntime, os; print(os.path.dirname(onnxruntime.__file__))",
-        ])
-        .stderr(std::process::Stdio::null())
-        .output()
-    {
-        if o.status.success() {
-            let s = String::from_utf8_lossy(&o.stdout).trim().to_string();
-            if !s.is_empty() {
-                dirs.push(PathBuf::from(s));
-            }
-        }
+    if let Some(d) = python_onnxruntime_dir() {
+        dirs.push(d);
     }
     if let Ok(v) = std::env::var("VIRTUAL_ENV") {
         roots.push(PathBuf::from(v).join("lib"));
@@ -336,6 +330,74 @@ pub fn native_library_candidates() -> Vec<PathBuf> {
         }
     }
     out
+}
+
+/// Where the `python3` on `PATH` has its `onnxruntime` package, without running any code from
+/// the working directory or a data folder: the interpreter is looked up in absolute `PATH`
+/// entries only (a `.` or empty entry would run a `python3` lying in the working directory),
+/// and it runs isolated (`-I`: no working directory or script folder on `sys.path`, no
+/// `PYTHON*` variables, no user site) from `/`, and only asks the import system where the
+/// package is (`find_spec` of a top-level package reads no module of it). Before, `python3 -c
+/// 'import onnxruntime'` ran in the working directory, so an `onnxruntime.py` lying there ran.
+pub fn python_onnxruntime_dir() -> Option<PathBuf> {
+    const ASK: &str = "import importlib.util as u\n\
+                       s = u.find_spec('onnxruntime')\n\
+                       print((list(s.submodule_search_locations or []) or [''])[0] if s else '')";
+    let python = absolute_path_program("python3")?;
+    let o = std::process::Command::new(python)
+        .args(["-I", "-c", ASK])
+        .current_dir("/")
+        .stdin(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .output()
+        .ok()?;
+    let s = String::from_utf8_lossy(&o.stdout).trim().to_string();
+    let dir = PathBuf::from(s);
+    (o.status.success() && dir.is_absolute()).then_some(dir)
+}
+
+/// The file of the executable or shared object this code was loaded from (the Python
+/// extension's `.so` inside an interpreter).
+#[cfg(unix)]
+fn this_object() -> Option<PathBuf> {
+    let mut info: libc::Dl_info = unsafe { std::mem::zeroed() };
+    let addr = this_object as *const () as *const libc::c_void;
+    // SAFETY: dladdr reads the address and fills `info` with pointers into the loader's data.
+    if unsafe { libc::dladdr(addr, &mut info) } == 0 || info.dli_fname.is_null() {
+        return None;
+    }
+    // SAFETY: a NUL-terminated path owned by the loader.
+    let name = unsafe { std::ffi::CStr::from_ptr(info.dli_fname) };
+    use std::os::unix::ffi::OsStrExt;
+    let p = PathBuf::from(std::ffi::OsStr::from_bytes(name.to_bytes()));
+    p.canonicalize().ok()
+}
+
+#[cfg(not(unix))]
+fn this_object() -> Option<PathBuf> {
+    None
+}
+
+/// `name` in the absolute folders of `PATH` (relative entries, `.` and empty ones included, are
+/// skipped: they name the working directory).
+fn absolute_path_program(name: &str) -> Option<PathBuf> {
+    let path = std::env::var_os("PATH")?;
+    std::env::split_paths(&path)
+        .filter(|d| d.is_absolute())
+        .map(|d| d.join(name))
+        .find(|p| {
+            #[cfg(unix)]
+            {
+                use std::os::unix::fs::PermissionsExt;
+                std::fs::metadata(p)
+                    .map(|m| m.is_file() && m.permissions().mode() & 0o111 != 0)
+                    .unwrap_or(false)
+            }
+            #[cfg(not(unix))]
+            {
+                p.is_file()
+            }
+        })
 }
 
 /// `<lib>/python3*/{site,dist}-packages/onnxruntime` folders under a Python `lib` folder.

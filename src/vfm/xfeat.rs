@@ -28,6 +28,8 @@ pub struct XFeat {
 
 impl XFeat {
     pub fn load(path: &Path) -> Result<XFeat> {
+        // an input like any other: a FIFO or device would block or never end the read
+        crate::io::limits::check_regular(path)?;
         let model = OnnxModel::load(path, &[INPUT], &[OUTPUT], EXPECTED)?;
         let id = format!("xfeat@{}", file_id(path)?);
         Ok(XFeat { model, id })

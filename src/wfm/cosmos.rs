@@ -417,8 +417,7 @@ pub fn ingest_output(video_dir: &Path) -> Result<(Vec<image::RgbImage>, Option<S
     let prompt_path = video_dir.join("prompt.txt");
     let prompt = if prompt_path.is_file() {
         Some(
-            std::fs::read_to_string(&prompt_path)
-                .map_err(|e| Error::io(&prompt_path, e))?
+            crate::io::limits::read_text(&prompt_path)?
                 .trim_end()
                 .to_string(),
         )

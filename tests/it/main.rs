@@ -33,6 +33,7 @@ mod gui_study;
 mod headless_no_egl;
 mod headline;
 mod hostile_outputs;
+mod hostile_surfaces;
 mod hypotheses;
 mod io_limits;
 mod io_malformed;

@@ -144,8 +144,10 @@ impl PipelineWorker {
         let kept = cur.kept.as_ref().ok_or_else(|| {
             crate::Error::Missing("the fusion inputs of this pair were not kept".into())
         })?;
+        // the save dialog asked before replacing a file: that is the user's --force
         let t = crate::pipeline::export::export_correspondences(
             path,
+            true,
             &cur.pair,
             &self.params,
             &kept.inputs,

@@ -54,6 +54,8 @@ impl SpinNet {
             "a SpinNet ONNX export (input `{INPUT}` [B,{},30,3], output `{OUTPUT}` [B,32])",
             protocol.geometry().voxels()
         );
+        // an input like any other: a FIFO or device would block or never end the read
+        crate::io::limits::check_regular(path)?;
         let model = OnnxModel::load(path, &[INPUT], &[OUTPUT], &expected)?;
         let id = format!("spinnet-{}@{}", protocol.name(), file_id(path)?);
         Ok(SpinNet {

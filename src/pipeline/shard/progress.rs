@@ -26,6 +26,9 @@ pub struct Progress {
     records: Vec<Option<PairRecord>>,
     /// Positions (in the selection) this shard runs.
     pub positions: Vec<usize>,
+    /// The output's lock, held while the run lasts: a second process given the same output
+    /// is refused rather than both overwriting each other's records.
+    _lock: Option<crate::io::output::OutputLock>,
 }
 
 impl Progress {
@@ -43,6 +46,7 @@ impl Progress {
                 identity.shard_count
             )));
         }
+        let lock = path.map(crate::io::output::lock).transpose()?;
         let n = identity.selected.len();
         let positions = shard.positions(n);
         let mut records: Vec<Option<PairRecord>> = vec![None; n];
@@ -113,6 +117,7 @@ impl Progress {
                 header,
                 records,
                 positions,
+                _lock: lock,
             },
             message,
         ))
@@ -173,7 +178,9 @@ impl Progress {
         self.header.complete = self.positions.iter().all(|&p| self.records[p].is_some());
         if let Some(p) = &self.path {
             let bytes = write(&self.run_file())?;
-            crate::error::write_atomic(p, &bytes)?;
+            // `--force` was judged when the run started (the file is this run's since): links,
+            // FIFOs and folders planted meanwhile are still refused
+            crate::io::output::write(p, crate::io::output::OutputKind::RunJson, true, &bytes)?;
         }
         Ok(())
     }

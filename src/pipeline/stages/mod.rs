@@ -81,7 +81,9 @@ impl<'a> Ctx<'a> {
                 return Ok((v, true));
             }
         }
+        crate::cancel::check()?;
         let v = compute()?;
+        crate::cancel::check()?;
         if let Some(c) = self.cache {
             if let Err(e) = store(&v, c, key) {
                 self.warnings

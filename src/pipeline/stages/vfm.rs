@@ -109,13 +109,15 @@ fn no_onnx(path: &Path) -> Error {
 /// Id of the VFM for cache keys, from the model file's content (no need to load it).
 pub fn vfm_id(memo: &Memo, spec: &VfmSpec) -> Result<String> {
     let model = spec.model();
-    if !model.is_file() {
+    if !model.exists() {
         return Err(Error::Missing(format!(
             "{}: {} ONNX model not found (see models/README.md, or pass --vfm-model)",
             model.display(),
             spec.name()
         )));
     }
+    // a FIFO or a device is named as one, not as missing
+    crate::io::limits::check_regular(model)?;
     Ok(format!("{}@{}", spec.name(), &memo.hash_file(model)?[..16]))
 }
 
