@@ -23,11 +23,14 @@ impl DenseMatrix {
         let n = checked_len(rows, cols)?;
         within_budget(rows, cols)?;
         // Zeroed allocation: large ones come as fresh zero pages, so nothing is written here.
-        let data = zeroed_vec(n).ok_or_else(|| {
-            Error::Invalid(format!(
-                "could not allocate a {rows} x {cols} matrix ({}): not enough memory",
-                gib(n * 4)
-            ))
+        // One out-of-memory error for the whole crate (Python raises MemoryError for it).
+        let what = format!("a {rows} x {cols} matrix ({})", gib(n * 4));
+        let need = (n as u64).saturating_mul(4);
+        crate::io::limits::check_memory(&what, need)?;
+        let data = zeroed_vec(n).ok_or_else(|| Error::OutOfMemory {
+            what,
+            need,
+            available: crate::io::limits::memory_headroom().unwrap_or(0),
         })?;
         advise_huge(&data);
         Ok(DenseMatrix { rows, cols, data })
@@ -39,12 +42,16 @@ impl DenseMatrix {
         within_budget(self.rows, self.cols)?;
         let mut data = Vec::new();
         if data.try_reserve_exact(self.data.len()).is_err() {
-            return Err(Error::Invalid(format!(
-                "could not allocate a copy of a {} x {} matrix ({}): not enough memory",
-                self.rows,
-                self.cols,
-                gib(self.bytes())
-            )));
+            return Err(Error::OutOfMemory {
+                what: format!(
+                    "a copy of a {} x {} matrix ({})",
+                    self.rows,
+                    self.cols,
+                    gib(self.bytes())
+                ),
+                need: self.bytes() as u64,
+                available: crate::io::limits::memory_headroom().unwrap_or(0),
+            });
         }
         advise_huge(data.spare_capacity_mut());
         data.extend_from_slice(&self.data);
