@@ -21,7 +21,9 @@ mkdir -p "$OUT"
 run() { # name, cache folder, then bench options
     local name="$1" cache="$2"; shift 2
     echo "== $name: cgenreg bench $M $* --cache-dir $cache" >&2
-    "$BIN" bench "$M" "$@" --cache-dir "$OUT/$cache" --json "$OUT/$name.json" \
+    # CPU time of the whole run too: other jobs on the machine inflate wall times
+    /usr/bin/time -f "%e %U %S" -o "$OUT/$name.time" \
+        "$BIN" bench "$M" "$@" --cache-dir "$OUT/$cache" --json "$OUT/$name.json" \
         > "$OUT/$name.txt" 2> "$OUT/$name.log"
 }
 run geometry-cold cache-geometry
@@ -40,16 +42,18 @@ def load(name):
     for r in recs:
         for s in r.get("stages", []):
             stages[s["stage"]] = stages.get(s["stage"], 0.0) + s["ms"] / 1e3
-    return len(recs), ok, sum(t), statistics.median(t), stages
+    wall, user, system = (float(x) for x in open(f"{out}/{name}.time").read().split()[-3:])
+    return len(recs), ok, sum(t), statistics.median(t), stages, wall, user + system
 print(f"manifest {manifest}; method: bench {method} (default fusion); geometry: bench (no image branch)")
-print("| run | pairs | registered | whole-pair time, sum (s) | per pair, mean (s) | per pair, median (s) | method / geometry |")
-print("|---|---:|---:|---:|---:|---:|---:|")
+print("| run | pairs | registered | whole-pair time, sum (s) | per pair, mean (s) | per pair, median (s) | method / geometry | process wall (s) | process CPU (s) | method / geometry, CPU |")
+print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
 for temp in ["cold", "warm"]:
     g = load(f"geometry-{temp}")
     m = load(f"method-{temp}")
     for name, r in [("geometry alone", g), ("method", m)]:
         ratio = f"{m[2] / g[2]:.2f}x" if name == "method" else ""
-        print(f"| {name}, {temp} | {r[0]} | {r[1]} | {r[2]:.1f} | {r[2] / r[0]:.2f} | {r[3]:.2f} | {ratio} |")
+        cpu = f"{m[6] / g[6]:.2f}x" if name == "method" else ""
+        print(f"| {name}, {temp} | {r[0]} | {r[1]} | {r[2]:.1f} | {r[2] / r[0]:.2f} | {r[3]:.2f} | {ratio} | {r[5]:.1f} | {r[6]:.1f} | {cpu} |")
 for temp in ["cold", "warm"]:
     m = load(f"method-{temp}")
     top = sorted(m[4].items(), key=lambda kv: -kv[1])[:8]

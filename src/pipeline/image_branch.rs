@@ -48,12 +48,19 @@ pub(crate) fn register_with_image(
     // Point-cloud-only scans: depth frames from a virtual camera (stage `virtual-frames`).
     // Without a cache they live in a scratch folder until `store` is dropped, after the run.
     let mut store = FrameStore::new(reg.cache);
+    let t = std::time::Instant::now();
     let (framed, notes) = framed_pair(&mut store, pair, ib)?;
+    let elapsed = t.elapsed();
     if let Cow::Owned(_) = framed {
         plan.fill(StageName::VirtualFrames, std::mem::take(&mut store.keys));
     }
     let (mut r, inputs) = register_with_frames(&framed, reg, ib, memo, plan)?;
     if let Cow::Owned(_) = framed {
+        let mut timer = super::result::Timer::new();
+        let hit = store.rendered == 0;
+        timer.record_as(StageName::VirtualFrames, "virtual frames", elapsed, hit);
+        r.timings.splice(0..0, timer.timings);
+        r.total_ms += elapsed.as_secs_f64() * 1e3;
         r.warnings.extend(notes);
         r.warnings.append(&mut store.warnings);
         if let Some(img) = &r.image {
@@ -258,7 +265,10 @@ fn register_with_frames(
     // poses in them. Otherwise they are read on first use (sensor frames and cached ones stay).
     let scratch = reg.cache.is_none() && !views.origin().is_sensor();
     if params.fusion.mode == FusionMode::Visibility || scratch {
+        let t = std::time::Instant::now();
         views.load()?;
+        ctx.timer
+            .record("visibility: read depth views", t.elapsed(), false);
     }
     let inputs = FusionInputs {
         source_geo: src_geo,

@@ -877,6 +877,12 @@ mod tests {
             }
             let other = (0..2 * l).find(|i| !idx.contains(i)).unwrap();
             assert!(g.frame(other).is_err(), "frame {other} was not drawn");
+            // Any frame is drawn on request, the same as the whole video's.
+            let drawn = generation::draw_frame(&pair, ib, other).unwrap();
+            assert!(
+                drawn == whole.frame(other).unwrap(),
+                "frame {other} on request"
+            );
         }
         assert_ne!(views[0].1.hash, views[1].1.hash);
     }

@@ -691,3 +691,35 @@ impl Generated {
         }
     }
 }
+
+/// Frame `i` of a pair's 2L-frame video under a frame-by-frame backend, drawn now and not
+/// cached: any frame on request (the pipeline draws only the selected views). `pair`'s scans
+/// need their depth frames (virtual frames already rendered for point-cloud-only scans).
+pub fn draw_frame(pair: &ScanPair, ib: &ImageBranchParams, i: usize) -> Result<RgbImage> {
+    if !frame_by_frame(&ib.backend) {
+        return Err(Error::Usage(
+            "a world model's frames come from its whole video: read them from the generation's \
+             cache entry"
+                .into(),
+        ));
+    }
+    let l = ib.frames_per_fragment;
+    let src_fs = super::depth_video::frames_of(&pair.source, l)?;
+    let tgt_fs = super::depth_video::frames_of(&pair.target, l)?;
+    if i >= 2 * l {
+        return Err(Error::Shape(format!(
+            "frame {i} of a {}-frame video",
+            2 * l
+        )));
+    }
+    let (side, one) = (usize::from(i >= l), vec![i]);
+    let depth = vec![if side == 0 { i } else { i - l }];
+    let sel = crate::wfm::ViewSelection {
+        src_generated: if side == 0 { one.clone() } else { Vec::new() },
+        src_depth: if side == 0 { depth.clone() } else { Vec::new() },
+        tgt_generated: if side == 1 { one } else { Vec::new() },
+        tgt_depth: if side == 1 { depth } else { Vec::new() },
+    };
+    let planned = plan_views(&Memo::default(), pair, ib, (src_fs, tgt_fs), &sel, l)?;
+    planned.draw(pair, ib, side)?.frame(i)
+}
