@@ -652,6 +652,8 @@ pub(crate) fn run_views(
 
 /// A pair's generation: the whole video in one entry (a world model), or a frame-by-frame
 /// backend's selected views in one entry per side (source, target).
+// One value per registration, held on the stack of one call: its size does not matter.
+#[allow(clippy::large_enum_variant)]
 pub(crate) enum Generated {
     Video(GenOut, CacheKey),
     Views([(GenOut, CacheKey); 2]),
@@ -687,7 +689,7 @@ impl Generated {
     pub(crate) fn pair_key(&self) -> Result<CacheKey> {
         match self {
             Generated::Video(_, k) => Ok(k.clone()),
-            Generated::Views([(_, a), (_, b)]) => pair_key([a, b]),
+            Generated::Views(s) => pair_key([&s[0].1, &s[1].1]),
         }
     }
 }
