@@ -17,7 +17,7 @@ use super::plan::{Plan, StageName};
 use super::register::Registration;
 use super::result::{ImageBranchOutput, RegistrationResult, ViewInfo};
 use super::stages::depth_video::frames_of;
-use super::stages::generation::{short_prompt, GenOut};
+use super::stages::generation::{short_prompt, Generated};
 use super::stages::lift::LiftInput;
 use super::stages::pair_vfm::PairInput;
 use super::stages::vfm::SideViews;
@@ -48,12 +48,19 @@ pub(crate) fn register_with_image(
     // Point-cloud-only scans: depth frames from a virtual camera (stage `virtual-frames`).
     // Without a cache they live in a scratch folder until `store` is dropped, after the run.
     let mut store = FrameStore::new(reg.cache);
+    let t = std::time::Instant::now();
     let (framed, notes) = framed_pair(&mut store, pair, ib)?;
+    let elapsed = t.elapsed();
     if let Cow::Owned(_) = framed {
         plan.fill(StageName::VirtualFrames, std::mem::take(&mut store.keys));
     }
     let (mut r, inputs) = register_with_frames(&framed, reg, ib, memo, plan)?;
     if let Cow::Owned(_) = framed {
+        let mut timer = super::result::Timer::new();
+        let hit = store.rendered == 0;
+        timer.record_as(StageName::VirtualFrames, "virtual frames", elapsed, hit);
+        r.timings.splice(0..0, timer.timings);
+        r.total_ms += elapsed.as_secs_f64() * 1e3;
         r.warnings.extend(notes);
         r.warnings.append(&mut store.warnings);
         if let Some(img) = &r.image {
@@ -147,13 +154,23 @@ fn register_with_frames(
         vec![src_geo_key.hash.clone(), tgt_geo_key.hash.clone()],
     );
 
-    let mut video = depth_video::run(&mut ctx, pair, src_fs, tgt_fs, l)?;
-    plan.fill(StageName::DepthVideo, vec![video.key.clone()]);
-    let (gen, gen_key) =
-        generation::run(&mut ctx, pair, ib, &mut video, src_fs, tgt_fs, l, generate)?;
-    plan.fill(StageName::Generation, vec![gen_key.hash.clone()]);
-    let image_size = (gen.meta.width, gen.meta.height);
-    let (sel, sel_key) = view_select::run(&mut ctx, planned, gen.meta.frames, ib)?;
+    let gen = if generation::frame_by_frame(&ib.backend) {
+        // Each frame is a function of its own depth (or colour) frame: no depth video, only
+        // the selected views are drawn (the selection of a 2L-frame video is `planned`).
+        let fs = (src_fs, tgt_fs);
+        Generated::Views(generation::run_views(
+            &mut ctx, pair, ib, fs, &planned, generate,
+        )?)
+    } else {
+        let mut video = depth_video::run(&mut ctx, pair, src_fs, tgt_fs, l)?;
+        plan.fill(StageName::DepthVideo, vec![video.key.clone()]);
+        let (g, k) = generation::run(&mut ctx, pair, ib, &mut video, src_fs, tgt_fs, l, generate)?;
+        Generated::Video(g, k)
+    };
+    plan.fill(StageName::Generation, gen.key_hashes());
+    let meta = &gen.first().meta;
+    let image_size = (meta.width, meta.height);
+    let (sel, sel_key) = view_select::run(&mut ctx, planned, meta.frames, ib)?;
     plan.fill(StageName::ViewSelect, vec![sel_key.hash]);
 
     let pair_conditioned = vfm::is_pair_conditioned(&ib.vfm);
@@ -191,7 +208,7 @@ fn register_with_frames(
     // Per-image models describe each view at the pixels just linked to it.
     let (src_views, tgt_views, mut vfm_label) = describe_views(
         &mut ctx,
-        (&gen, &gen_key),
+        &gen,
         &sel,
         (&src_links, &tgt_links),
         lift_keys,
@@ -201,7 +218,7 @@ fn register_with_frames(
 
     // Per-keypoint image descriptors (per-image models) or per-pair descriptors (pair models).
     let image = if pair_conditioned {
-        let key = pair_vfm::key(lift_keys, &gen_key, &vfm_id, &sel)?;
+        let key = pair_vfm::key(lift_keys, &gen.pair_key()?, &vfm_id, &sel)?;
         let inp = PairInput {
             src_images: &src_views.images,
             tgt_images: &tgt_views.images,
@@ -248,16 +265,19 @@ fn register_with_frames(
     // poses in them. Otherwise they are read on first use (sensor frames and cached ones stay).
     let scratch = reg.cache.is_none() && !views.origin().is_sensor();
     if params.fusion.mode == FusionMode::Visibility || scratch {
+        let t = std::time::Instant::now();
         views.load()?;
+        ctx.timer
+            .record("visibility: read depth views", t.elapsed(), false);
     }
     let inputs = FusionInputs {
         source_geo: src_geo,
         target_geo: tgt_geo,
-        image_label: Some(branch_label(ib, &gen, &vfm_id, &image)),
+        image_label: Some(branch_label(ib, gen.first(), &vfm_id, &image)),
         image: Some(image),
         views: Some(Arc::new(views)),
     };
-    let output = image_output(ib, &gen, &gen_key, sides, vfm_label);
+    let output = image_output(ib, gen.side(0), sides, vfm_label);
     let mut res = fuse_and_finish(pair, params, &inputs, None, reg.estimates)?;
     // The cached stages' timings first, then the in-memory ones.
     let Ctx {
@@ -269,7 +289,8 @@ fn register_with_frames(
     res.total_ms = timer.t0.elapsed().as_secs_f64() * 1e3;
     res.warnings.extend(warnings);
     res.warnings.extend(coverage);
-    res.warnings.extend(gen.provenance.warnings.iter().cloned());
+    res.warnings
+        .extend(gen.first().provenance.warnings.iter().cloned());
     res.image = Some(output);
     Ok((res, inputs))
 }
@@ -279,7 +300,7 @@ fn register_with_frames(
 /// as it ran.
 fn describe_views(
     ctx: &mut Ctx,
-    gen: (&GenOut, &CacheKey),
+    gen: &Generated,
     sel: &ViewSelection,
     links: (&[Option<PixelLink>], &[Option<PixelLink>]),
     lift_keys: (&CacheKey, &CacheKey),
@@ -288,25 +309,26 @@ fn describe_views(
 ) -> Result<(SideViews, SideViews, String)> {
     let mut model = None;
     let (src, tgt) = if vfm::is_pair_conditioned(&ib.vfm) {
-        let images_only = |idx: &[usize]| -> Result<SideViews> {
+        let images_only = |side: usize, idx: &[usize]| -> Result<SideViews> {
             Ok(SideViews {
                 points: Vec::new(),
-                images: vfm::images(gen.0, idx)?,
+                images: vfm::images(gen.side(side).0, idx)?,
                 keys: Vec::new(),
             })
         };
         (
-            images_only(&sel.src_generated)?,
-            images_only(&sel.tgt_generated)?,
+            images_only(0, &sel.src_generated)?,
+            images_only(1, &sel.tgt_generated)?,
         )
     } else {
-        let mut side = |ctx: &mut Ctx, name: &str, idx: &[usize], l, k| {
-            vfm::run_side(ctx, name, gen, idx, (l, k), ib, vfm_id, &mut model)
+        let mut side = |ctx: &mut Ctx, name: &str, s: usize, idx: &[usize], l, k| {
+            vfm::run_side(ctx, name, gen.side(s), idx, (l, k), ib, vfm_id, &mut model)
         };
         (
             side(
                 ctx,
                 "vfm source views",
+                0,
                 &sel.src_generated,
                 links.0,
                 lift_keys.0,
@@ -314,6 +336,7 @@ fn describe_views(
             side(
                 ctx,
                 "vfm target views",
+                1,
                 &sel.tgt_generated,
                 links.1,
                 lift_keys.1,
@@ -351,7 +374,12 @@ fn coverage_warnings(im: &ImageInputs) -> Vec<String> {
 }
 
 /// The image branch's label (the fusion mode is appended by the in-memory tail).
-fn branch_label(ib: &ImageBranchParams, gen: &GenOut, vfm_id: &str, im: &ImageInputs) -> String {
+fn branch_label(
+    ib: &ImageBranchParams,
+    gen: &super::stages::generation::GenOut,
+    vfm_id: &str,
+    im: &ImageInputs,
+) -> String {
     let (v_src, v_tgt) = im.validity();
     let n = |v: &[bool]| v.iter().filter(|v| **v).count();
     let read = match vfm::cell_of(ib) {
@@ -374,8 +402,7 @@ fn branch_label(ib: &ImageBranchParams, gen: &GenOut, vfm_id: &str, im: &ImageIn
 /// The views, links and provenance the GUI shows.
 fn image_output(
     ib: &ImageBranchParams,
-    gen: &GenOut,
-    gen_key: &CacheKey,
+    (gen, gen_key): (&super::stages::generation::GenOut, &CacheKey),
     sides: [Side; 2],
     vfm: String,
 ) -> ImageBranchOutput {

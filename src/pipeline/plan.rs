@@ -9,10 +9,12 @@
 //! without sensor frames), the depth video, the generation, the view selection, the lifts, then
 //! the per-image VFM's views and point features or the pair VFM's point features.
 //!
-//! Some keys read an earlier stage's *output*: the generation is keyed by the depth video's
-//! content hash, the view selection by the generated video's length, the lift by the generated
-//! frames' size, and for point-cloud-only scans everything after the virtual frames by the
-//! rendered depth files. [`plan`] reads these from the cache; when the producing stage's entry
+//! Some keys read an earlier stage's *output*: a world model's generation is keyed by the depth
+//! video's content hash, the view selection by the generated video's length, the lift by the
+//! generated frames' size, and for point-cloud-only scans everything after the virtual frames
+//! by the rendered depth files. A frame-by-frame backend (the built-in shading, the oracle) has
+//! no depth video: its views' keys read their own depth (colour) files, its video is 2L frames,
+//! and the built-in shading fixes its frame size, so with it every key is known before a run. [`plan`] reads these from the cache; when the producing stage's entry
 //! is not there (a new prompt, no cache), the keys after it are filled as the steps run, and a
 //! comparison counts those stages as invalidated.
 //!
@@ -172,9 +174,12 @@ impl Plan {
                 if pair.source.frames.is_none() || pair.target.frames.is_none() {
                     stages.push(StageName::VirtualFrames);
                 }
+                stages.push(StageName::Geo);
+                // A frame-by-frame backend draws each view from its own depth frame: no video.
+                if !generation::frame_by_frame(&ib.backend) {
+                    stages.push(StageName::DepthVideo);
+                }
                 stages.extend([
-                    StageName::Geo,
-                    StageName::DepthVideo,
                     StageName::Generation,
                     StageName::ViewSelect,
                     StageName::Lift,
@@ -419,21 +424,45 @@ fn image_keys(
     let (src_fs, tgt_fs) = (frames_of(&pair.source, l)?, frames_of(&pair.target, l)?);
     let planned = view_select::planned(ib)?;
     let vfm_id = vfm::vfm_id(memo, &ib.vfm)?;
-    let video = depth_video::plan(memo, src_fs, tgt_fs, l)?;
-    p.set(StageName::DepthVideo, vec![video.key.hash.clone()]);
-    let Some(video_hash) = cache.and_then(|c| depth_video::cached_hash(c, &video.key)) else {
-        return Ok(());
+    // Each side's generation key (the same for both when the whole video is one entry), the
+    // key a pair VFM reads, and the video's length and frame size.
+    let (gens, pair_gen, (n_frames, width, height)) = if generation::frame_by_frame(&ib.backend) {
+        let v = generation::plan_views(memo, pair, ib, (src_fs, tgt_fs), &planned, l)?;
+        p.set(
+            StageName::Generation,
+            v.keys.iter().map(|k| k.hash.clone()).collect(),
+        );
+        // The built-in shading fixes its frame size; the oracle's frames say theirs.
+        let size = match (v.backend.frame_size(), cache) {
+            (Some(s), _) => s,
+            (None, Some(c)) => match generation::cached_meta(c, &v.keys[0]) {
+                Some(m) => (m.width, m.height),
+                None => return Ok(()),
+            },
+            (None, None) => return Ok(()),
+        };
+        let pair_gen = generation::pair_key([&v.keys[0], &v.keys[1]])?;
+        let [a, b] = v.keys;
+        ([a, b], pair_gen, (2 * l, size.0, size.1))
+    } else {
+        let video = depth_video::plan(memo, src_fs, tgt_fs, l)?;
+        p.set(StageName::DepthVideo, vec![video.key.hash.clone()]);
+        let Some(video_hash) = cache.and_then(|c| depth_video::cached_hash(c, &video.key)) else {
+            return Ok(());
+        };
+        let lidar = video.lidar();
+        let gen = generation::plan(memo, pair, ib, (&video_hash, lidar), src_fs, tgt_fs, l)?.key;
+        p.set(StageName::Generation, vec![gen.hash.clone()]);
+        let Some(meta) = cache.and_then(|c| generation::cached_meta(c, &gen)) else {
+            return Ok(());
+        };
+        let size = (meta.frames, meta.width, meta.height);
+        ([gen.clone(), gen.clone()], gen, size)
     };
-    let lidar = video.lidar();
-    let gen = generation::plan(memo, pair, ib, (&video_hash, lidar), src_fs, tgt_fs, l)?.key;
-    p.set(StageName::Generation, vec![gen.hash.clone()]);
-    let Some(meta) = cache.and_then(|c| generation::cached_meta(c, &gen)) else {
-        return Ok(());
-    };
-    let sel = view_select::select(planned, meta.frames, ib)?;
+    let sel = view_select::select(planned, n_frames, ib)?;
     p.set(
         StageName::ViewSelect,
-        vec![view_select::key(ib, meta.frames)?.hash],
+        vec![view_select::key(ib, n_frames)?.hash],
     );
     let lift_key = |scan: &Scan, fs: &FrameSet, depth_idx: &[usize]| -> Result<CacheKey> {
         let geo_key = geo::key(scan, geo::settings(params))?;
@@ -443,12 +472,7 @@ fn image_keys(
             frames: fs,
             depth_idx,
         };
-        lift::key_for(
-            memo,
-            &inp,
-            lift::settings(params),
-            (meta.width, meta.height),
-        )
+        lift::key_for(memo, &inp, lift::settings(params), (width, height))
     };
     let src_lift = lift_key(&pair.source, src_fs, &sel.src_depth)?;
     let tgt_lift = lift_key(&pair.target, tgt_fs, &sel.tgt_depth)?;
@@ -458,20 +482,20 @@ fn image_keys(
     );
     let lifts = (&src_lift, &tgt_lift);
     if vfm::is_pair_conditioned(&ib.vfm) {
-        let key = pair_vfm::key(lifts, &gen, &vfm_id, &sel)?;
+        let key = pair_vfm::key(lifts, &pair_gen, &vfm_id, &sel)?;
         p.set(StageName::PairVfm, vec![key.hash]);
         return Ok(());
     }
     let (_, cell) = vfm::settings(ib);
-    let views = |idx: &[usize], lift: &CacheKey| -> Result<Vec<String>> {
+    let views = |gen: &CacheKey, idx: &[usize], lift: &CacheKey| -> Result<Vec<String>> {
         idx.iter()
             .enumerate()
-            .map(|(v, &g)| vfm::key(&gen, lift, (g, v), &vfm_id, cell).map(|k| k.hash))
+            .map(|(v, &g)| vfm::key(gen, lift, (g, v), &vfm_id, cell).map(|k| k.hash))
             .collect()
     };
     let (src_views, tgt_views) = (
-        views(&sel.src_generated, &src_lift)?,
-        views(&sel.tgt_generated, &tgt_lift)?,
+        views(&gens[0], &sel.src_generated, &src_lift)?,
+        views(&gens[1], &sel.tgt_generated, &tgt_lift)?,
     );
     p.set(
         StageName::Vfm,
@@ -516,7 +540,7 @@ mod tests {
     }
 
     /// Runs the depth video and the generation of `params` into `cache` (what a registration
-    /// leaves there before its views are described).
+    /// leaves there before its views are described): a frame-by-frame backend's selected views.
     fn generate(pair: &ScanPair, params: &RegisterParams, cache: &Cache) {
         let ib = params.image.as_ref().unwrap();
         let l = ib.frames_per_fragment;
@@ -526,8 +550,13 @@ mod tests {
             frames_of(&pair.source, l).unwrap(),
             frames_of(&pair.target, l).unwrap(),
         );
-        let mut video = depth_video::run(&mut ctx, pair, s, t, l).unwrap();
-        generation::run(&mut ctx, pair, ib, &mut video, s, t, l, true).unwrap();
+        if generation::frame_by_frame(&ib.backend) {
+            let sel = view_select::planned(ib).unwrap();
+            generation::run_views(&mut ctx, pair, ib, (s, t), &sel, true).unwrap();
+        } else {
+            let mut video = depth_video::run(&mut ctx, pair, s, t, l).unwrap();
+            generation::run(&mut ctx, pair, ib, &mut video, s, t, l, true).unwrap();
+        }
     }
 
     #[test]
@@ -541,22 +570,14 @@ mod tests {
         let keys = plan(&pair, &old, Some(&cache), &Memo::default()).unwrap();
         assert_eq!(
             keys.stages().collect::<Vec<_>>(),
-            [
-                Geo,
-                DepthVideo,
-                Generation,
-                ViewSelect,
-                Lift,
-                Vfm,
-                ImagePoints,
-                Fusion
-            ]
+            [Geo, Generation, ViewSelect, Lift, Vfm, ImagePoints, Fusion]
         );
         assert!(keys.stages().all(|s| keys.is_known(s)));
-        // The keys are the ones the stages stored under.
-        for s in [DepthVideo, Generation] {
-            let k = &keys.get(s).unwrap()[0];
-            assert!(dir.path().join(s.key_name()).join(k).is_dir(), "{s:?}");
+        // The keys are the ones the stage stored under: the built-in generator draws each
+        // side's selected views into an entry of its own (no depth video).
+        assert_eq!(keys.get(Generation).unwrap().len(), 2);
+        for k in keys.get(Generation).unwrap() {
+            assert!(dir.path().join(Generation.key_name()).join(k).is_dir());
         }
         assert_eq!(keys.get(Vfm).unwrap().len(), 4);
         let inv =
@@ -572,19 +593,19 @@ mod tests {
         p.inlier_threshold = crate::estimate::scale::Scaled::Set(0.3);
         assert_eq!(inv(&p), [Fusion]);
 
-        // K: view selection and everything after it; the depth video and generation stay.
+        // K: other views drawn (only the selected ones are), and everything after.
         let mut p = old.clone();
         p.image.as_mut().unwrap().k = 3;
-        assert_eq!(inv(&p), [ViewSelect, Lift, Vfm, ImagePoints, Fusion]);
-
-        // The prompt: a new generation, so nothing after it is known before it runs.
-        let mut p = old.clone();
-        p.image.as_mut().unwrap().prompt.scene = "a different room".into();
         assert_eq!(
             inv(&p),
             [Generation, ViewSelect, Lift, Vfm, ImagePoints, Fusion]
         );
-        // Once generated, the lift is found to be unchanged (same frame size, same views).
+
+        // The prompt: a new generation; the built-in generator's frame size is fixed, so the
+        // lift is known to be unchanged (same frame size, same views) before it runs.
+        let mut p = old.clone();
+        p.image.as_mut().unwrap().prompt.scene = "a different room".into();
+        assert_eq!(inv(&p), [Generation, Vfm, ImagePoints, Fusion]);
         generate(&pair, &p, &cache);
         assert_eq!(inv(&p), [Generation, Vfm, ImagePoints, Fusion]);
 
@@ -623,12 +644,9 @@ mod tests {
         p.image.as_mut().unwrap().lift_radius = crate::estimate::scale::Scaled::Set(0.15);
         assert_eq!(inv(&p), [Lift, Vfm, ImagePoints, Fusion]);
 
-        // Without a cache the generation's input is not known before the depth video runs.
+        // Without a cache too: the built-in generator's keys read only its views' depth files.
         let none = invalidated(&pair, &old, &old, None, &memo).unwrap();
-        assert_eq!(
-            none,
-            [Generation, ViewSelect, Lift, Vfm, ImagePoints, Fusion]
-        );
+        assert_eq!(none, []);
     }
 
     /// `replan` gives exactly `plan`'s keys: from the kept plan for fusion-only changes, by
@@ -710,15 +728,7 @@ mod tests {
         generate(&pair, &demo_params(), &cache);
         assert_eq!(
             invalidated(&pair, &geo_only, &demo_params(), Some(&cache), &memo).unwrap(),
-            [
-                DepthVideo,
-                Generation,
-                ViewSelect,
-                Lift,
-                Vfm,
-                ImagePoints,
-                Fusion
-            ]
+            [Generation, ViewSelect, Lift, Vfm, ImagePoints, Fusion]
         );
         // A bad K is the error the run would give.
         let mut p = demo_params();
@@ -750,24 +760,16 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let cache = Cache::open(dir.path()).unwrap();
         let p = demo_params();
-        let rgbd = [
-            Geo,
-            DepthVideo,
-            Generation,
-            ViewSelect,
-            Lift,
-            Vfm,
-            ImagePoints,
-            Fusion,
-        ];
+        let rgbd = [Geo, Generation, ViewSelect, Lift, Vfm, ImagePoints, Fusion];
         let skeleton = Plan::skeleton(&pair, &p);
         assert_eq!(stages_of(&skeleton), rgbd);
         assert!(skeleton.steps().iter().all(|s| s.keys.is_none()));
-        // Before anything ran: the keys after the depth video wait for its output.
+        // Before anything ran: the built-in generator's keys read only the views' depth files
+        // and its fixed frame size, so every key is known (a world model's generation waits
+        // for the depth video's content hash, and the keys after it for its frames).
         let before = plan(&pair, &p, Some(&cache), &memo).unwrap();
         assert_eq!(stages_of(&before), rgbd);
-        assert!(before.is_known(Geo) && before.is_known(DepthVideo));
-        assert!(!before.is_known(Generation) && !before.is_known(Fusion));
+        assert!(before.is_complete());
 
         // The run fills every key: the ones a plan made afterwards gives.
         let r = Registration::new(&p)
@@ -781,10 +783,11 @@ mod tests {
         assert_eq!(stages_of(ran), rgbd);
         let after = plan(&pair, &p, Some(&cache), &memo).unwrap();
         assert_eq!(ran, &after);
+        assert_eq!(ran, &before);
         assert_eq!(ran.get(Vfm).unwrap().len(), 4);
         assert_eq!(ran.get(Geo).unwrap().len(), 2);
         assert_eq!(ran.get(Lift).unwrap().len(), 2);
-        for s in [Geo, DepthVideo, Generation, Lift, Vfm, ImagePoints] {
+        for s in [Geo, Generation, Lift, Vfm, ImagePoints] {
             for k in ran.get(s).unwrap() {
                 assert!(dir.path().join(s.key_name()).join(k).is_dir(), "{s:?}");
             }
@@ -809,7 +812,7 @@ mod tests {
         pm.image.as_mut().unwrap().vfm = crate::vfm::VfmSpec::Mast3r {
             model: "mast3r.onnx".into(),
         };
-        let mut want = rgbd[..5].to_vec();
+        let mut want = rgbd[..4].to_vec();
         want.extend([PairVfm, Fusion]);
         assert_eq!(stages_of(&Plan::skeleton(&pair, &pm)), want);
 
@@ -840,7 +843,48 @@ mod tests {
             2,
             "one pinhole entry per scan"
         );
-        assert!(!v.is_known(DepthVideo));
+        assert!(!v.is_known(Generation));
+    }
+
+    /// The built-in generator's views drawn one by one are the frames the whole video holds at
+    /// those indices, bit for bit; each side's entry holds only its views.
+    #[test]
+    fn views_drawn_frame_by_frame_equal_the_whole_videos_frames() {
+        let pair = demo_pair();
+        let p = demo_params();
+        let ib = p.image.as_ref().unwrap();
+        let l = ib.frames_per_fragment;
+        let memo = Memo::default();
+        let mut ctx = Ctx::new(None, &memo);
+        let (s, t) = (
+            frames_of(&pair.source, l).unwrap(),
+            frames_of(&pair.target, l).unwrap(),
+        );
+        let sel = view_select::planned(ib).unwrap();
+        let views = generation::run_views(&mut ctx, &pair, ib, (s, t), &sel, true).unwrap();
+        let mut video = depth_video::run(&mut ctx, &pair, s, t, l).unwrap();
+        let (whole, _) = generation::run(&mut ctx, &pair, ib, &mut video, s, t, l, true).unwrap();
+        assert_eq!(whole.meta.frames, 2 * l);
+        for (side, idx) in [&sel.src_generated, &sel.tgt_generated]
+            .into_iter()
+            .enumerate()
+        {
+            let g = &views[side].0;
+            assert_eq!(g.meta.frames, 2 * l);
+            assert_eq!(g.meta.drawn.as_ref(), Some(idx));
+            for &i in idx {
+                assert!(g.frame(i).unwrap() == whole.frame(i).unwrap(), "frame {i}");
+            }
+            let other = (0..2 * l).find(|i| !idx.contains(i)).unwrap();
+            assert!(g.frame(other).is_err(), "frame {other} was not drawn");
+            // Any frame is drawn on request, the same as the whole video's.
+            let drawn = generation::draw_frame(&pair, ib, other).unwrap();
+            assert!(
+                drawn == whole.frame(other).unwrap(),
+                "frame {other} on request"
+            );
+        }
+        assert_ne!(views[0].1.hash, views[1].1.hash);
     }
 
     /// The run takes the plan's steps in order: a step run before the one the plan has next
@@ -851,11 +895,11 @@ mod tests {
     fn a_step_out_of_the_plans_order_is_caught() {
         let mut p = Plan::skeleton(&demo_pair(), &demo_params());
         p.fill(Geo, vec!["a".into(), "b".into()]);
-        p.fill(Generation, vec!["c".into()]);
+        p.fill(ViewSelect, vec!["c".into()]);
     }
 
     /// A cloud-only pair's run fills the virtual frames' keys as the plan gives them, and
-    /// with those frames cached the plan knows the depth video's key.
+    /// with those frames cached the plan knows the generation's keys.
     #[test]
     fn a_cloud_only_run_fills_the_virtual_frames_step() {
         let mut pair = demo_pair();

@@ -191,16 +191,19 @@ impl PairViews {
     }
 
     fn depths(&self) -> Result<&[Vec<DepthImage>; 2]> {
+        // 2 x L PNG decodes per pair, in parallel (the same images in the same order)
         let read = |fs: &FrameSet| -> Result<Vec<DepthImage>> {
+            use rayon::prelude::*;
             fs.frames
-                .iter()
+                .par_iter()
                 .map(|f| read_depth_png(&f.depth_path))
                 .collect()
         };
         self.loaded
             .get_or_init(|| {
                 let both = || -> Result<[Vec<DepthImage>; 2]> {
-                    Ok([read(&self.source)?, read(&self.target)?])
+                    let (s, t) = rayon::join(|| read(&self.source), || read(&self.target));
+                    Ok([s?, t?])
                 };
                 both().map_err(|e| e.to_string())
             })

@@ -58,6 +58,12 @@ pub trait WfmBackend: Send + Sync {
     /// Produce the RGB frames for one pair's depth video.
     fn generate(&self, req: &GenerateRequest) -> Result<Generation>;
 
+    /// The size of every frame when the backend fixes it (the built-in shading), so that what
+    /// follows the generation can be planned before it runs; None when only the frames say.
+    fn frame_size(&self) -> Option<(u32, u32)> {
+        None
+    }
+
     /// Generate several requests; a backend that amortises start-up (Cosmos loads a 7B model
     /// per run) does them in one run. One result per request, in order.
     fn generate_batch(&self, reqs: &[GenerateRequest]) -> Vec<Result<Generation>> {

@@ -290,6 +290,10 @@ impl WfmBackend for DepthShadeBackend {
         }
     }
 
+    fn frame_size(&self) -> Option<(u32, u32)> {
+        Some((self.width, self.height))
+    }
+
     fn generate(&self, req: &GenerateRequest) -> Result<Generation> {
         let prompt = req.prompt.text();
         let frames = self.shade_video(&req.depth_video, &prompt)?;

@@ -124,12 +124,13 @@ fn prompt_study_has_four_categories_and_never_fakes_missing_generations() {
                 .default_scene()
         ));
     }
-    // One generation per prompt in the cache (the K sweep, by contrast, needs one per pair).
+    // One generation per prompt in the cache (the K sweep, by contrast, needs one per pair):
+    // the built-in generator's selected views, one entry per side.
     let gens = std::fs::read_dir(dir.path().join("generation"))
         .unwrap()
         .filter(|e| e.as_ref().unwrap().path().is_dir())
         .count();
-    assert_eq!(gens, 4);
+    assert_eq!(gens, 2 * 4);
 }
 
 /// A cancelled study stops before its next pair, keeps what ran and says so.

@@ -55,6 +55,16 @@ pub fn depth_video_clip(camera: &CameraModel) -> f64 {
     }
 }
 
+/// Whether either scan is a LiDAR (f-theta) scan, and the pair's depth clip: one video, one
+/// clip, the larger of the two scans' (a LiDAR scan keeps its range).
+pub(crate) fn pair_clip(src_fs: &FrameSet, tgt_fs: &FrameSet) -> (bool, f64) {
+    let lidar = [src_fs, tgt_fs]
+        .iter()
+        .any(|fs| matches!(fs.camera, CameraModel::FTheta(_)));
+    let clip = depth_video_clip(&src_fs.camera).max(depth_video_clip(&tgt_fs.camera));
+    (lidar, clip)
+}
+
 /// The scan's frames, at least `l` of them.
 pub(crate) fn frames_of(scan: &Scan, l: usize) -> Result<&FrameSet> {
     let fs = scan.frames.as_ref().ok_or_else(|| {
@@ -182,11 +192,7 @@ pub(crate) fn plan(
         .chain(tgt_paths.par_iter())
         .map(|p| memo.hash_file(p))
         .collect::<Result<_>>()?;
-    // One video, one clip: the larger of the two scans' (a LiDAR scan keeps its range).
-    let lidar = [src_fs, tgt_fs]
-        .iter()
-        .any(|fs| matches!(fs.camera, CameraModel::FTheta(_)));
-    let clip = depth_video_clip(&src_fs.camera).max(depth_video_clip(&tgt_fs.camera));
+    let (lidar, clip) = pair_clip(src_fs, tgt_fs);
     let key = key(&depth_hashes, l, lidar, clip)?;
     Ok(VideoPlan {
         key,

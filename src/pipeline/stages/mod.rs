@@ -11,7 +11,9 @@
 //! | `geo-fpfh`             | `geo.rs`               | cloud                                   |
 //! | `geo-spinnet`          | `geo_spinnet.rs`       | cloud, SpinNet export                   |
 //! | `depth-video`          | `depth_video.rs`       | first L depth frames of both scans      |
-//! | `generation`           | `generation.rs`        | depth video (colour frames for oracle)  |
+//! | `generation`           | `generation.rs`        | depth video (a world model); a side's   |
+//! |                        |                        | selected depth (colour) frames (a       |
+//! |                        |                        | frame-by-frame backend: builtin, oracle)|
 //! | (in memory)            | `view_select.rs`       | video length, L, m, K                   |
 //! | `vfm-view`             | `vfm.rs`               | generation, frame                       |
 //! | `lift`                 | `lift.rs`              | geo keypoints, selected depth frames    |

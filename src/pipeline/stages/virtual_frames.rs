@@ -86,6 +86,8 @@ pub struct FrameStore<'a> {
     pub warnings: Vec<String>,
     /// The key hashes of the entries read or written, in order (the plan's step).
     pub keys: Vec<String>,
+    /// Entries rendered (not read from the cache): the stage's timing row says "computed".
+    pub rendered: usize,
 }
 
 impl<'a> FrameStore<'a> {
@@ -95,6 +97,7 @@ impl<'a> FrameStore<'a> {
             scratch: None,
             warnings: Vec::new(),
             keys: Vec::new(),
+            rendered: 0,
         }
     }
 
@@ -134,6 +137,7 @@ impl<'a> FrameStore<'a> {
             if let Some(e) = load_or_discard(c, key, verified, &mut self.warnings, "rebuilt") {
                 return Ok(e);
             }
+            self.rendered += 1;
             match put(c, key, provenance.clone(), files) {
                 Ok(e) => return Ok(e),
                 Err(err) => self.warnings.push(format!(
@@ -142,6 +146,8 @@ impl<'a> FrameStore<'a> {
                     key.short()
                 )),
             }
+        } else {
+            self.rendered += 1;
         }
         let c = self.scratch()?;
         put(c, key, provenance, files)
