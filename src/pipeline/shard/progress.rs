@@ -2,7 +2,7 @@
 //! after every pair, and the pending pairs run through the shared pair loop.
 
 use super::{
-    host_name, now_unix, read_run_file, PairRecord, RunFile, RunHeader, RunIdentity, Shard, DONE,
+    host_name, machine_description, now_unix, source_commit, read_run_file, PairRecord, RunFile, RunHeader, RunIdentity, Shard, DONE,
     FAILED,
 };
 use crate::error::{Error, Result};
@@ -106,6 +106,8 @@ impl Progress {
             in_flight: None,
             host: host_name(),
             updated_unix: now_unix(),
+            machine: machine_description(),
+            commit: source_commit(),
         };
         Ok((
             Progress {
