@@ -151,7 +151,7 @@ def read_gt(pair, root):
         path = os.path.join(root, expand(pair["gt_log"]))
         if path not in _GT_LOGS:
             _GT_LOGS[path] = read_gt_log(path)
-        key = tuple(pair.get("gt_entry", (int(pair["target"]), int(pair["source"]))))
+        key = tuple(pair["gt_entry"]) if "gt_entry" in pair else (int(pair["target"]), int(pair["source"]))
         return _GT_LOGS[path].get(key)
     return None
 
