@@ -368,7 +368,7 @@ def render_field(name):
             t, e = times.get(f["benchmark"], []), est.get(f["benchmark"], [])
             out.append(
                 f"| cgenreg FPFH + SC2-PCR (indoor preset) | {f['benchmark']} | {f['pairs']} | "
-                f"{100 * f['recall']:.1f} | {rmse_cell(f)} | "
+                f"{100 * f.get('rr', f.get('recall')):.1f} | {rmse_cell(f)} | "
                 f"{num(f['re_mean_deg'])} | {num(f['re_median_deg'])} | {num(f['te_mean_m'], 100)} | "
                 f"{num(f['te_median_m'], 100)} | {sum(e) / max(len(e), 1):.2f} | {sum(t) / max(len(t), 1):.2f} |")
         sources.append(f"- cgenreg: `{cg_rel}`, {describe(cg)}")

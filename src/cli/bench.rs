@@ -109,10 +109,10 @@ impl RunArgs {
     }
 }
 
+use crate::metrics::FieldSummary;
 pub use crate::report::bench_file::{
     bench_json, field_summaries, rows_of, summarise, PairRow, SplitSummary,
 };
-use crate::metrics::FieldSummary;
 
 /// The paper-style table of `summaries`, with the success criterion it counts by.
 pub fn print_table(summaries: &[SplitSummary]) {
@@ -224,7 +224,7 @@ pub fn print_field_table(rows: &[FieldSummary]) {
             r.benchmark,
             r.scene.as_deref().unwrap_or("all"),
             r.pairs,
-            100.0 * r.recall,
+            100.0 * r.rr,
             num(r.re_mean_deg, 1.0),
             num(r.re_median_deg, 1.0),
             num(r.te_mean_m, 100.0),

@@ -1,7 +1,9 @@
 //! `cgenreg dataset 3dmatch|kitti ROOT --out FILE.toml`: a manifest of a standard benchmark as
 //! downloaded (see `dataset::official`), checked by loading it back.
 
-use crate::dataset::official::{kitti_manifest, threedmatch_manifest, KittiOptions, KittiRule, Written};
+use crate::dataset::official::{
+    kitti_manifest, threedmatch_manifest, KittiOptions, KittiRule, Written,
+};
 use crate::dataset::Dataset;
 use crate::error::{Error, Result};
 use clap::{Args, Subcommand};
@@ -117,4 +119,3 @@ pub fn run(a: DatasetArgs) -> Result<()> {
         }
     }
 }
-

@@ -5,8 +5,8 @@
 
 use crate::error::Result;
 use crate::fusion::FusionMode;
-use crate::pipeline::RegisterParams;
 use crate::metrics::FieldSummary;
+use crate::pipeline::RegisterParams;
 use crate::report::bench_file::{field_summaries, read_bench_file};
 use crate::report::labels;
 use clap::Args;
@@ -150,7 +150,11 @@ fn print_labelled_field_table(rows: &[(String, FieldSummary)]) {
     outln!(
         "RR = registration recall at {}{}{}; RE / TE: mean and median over the registered pairs",
         crits.join(" / "),
-        also.map_or(String::new(), |c| format!("; RR {} at {}", c.short(), c.label())),
+        also.map_or(String::new(), |c| format!(
+            "; RR {} at {}",
+            c.short(),
+            c.label()
+        )),
         if rmse {
             "; RR RMSE = the official 3DMatch recall (RMSE < 0.2 m over gt.info, pairs of \
              non-consecutive fragments)"
@@ -191,7 +195,7 @@ fn print_labelled_field_table(rows: &[(String, FieldSummary)]) {
             r.benchmark,
             r.scene.as_deref().unwrap_or("all"),
             r.pairs,
-            pct(r.recall),
+            pct(r.rr),
             fin(r.re_mean_deg, 1.0),
             fin(r.re_median_deg, 1.0),
             fin(r.te_mean_m, 100.0),

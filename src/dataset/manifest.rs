@@ -792,7 +792,10 @@ impl Dataset {
                     "several",
                 ));
             }
-            for (name, given) in [("gt_entry", p.gt_entry.is_some()), ("gt_info", p.gt_info.is_some())] {
+            for (name, given) in [
+                ("gt_entry", p.gt_entry.is_some()),
+                ("gt_info", p.gt_info.is_some()),
+            ] {
                 if given && p.gt_log.is_none() {
                     return Err(bad(
                         path,

@@ -212,7 +212,9 @@ pub fn threedmatch_manifest(
             if !log.is_file() {
                 return Err(missing(
                     log,
-                    &format!("gt.log of scene {scene} ({b}: entries `i j N` and a 4x4 T, p_i = T p_j)"),
+                    &format!(
+                        "gt.log of scene {scene} ({b}: entries `i j N` and a 4x4 T, p_i = T p_j)"
+                    ),
                 ));
             }
             let info = log.with_file_name("gt.info");
@@ -528,8 +530,7 @@ pub fn kitti_pairs(
         KittiRule::All => {
             for (i, &a) in frames.iter().enumerate() {
                 for &b in &frames[i + 1..] {
-                    if a < positions.len() && b < positions.len() && dist(a, b) >= min_distance_m
-                    {
+                    if a < positions.len() && b < positions.len() && dist(a, b) >= min_distance_m {
                         out.push((a, b));
                     }
                 }
@@ -605,7 +606,10 @@ pub fn kitti_manifest(root: &Path, o: &KittiOptions) -> Result<Written> {
         for ent in std::fs::read_dir(&vdir).map_err(|e| Error::io(&vdir, e))? {
             let ent = ent.map_err(|e| Error::io(&vdir, e))?;
             let name = ent.file_name().to_string_lossy().into_owned();
-            if let Some(k) = name.strip_suffix(".bin").and_then(|s| s.parse::<usize>().ok()) {
+            if let Some(k) = name
+                .strip_suffix(".bin")
+                .and_then(|s| s.parse::<usize>().ok())
+            {
                 if k >= poses.len() {
                     return Err(Error::format(
                         &poses_path,
@@ -754,7 +758,7 @@ mod tests {
 
     /// The published rule on a straight drive at 1 m a frame: the first frame more than 10 m
     /// away is 11 frames on, its pair the frame before (10 m); then the next pair starts after
-    /// it. A missing scan stops the walk (as FCGF's loop); `All` takes every pair >= D.
+    /// it. A missing scan stops the walk (where FCGF's loop would not end); `All` takes every pair >= D.
     #[test]
     fn kitti_pair_rules() {
         let pos: Vec<Vector3<f64>> = (0..40).map(|k| Vector3::new(k as f64, 0.0, 0.0)).collect();
@@ -764,7 +768,11 @@ mod tests {
             [(0, 10), (11, 21), (22, 32)]
         );
         let sparse = [0, 5, 10, 30];
-        assert!(kitti_pairs(&sparse, &pos, 10.0, KittiRule::Published).is_empty());
+        assert_eq!(
+            kitti_pairs(&sparse, &pos, 10.0, KittiRule::Published),
+            [(0, 10)]
+        );
+        assert!(kitti_pairs(&[0, 5, 30], &pos, 10.0, KittiRule::Published).is_empty());
         assert_eq!(
             kitti_pairs(&sparse, &pos, 10.0, KittiRule::All),
             [(0, 10), (0, 30), (5, 30), (10, 30)]
@@ -776,7 +784,10 @@ mod tests {
         let e = parse_kitti_poses(Path::new("07.txt"), "1 0 0 0 0 1 0 0 0 0 1 0\n1 2 3\n")
             .unwrap_err()
             .to_string();
-        assert!(e.contains("07.txt") && e.contains("line 2") && e.contains("12 numbers"), "{e}");
+        assert!(
+            e.contains("07.txt") && e.contains("line 2") && e.contains("12 numbers"),
+            "{e}"
+        );
         let e = parse_kitti_calib(Path::new("calib.txt"), "P0: 1 2 3\n")
             .unwrap_err()
             .to_string();

@@ -57,8 +57,10 @@ pub struct FieldSummary {
     pub pairs: usize,
     pub criterion: SuccessCriterion,
     pub registered: usize,
-    #[serde(deserialize_with = "super::null_as_nan")]
-    pub recall: f64,
+    /// The registration recall under `criterion` (a fraction; `recall` in files of the first
+    /// version).
+    #[serde(alias = "recall", deserialize_with = "super::null_as_nan")]
+    pub rr: f64,
     /// The second criterion and the fraction of pairs it registers.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub also: Option<(SuccessCriterion, f64)>,
@@ -98,9 +100,12 @@ impl FieldSummary {
             pairs: n,
             criterion,
             registered: ok.len(),
-            recall: frac(ok.len(), n),
+            rr: frac(ok.len(), n),
             also: also.map(|c| {
-                let k = pairs.iter().filter(|p| p.also_success == Some(true)).count();
+                let k = pairs
+                    .iter()
+                    .filter(|p| p.also_success == Some(true))
+                    .count();
                 (c, frac(k, n))
             }),
             rmse_pairs: rmse.len(),
@@ -132,15 +137,21 @@ mod tests {
         let pts: Vec<Vector3<f64>> = (0..200)
             .map(|k| {
                 let f = k as f64;
-                Vector3::new((f * 0.37).sin(), (f * 0.11).cos() * 1.5, 1.0 + (f * 0.05).sin())
+                Vector3::new(
+                    (f * 0.37).sin(),
+                    (f * 0.11).cos() * 1.5,
+                    1.0 + (f * 0.05).sin(),
+                )
             })
             .collect();
         let mut info = Matrix6::zeros();
         for p in &pts {
             let mut j = nalgebra::Matrix3x6::zeros();
-            j.fixed_view_mut::<3, 3>(0, 0).copy_from(&nalgebra::Matrix3::identity());
+            j.fixed_view_mut::<3, 3>(0, 0)
+                .copy_from(&nalgebra::Matrix3::identity());
             // d(R p)/d(q.xyz) at identity: -2 [p]x  (R ≈ I + 2 [q.xyz]x)
-            j.fixed_view_mut::<3, 3>(0, 3).copy_from(&(-2.0 * p.cross_matrix()));
+            j.fixed_view_mut::<3, 3>(0, 3)
+                .copy_from(&(-2.0 * p.cross_matrix()));
             info += j.transpose() * j;
         }
         let gt = Isometry3::from_parts(
@@ -192,11 +203,11 @@ mod tests {
             ],
         );
         assert_eq!((s.pairs, s.registered, s.rmse_pairs), (4, 2, 3));
-        assert!((s.recall - 0.5).abs() < 1e-12);
+        assert!((s.rr - 0.5).abs() < 1e-12);
         assert!((s.rmse_recall.unwrap() - 1.0 / 3.0).abs() < 1e-12);
         assert!((s.re_mean_deg - 3.0).abs() < 1e-12 && (s.te_median_m - 0.1).abs() < 1e-12);
         assert!((s.also.unwrap().1 - 0.25).abs() < 1e-12);
         let none = FieldSummary::from_pairs("x", None, SuccessCriterion::KITTI, None, &[]);
-        assert!(none.re_mean_deg.is_nan() && none.rmse_recall.is_none() && none.recall == 0.0);
+        assert!(none.re_mean_deg.is_nan() && none.rmse_recall.is_none() && none.rr == 0.0);
     }
 }

@@ -144,9 +144,7 @@ pub fn field_summaries(rows: &[PairRow]) -> Vec<FieldSummary> {
             rte_m: r.rte_m.unwrap_or(f64::INFINITY),
             success: r.success.unwrap_or(false),
             also_success: also.map(|_| r.also.is_some_and(|j| j.success)),
-            rmse_m: r
-                .rmse_counted
-                .then(|| r.rmse_m.unwrap_or(f64::INFINITY)),
+            rmse_m: r.rmse_counted.then(|| r.rmse_m.unwrap_or(f64::INFINITY)),
         };
         let mut scenes: Vec<&str> = sel.iter().filter_map(|r| r.scene.as_deref()).collect();
         scenes.sort_unstable();

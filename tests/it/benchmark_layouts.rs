@@ -2,9 +2,7 @@
 //! data by symbolic links: the redkitchen part of 3DMatch / 3DLoMatch as Predator and the
 //! 3DMatch toolbox lay it out, and the KITTI 07 scans as an odometry sequence.
 
-use cgenreg::dataset::official::{
-    kitti_manifest, threedmatch_manifest, KittiOptions, KittiRule,
-};
+use cgenreg::dataset::official::{kitti_manifest, threedmatch_manifest, KittiOptions, KittiRule};
 use cgenreg::dataset::Dataset;
 use nalgebra::Matrix4;
 use std::os::unix::fs::symlink;
@@ -17,7 +15,8 @@ const SCENE: &str = "7-scenes-redkitchen";
 fn redkitchen() -> Option<(PathBuf, PathBuf)> {
     let root = cgenreg::testing::test_data_root()?;
     let frags = cgenreg::testing::require_file(&root, "3dmatch-redkitchen-full/cloud_bin_59.pth")?;
-    let bench = cgenreg::testing::require_file(&root, "3dmatch-redkitchen/benchmark/3DLoMatch/gt.info")?;
+    let bench =
+        cgenreg::testing::require_file(&root, "3dmatch-redkitchen/benchmark/3DLoMatch/gt.info")?;
     Some((
         frags.parent()?.to_path_buf(),
         bench.parent()?.parent()?.to_path_buf(),
@@ -59,7 +58,10 @@ fn predator_layout_gives_the_whole_redkitchen_benchmark() {
         w.pairs,
         [("3DMatch".to_string(), 506), ("3DLoMatch".to_string(), 525)]
     );
-    assert_eq!((w.fragments, w.scenes.as_slice()), (60, [SCENE.to_string()].as_slice()));
+    assert_eq!(
+        (w.fragments, w.scenes.as_slice()),
+        (60, [SCENE.to_string()].as_slice())
+    );
     // the 19 pairs both gt.logs list are in both splits, 3DLoMatch's copy through alias fragments
     assert!(w.text.contains("19 pair(s) listed in both"));
 
@@ -73,7 +75,11 @@ fn predator_layout_gives_the_whole_redkitchen_benchmark() {
         .unwrap();
     let stdout = String::from_utf8_lossy(&o.stdout);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    assert!(stdout.contains("3DMatch 506 pairs, 3DLoMatch 525 pairs") && stdout.contains("1031 pairs loaded back"), "{stdout}");
+    assert!(
+        stdout.contains("3DMatch 506 pairs, 3DLoMatch 525 pairs")
+            && stdout.contains("1031 pairs loaded back"),
+        "{stdout}"
+    );
     // never over an existing file without --force
     let again = Command::new(env!("CARGO_BIN_EXE_cgenreg"))
         .args(["dataset", "3dmatch"])
@@ -89,7 +95,10 @@ fn predator_layout_gives_the_whole_redkitchen_benchmark() {
     assert_eq!(ds.pairs().len(), 1031);
     let lo = ds.pairs().iter().filter(|p| p.split == "3DLoMatch").count();
     assert_eq!(lo, 525);
-    assert!(ds.pairs().iter().all(|p| p.scene.as_deref() == Some(SCENE) && p.gt_info.is_some()));
+    assert!(ds
+        .pairs()
+        .iter()
+        .all(|p| p.scene.as_deref() == Some(SCENE) && p.gt_info.is_some()));
     // ids as the gt.log names them: target i, source j
     let p = ds.pair(&format!("{SCENE}/0-5")).unwrap();
     let gt = p.gt_target_from_source.unwrap().to_homogeneous();
@@ -131,24 +140,47 @@ fn toolbox_layout_and_incomplete_downloads() {
     }
     for k in [0, 4] {
         let f = format!("cloud_bin_{k}.ply");
-        symlink(data.join("3dmatch-redkitchen/teaser-plusplus").join(&f), scene.join(&f)).unwrap();
+        symlink(
+            data.join("3dmatch-redkitchen/teaser-plusplus").join(&f),
+            scene.join(&f),
+        )
+        .unwrap();
     }
     symlink(bench.join("3DMatch/gt.log"), eval.join("gt.log")).unwrap();
     // gt.info missing: named
-    let e = threedmatch_manifest(&root, None, None).unwrap_err().to_string();
-    assert!(e.contains("gt.info") && e.contains(&format!("{SCENE}-evaluation")), "{e}");
+    let e = threedmatch_manifest(&root, None, None)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("gt.info") && e.contains(&format!("{SCENE}-evaluation")),
+        "{e}"
+    );
     symlink(bench.join("3DMatch/gt.info"), eval.join("gt.info")).unwrap();
     let w = threedmatch_manifest(&root, None, None).unwrap();
     assert_eq!(w.pairs, [("3DMatch".to_string(), 506)]);
-    assert!(w.text.contains("cloud = \"7-scenes-redkitchen/cloud_bin_0.ply\""));
-    assert!(w.text.contains("cloud = \"7-scenes-redkitchen/cloud_bin_1.pth\""));
-    assert!(w.text.contains("allow_outside_root = true"), "symbolic links lead outside");
+    assert!(w
+        .text
+        .contains("cloud = \"7-scenes-redkitchen/cloud_bin_0.ply\""));
+    assert!(w
+        .text
+        .contains("cloud = \"7-scenes-redkitchen/cloud_bin_1.pth\""));
+    assert!(
+        w.text.contains("allow_outside_root = true"),
+        "symbolic links lead outside"
+    );
     // a fragment missing: named, with the gt.log entry that needs it
     std::fs::remove_file(scene.join("cloud_bin_1.pth")).unwrap();
-    let e = threedmatch_manifest(&root, None, None).unwrap_err().to_string();
-    assert!(e.contains("cloud_bin_1.ply") && e.contains("entry `0 1`"), "{e}");
+    let e = threedmatch_manifest(&root, None, None)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("cloud_bin_1.ply") && e.contains("entry `0 1`"),
+        "{e}"
+    );
     // not a 3DMatch folder at all
-    let e = threedmatch_manifest(&scene, None, None).unwrap_err().to_string();
+    let e = threedmatch_manifest(&scene, None, None)
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("-evaluation") && e.contains("benchmarks"), "{e}");
 }
 
@@ -215,7 +247,11 @@ fn kitti_sequence_layout() {
     for b in lines.chunks(5) {
         let h: Vec<&str> = b[0].split_whitespace().collect();
         let (t, s): (usize, usize) = (h[0].parse().unwrap(), h[1].parse().unwrap());
-        let m: Vec<f64> = b[1..].iter().flat_map(|l| l.split_whitespace()).map(|x| x.parse().unwrap()).collect();
+        let m: Vec<f64> = b[1..]
+            .iter()
+            .flat_map(|l| l.split_whitespace())
+            .map(|x| x.parse().unwrap())
+            .collect();
         let theirs = Matrix4::from_row_slice(&m);
         let id = format!("kitti/07_{:06}-07_{:06}", frames[s], frames[t]);
         if let Some(p) = ds.pair(&id) {
@@ -228,7 +264,9 @@ fn kitti_sequence_layout() {
     }
     assert_eq!(checked, 6);
     assert!(w.text.contains("No ICP refinement"));
-    let pair = ds.load_pair(&format!("kitti/07_{:06}-07_{:06}", 71, 56)).unwrap();
+    let pair = ds
+        .load_pair(&format!("kitti/07_{:06}-07_{:06}", 71, 56))
+        .unwrap();
     assert_eq!(pair.target.cloud.len(), 19_872);
     let published = KittiOptions {
         rule: KittiRule::Published,

@@ -1,6 +1,9 @@
 //! Merging shard outputs into one run file over the whole selection.
 
-use super::{host_name, machine_description, now_unix, source_commit, PairRecord, RunFile, RunHeader, Shard, DONE, FAILED};
+use super::{
+    host_name, machine_description, now_unix, source_commit, PairRecord, RunFile, RunHeader, Shard,
+    DONE, FAILED,
+};
 use crate::error::{Error, Result};
 
 /// The result of merging shard outputs: one run file over the whole selection, plus what is

@@ -187,7 +187,9 @@ fn machine_description() -> Option<String> {
                 .find_map(|l| l.strip_prefix("MemTotal:"))
                 .and_then(|v| v.split_whitespace().next()?.parse::<f64>().ok())
         })
-        .map_or(String::new(), |kib| format!(", {:.1} GiB", kib / 1024.0 / 1024.0));
+        .map_or(String::new(), |kib| {
+            format!(", {:.1} GiB", kib / 1024.0 / 1024.0)
+        });
     Some(format!("{model}, {cores} logical cores{mem_gib}"))
 }
 
