@@ -211,7 +211,8 @@ def render_python(name):
         return "\n".join(out + ["", f"Median of {d['reps']} alternating runs, loading excluded. " + src])
     rows = d.get("staged") or []
     ours = sum(r["cgenreg_s"] for r in rows)
-    out = [f"| {len(rows)} staged pairs | registered | time |", "|---|---|---|",
+    out = ["Geometry alone, no image branch; success: RRE <= 15 deg and RTE <= 30 cm.", "",
+           f"| {len(rows)} staged pairs | registered | time |", "|---|---|---|",
            f"| cgenreg FPFH + SC2-PCR (Python, {d['profile']} profile) | "
            f"{sum(r['cgenreg_ok'] for r in rows)}/{len(rows)} | {ours:.1f} s |"]
     if rows and "open3d_s" in rows[0]:
@@ -317,9 +318,88 @@ def render_outdoor(name):
     return "\n".join(out + ["", "From:"] + sources)
 
 
+# name -> (cgenreg run file, peers file): the paper-style tables of the standard benchmarks, one row per
+# method and benchmark: cgenreg's rows are its run file's own `field` summaries (src/metrics/field.rs);
+# the peers' (scripts/peers.sh) are counted here from their per-pair success, RRE and RTE.
+FIELD = {
+    "redkitchen-full": ("docs/results/redkitchen-full/cgenreg-geometry.json",
+                        "docs/results/redkitchen-full/peers.json"),
+}
+
+
+def _median(v):
+    v = sorted(v)
+    n = len(v)
+    return float("nan") if n == 0 else (v[n // 2] if n % 2 else (v[n // 2 - 1] + v[n // 2]) / 2)
+
+
+def rmse_cell(f):
+    r = f.get("rmse_recall")
+    return "–" if r is None else f"{100 * r:.1f} ({f.get('rmse_pairs')})"
+
+
+def render_field(name):
+    cg_rel, peers_rel = FIELD[name]
+    cg, peers = load(cg_rel), load(peers_rel)
+    num = lambda v, k=1.0: "–" if v is None or v != v else f"{k * v:.2f}"
+    out = [
+        "Image source: none (geometry alone, clouds only) for every row. Success: RRE <= 15 deg and RTE <= 30 cm "
+        "(RR); RR RMSE: the official 3DMatch recall, RMSE < 0.2 m over gt.info, on the pairs of non-consecutive "
+        "fragments (their count in brackets); RE / TE: mean and median over the registered pairs. Time per pair: "
+        "the estimate from clouds in memory, and the whole pair with reading both files.",
+        "",
+        "| method | benchmark | pairs | RR % | RR RMSE % (pairs) | RE mean ° | RE med ° | TE mean cm | TE med cm "
+        "| s/pair estimate | s/pair whole |",
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    sources = []
+    if cg is None:
+        out.append(f"| cgenreg | not run (`{cg_rel}` missing) | | | | | | | | | |")
+    else:
+        times, est = {}, {}
+        split_of = {r["id"]: r["split"] for r in cg.get("pairs", [])}
+        for rec in cg.get("records", []):
+            sp = split_of.get(rec["id"], "")
+            load_s = sum(x["ms"] for x in rec.get("stages", []) if x["stage"] == "load pair") / 1e3
+            times.setdefault(sp, []).append(rec.get("time_s") or 0.0)
+            est.setdefault(sp, []).append((rec.get("time_s") or 0.0) - load_s)
+        fields = [f for f in cg.get("field", []) if not f.get("scene")]
+        for f in sorted(fields, key=lambda f: (f["benchmark"] != "3DMatch", f["benchmark"])):
+            t, e = times.get(f["benchmark"], []), est.get(f["benchmark"], [])
+            out.append(
+                f"| cgenreg FPFH + SC2-PCR (indoor preset) | {f['benchmark']} | {f['pairs']} | "
+                f"{100 * f.get('rr', f.get('recall')):.1f} | {rmse_cell(f)} | "
+                f"{num(f['re_mean_deg'])} | {num(f['re_median_deg'])} | {num(f['te_mean_m'], 100)} | "
+                f"{num(f['te_median_m'], 100)} | {sum(e) / max(len(e), 1):.2f} | {sum(t) / max(len(t), 1):.2f} |")
+        sources.append(f"- cgenreg: `{cg_rel}`, {describe(cg)}")
+    runs = (peers or {}).get("runs") or ([peers] if peers else [])
+    for run in runs:
+        label = run.get("method", "?").split(" (")[0]
+        ver = ", ".join(f"{k} {v}" for k, v in run.get("versions", {}).items() if k not in ("python", "numpy"))
+        by = {}
+        for r in run.get("pairs", []):
+            by.setdefault(r["split"], []).append(r)
+        for split in sorted(by, key=lambda x: (x != "3DMatch", x)):
+            rows = by[split]
+            ok = [r for r in rows if r["success"][0]]
+            mean = lambda v: sum(v) / len(v) if v else float("nan")
+            out.append(
+                f"| {label} ({ver}, voxel {run.get('voxel_m')} m) | {split} | {len(rows)} | "
+                f"{100 * len(ok) / len(rows):.1f} | – | {num(mean([r['rre_deg'] for r in ok]))} | "
+                f"{num(_median([r['rre_deg'] for r in ok]))} | {num(mean([r['rte_m'] for r in ok]), 100)} | "
+                f"{num(_median([r['rte_m'] for r in ok]), 100)} | {mean([r['time_s'] for r in rows]):.2f} | "
+                f"{mean([r['total_s'] for r in rows]):.2f} |")
+        sources.append(f"- {label}: `{peers_rel}`, `{run.get('command')}`, {run.get('machine', {}).get('cpu')} "
+                       f"({run.get('machine', {}).get('cores')} cores), {run.get('date')}, commit "
+                       f"{(run.get('commit') or 'not recorded')[:12]}")
+    if peers is None:
+        out.append(f"| peers | not run (`{peers_rel}` missing) | | | | | | | | | |")
+    return "\n".join(out + ["", "From:"] + sources)
+
+
 BEGIN = "<!-- generated by scripts/tables.py: {} -->"
 END = "<!-- end of generated table -->"
-FILES = ["BENCHMARKS.md", "docs/ablation.md", "docs/studies.md", "docs/python.md"]
+FILES = ["BENCHMARKS.md", "README.md", "docs/ablation.md", "docs/studies.md", "docs/python.md"]
 
 
 def load(rel):
@@ -346,8 +426,12 @@ def describe(d):
         else "date not recorded"
     )
     host = run.get("host") or "host not recorded"
+    if run.get("machine"):
+        host += f" ({run['machine']})"
     binary = (ident.get("binary_blake3") or "")[:8] or "not recorded"
-    return f"`{' '.join(cmd)}` + the options in its `params`; {host}, {date}, binary {binary}"
+    commit = f", commit {run['commit'][:12]}{'+dirty' if run['commit'].endswith('+dirty') else ''}" \
+        if run.get("commit") else ""
+    return f"`{' '.join(cmd)}` + the options in its `params`; {host}, {date}, binary {binary}{commit}"
 
 
 def counts(d):
@@ -410,6 +494,8 @@ def render(name):
         return render_grid(name)
     if name in OUTDOOR:
         return render_outdoor(name)
+    if name in FIELD:
+        return render_field(name)
     title, rows = TABLES[name]
     out = [
         f"| row | split | pairs | registered | RR % | RRE median ° | RTE median cm | s/pair |",
@@ -439,8 +525,9 @@ def rewrite(text):
     def sub(m):
         name = m.group(1)
         if name not in TABLES and name not in GRIDS and name not in PYTHON_BENCH and name not in REPOSE \
-                and name not in OUTDOOR:
-            known = ", ".join(list(TABLES) + list(GRIDS) + list(PYTHON_BENCH) + list(REPOSE) + list(OUTDOOR))
+                and name not in OUTDOOR and name not in FIELD:
+            known = ", ".join(list(TABLES) + list(GRIDS) + list(PYTHON_BENCH) + list(REPOSE) + list(OUTDOOR)
+                              + list(FIELD))
             raise SystemExit(f"tables.py: unknown table {name!r} (known: {known})")
         found.append(name)
         return BEGIN.format(name) + "\n" + render(name) + "\n" + END

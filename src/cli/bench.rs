@@ -9,7 +9,8 @@ use crate::dataset::fragment_cache::pair_summary;
 use crate::dataset::manifest::{Dataset, PairSpec};
 use crate::dataset::repose::repose_motion;
 use crate::error::{Error, Result};
-use crate::metrics::SuccessCriterion;
+use crate::metrics::field::rmse_counts;
+use crate::metrics::{rmse_3dmatch, SuccessCriterion};
 use crate::pipeline::shard::{
     run_pending, stage_totals, PairRecord, Progress, ResumeMode, RunIdentity, Shard, StageTime,
     DONE, FAILED,
@@ -108,7 +109,10 @@ impl RunArgs {
     }
 }
 
-pub use crate::report::bench_file::{bench_json, rows_of, summarise, PairRow, SplitSummary};
+use crate::metrics::FieldSummary;
+pub use crate::report::bench_file::{
+    bench_json, field_summaries, rows_of, summarise, PairRow, SplitSummary,
+};
 
 /// The paper-style table of `summaries`, with the success criterion it counts by.
 pub fn print_table(summaries: &[SplitSummary]) {
@@ -164,6 +168,67 @@ pub fn print_table(summaries: &[SplitSummary]) {
         outln!(
             "{errors} pair(s) ran with an error: counted as failures in RR, RA and TA; the RRE and \
              RTE means and medians are over the pairs with a pose"
+        );
+    }
+}
+
+/// The paper-style table (SC2-PCR's and GeoTransformer's layout): per benchmark and scene, then
+/// pooled per benchmark, the recall under the run's criterion (and its second one), the
+/// official 3DMatch recall (RMSE < 0.2 m, over the pairs it counts) where the manifest gives
+/// gt.info, and the mean / median RE and TE over the registered pairs.
+pub fn print_field_table(rows: &[FieldSummary]) {
+    let Some(first) = rows.first() else { return };
+    let also = rows.iter().find_map(|r| r.also.map(|(c, _)| c));
+    let rmse = rows.iter().any(|r| r.rmse_recall.is_some());
+    outln!(
+        "Per benchmark and scene: RR = registration recall at {}{}{}; RE / TE over the registered pairs",
+        first.criterion.label(),
+        also.map_or(String::new(), |c| format!(", RR {} at {}", c.short(), c.label())),
+        if rmse {
+            "; RR RMSE = the official 3DMatch recall, RMSE < 0.2 m over gt.info, on the pairs of \
+             non-consecutive fragments"
+        } else {
+            ""
+        }
+    );
+    outln!(
+        "| benchmark | scene | pairs | RR % |{}{} RE mean ° | RE med ° | TE mean cm | TE med cm |",
+        also.map_or(String::new(), |c| format!(" RR {} % |", c.short())),
+        if rmse { " RR RMSE % (pairs) |" } else { "" }
+    );
+    outln!(
+        "|---|---|---|---|{}{}---|---|---|---|",
+        if also.is_some() { "---|" } else { "" },
+        if rmse { "---|" } else { "" }
+    );
+    let num = |v: f64, scale: f64| {
+        if v.is_finite() {
+            format!("{:.2}", scale * v)
+        } else {
+            "–".to_string()
+        }
+    };
+    for r in rows {
+        let also_cell = match (also, r.also) {
+            (Some(_), Some((_, f))) => format!(" {:.1} |", 100.0 * f),
+            (Some(_), None) => " - |".into(),
+            (None, _) => String::new(),
+        };
+        let rmse_cell = match (rmse, r.rmse_recall) {
+            (true, Some(f)) => format!(" {:.1} ({}) |", 100.0 * f, r.rmse_pairs),
+            (true, None) => " - |".into(),
+            (false, _) => String::new(),
+        };
+        outln!(
+            "| {} | {} | {} | {:.1} |{also_cell}{rmse_cell} {} | {} | {} | {} |",
+            r.benchmark,
+            r.scene.as_deref().unwrap_or("all"),
+            r.pairs,
+            100.0 * r.rr,
+            num(r.re_mean_deg, 1.0),
+            num(r.re_median_deg, 1.0),
+            num(r.te_mean_m, 100.0),
+            num(r.te_median_m, 100.0),
         );
     }
 }
@@ -255,6 +320,16 @@ pub fn selection<'a>(
         )));
     }
     Ok(specs)
+}
+
+/// Whether the official 3DMatch recall counts a pair: a gt.info entry of fragments that are not
+/// consecutive, in the data's own frame (gt.info does not hold for a re-posed source).
+fn rmse_counted(spec: &PairSpec, reposed: bool) -> bool {
+    !reposed
+        && spec
+            .gt_info
+            .as_ref()
+            .is_some_and(|i| rmse_counts(i.target, i.source))
 }
 
 pub fn run(a: BenchArgs) -> Result<()> {
@@ -360,6 +435,7 @@ pub fn run(a: BenchArgs) -> Result<()> {
         });
         let time_s = t.elapsed().as_secs_f64();
         bar.inc(1);
+        let rmse_counted = rmse_counted(spec, a.repose_seed.is_some());
         let (row, stages, status) = match res {
             Ok(r) => {
                 for w in &r.warnings {
@@ -396,6 +472,14 @@ pub fn run(a: BenchArgs) -> Result<()> {
                         .map(|t| t.translation.vector.norm()),
                     fusion: r.fusion_provenance(),
                     scales: r.scales.as_ref().map(|s| s.provenance()),
+                    scene: spec.scene.clone(),
+                    rmse_counted,
+                    rmse_m: match (&spec.gt_info, &spec.gt_target_from_source) {
+                        (Some(info), Some(gt)) if rmse_counted => {
+                            Some(rmse_3dmatch(&r.estimate, gt, &info.information))
+                        }
+                        _ => None,
+                    },
                 };
                 for line in [r.fusion_provenance(), row.scales.clone()]
                     .into_iter()
@@ -406,7 +490,11 @@ pub fn run(a: BenchArgs) -> Result<()> {
                 (row, stages, DONE)
             }
             Err(e) => (
-                PairRow::failed(&spec.id, &spec.split, &e.to_string(), time_s),
+                PairRow {
+                    scene: spec.scene.clone(),
+                    rmse_counted,
+                    ..PairRow::failed(&spec.id, &spec.split, &e.to_string(), time_s)
+                },
                 Vec::new(),
                 FAILED,
             ),
@@ -422,8 +510,13 @@ pub fn run(a: BenchArgs) -> Result<()> {
         })
     };
     let failed_result = |pos: usize, why: &str| {
-        serde_json::to_value(PairRow::failed(&specs[pos].id, &specs[pos].split, why, 0.0))
-            .unwrap_or_default()
+        let spec = specs[pos];
+        serde_json::to_value(PairRow {
+            scene: spec.scene.clone(),
+            rmse_counted: rmse_counted(spec, a.repose_seed.is_some()),
+            ..PairRow::failed(&spec.id, &spec.split, why, 0.0)
+        })
+        .unwrap_or_default()
     };
     let written = run_pending(
         &mut progress,
@@ -437,6 +530,8 @@ pub fn run(a: BenchArgs) -> Result<()> {
     let file = progress.run_file();
     let rows = rows_of(&file)?;
     print_table(&summarise(&rows));
+    outln!();
+    print_field_table(&field_summaries(&rows));
     outln!();
     print_pair_table(&rows);
     outln!();

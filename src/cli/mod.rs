@@ -25,6 +25,7 @@ macro_rules! out {
 pub mod args;
 mod bench;
 mod cache;
+mod dataset;
 mod diff;
 mod generate;
 #[cfg(feature = "gui")]
@@ -57,6 +58,8 @@ pub enum Command {
     Register(register::RegisterArgs),
     /// Register every pair of a dataset manifest and print the paper-style table.
     Bench(bench::BenchArgs),
+    /// Write a manifest of a standard benchmark as downloaded (3DMatch / 3DLoMatch, KITTI).
+    Dataset(dataset::DatasetArgs),
     /// Parameter studies over a manifest's pairs: RRE/RTE against K (figure 6) or per prompt
     /// category (figure 4).
     Study(study::StudyArgs),
@@ -109,6 +112,7 @@ pub fn run_command(c: Command) -> crate::Result<()> {
         Command::Register(a) => register::run(a),
         Command::Bench(a) => bench::run(a),
         Command::Cache(a) => cache::run(a),
+        Command::Dataset(a) => dataset::run(a),
         Command::Diff(a) => diff::run(a),
         Command::Study(a) => study::run(a),
         Command::Table(a) => table::run(a),

@@ -5,8 +5,9 @@
 
 use crate::error::Result;
 use crate::fusion::FusionMode;
+use crate::metrics::FieldSummary;
 use crate::pipeline::RegisterParams;
-use crate::report::bench_file::read_bench_file;
+use crate::report::bench_file::{field_summaries, read_bench_file};
 use crate::report::labels;
 use clap::Args;
 #[cfg(test)]
@@ -70,6 +71,8 @@ fn num(x: f64, scale: f64) -> String {
 pub fn run(a: TableArgs) -> Result<()> {
     outln!("| VFM (frames) | Geo. features | Fusion | selection | calibration τ (img/geo) | split | pairs | RR % | RA@5° | RA@10° | RA@45° | RRE mean° | RRE med.° | TA@5cm | TA@10cm | TA@25cm | RTE mean cm | RTE med. cm | s/pair |");
     outln!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
+    // the paper-style rows of runs on the standard benchmarks, printed after the table
+    let mut field = Vec::new();
     for path in &a.files {
         let f = read_bench_file(path)?;
         let p = f.register_params(path)?;
@@ -83,6 +86,23 @@ pub fn run(a: TableArgs) -> Result<()> {
             selection.push_str(&format!(", {sc}"));
         }
         let calibration = labels::calibration(&p);
+        if f.pairs.iter().any(|r| r.scene.is_some() || r.rmse_counted) {
+            let label = match (vfm.as_str(), fusion.as_str()) {
+                ("—", _) => geo.clone(),
+                (v, "—") => v.to_string(),
+                (v, fu) => format!("{v} + {geo}, {fu}"),
+            };
+            field.extend(
+                field_summaries(&f.pairs)
+                    .into_iter()
+                    .filter(|x| {
+                        a.split
+                            .as_ref()
+                            .is_none_or(|w| w.eq_ignore_ascii_case(&x.benchmark))
+                    })
+                    .map(|x| (label.clone(), x)),
+            );
+        }
         for x in &f.summary {
             if a.split
                 .as_ref()
@@ -110,7 +130,78 @@ pub fn run(a: TableArgs) -> Result<()> {
             );
         }
     }
+    if !field.is_empty() {
+        outln!();
+        print_labelled_field_table(&field);
+    }
     Ok(())
+}
+
+/// The paper-style rows of several runs, each labelled with its method (see
+/// [`crate::cli::bench::print_field_table`] for the columns).
+fn print_labelled_field_table(rows: &[(String, FieldSummary)]) {
+    let also = rows.iter().find_map(|(_, r)| r.also.map(|(c, _)| c));
+    let rmse = rows.iter().any(|(_, r)| r.rmse_recall.is_some());
+    let crits: Vec<String> = {
+        let mut v: Vec<String> = rows.iter().map(|(_, r)| r.criterion.label()).collect();
+        v.dedup();
+        v
+    };
+    outln!(
+        "RR = registration recall at {}{}{}; RE / TE: mean and median over the registered pairs",
+        crits.join(" / "),
+        also.map_or(String::new(), |c| format!(
+            "; RR {} at {}",
+            c.short(),
+            c.label()
+        )),
+        if rmse {
+            "; RR RMSE = the official 3DMatch recall (RMSE < 0.2 m over gt.info, pairs of \
+             non-consecutive fragments)"
+        } else {
+            ""
+        }
+    );
+    outln!(
+        "| method | benchmark | scene | pairs | RR % |{}{} RE mean ° | RE med ° | TE mean cm | TE med cm |",
+        also.map_or(String::new(), |c| format!(" RR {} % |", c.short())),
+        if rmse { " RR RMSE % (pairs) |" } else { "" }
+    );
+    outln!(
+        "|---|---|---|---|---|{}{}---|---|---|---|",
+        if also.is_some() { "---|" } else { "" },
+        if rmse { "---|" } else { "" }
+    );
+    for (label, r) in rows {
+        let also_cell = match (also, r.also) {
+            (Some(_), Some((_, f))) => format!(" {} |", pct(f)),
+            (Some(_), None) => " - |".into(),
+            (None, _) => String::new(),
+        };
+        let rmse_cell = match (rmse, r.rmse_recall) {
+            (true, Some(f)) => format!(" {} ({}) |", pct(f), r.rmse_pairs),
+            (true, None) => " - |".into(),
+            (false, _) => String::new(),
+        };
+        let fin = |v: f64, scale: f64| {
+            if v.is_finite() {
+                format!("{:.2}", scale * v)
+            } else {
+                "–".into()
+            }
+        };
+        outln!(
+            "| {label} | {} | {} | {} | {} |{also_cell}{rmse_cell} {} | {} | {} | {} |",
+            r.benchmark,
+            r.scene.as_deref().unwrap_or("all"),
+            r.pairs,
+            pct(r.rr),
+            fin(r.re_mean_deg, 1.0),
+            fin(r.re_median_deg, 1.0),
+            fin(r.te_mean_m, 100.0),
+            fin(r.te_median_m, 100.0),
+        );
+    }
 }
 
 #[cfg(test)]

@@ -42,6 +42,9 @@
 //! split = "3DMatch"              # free text; "3DMatch" / "3DLoMatch" for the benchmark
 //! gt_log = "3dmatch-redkitchen/benchmark/3DMatch/gt.log"
 //! gt_entry = [0, 3]              # optional; default: the numeric target and source ids
+//! gt_info = "3dmatch-redkitchen/benchmark/3DMatch/gt.info"   # optional, with gt_log: the
+//!                                # entry's 6x6 information matrix (3DMatch's RMSE recall)
+//! scene = "7-scenes-redkitchen"  # optional: the scene, for per-scene tables
 //! # or: gt_matrix = [[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]   (p_target = T p_source)
 //! # or: gt_file = "pair/gt.txt"  (4x4 text, target_from_source)
 //! # or: gt_poses = true          (both fragments made from frames of one RGB-D sequence:
@@ -60,7 +63,7 @@ use super::{Scan, ScanPair};
 use crate::dataset::preset::Preset;
 use crate::error::{Error, Result};
 use crate::geometry::transform::isometry_from_matrix;
-use crate::io::gtlog::{read_gt_log, GtEntry};
+use crate::io::gtlog::{read_gt_info, read_gt_log, GtEntry, GtInfo};
 use crate::io::kitti::KittiFields;
 use crate::io::rgbd_sequence::RgbdSequence;
 use nalgebra::{Isometry3, Matrix4};
@@ -119,6 +122,8 @@ struct RawPair {
     split: Option<String>,
     gt_log: Option<String>,
     gt_entry: Option<[usize; 2]>,
+    gt_info: Option<String>,
+    scene: Option<String>,
     gt_matrix: Option<Vec<Vec<f64>>>,
     gt_file: Option<String>,
     gt_poses: Option<bool>,
@@ -181,6 +186,10 @@ pub struct PairSpec {
     pub gt_origin: Option<String>,
     /// The protocol this pair names (None: the data set's).
     pub preset: Option<Preset>,
+    /// The scene it belongs to (`scene` in the manifest), for per-scene tables.
+    pub scene: Option<String>,
+    /// The gt.info entry of its gt.log entry (`gt_info`): 3DMatch's RMSE recall.
+    pub gt_info: Option<GtInfo>,
 }
 
 #[derive(Clone, Debug)]
@@ -563,6 +572,46 @@ fn fragment_source(
     })
 }
 
+/// The gt.info entry of a pair's gt.log entry (each file read once).
+fn pair_info(
+    path: &Path,
+    field: &str,
+    p: &RawPair,
+    info: &str,
+    resolve: &dyn Fn(&str, &str, bool) -> Result<PathBuf>,
+    infos: &mut HashMap<PathBuf, Vec<GtInfo>>,
+) -> Result<GtInfo> {
+    let ip = resolve(&format!("{field}.gt_info"), info, false)?;
+    let [ei, ej] = match (p.gt_entry, p.target.parse(), p.source.parse()) {
+        (Some(e), _, _) => e,
+        (None, Ok(a), Ok(b)) => [a, b],
+        _ => {
+            return Err(bad(
+                path,
+                format!("{field}.gt_entry"),
+                "gt_entry = [i, j] (the ids are not numbers)",
+                "missing",
+            ))
+        }
+    };
+    if !infos.contains_key(&ip) {
+        let entries = read_gt_info(&ip)?;
+        infos.insert(ip.clone(), entries);
+    }
+    infos[&ip]
+        .iter()
+        .find(|e| e.target == ei && e.source == ej)
+        .cloned()
+        .ok_or_else(|| {
+            bad(
+                path,
+                format!("{field}.gt_info"),
+                format!("an entry `{ei} {ej}` in {}", ip.display()),
+                "no such entry",
+            )
+        })
+}
+
 /// A pair's ground truth `target_from_source` and where it came from: a `gt.log` entry (read
 /// once per file), an inline matrix, the fragments' frame poses, or a matrix file; none.
 #[allow(clippy::too_many_arguments)]
@@ -761,6 +810,7 @@ impl Dataset {
         }
 
         let mut logs: HashMap<PathBuf, Vec<GtEntry>> = HashMap::new();
+        let mut infos: HashMap<PathBuf, Vec<GtInfo>> = HashMap::new();
         let mut seqs: HashMap<PathBuf, RgbdSequence> = HashMap::new();
         let mut pairs = Vec::with_capacity(raw.pairs.len());
         let mut pair_ids = HashMap::new();
@@ -806,17 +856,26 @@ impl Dataset {
                     "several",
                 ));
             }
-            if p.gt_entry.is_some() && p.gt_log.is_none() {
-                return Err(bad(
-                    path,
-                    format!("{field}.gt_entry"),
-                    "gt_entry only together with gt_log",
-                    "gt_entry alone",
-                ));
+            for (name, given) in [
+                ("gt_entry", p.gt_entry.is_some()),
+                ("gt_info", p.gt_info.is_some()),
+            ] {
+                if given && p.gt_log.is_none() {
+                    return Err(bad(
+                        path,
+                        format!("{field}.{name}"),
+                        format!("{name} only together with gt_log"),
+                        format!("{name} alone"),
+                    ));
+                }
             }
             let (gt, origin) =
                 pair_gt(path, &field, p, &resolve, &fragments, &mut logs, &mut seqs)?;
             let pair_preset = preset_field(path, &format!("{field}.preset"), p.preset.as_deref())?;
+            let gt_info = match &p.gt_info {
+                Some(info) => Some(pair_info(path, &field, p, info, &resolve, &mut infos)?),
+                None => None,
+            };
             let id = format!("{}/{}-{}", raw.name, p.target, p.source);
             if pair_ids.insert(id.clone(), i).is_some() {
                 return Err(bad(
@@ -834,6 +893,8 @@ impl Dataset {
                 gt_target_from_source: gt,
                 gt_origin: origin,
                 preset: pair_preset,
+                scene: p.scene.clone(),
+                gt_info,
             });
         }
         let scene_prompt = match raw.scene_prompt {
@@ -931,6 +992,8 @@ impl Dataset {
                 split: String::new(),
                 gt_target_from_source: gt_t,
                 gt_origin: gt.map(|p| p.display().to_string()),
+                scene: None,
+                gt_info: None,
             }],
             fragment_cache: None,
         })
@@ -1001,6 +1064,8 @@ impl Dataset {
                 split: "sequence".into(),
                 gt_target_from_source: Some(gt),
                 gt_origin: Some(format!("poses: inv(P of frame-{t:06}) * P of frame-{s:06}")),
+                scene: None,
+                gt_info: None,
             });
         }
         Ok(Dataset {

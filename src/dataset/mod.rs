@@ -4,6 +4,7 @@
 pub mod fragment;
 pub mod fragment_cache;
 pub mod manifest;
+pub mod official;
 pub mod open;
 pub mod preset;
 pub mod repose;

@@ -6,7 +6,7 @@
 
 use super::manifest::{Dataset, FragmentSource, FragmentSpec, PairSpec};
 use crate::error::{Error, Result};
-use crate::io::gtlog::read_gt_log;
+use crate::io::gtlog::{read_gt_info, read_gt_log};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
@@ -86,6 +86,13 @@ pub fn open_folder(dir: &Path) -> Result<Dataset> {
     let mut pairs = Vec::new();
     for (split, log) in &splits {
         let Some(log) = log else { continue };
+        // the information matrices beside it, when present (3DMatch's RMSE recall)
+        let info = log.with_file_name("gt.info");
+        let infos = if info.is_file() {
+            read_gt_info(&info)?
+        } else {
+            Vec::new()
+        };
         for e in read_gt_log(log)? {
             if !(clouds.contains_key(&e.target) && clouds.contains_key(&e.source)) {
                 continue;
@@ -107,6 +114,11 @@ pub fn open_folder(dir: &Path) -> Result<Dataset> {
                     e.target,
                     e.source
                 )),
+                scene: Some(scene.clone()),
+                gt_info: infos
+                    .iter()
+                    .find(|i| i.target == e.target && i.source == e.source)
+                    .cloned(),
             });
         }
     }

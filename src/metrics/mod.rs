@@ -5,7 +5,10 @@
 //! `src[i] ↔ tgt[i]` in their own frames. RRE is in degrees, RTE in metres.
 
 pub mod convention;
+pub mod field;
 pub mod overlap;
+
+pub use field::{rmse_3dmatch, FieldPair, FieldSummary};
 
 use crate::{Error, Result};
 use nalgebra::{Isometry3, Point3};

@@ -4,7 +4,7 @@
 //! ([`SplitSummary`]).
 
 use crate::error::{Error, Result};
-use crate::metrics::{PairMetrics, SuccessCriterion, Summary};
+use crate::metrics::{FieldPair, FieldSummary, PairMetrics, SuccessCriterion, Summary};
 use crate::pipeline::params::RegisterParams;
 use crate::pipeline::shard::{PairRecord, RunFile, RunHeader};
 use serde::{Deserialize, Serialize};
@@ -20,6 +20,8 @@ struct BenchJson<'a> {
     run: &'a RunHeader,
     pairs: Vec<PairRow>,
     summary: Vec<SplitSummary>,
+    /// The paper-style rows: per benchmark (split) and scene, and pooled per benchmark.
+    field: Vec<FieldSummary>,
     records: &'a [PairRecord],
 }
 
@@ -61,12 +63,14 @@ pub fn rows_of(f: &RunFile) -> Result<Vec<PairRow>> {
 pub fn bench_json(f: &RunFile) -> Result<Vec<u8>> {
     let rows = rows_of(f)?;
     let summary = summarise(&rows);
+    let field = field_summaries(&rows);
     let out = BenchJson {
         manifest: f.run.identity.manifest.clone(),
         params: &f.run.identity.params,
         run: &f.run,
         pairs: rows,
         summary,
+        field,
         records: &f.records,
     };
     serde_json::to_vec_pretty(&out).map_err(|e| Error::Encode(format!("serialising results: {e}")))
@@ -118,6 +122,51 @@ pub fn summarise(rows: &[PairRow]) -> Vec<SplitSummary> {
             }
         })
         .collect()
+}
+
+/// The paper-style rows of a run (SC2-PCR's and GeoTransformer's tables): for each benchmark
+/// (split, sorted by name), one row per scene when the pairs name scenes, then the benchmark
+/// pooled over its pairs. A pair that ran with an error is a failure everywhere.
+pub fn field_summaries(rows: &[PairRow]) -> Vec<FieldSummary> {
+    let mut splits: Vec<&str> = rows.iter().map(|r| r.split.as_str()).collect();
+    splits.sort_unstable();
+    splits.dedup();
+    let mut out = Vec::new();
+    for split in splits {
+        let sel: Vec<&PairRow> = rows.iter().filter(|r| r.split == split).collect();
+        let criterion = sel
+            .iter()
+            .find_map(|r| r.criterion)
+            .unwrap_or(SuccessCriterion::THREEDMATCH);
+        let also = sel.iter().find_map(|r| r.also.map(|j| j.criterion));
+        let pair = |r: &&PairRow| FieldPair {
+            rre_deg: r.rre_deg.unwrap_or(f64::INFINITY),
+            rte_m: r.rte_m.unwrap_or(f64::INFINITY),
+            success: r.success.unwrap_or(false),
+            also_success: also.map(|_| r.also.is_some_and(|j| j.success)),
+            rmse_m: r.rmse_counted.then(|| r.rmse_m.unwrap_or(f64::INFINITY)),
+        };
+        let mut scenes: Vec<&str> = sel.iter().filter_map(|r| r.scene.as_deref()).collect();
+        scenes.sort_unstable();
+        scenes.dedup();
+        for scene in &scenes {
+            let pairs: Vec<FieldPair> = sel
+                .iter()
+                .filter(|r| r.scene.as_deref() == Some(scene))
+                .map(pair)
+                .collect();
+            out.push(FieldSummary::from_pairs(
+                split,
+                Some(scene),
+                criterion,
+                also,
+                &pairs,
+            ));
+        }
+        let all: Vec<FieldPair> = sel.iter().map(pair).collect();
+        out.push(FieldSummary::from_pairs(split, None, criterion, also, &all));
+    }
+    out
 }
 
 /// A bench output as written: what `table`, `diff` and the Compare tab read (the last two
@@ -252,6 +301,8 @@ mod tests {
                 in_flight: None,
                 host: "h".into(),
                 updated_unix: 0,
+                machine: None,
+                commit: None,
             },
             records: rows
                 .iter()

@@ -42,6 +42,15 @@ pub struct PairRow {
     /// The scale search's provenance line (None for a single voxel).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub scales: Option<String>,
+    /// The scene the manifest names for it (per-scene tables).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub scene: Option<String>,
+    /// Whether the official 3DMatch recall counts it (a gt.info entry, fragments not
+    /// consecutive); its RMSE in `rmse_m` (None with no pose: a failure).
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub rmse_counted: bool,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rmse_m: Option<f64>,
 }
 
 impl PairRow {
@@ -273,6 +282,13 @@ pub struct Comparison {
     /// Median ΔRRE / ΔRTE over the pairs with both values.
     pub median_d_rre_deg: Option<f64>,
     pub median_d_rte_m: Option<f64>,
+    /// The paper-style rows of each run over the pairs in both, pooled per benchmark
+    /// ([`super::bench_file::field_summaries`]); empty unless the pairs name scenes or the
+    /// official 3DMatch recall counts them (manifests of the standard benchmarks).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub field_a: Vec<crate::metrics::FieldSummary>,
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub field_b: Vec<crate::metrics::FieldSummary>,
 }
 
 fn median(mut v: Vec<f64>) -> Option<f64> {
@@ -346,7 +362,23 @@ pub fn compare(a: &BenchRun, b: &BenchRun) -> Comparison {
     let param_differences = by_setting.into_iter().map(|(_, l)| l).collect();
     let mut run_differences = Vec::new();
     json_diff("", &a.identity, &b.identity, ab, &mut run_differences);
+    let benchmark = pairs
+        .iter()
+        .any(|p| p.a.scene.is_some() || p.a.rmse_counted);
+    let pooled = |rows: Vec<PairRow>| -> Vec<crate::metrics::FieldSummary> {
+        if !benchmark {
+            return Vec::new();
+        }
+        super::bench_file::field_summaries(&rows)
+            .into_iter()
+            .filter(|f| f.scene.is_none())
+            .collect()
+    };
+    let field_a = pooled(pairs.iter().map(|p: &PairDiff| p.a.clone()).collect());
+    let field_b = pooled(pairs.iter().map(|p: &PairDiff| p.b.clone()).collect());
     Comparison {
+        field_a,
+        field_b,
         a: a.label.clone(),
         b: b.label.clone(),
         median_d_rre_deg: median(pairs.iter().filter_map(|p| p.d_rre_deg).collect()),
@@ -499,6 +531,29 @@ pub fn table(c: &Comparison) -> String {
         f(c.median_d_rre_deg, 1.0, 3),
         f(c.median_d_rte_m, 100.0, 2)
     );
+    for (fa, fb) in c.field_a.iter().zip(&c.field_b) {
+        let rmse = match (fa.rmse_recall, fb.rmse_recall) {
+            (Some(x), Some(y)) => format!(
+                " · RR RMSE < 0.2 m A {} % · B {} % ({} pairs)",
+                f(Some(x), 100.0, 1),
+                f(Some(y), 100.0, 1),
+                fa.rmse_pairs
+            ),
+            _ => String::new(),
+        };
+        let fin = |v: f64| v.is_finite().then_some(v);
+        let _ = writeln!(
+            s,
+            "{}: RR A {} % · B {} %{rmse} · RE mean (registered) A {}° · B {}° · TE mean A {} cm · B {} cm",
+            fa.benchmark,
+            f(Some(fa.rr), 100.0, 1),
+            f(Some(fb.rr), 100.0, 1),
+            f(fin(fa.re_mean_deg), 1.0, 2),
+            f(fin(fb.re_mean_deg), 1.0, 2),
+            f(fin(fa.te_mean_m), 100.0, 1),
+            f(fin(fb.te_mean_m), 100.0, 1),
+        );
+    }
     if !c.only_in_a.is_empty() || !c.only_in_b.is_empty() {
         let _ = writeln!(
             s,

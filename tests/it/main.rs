@@ -11,6 +11,7 @@
 
 mod common;
 
+mod benchmark_layouts;
 mod cache_safety;
 mod corruption_campaign;
 mod dataset_real;

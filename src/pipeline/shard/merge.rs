@@ -1,6 +1,9 @@
 //! Merging shard outputs into one run file over the whole selection.
 
-use super::{host_name, now_unix, PairRecord, RunFile, RunHeader, Shard, DONE, FAILED};
+use super::{
+    host_name, machine_description, now_unix, source_commit, PairRecord, RunFile, RunHeader, Shard,
+    DONE, FAILED,
+};
 use crate::error::{Error, Result};
 
 /// The result of merging shard outputs: one run file over the whole selection, plus what is
@@ -87,6 +90,8 @@ pub fn merge(inputs: &[(String, RunFile)]) -> Result<Merged> {
         in_flight: None,
         host: host_name(),
         updated_unix: now_unix(),
+        machine: machine_description(),
+        commit: source_commit(),
     };
     Ok(Merged {
         file: RunFile {

@@ -170,6 +170,58 @@ fn host_name() -> String {
         .unwrap_or_else(|_| "unknown".into())
 }
 
+/// "CPU model, N logical cores, M GiB" from /proc (None where it cannot be read).
+fn machine_description() -> Option<String> {
+    let cpu = std::fs::read_to_string("/proc/cpuinfo").ok()?;
+    let model = cpu
+        .lines()
+        .find_map(|l| l.strip_prefix("model name"))
+        .and_then(|l| l.split_once(':'))
+        .map(|(_, m)| m.trim().to_string())
+        .unwrap_or_else(|| "unknown CPU".into());
+    let cores = std::thread::available_parallelism().map_or(0, |n| n.get());
+    let mem_gib = std::fs::read_to_string("/proc/meminfo")
+        .ok()
+        .and_then(|m| {
+            m.lines()
+                .find_map(|l| l.strip_prefix("MemTotal:"))
+                .and_then(|v| v.split_whitespace().next()?.parse::<f64>().ok())
+        })
+        .map_or(String::new(), |kib| {
+            format!(", {:.1} GiB", kib / 1024.0 / 1024.0)
+        });
+    Some(format!("{model}, {cores} logical cores{mem_gib}"))
+}
+
+/// The commit of the git checkout the running executable sits in (its nearest ancestor folder
+/// with `.git`), "+dirty" when tracked files differ; once per process. Arguments go to git
+/// directly, never through a shell.
+fn source_commit() -> Option<String> {
+    static COMMIT: std::sync::OnceLock<Option<String>> = std::sync::OnceLock::new();
+    COMMIT
+        .get_or_init(|| {
+            let exe = std::env::current_exe().ok()?;
+            let repo = exe.ancestors().skip(1).find(|d| d.join(".git").exists())?;
+            let git = |args: &[&str]| -> Option<String> {
+                let o = std::process::Command::new("git")
+                    .arg("-C")
+                    .arg(repo)
+                    .args(args)
+                    .stderr(std::process::Stdio::null())
+                    .output()
+                    .ok()?;
+                o.status
+                    .success()
+                    .then(|| String::from_utf8_lossy(&o.stdout).trim().to_string())
+            };
+            let rev = git(&["rev-parse", "HEAD"]).filter(|r| !r.is_empty())?;
+            let dirty = git(&["status", "--porcelain", "--untracked-files=no"])
+                .is_some_and(|s| !s.is_empty());
+            Some(if dirty { format!("{rev}+dirty") } else { rev })
+        })
+        .clone()
+}
+
 fn now_unix() -> u64 {
     std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)

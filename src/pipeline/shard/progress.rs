@@ -2,8 +2,8 @@
 //! after every pair, and the pending pairs run through the shared pair loop.
 
 use super::{
-    host_name, now_unix, read_run_file, PairRecord, RunFile, RunHeader, RunIdentity, Shard, DONE,
-    FAILED,
+    host_name, machine_description, now_unix, read_run_file, source_commit, PairRecord, RunFile,
+    RunHeader, RunIdentity, Shard, DONE, FAILED,
 };
 use crate::error::{Error, Result};
 use serde_json::Value;
@@ -110,6 +110,8 @@ impl Progress {
             in_flight: None,
             host: host_name(),
             updated_unix: now_unix(),
+            machine: machine_description(),
+            commit: source_commit(),
         };
         Ok((
             Progress {

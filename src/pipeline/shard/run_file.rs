@@ -21,6 +21,14 @@ pub struct RunHeader {
     pub in_flight: Option<String>,
     pub host: String,
     pub updated_unix: u64,
+    /// The machine: CPU model, logical cores, memory (None in files written before it was kept).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub machine: Option<String>,
+    /// The git commit of the source tree the binary sits in, at run time ("+dirty" when its
+    /// tracked files differ); None outside a git checkout. `identity.binary_blake3` names the
+    /// binary itself.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub commit: Option<String>,
 }
 
 /// One pair's outcome in a run file. `result` is the command's own per-pair JSON.

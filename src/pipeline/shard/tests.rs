@@ -82,6 +82,8 @@ fn shard_file(id: &RunIdentity, index: usize, recs: Vec<PairRecord>) -> RunFile 
             in_flight: None,
             host: "h".into(),
             updated_unix: 0,
+            machine: None,
+            commit: None,
         },
         records: recs,
     }
