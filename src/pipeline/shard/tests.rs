@@ -190,8 +190,11 @@ fn progress_resumes_only_matching_runs() {
         "{msg}"
     );
     assert_eq!(p.pending(), vec![3, 5]);
+    // a run holds its run file's lock until it ends: each start below is a new run
+    drop(p);
     let (p, _) = Progress::start(id.clone(), shard, Some(&out), ResumeMode::Restart).unwrap();
     assert_eq!(p.pending(), vec![1, 3, 5]);
+    drop(p);
 
     let mut other = id.clone();
     other.params["voxel"] = json!(0.025);
