@@ -424,7 +424,11 @@ fn two_processes_never_write_the_same_run_file() {
     let r = unsafe { libc::flock(held.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) };
     assert_eq!(r, 0);
     let refused = run();
-    assert!(!refused.status.success(), "wrote past the lock: {}", text(&refused));
+    assert!(
+        !refused.status.success(),
+        "wrote past the lock: {}",
+        text(&refused)
+    );
     let e = String::from_utf8_lossy(&refused.stderr);
     assert!(
         e.contains("another running cgenreg process") && e.contains("run.json"),
