@@ -582,18 +582,7 @@ fn pair_info(
     infos: &mut HashMap<PathBuf, Vec<GtInfo>>,
 ) -> Result<GtInfo> {
     let ip = resolve(&format!("{field}.gt_info"), info, false)?;
-    let [ei, ej] = match (p.gt_entry, p.target.parse(), p.source.parse()) {
-        (Some(e), _, _) => e,
-        (None, Ok(a), Ok(b)) => [a, b],
-        _ => {
-            return Err(bad(
-                path,
-                format!("{field}.gt_entry"),
-                "gt_entry = [i, j] (the ids are not numbers)",
-                "missing",
-            ))
-        }
-    };
+    let [ei, ej] = gt_entry_indices(path, field, p)?;
     if !infos.contains_key(&ip) {
         let entries = read_gt_info(&ip)?;
         infos.insert(ip.clone(), entries);
@@ -612,6 +601,21 @@ fn pair_info(
         })
 }
 
+/// The `i j` of a pair's gt.log / gt.info entry: `gt_entry`, else the fragment ids when both
+/// are numbers (target i, source j).
+fn gt_entry_indices(path: &Path, field: &str, p: &RawPair) -> Result<[usize; 2]> {
+    match (p.gt_entry, p.target.parse(), p.source.parse()) {
+        (Some(e), _, _) => Ok(e),
+        (None, Ok(a), Ok(b)) => Ok([a, b]),
+        _ => Err(bad(
+            path,
+            format!("{field}.gt_entry"),
+            "gt_entry = [i, j] (the ids are not numbers)",
+            "missing",
+        )),
+    }
+}
+
 /// A pair's ground truth `target_from_source` and where it came from: a `gt.log` entry (read
 /// once per file), an inline matrix, the fragments' frame poses, or a matrix file; none.
 #[allow(clippy::too_many_arguments)]
@@ -627,20 +631,7 @@ fn pair_gt(
     let gt_poses = p.gt_poses.unwrap_or(false);
     Ok(if let Some(log) = &p.gt_log {
         let lp = resolve(&format!("{field}.gt_log"), log, false)?;
-        let [ei, ej] = match p.gt_entry {
-            Some(e) => e,
-            None => match (p.target.parse::<usize>(), p.source.parse::<usize>()) {
-                (Ok(a), Ok(b)) => [a, b],
-                _ => {
-                    return Err(bad(
-                        path,
-                        format!("{field}.gt_entry"),
-                        "gt_entry = [i, j] (the ids are not numbers)",
-                        "missing",
-                    ))
-                }
-            },
-        };
+        let [ei, ej] = gt_entry_indices(path, field, p)?;
         if !logs.contains_key(&lp) {
             let entries = read_gt_log(&lp)?;
             logs.insert(lp.clone(), entries);

@@ -419,6 +419,14 @@ impl Default for KittiOptions {
     }
 }
 
+/// Exactly 12 finite numbers (a KITTI 3x4 row-major matrix), else None.
+fn twelve_numbers(line: &str) -> Option<Vec<f64>> {
+    line.split_whitespace()
+        .map(|t| t.parse::<f64>().ok().filter(|x| x.is_finite()))
+        .collect::<Option<Vec<f64>>>()
+        .filter(|v| v.len() == 12)
+}
+
 /// The 3x4 rows of a KITTI poses file as 4x4 camera-0-to-world poses (row i = frame i).
 pub fn parse_kitti_poses(path: &Path, text: &str) -> Result<Vec<Matrix4<f64>>> {
     let mut out = Vec::new();
@@ -426,19 +434,14 @@ pub fn parse_kitti_poses(path: &Path, text: &str) -> Result<Vec<Matrix4<f64>>> {
         if line.trim().is_empty() {
             continue;
         }
-        let v: Vec<f64> = line
-            .split_whitespace()
-            .map(|t| t.parse::<f64>().ok().filter(|x| x.is_finite()))
-            .collect::<Option<Vec<f64>>>()
-            .filter(|v| v.len() == 12)
-            .ok_or_else(|| {
-                Error::format(
-                    path,
-                    format!("line {}", ln + 1),
-                    "12 numbers (a 3x4 camera-0-to-world pose, row-major)",
-                    crate::io::output::unquoted(line.trim()),
-                )
-            })?;
+        let v = twelve_numbers(line).ok_or_else(|| {
+            Error::format(
+                path,
+                format!("line {}", ln + 1),
+                "12 numbers (a 3x4 camera-0-to-world pose, row-major)",
+                crate::io::output::unquoted(line.trim()),
+            )
+        })?;
         let mut m = Matrix4::identity();
         for r in 0..3 {
             for c in 0..4 {
@@ -463,19 +466,14 @@ pub fn parse_kitti_calib(path: &Path, text: &str) -> Result<Isometry3<f64>> {
                 "none",
             )
         })?;
-    let v: Vec<f64> = line
-        .split_whitespace()
-        .map(|t| t.parse::<f64>().ok().filter(|x| x.is_finite()))
-        .collect::<Option<Vec<f64>>>()
-        .filter(|v| v.len() == 12)
-        .ok_or_else(|| {
-            Error::format(
-                path,
-                "Tr",
-                "12 numbers (a 3x4 transform, row-major)",
-                crate::io::output::unquoted(line.trim()),
-            )
-        })?;
+    let v = twelve_numbers(line).ok_or_else(|| {
+        Error::format(
+            path,
+            "Tr",
+            "12 numbers (a 3x4 transform, row-major)",
+            crate::io::output::unquoted(line.trim()),
+        )
+    })?;
     let mut m = Matrix4::identity();
     for r in 0..3 {
         for c in 0..4 {

@@ -252,16 +252,15 @@ fn kind_name(m: &std::fs::Metadata) -> &'static str {
     }
 }
 
-/// Fail unless `path` is a regular file (after following links) no larger than the input
-/// limit. FIFOs would block forever and devices like `/dev/zero` never end.
-pub fn check_regular(path: &Path) -> Result<u64> {
-    let m = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
+/// The one check of what an input is: a regular file no larger than the input limit (`m`,
+/// the metadata of `path` or of what was opened from it).
+fn check_kind_and_size(path: &Path, m: &std::fs::Metadata) -> Result<()> {
     if !m.is_file() {
         return Err(Error::format(
             path,
             "file type",
             "a regular file",
-            kind_name(&m),
+            kind_name(m),
         ));
     }
     let max = max_input_bytes();
@@ -273,6 +272,14 @@ pub fn check_regular(path: &Path) -> Result<u64> {
             format!("{} bytes", m.len()),
         ));
     }
+    Ok(())
+}
+
+/// Fail unless `path` is a regular file (after following links) no larger than the input
+/// limit. FIFOs would block forever and devices like `/dev/zero` never end.
+pub fn check_regular(path: &Path) -> Result<u64> {
+    let m = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
+    check_kind_and_size(path, &m)?;
     Ok(m.len())
 }
 
@@ -318,23 +325,7 @@ pub fn open_input(path: &Path) -> Result<(std::fs::File, u64)> {
     }
     let f = o.open(path).map_err(|e| Error::io(path, e))?;
     let m = f.metadata().map_err(|e| Error::io(path, e))?;
-    if !m.is_file() {
-        return Err(Error::format(
-            path,
-            "file type",
-            "a regular file",
-            kind_name(&m),
-        ));
-    }
-    let max = max_input_bytes();
-    if m.len() > max {
-        return Err(Error::format(
-            path,
-            "file size",
-            format!("at most {max} bytes (raise {ENV_MAX_INPUT_BYTES} if the file is real)"),
-            format!("{} bytes", m.len()),
-        ));
-    }
+    check_kind_and_size(path, &m)?;
     #[cfg(target_os = "linux")]
     if let Some(root) = confinement(path) {
         use std::os::unix::io::AsRawFd;
