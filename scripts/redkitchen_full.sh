@@ -7,14 +7,15 @@
 #   CGENREG_DATA  the data folder (3dmatch-redkitchen-full/, 3dmatch-redkitchen/benchmark/)
 #   CGENREG_BIN   the binary (default target/release/cgenreg)
 #   OUT           output folder (default docs/results/redkitchen-full)
-#   STEPS         which steps, default "manifest cgenreg peers"
+#   STEPS         which steps, default "manifest cgenreg peers score"; `score` scores the peers' poses with
+#                 `cgenreg score` (the same formulas as cgenreg's own rows, the official recall included)
 set -euo pipefail
 root="$(cd "$(dirname "$0")/.." && pwd)"
 cd "$root"
 data="${CGENREG_DATA:?set CGENREG_DATA to the data folder}"
 bin="${CGENREG_BIN:-target/release/cgenreg}"
 out="${OUT:-docs/results/redkitchen-full}"
-steps="${STEPS:-manifest cgenreg peers}"
+steps="${STEPS:-manifest cgenreg peers score}"
 work=target/redkitchen-full
 manifest="$work/redkitchen-full.toml"  # relative: run files name it as given
 mkdir -p "$out" "$work"
@@ -43,6 +44,15 @@ for step in $steps; do
       >"$work/peers.txt"
     grep -E "registered at|mean s/pair|^KISS|^Open3D" "$work/peers.txt"
     ;;
-  *) echo "redkitchen_full.sh: unknown step $step (manifest, cgenreg, peers)" >&2; exit 2 ;;
+  score)
+    names=(kiss-matcher open3d) # the runs of peers.json, in order
+    for k in 0 1; do
+      name="${names[$k]}"
+      "$bin" score "$manifest" "$out/peers.json" --run "$k" --force --json "$out/peers-$name-scored.json" \
+        >"$work/peers-$name-scored.txt"
+      sed -n '/^Per benchmark/,/^$/p' "$work/peers-$name-scored.txt"
+    done
+    ;;
+  *) echo "redkitchen_full.sh: unknown step $step (manifest, cgenreg, peers, score)" >&2; exit 2 ;;
   esac
 done

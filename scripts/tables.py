@@ -318,12 +318,15 @@ def render_outdoor(name):
     return "\n".join(out + ["", "From:"] + sources)
 
 
-# name -> (cgenreg run file, peers file): the paper-style tables of the standard benchmarks, one row per
-# method and benchmark: cgenreg's rows are its run file's own `field` summaries (src/metrics/field.rs);
-# the peers' (scripts/peers.sh) are counted here from their per-pair success, RRE and RTE.
+# name -> (cgenreg run file, peers file, the peers' runs scored): the paper-style tables of the standard
+# benchmarks, one row per method and benchmark. Every row's recall and errors are a run file's own `field`
+# summaries (src/metrics/field.rs): cgenreg's from its bench run, each peer's from `cgenreg score` on its poses
+# (one scored file per run of the peers file, in order); the peers file gives their times.
 FIELD = {
     "redkitchen-full": ("docs/results/redkitchen-full/cgenreg-geometry.json",
-                        "docs/results/redkitchen-full/peers.json"),
+                        "docs/results/redkitchen-full/peers.json",
+                        ["docs/results/redkitchen-full/peers-kiss-matcher-scored.json",
+                         "docs/results/redkitchen-full/peers-open3d-scored.json"]),
 }
 
 
@@ -339,7 +342,7 @@ def rmse_cell(f):
 
 
 def render_field(name):
-    cg_rel, peers_rel = FIELD[name]
+    cg_rel, peers_rel, scored = FIELD[name]
     cg, peers = load(cg_rel), load(peers_rel)
     num = lambda v, k=1.0: "–" if v is None or v != v else f"{k * v:.2f}"
     out = [
@@ -373,25 +376,32 @@ def render_field(name):
                 f"{num(f['te_median_m'], 100)} | {sum(e) / max(len(e), 1):.2f} | {sum(t) / max(len(t), 1):.2f} |")
         sources.append(f"- cgenreg: `{cg_rel}`, {describe(cg)}")
     runs = (peers or {}).get("runs") or ([peers] if peers else [])
-    for run in runs:
+    for k, run in enumerate(runs):
         label = run.get("method", "?").split(" (")[0]
         ver = ", ".join(f"{k} {v}" for k, v in run.get("versions", {}).items() if k not in ("python", "numpy"))
+        # the peer's poses scored by `cgenreg score` (the same formulas as cgenreg's rows)
+        scored_rel = scored[k] if k < len(scored) else None
+        sc = load(scored_rel) if scored_rel else None
         by = {}
         for r in run.get("pairs", []):
             by.setdefault(r["split"], []).append(r)
+        fields = {f["benchmark"]: f for f in (sc or {}).get("field", []) if not f.get("scene")}
         for split in sorted(by, key=lambda x: (x != "3DMatch", x)):
             rows = by[split]
-            ok = [r for r in rows if r["success"][0]]
             mean = lambda v: sum(v) / len(v) if v else float("nan")
+            f = fields.get(split)
+            if f is None:
+                out.append(f"| {label} | {split} | {len(rows)} | not scored (`{scored_rel}` missing) | | | | | | | |")
+                continue
             out.append(
-                f"| {label} ({ver}, voxel {run.get('voxel_m')} m) | {split} | {len(rows)} | "
-                f"{100 * len(ok) / len(rows):.1f} | – | {num(mean([r['rre_deg'] for r in ok]))} | "
-                f"{num(_median([r['rre_deg'] for r in ok]))} | {num(mean([r['rte_m'] for r in ok]), 100)} | "
-                f"{num(_median([r['rte_m'] for r in ok]), 100)} | {mean([r['time_s'] for r in rows]):.2f} | "
+                f"| {label} ({ver}, voxel {run.get('voxel_m')} m) | {split} | {f['pairs']} | "
+                f"{100 * f['rr']:.1f} | {rmse_cell(f)} | {num(f['re_mean_deg'])} | {num(f['re_median_deg'])} | "
+                f"{num(f['te_mean_m'], 100)} | {num(f['te_median_m'], 100)} | {mean([r['time_s'] for r in rows]):.2f} | "
                 f"{mean([r['total_s'] for r in rows]):.2f} |")
         sources.append(f"- {label}: `{peers_rel}`, `{run.get('command')}`, {run.get('machine', {}).get('cpu')} "
                        f"({run.get('machine', {}).get('cores')} cores), {run.get('date')}, commit "
-                       f"{(run.get('commit') or 'not recorded')[:12]}")
+                       f"{(run.get('commit') or 'not recorded')[:12]}; scored: `{scored_rel}`"
+                       + (f", {describe(sc)}" if sc else ""))
     if peers is None:
         out.append(f"| peers | not run (`{peers_rel}` missing) | | | | | | | | | |")
     return "\n".join(out + ["", "From:"] + sources)

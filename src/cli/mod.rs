@@ -32,6 +32,7 @@ mod generate;
 pub mod gui;
 mod merge;
 mod register;
+mod score;
 mod slurm;
 mod study;
 mod table;
@@ -68,6 +69,9 @@ pub enum Command {
     /// Two bench JSONs compared pair by pair: flipped successes, ΔRRE / ΔRTE, quadrants and
     /// the parameters that differ (`--json` for machine-readable output).
     Diff(diff::DiffArgs),
+    /// Another method's poses (JSON) scored as `bench` scores cgenreg's: the same tables, and a
+    /// run file that `table` and `diff` compare with cgenreg's.
+    Score(score::ScoreArgs),
     /// List, verify or remove cache entries.
     Cache(cache::CacheArgs),
     /// Fill the stage cache with the expensive stages (depth video, generator, descriptors)
@@ -116,6 +120,7 @@ pub fn run_command(c: Command) -> crate::Result<()> {
         Command::Diff(a) => diff::run(a),
         Command::Study(a) => study::run(a),
         Command::Table(a) => table::run(a),
+        Command::Score(a) => score::run(a),
         Command::Generate(a) => generate::run(a),
         Command::Merge(a) => merge::run_merge(a),
         Command::Status(a) => merge::run_status(a),

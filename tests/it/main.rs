@@ -45,6 +45,7 @@ mod memory_bound;
 mod pandaset_lidar;
 mod pipeline_image;
 mod properties;
+mod score;
 mod shard_cli;
 mod slurm;
 mod spinnet;
