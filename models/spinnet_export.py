@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """SpinNet (Ao et al., CVPR 2021) for cgenreg: export the network after the patch grouping to
 ONNX, check ONNX Runtime against torch on real patches, and dump the authors' grouped patches for
-the Rust port's parity test. Run through scripts/spinnet_export.sh (a scratch venv under target/).
+the Rust port's parity test. Run through models/spinnet_export.sh (a scratch venv under target/).
 
     spinnet_export.py [--out-dir target/spinnet] [--keypoints 4] [--skip-export]
 

@@ -7,7 +7,7 @@ the signature balance again. Strings, chars and comments are blanked before coun
 so braces inside them do not count. Closures and nested functions count towards the function
 that holds them; nested `fn` items are reported on their own as well.
 
-Usage: scripts/long_fns.py [--limit N] [DIR_OR_FILE ...]   (default: src/app src/pipeline)
+Usage: scripts/lib/long_fns.py [--limit N] [DIR_OR_FILE ...]   (default: src/app src/pipeline)
 Exit status 0; the list (lines, file:line, name) goes to stdout, longest first.
 """
 import argparse

@@ -1,13 +1,13 @@
 #!/usr/bin/env bash
 # Install Python packages into a private virtual environment (made if missing):
-#   bash scripts/venv_install.sh VENV PACKAGE...
+#   bash scripts/lib/venv_install.sh VENV PACKAGE...
 # With uv (pinned below, itself installed once into its own venv under the build folder) when
 # it can be had: it unpacks the test tools' wheels (torch's 3 GB among them) in a third less
 # CPU time than pip and in under half the wall time (docs/development.md). Otherwise, or if
 # uv fails, with the venv's own pip. The system Python and its pip are never touched, and no
 # download cache is kept outside the build folder.
 set -euo pipefail
-root="$(cd "$(dirname "$0")/.." && pwd)"
+root="$(cd "$(dirname "$0")/../.." && pwd)"
 venv="$1"
 shift
 target="${CARGO_TARGET_DIR:-$root/target}"

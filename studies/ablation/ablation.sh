@@ -3,13 +3,13 @@
 # (27 3DMatch + 10 3DLoMatch pairs): FPFH alone, the image branch alone (XFeat on oracle RGB),
 # and the image branch fused with FPFH by concatenation, Noisy-OR and Noisy-AND; then the same
 # with the built-in depth-shading generator (NOT a WFM) instead of the real RGB. Default
-# parameters throughout (nothing tuned on these pairs). Results: docs/ablation/*.json and the
+# parameters throughout (nothing tuned on these pairs). Results: studies/ablation/results/*.json and the
 # table printed at the end (docs/ablation.md quotes it).
 #
-#   bash scripts/ablation.sh [OUT_DIR]      # needs a release build and $CGENREG_DATA
+#   bash studies/ablation/ablation.sh [OUT_DIR]      # needs a release build and $CGENREG_DATA
 set -euo pipefail
-cd "$(dirname "$0")/.."
-OUT="${1:-docs/ablation}"
+cd "$(dirname "$0")/../.."
+OUT="${1:-studies/ablation/results}"
 BIN="${CGENREG_BIN:-target/release/cgenreg}"
 M=assets/manifests/redkitchen-rgbd.toml
 export CGENREG_DATA="${CGENREG_DATA:-$(cd .. && pwd)/shared/data}"

@@ -5,20 +5,20 @@ table per split made by `cgenreg table --split SPLIT FILE...`, with the JSON eac
 and the build that wrote it; rows whose JSON is missing or incomplete are listed as not run.
 Then, per split, which 3DLoMatch pairs each row registers (so a loss is visible pair by pair).
 
-    python3 scripts/ablation_tables.py [--write]
+    python3 studies/ablation/ablation_tables.py [--write]
 
 Prints the markdown; with --write it also replaces the text between the markers
 `<!-- vfm-tables:begin -->` and `<!-- vfm-tables:end -->` in docs/ablation.md and writes
-docs/ablation/vfm/tables.md. Env: CGENREG_BIN (default target/debug/cgenreg)."""
+studies/ablation/results/vfm/tables.md. Env: CGENREG_BIN (default target/debug/cgenreg)."""
 import json
 import os
 import subprocess
 import sys
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 BIN = os.environ.get("CGENREG_BIN", os.path.join(ROOT, "target/debug/cgenreg"))
-V = "docs/ablation/vfm"  # the per-VFM rows (debug build)
-I3 = "docs/ablation"  # the first XFeat rows (release build, e0bcd09)
+V = "studies/ablation/results/vfm"  # the per-VFM rows (debug build)
+I3 = "studies/ablation/results"  # the first XFeat rows (release build, e0bcd09)
 BEGIN, END = "<!-- vfm-tables:begin -->", "<!-- vfm-tables:end -->"
 SPLITS = ["3DMatch", "3DLoMatch"]
 FUSIONS = ["image", "concat", "noisy-or", "noisy-and", "reference"]
@@ -36,9 +36,9 @@ def groups():
             rows = list(fpfh)
             if vfm == "xfeat":  # the first XFeat run's rows (release build), mutual NN and NN
                 for f in FUSIONS[:4]:
-                    rows.append((f"{f} (docs/ablation, release)", f"{I3}/{wfm}-{f}.json"))
+                    rows.append((f"{f} (studies/ablation/results, release)", f"{I3}/{wfm}-{f}.json"))
                     if wfm == "oracle":
-                        rows.append((f"{f}, NN (docs/ablation, release)", f"{I3}/{wfm}-{f}-nn.json"))
+                        rows.append((f"{f}, NN (studies/ablation/results, release)", f"{I3}/{wfm}-{f}-nn.json"))
                 rows.append(("reference", f"{V}/{vfm}-{wfm}-reference.json"))
             else:
                 for f in FUSIONS:

@@ -6,16 +6,16 @@
 # (--reference). Every option not on a line is the default. Nothing here is chosen from
 # these results.
 #
-#   bash scripts/ablation_vfm.sh VFM [WFM] [OUT_DIR]    # VFM xfeat|alike|disk, WFM oracle|builtin
+#   bash studies/ablation/ablation_vfm.sh VFM [WFM] [OUT_DIR]    # VFM xfeat|alike|disk, WFM oracle|builtin
 #
 # Env: CGENREG_BIN (default target/debug/cgenreg), CGENREG_CACHE (default
 # ~/.cache/cgenreg-devset), CGENREG_DATA, SELECTION (the frozen selection of the fused rows;
 # default: the pipeline's default).
 set -euo pipefail
-cd "$(dirname "$0")/.."
+cd "$(dirname "$0")/../.."
 VFM="${1:?VFM: xfeat|alike|disk}"
 WFM="${2:-oracle}"
-OUT="${3:-docs/ablation/vfm}"
+OUT="${3:-studies/ablation/results/vfm}"
 BIN="${CGENREG_BIN:-target/debug/cgenreg}"
 CACHE="${CGENREG_CACHE:-$HOME/.cache/cgenreg-devset}"
 M=assets/manifests/redkitchen-rgbd.toml

@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """Per-pair RRE / RTE / inlier ratio of several `cgenreg bench --json` files, side by side, for
-one split: python3 scripts/per_pair.py SPLIT FILE.json... (a column group per file, named by
+one split: python3 studies/ablation/per_pair.py SPLIT FILE.json... (a column group per file, named by
 the file's stem; 'ok' = the 3DMatch success test RRE <= 15 deg and RTE <= 30 cm)."""
 import json
 import os

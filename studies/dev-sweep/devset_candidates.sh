@@ -7,7 +7,7 @@
 # table to $OUT/overlap.tsv; the development manifest keeps the pairs the rule in
 # docs/ablation.md picks.
 #
-#   bash scripts/devset_candidates.sh [OUT_DIR] [CACHE_DIR]
+#   bash studies/dev-sweep/devset_candidates.sh [OUT_DIR] [CACHE_DIR]
 #
 # Environment:
 #   OFFSETS       fragment start offsets, space-separated (default "25"); pairs are only formed
@@ -16,7 +16,7 @@
 #   DEV_MANIFEST  the manifest written (default assets/manifests/redkitchen-dev.toml)
 #   LOMATCH_ONLY  1: keep only 3DLoMatch-like pairs (10-30 % overlap); default: every pair >= 10 %
 set -euo pipefail
-cd "$(dirname "$0")/.."
+cd "$(dirname "$0")/../.."
 OUT="${1:-target/devset}"
 CACHE="${2:-${CGENREG_CACHE:-$HOME/.cache/cgenreg}}"
 export CGENREG_DATA="${CGENREG_DATA:-$(cd .. && pwd)/shared/data}"
@@ -25,7 +25,7 @@ NAME="${DEV_NAME:-redkitchen-dev}"
 LOMATCH_ONLY="${LOMATCH_ONLY:-0}"
 mkdir -p "$OUT"
 M="$OUT/candidates.toml"
-. scripts/redkitchen_fragments.sh
+. studies/dev-sweep/redkitchen_fragments.sh
 {
     fragments_header "$NAME"
     for o in $OFFSETS; do
@@ -49,7 +49,7 @@ nice -n 10 "${CGENREG_EXAMPLE_BIN:-target/debug/examples/pair_overlap}" "$M" "$C
 DEV="${DEV_MANIFEST:-assets/manifests/redkitchen-dev.toml}"
 {
     echo '# DEVELOPMENT SET (never evaluated; docs/ablation.md "Evaluation protocol"). Written by'
-    echo "# scripts/devset_candidates.sh (OFFSETS=\"$OFFSETS\" LOMATCH_ONLY=$LOMATCH_ONLY). 7-Scenes"
+    echo "# studies/dev-sweep/devset_candidates.sh (OFFSETS=\"$OFFSETS\" LOMATCH_ONLY=$LOMATCH_ONLY). 7-Scenes"
     echo "# redkitchen fragments of 50 raw frames starting at frame 50k+offset (k = 0..8), in the camera"
     echo '# frame of their first frame; the evaluated fragments of redkitchen-rgbd.toml are frames'
     echo '# 50k..50k+49: same room, same raw frames, different fragment boundaries and different pairs.'

@@ -4,15 +4,15 @@
 # assets/manifests/redkitchen-dev.toml (never on the evaluated redkitchen-rgbd pairs).
 # One `cgenreg bench ... --json` per row, then `cgenreg table`.
 #
-#   bash scripts/devset_sweep.sh [OUT_DIR] [VFM]     # VFM: xfeat (default) | alike | disk
+#   bash studies/dev-sweep/devset_sweep.sh [OUT_DIR] [VFM]     # VFM: xfeat (default) | alike | disk
 #   (alike / disk: the --dense-stride rows, STRIDES="1 4" by default)
 #
 # Env: CGENREG_BIN (default target/debug/cgenreg), CGENREG_CACHE (stage cache; default
 # ~/.cache/cgenreg-devset), CGENREG_DATA. Rows already in OUT_DIR are kept (bench resumes a
 # JSON written with the same parameters and binary).
 set -euo pipefail
-cd "$(dirname "$0")/.."
-OUT="${1:-docs/ablation/dev}"
+cd "$(dirname "$0")/../.."
+OUT="${1:-studies/dev-sweep/results/dev}"
 VFM="${2:-xfeat}"
 BIN="${CGENREG_BIN:-target/debug/cgenreg}"
 CACHE="${CGENREG_CACHE:-$HOME/.cache/cgenreg-devset}"

@@ -5,16 +5,16 @@
 # paper's Noisy-AND, the image branch alone and the geometric branch alone (no image branch:
 # FPFH, NN). The image branch's stages are cached by the first run, so the others cost only the
 # in-memory tail. MODES (default "visibility union noisy-and image geometry") picks the runs.
-# Tables: python3 scripts/fusion_tables.py OUT
+# Tables: python3 studies/fusion/fusion_tables.py OUT
 #
-#   bash scripts/fusion_eval.sh SET [OUT_DIR]   # SET: staged-clouds rgbd-3dlomatch lidar staged staged-builtin rgbd-3dmatch kitti07 revisit revisit-clouds
+#   bash studies/fusion/fusion_eval.sh SET [OUT_DIR]   # SET: staged-clouds rgbd-3dlomatch lidar staged staged-builtin rgbd-3dmatch kitti07 revisit revisit-clouds
 #
 # Env: CGENREG_BIN (default target/debug/cgenreg), CGENREG_CACHE (stage cache folder),
 # CGENREG_DATA. A run cut short resumes (bench --json resumes).
 set -euo pipefail
-cd "$(dirname "$0")/.."
+cd "$(dirname "$0")/../.."
 SET="${1:?SET}"
-OUT="${2:-docs/results/fusion}"
+OUT="${2:-studies/fusion/results/eval}"
 BIN="${CGENREG_BIN:-target/debug/cgenreg}"
 CACHE="${CGENREG_CACHE:-$HOME/.cache/cgenreg}"
 export CGENREG_DATA="${CGENREG_DATA:-$(cd .. && pwd)/shared/data}"
@@ -29,7 +29,7 @@ case "$SET" in
     staged-builtin) M=assets/manifests/redkitchen-staged.toml; O=(--wfm builtin) ;;
     lidar) M=assets/manifests/small-gicp-lidar.toml; O=(--wfm builtin) ;;
     revisit) M=assets/manifests/redkitchen-revisit.toml; O=(--wfm oracle) ;;
-    # the revisit pairs as plain PLY files (scripts/revisit_set.sh writes them; derived from the data)
+    # the revisit pairs as plain PLY files (studies/revisit/revisit_set.sh writes them; derived from the data)
     revisit-clouds) M=target/revisit/clouds.toml; O=(--wfm builtin) ;;
     # xyz-only LiDAR: `auto` would pick the pinhole trajectory (it looks for intensity)
     kitti07) M=assets/manifests/kitti07.toml; O=(--virtual-camera ftheta --wfm builtin) ;;

@@ -5,7 +5,7 @@ views; the union's pose with virtual views) before and after point-to-plane ICP 
 clouds, at the inlier threshold θ (`icp1_*`) and coarse to fine at 4θ, 2θ, θ (`icp3_*`), from the
 lines `cargo run --example fusion_study` writes.
 
-    python3 scripts/fusion_icp_probe.py --virtual D4c,D5c D4=PATH D4c=PATH D5=PATH D5c=PATH
+    python3 studies/fusion/fusion_icp_probe.py --virtual D4c,D5c D4=PATH D4c=PATH D5=PATH D5c=PATH
 """
 import argparse
 import json

@@ -2,7 +2,7 @@
 """Apply the fusion rules of the protocol (docs/ablation.md, "A fusion that never loses to its
 best branch") to the lines `cargo run --example fusion_study` wrote, and the frozen decision rule.
 
-    python3 scripts/fusion_study.py D1=docs/ablation/fusion/dev-oracle.jsonl D2=docs/ablation/fusion/dev-clouds.jsonl
+    python3 studies/fusion/fusion_study.py D1=studies/fusion/results/dev/dev-oracle.jsonl D2=studies/fusion/results/dev/dev-clouds.jsonl
 
 Prints, per rule: pairs registered per set, pairs lost against geometry alone / image alone /
 Noisy-AND, ties and how they were decided, then the rule the decision rule chooses.

@@ -3,7 +3,7 @@
 apply the candidate rules b, a3, a4, n3, n4 and the frozen decision rule to the lines
 `cargo run --example fusion_study` wrote.
 
-    python3 scripts/fusion_study2.py D1=docs/ablation/fusion/dev2-oracle.jsonl D2=docs/ablation/fusion/dev2-clouds.jsonl
+    python3 studies/fusion/fusion_study2.py D1=studies/fusion/results/dev/dev2-oracle.jsonl D2=studies/fusion/results/dev/dev2-clouds.jsonl
 """
 import sys
 

@@ -3,7 +3,7 @@
 apply the candidate rules b, v2, v3, v4 (visibility consistency as the arbiter) and the frozen
 decision rule to the lines `cargo run --example fusion_study` wrote.
 
-    python3 scripts/fusion_study4.py D4=docs/ablation/fusion/vis-D4.jsonl D4c=... D3=... ...
+    python3 studies/fusion/fusion_study4.py D4=studies/fusion/results/dev/vis-D4.jsonl D4c=... D3=... ...
 
 Optional EARLIER=NAME=PATH arguments name an earlier round's lines of the same pairs: a pair whose
 single-branch results (geometry, image, Noisy-AND, union registered or not) differ is listed.

@@ -3,7 +3,7 @@
 candidate rules v3, v3s, v4s (visibility arbitration only with sensor views) and the frozen decision
 rule to the lines `cargo run --example fusion_study` wrote.
 
-    python3 scripts/fusion_study5.py --virtual D2,D3c,D4c,D5c --fresh D5,D5c D5=PATH D5c=PATH D1=PATH ...
+    python3 studies/fusion/fusion_study5.py --virtual D2,D3c,D4c,D5c --fresh D5,D5c D5=PATH D5c=PATH D1=PATH ...
 
 --virtual names the sets whose depth views are a virtual pinhole trajectory (clouds only, built-in
 frames); every other set has sensor views. --fresh names the development sets nobody had looked at when

@@ -4,7 +4,7 @@ candidate rules v3s (the present default), f3s, f4s and f4 (the Wilson lower bou
 keypoints that are consistent) and the frozen decision rule to the lines `cargo run --example
 fusion_study` wrote.
 
-    python3 scripts/fusion_study6.py --virtual D2,D3c,D4c,D5c,D6c --fresh D6,D6c D6=PATH D6c=PATH D1=PATH ...
+    python3 studies/fusion/fusion_study6.py --virtual D2,D3c,D4c,D5c,D6c --fresh D6,D6c D6=PATH D6c=PATH D1=PATH ...
 
 --virtual names the sets whose depth views are a virtual pinhole trajectory (clouds only, built-in
 frames); every other set has sensor views. --fresh names the development sets nobody had looked at when

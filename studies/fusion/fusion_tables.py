@@ -1,10 +1,10 @@
 #!/usr/bin/env python3
 """Pairs gained and lost by the default fusion (`visibility`) against each branch alone, the
 paper's Noisy-AND and the `union` fusion, from the `cgenreg bench --json` outputs
-`scripts/fusion_eval.sh` writes: OUT/<set>-visibility.json, <set>-union.json,
+`studies/fusion/fusion_eval.sh` writes: OUT/<set>-visibility.json, <set>-union.json,
 <set>-noisy-and.json, <set>-image.json, <set>-geometry.json.
 
-    python3 scripts/fusion_tables.py docs/results/fusion > docs/results/fusion/tables.md
+    python3 studies/fusion/fusion_tables.py studies/fusion/results/eval > studies/fusion/results/eval/tables.md
 
 Success is each run's own (`success` of a pair). A pair missing from a run (not run yet, or
 failed) is listed, never counted as a success.

@@ -3,15 +3,15 @@
 # (D4), then run the study example on D4, D4c, D3, D3c, D1, D2 in that order (each pair's line is
 # appended as it finishes; pairs already in a file are skipped), then the tables.
 #
-#   bash scripts/fusion_visibility_study.sh CACHE_DIR
+#   bash studies/fusion/fusion_visibility_study.sh CACHE_DIR
 set -euo pipefail
-cd "$(dirname "$0")/.."
+cd "$(dirname "$0")/../.."
 CACHE="${1:?usage: fusion_visibility_study.sh CACHE_DIR}"
-O=docs/ablation/fusion
+O=studies/fusion/results/dev
 BIN="${CGENREG_EXAMPLE_BIN:-target/debug/examples/fusion_study}"
 if [ ! -e assets/manifests/redkitchen-dev4.toml ]; then
     OFFSETS="6 31" DEV_NAME=redkitchen-dev4 DEV_MANIFEST=assets/manifests/redkitchen-dev4.toml \
-        LOMATCH_ONLY=1 bash scripts/devset_candidates.sh target/devset4 "$CACHE"
+        LOMATCH_ONLY=1 bash studies/dev-sweep/devset_candidates.sh target/devset4 "$CACHE"
 fi
 run() { # manifest, wfm, out, extra...
     local m="$1" w="$2" out="$3"

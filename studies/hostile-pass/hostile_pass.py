@@ -4,7 +4,7 @@ into Slurm scripts, and the later surfaces (code in the working directory, outpu
 cgenreg's marker, manifests, inputs, option values, concurrent runs), through the real binary. Prints one line per failed case and the counts
 per class; exits 1 when a case fails.
 
-    python3 scripts/hostile_pass.py target/debug/cgenreg
+    python3 studies/hostile-pass/hostile_pass.py target/debug/cgenreg
 
 A case fails when the binary panics, hangs (10 s), exits 0 where it must refuse, changes a
 file it must leave alone (a FIFO, a link, a foreign file), leaves a `.tmp` file, runs a command
@@ -19,7 +19,7 @@ import sys
 import tempfile
 
 BIN = os.path.abspath(sys.argv[1] if len(sys.argv) > 1 else "target/debug/cgenreg")
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 DEMO = os.path.join(ROOT, "assets/demo/demo.toml")
 ENV = {k: v for k, v in os.environ.items() if not k.startswith("CGENREG_")}
 

@@ -4,7 +4,7 @@
 # tests/it/mast3r_export.rs proves the export on a small random-weight checkpoint; this does the same
 # at the released model's own constructor (ViT-L encoder, ViT-B decoder, 695 M parameters, 2.7 GB of
 # weights, over ONNX's 2 GB protobuf line). It peaked at 7.3 GB resident and took 5 min on a 16-core
-# machine (docs/mast3r/full-check-h200.txt), so it is a script, not a test:
+# machine (studies/mast3r-export/results/full-check-h200.txt), so it is a script, not a test:
 #   1. a random-weight checkpoint in the real format, with the released training constructor verbatim
 #      (tests/fixtures/make_random_mast3r_checkpoint.py --size released);
 #   2. models/export_mast3r.py, unchanged, run from the mast3r checkout as a user runs it (it checks
@@ -17,7 +17,7 @@
 #   6. the pair-conditioned path end to end on redkitchen/0-1 (oracle RGB, K = 1; $MANIFEST, default
 #      assets/manifests/redkitchen-staged.toml, $FRAMES depth frames per fragment, default 50).
 #
-# usage: scripts/mast3r_full_check.sh MAST3R_ROOT DATA_DIR WORK_DIR [EXAMPLE_BIN]
+# usage: studies/mast3r-export/mast3r_full_check.sh MAST3R_ROOT DATA_DIR WORK_DIR [EXAMPLE_BIN]
 #   MAST3R_ROOT  a recursive mast3r checkout (../shared/third_party/naver-mast3r)
 #   DATA_DIR     $CGENREG_DATA (7scenes-redkitchen-rgbd frames 0 and 20; step 6 also fragments 0 and 1
 #                of 3dmatch-redkitchen, gt.log and the frames the manifest gives them)
@@ -25,7 +25,7 @@
 # SIZE=small runs the same steps on the test's small checkpoint (a quick dry run of this script).
 # Python: $PYTHON (default python3) with torch, onnx, onnxruntime, numpy, pillow, einops, huggingface_hub.
 set -euo pipefail
-here=$(cd "$(dirname "$0")/.." && pwd)
+here=$(cd "$(dirname "$0")/../.." && pwd)
 M3=$(cd "$1" && pwd)
 DATA=$(cd "$2" && pwd)
 W=$3

@@ -4,9 +4,9 @@
 # Release build; the debug test suite guards the same ladder (`cargo test --test it kitti07_`:
 # all 10 pairs).
 #
-#   CGENREG_DATA=/path/to/data scripts/outdoor_check.sh [OUT.json]
+#   CGENREG_DATA=/path/to/data studies/outdoor/outdoor_check.sh [OUT.json]
 set -euo pipefail
-repo="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+repo="$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)"
 cd "$repo"
 out="${1:-target/outdoor-kitti07.json}"
 cargo build --release --bin cgenreg

@@ -6,12 +6,12 @@
 # The problems are the same; only voxel grids, keypoints and tie-breaks change. Frozen values,
 # nothing tuned.
 #
-#   bash scripts/repose_study.sh [OUT_DIR] [SEEDS]      # default docs/ablation/repose, "1 2 3 4 5"
+#   bash studies/repose/repose_study.sh [OUT_DIR] [SEEDS]      # default studies/repose/results, "1 2 3 4 5"
 #
 # Env: CGENREG_BIN (default target/release/cgenreg), CGENREG_CACHE, CGENREG_DATA.
 set -euo pipefail
-cd "$(dirname "$0")/.."
-OUT="${1:-docs/ablation/repose}"
+cd "$(dirname "$0")/../.."
+OUT="${1:-studies/repose/results}"
 SEEDS="${2:-1 2 3 4 5}"
 BIN="${CGENREG_BIN:-target/release/cgenreg}"
 CACHE="${CGENREG_CACHE:-$HOME/.cache/cgenreg-repose}"

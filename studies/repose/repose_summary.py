@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
-"""Success counts of scripts/repose_study.sh's runs, per row and seed, with the original frame's
-row beside them: python3 scripts/repose_summary.py REPOSE_DIR ORIGINAL_DIR
-(ORIGINAL_DIR holds the un-moved rows, e.g. docs/ablation/vfm-per-pixel: fpfh-nn.json,
+"""Success counts of studies/repose/repose_study.sh's runs, per row and seed, with the original frame's
+row beside them: python3 studies/repose/repose_summary.py REPOSE_DIR ORIGINAL_DIR
+(ORIGINAL_DIR holds the un-moved rows, e.g. studies/ablation/results/vfm-per-pixel: fpfh-nn.json,
 alike-oracle-noisy-and.json, alike-oracle-image.json). 'Success' is the JSON's own (3DMatch
 thresholds: RRE <= 15 deg, RTE <= 30 cm). Also lists, per pair, in how many frames each row succeeds."""
 import glob

@@ -3,7 +3,7 @@
 holds") from the overlap table `examples/pair_overlap.rs` printed for the candidate manifest, and
 write the evaluated manifest.
 
-    python3 scripts/revisit_select.py CANDIDATES.toml OVERLAP.tsv OUT.toml
+    python3 studies/revisit/revisit_select.py CANDIDATES.toml OVERLAP.tsv OUT.toml
 
 The rule, fixed before any pair was registered: candidates are fragments whose first frames are
 at least 200 frames apart (earlier = target); GT overlap >= 10 %; ranked by the GT rotation angle
@@ -78,7 +78,7 @@ def main():
             break
     used = {k[4] for k in kept} | {k[5] for k in kept}
     out = [
-        "# EVALUATED set (docs/ablation.md, \"Revisits\"), written by scripts/revisit_set.sh: the",
+        "# EVALUATED set (docs/ablation.md, \"Revisits\"), written by studies/revisit/revisit_set.sh: the",
         "# hardest loop closures of the 7-Scenes redkitchen sequence. Fragments of 50 raw frames",
         "# starting at frame 50k+o (o = 10, 20, 30, 40), each in the camera frame of its first frame.",
         f"# Pairs: first frames >= {MIN_GAP} apart, GT overlap >= {MIN_OVERLAP:g} %, largest GT rotation first,",

@@ -4,9 +4,9 @@
 # fragment of it written as PLY with a clouds-only manifest (target/revisit/clouds.toml) for the
 # clouds-only rows and Open3D.
 #
-#   bash scripts/revisit_set.sh [CACHE_DIR]
+#   bash studies/revisit/revisit_set.sh [CACHE_DIR]
 set -euo pipefail
-cd "$(dirname "$0")/.."
+cd "$(dirname "$0")/../.."
 CACHE="${1:-${CGENREG_CACHE:-$HOME/.cache/cgenreg}}"
 export CGENREG_DATA="${CGENREG_DATA:-$(cd .. && pwd)/shared/data}"
 OUT=target/revisit
@@ -14,7 +14,7 @@ M=assets/manifests/redkitchen-revisit.toml
 EX="${CGENREG_EXAMPLE_DIR:-target/debug/examples}"
 mkdir -p "$OUT"
 C="$OUT/candidates.toml"
-. scripts/redkitchen_fragments.sh
+. studies/dev-sweep/redkitchen_fragments.sh
 {
     fragments_header redkitchen-revisit-candidates
     starts=()
@@ -36,6 +36,6 @@ C="$OUT/candidates.toml"
 } > "$C"
 if [ ! -e "$M" ]; then
     nice -n 10 "$EX/pair_overlap" "$C" "$CACHE" > "$OUT/overlap.tsv"
-    python3 scripts/revisit_select.py "$C" "$OUT/overlap.tsv" "$M"
+    python3 studies/revisit/revisit_select.py "$C" "$OUT/overlap.tsv" "$M"
 fi
 nice -n 10 "$EX/export_fragments" "$M" "$OUT" "$CACHE"

@@ -3,10 +3,10 @@
 rotation, translation and overlap the manifest records, every mode's RRE / RTE (oracle RGB and
 clouds only), and Open3D's successes over its seeds.
 
-    python3 scripts/revisit_table.py > docs/results/revisit/table.md
+    python3 studies/revisit/revisit_table.py > studies/revisit/results/table.md
 
-Reads assets/manifests/redkitchen-revisit.toml, docs/results/fusion/revisit{,-clouds}-<mode>.json
-(scripts/fusion_eval.sh) and docs/results/revisit/open3d-seed*.json (scripts/open3d_outdoor.sh).
+Reads assets/manifests/redkitchen-revisit.toml, studies/fusion/results/eval/revisit{,-clouds}-<mode>.json
+(studies/fusion/fusion_eval.sh) and studies/revisit/results/open3d-seed*.json (studies/outdoor/open3d_outdoor.sh).
 """
 import glob
 import json
@@ -14,8 +14,8 @@ import os
 import re
 
 MANIFEST = "assets/manifests/redkitchen-revisit.toml"
-FUSION = "docs/results/fusion"
-O3D = "docs/results/revisit"
+FUSION = "studies/fusion/results/eval"
+O3D = "studies/revisit/results"
 MODES = [("geometry", "geometry alone"), ("image", "image alone"), ("noisy-and", "Noisy-AND"),
          ("union", "union"), ("visibility", "visibility (default)")]
 GT = re.compile(r"# GT rotation ([\d.]+) deg, translation ([\d.]+) m, (\d+) frames apart, overlap ([\d.]+) %")
@@ -99,10 +99,10 @@ def main():
         print("| pairs registered in at least one seed | "
               f"{sum(any(v) for v in o3d_ok.values())}/{len(pairs)} | | |")
         print()
-    print("From: `bash scripts/revisit_set.sh CACHE`, then `bash scripts/fusion_eval.sh revisit` and "
-          "`bash scripts/fusion_eval.sh revisit-clouds` (the run parameters are in each JSON's `run`), "
-          "then `bash scripts/open3d_outdoor.sh --voxel 0.025 --seed S --success 15:0.3 --json "
-          "docs/results/revisit/open3d-seedS.json target/revisit/clouds.toml` for S = 0..4.")
+    print("From: `bash studies/revisit/revisit_set.sh CACHE`, then `bash studies/fusion/fusion_eval.sh revisit` and "
+          "`bash studies/fusion/fusion_eval.sh revisit-clouds` (the run parameters are in each JSON's `run`), "
+          "then `bash studies/outdoor/open3d_outdoor.sh --voxel 0.025 --seed S --success 15:0.3 --json "
+          "studies/revisit/results/open3d-seedS.json target/revisit/clouds.toml` for S = 0..4.")
 
 
 if __name__ == "__main__":

@@ -15,9 +15,9 @@
 #   REPOSE="1 2"  also redkitchen-rgbd 3DLoMatch re-posed by these seeds, each branch (step 6)
 #   BUILTIN=1     also built-in frames fused with each branch on the indoor sets (step 7)
 #   KEYPOINTS=N   the evaluated rows at N keypoints instead of step 1's choice
-# Needs the exports of scripts/spinnet_export.sh. Summary: scripts/spinnet_summary.py OUT.
+# Needs the exports of models/spinnet_export.sh. Summary: studies/spinnet/spinnet_summary.py OUT.
 set -euo pipefail
-root="$(cd "$(dirname "$0")/.." && pwd)"
+root="$(cd "$(dirname "$0")/../.." && pwd)"
 bin="${CGENREG_BIN:-}"
 if [ -z "$bin" ]; then
   if [ -x "$root/target/release/cgenreg" ]; then bin="$root/target/release/cgenreg"; else bin="$root/target/debug/cgenreg"; fi
@@ -91,7 +91,7 @@ if [ "${DEV_ALL:-}" = 1 ]; then
   done
 fi
 # 6. REPOSE="1 2 ...": redkitchen-rgbd 3DLoMatch with every source turned by a seeded random
-# rotation (`--repose-seed`, as scripts/repose_study.sh), each branch alone, seed by seed.
+# rotation (`--repose-seed`, as studies/repose/repose_study.sh), each branch alone, seed by seed.
 for s in ${REPOSE:-}; do
   rp=("$m/redkitchen-rgbd.toml" --split 3DLoMatch --repose-seed "$s")
   run "repose-fpfh-seed$s" "${rp[@]}"

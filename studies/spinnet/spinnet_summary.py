@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
-"""Collect the runs of scripts/spinnet_bench.sh into docs/results/spinnet/.
+"""Collect the runs of studies/spinnet/spinnet_bench.sh into studies/spinnet/results/.
 
-    python3 scripts/spinnet_summary.py [BENCH_DIR]   # default target/spinnet-bench
+    python3 studies/spinnet/spinnet_summary.py [BENCH_DIR]   # default target/spinnet-bench
 
 Copies each run file (`cgenreg bench --json`) as it is, except that a manifest path under this
 repository is written relative to it (the run files of the first runs named it absolutely), and
@@ -17,7 +17,7 @@ import shutil
 import statistics
 import sys
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 RUNS = ["dev-fpfh", "dev-spinnet-128", "dev-spinnet-256", "kitti-fpfh", "kitti-spinnet-128",
         "staged-fpfh", "staged-spinnet-128", "kitti-spinnet-512-probe",
         "staged-fpfh-oracle", "staged-spinnet-128-oracle", "rgbd-fpfh", "rgbd-spinnet-128",
