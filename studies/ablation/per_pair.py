@@ -10,7 +10,10 @@ split, files = sys.argv[1], sys.argv[2:]
 runs = []
 for f in files:
     v = json.load(open(f))
-    rows = {r["id"]: r["result"] for r in v["records"] if r.get("result")}
+    if "records" in v:  # the run files of the first ablation runs
+        rows = {r["id"]: r["result"] for r in v["records"] if r.get("result")}
+    else:  # `cgenreg bench --json` now: one row per pair
+        rows = {r["id"]: r for r in v["pairs"]}
     runs.append((os.path.basename(f).removesuffix(".json"), rows))
 ids = [i for i, r in runs[0][1].items() if r.get("split") == split]
 print("| pair | " + " | ".join(f"{n}: RRE° / RTE cm / IR % / ok" for n, _ in runs) + " |")
