@@ -599,7 +599,7 @@ def main():
     run = sub.add_parser("run", help="make a round's lines with the study example, then write its report")
     run.add_argument("round", type=int, choices=sorted(ROUNDS))
     run.add_argument("cache", help="the stage cache folder")
-    sub.add_parser("check", help="every round's report from the committed lines equals its file")
+    sub.add_parser("check", help="the rounds' reports from the committed lines equal their files")
     a = ap.parse_args()
     if getattr(a, "sets", None):  # paths given relative to where the command runs
         a.sets = [f"{k}={os.path.abspath(v)}" for k, v in (x.split("=", 1) for x in a.sets)]
