@@ -53,7 +53,7 @@ def timing(path):
 
 def main():
     bench = sys.argv[1] if len(sys.argv) > 1 else os.path.join(ROOT, "target", "spinnet-bench")
-    dest = os.path.join(ROOT, "docs", "results", "spinnet")
+    dest = os.path.join(ROOT, "studies", "spinnet", "results")
     os.makedirs(dest, exist_ok=True)
     summary = {"runs": {}, "note": "geometry only (SC2-PCR, nearest-neighbour selection) unless a run's name ends "
                "in -oracle or -builtin (the image branch with ALIKE-t and the default fusion); SpinNet at the "
