@@ -76,7 +76,7 @@ def table(rows, split):
         sys.exit(f"cgenreg table gave {len(body)} rows for {len(have)} files ({split})")
     out = [head + " JSON | build |", rule + "---|---|"]
     for (_, p, v), line in zip(have, body):
-        out.append(line + f" `{os.path.relpath(p, 'docs')}` | {build_of(v)} |")
+        out.append(line + f" `{p}` | {build_of(v)} |")
     return out
 
 
@@ -111,12 +111,12 @@ def main():
                     if v is not None and not any(s["split"] == split for s in v["summary"])]
             if t and part:
                 md += [f"Not run on {split} (the JSON holds other splits only): "
-                       + ", ".join(f"`{os.path.relpath(p, 'docs')}`" for p in part) + ".", ""]
+                       + ", ".join(f"`{p}`" for p in part) + ".", ""]
         t = per_pair(rows, "3DLoMatch")
         if t:
             md += ["3DLoMatch pair by pair (ok = RRE ≤ 15° and RTE ≤ 30 cm):", ""] + t + [""]
         if missing:
-            md.append("Not run (no complete JSON): " + ", ".join(f"`{os.path.relpath(p, 'docs')}`"
+            md.append("Not run (no complete JSON): " + ", ".join(f"`{p}`"
                                                               for p in missing) + ".")
             md.append("")
     text = "\n".join(md)
