@@ -9,8 +9,8 @@
 //! later round, not a rule of any round so far) each pose after point-to-plane ICP on the
 //! keypoint clouds, at the inlier threshold θ alone (`icp1_*`) and coarse to fine at 4θ, 2θ, θ
 //! (`icp3_*`). The first round's
-//! candidate (c) is no longer computed. `scripts/fusion_study2.py` (counts) and
-//! `scripts/fusion_study4.py` (visibility) apply the rules and the decision rule to these lines.
+//! candidate (c) is no longer computed. `studies/fusion/rounds.py` applies each round's rules
+//! and its decision rule to these lines.
 //!
 //! ```sh
 //! cargo run --example fusion_study -- assets/manifests/redkitchen-dev.toml --wfm oracle \

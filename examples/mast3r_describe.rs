@@ -1,4 +1,4 @@
-//! cgenreg's side of the full-size MASt3R export check (scripts/mast3r_full_check.sh): load an
+//! cgenreg's side of the full-size MASt3R export check (studies/mast3r-export/mast3r_full_check.sh): load an
 //! export of models/export_mast3r.py and describe one image pair the way the pipeline does.
 //!
 //!     cargo run --release --example mast3r_describe -- MODEL.onnx DIR NAME IMG1 IMG2 [WxH]

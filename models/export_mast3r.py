@@ -16,8 +16,8 @@ Verified (tests/mast3r_export.rs, on a small random-weight checkpoint in the rea
 tests/fixtures/make_random_mast3r_checkpoint.py) with mast3r f5209afc, dust3r 4c24a6eb, croco d7de0705
 and torch 2.15.0 (CPU), onnx 1.23, onnxruntime 1.31.1; and at the released size (a random-weight
 checkpoint with the released training constructor, 695 M parameters, 2.7 GB of external data) by
-scripts/mast3r_full_check.sh with torch 2.11.0 (CUDA and CPU), onnx 1.23.1, onnxruntime 1.30.0
-(docs/mast3r/full-check-h200.txt). The trained weights themselves were never at hand.
+studies/mast3r-export/mast3r_full_check.sh with torch 2.11.0 (CUDA and CPU), onnx 1.23.1, onnxruntime 1.30.0
+(studies/mast3r-export/results/full-check-h200.txt). The trained weights themselves were never at hand.
 
 Graph contract (src/vfm/mast3r.rs; reference sections 6 and 13):
     inputs  img1, img2       float32 [B, 3, 384, 512] in [-1, 1]  ((u8/255 - 0.5)/0.5, zero rows at the

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The peers beside `cgenreg bench`: KISS-Matcher (PyPI kiss-matcher) and Open3D 0.20 FPFH + RANSAC
 # (PyPI open3d-cpu) on the pairs of cgenreg manifests whose fragments are cloud files. Installs both
-# into a scratch virtual environment (never the system's pip), then runs scripts/peers.py
+# into a scratch virtual environment (never the system's pip), then runs scripts/lib/peers.py
 # (its docstring states the protocol, the defaults and the JSON fields).
 #
 #   CGENREG_DATA=/path/to/data scripts/peers.sh [--method kiss|open3d|all] [--voxel V]
@@ -26,7 +26,7 @@ import open3d
 sys.exit(open3d.__version__ != sys.argv[1] or version("kiss-matcher") != sys.argv[2])
 PY
 then
-    bash "$here/venv_install.sh" "$venv" "$o3d_package==$o3d_version" "kiss-matcher==$kiss_version"
+    bash "$here/lib/venv_install.sh" "$venv" "$o3d_package==$o3d_version" "kiss-matcher==$kiss_version"
 fi
 export PEERS_COMMAND="${PEERS_COMMAND:-scripts/peers.sh}"
-exec "$venv/bin/python" "$here/peers.py" "$@"
+exec "$venv/bin/python" "$here/lib/peers.py" "$@"

@@ -66,8 +66,8 @@ if [ -z "$(ort_lib || true)" ]; then
   fi
 fi
 
-# SpinNet's exports (under CI=true, or with CGENREG_SPINNET=1): scripts/spinnet_prepare.sh.
+# SpinNet's exports (under CI=true, or with CGENREG_SPINNET=1): models/spinnet_prepare.sh.
 # scripts/test.sh sets CGENREG_SETUP_SKIP_SPINNET=1 and runs it in the background during the build.
 if [ "${CGENREG_SETUP_SKIP_SPINNET:-}" != "1" ]; then
-  bash scripts/spinnet_prepare.sh
+  bash models/spinnet_prepare.sh
 fi

@@ -8,7 +8,7 @@
 # holds their estimate time (clouds in memory) and whole-pair time (loading included).
 #
 #   CGENREG_DATA=/path/to/data bash scripts/side_by_side.sh [OUT_DIR]
-#   python3 scripts/side_by_side.py   # the table in BENCHMARKS.md from OUT_DIR's JSONs
+#   python3 scripts/lib/side_by_side.py   # the table in BENCHMARKS.md from OUT_DIR's JSONs
 #
 # Environment: CGENREG_BIN (default target/release/cgenreg), PEERS_SH (default scripts/peers.sh),
 # PEERS_VENV (peers.sh's scratch venv), SETS (default "staged kitti07 pandaset").

@@ -29,105 +29,105 @@ TABLES = {
     "registration-rgbd": (
         "3DMatch success: RRE <= 15 deg and RTE <= 30 cm",
         [
-            ("FPFH + SC2-PCR (geometry only, NN)", "docs/ablation/vfm-per-pixel/fpfh-nn.json"),
-            ("oracle RGB + ALIKE-t, Noisy-AND, mutual NN", "docs/ablation/vfm-per-pixel/alike-oracle-noisy-and.json"),
-            ("oracle RGB + ALIKE-t, image branch only", "docs/ablation/vfm-per-pixel/alike-oracle-image.json"),
-            ("built-in shading (NOT a WFM) + ALIKE-t, Noisy-AND", "docs/ablation/vfm-per-pixel/alike-builtin-noisy-and.json"),
-            ("oracle RGB + DISK, Noisy-AND, mutual NN", "docs/ablation/vfm-per-pixel/disk-oracle-noisy-and.json"),
+            ("FPFH + SC2-PCR (geometry only, NN)", "studies/ablation/results/vfm-per-pixel/fpfh-nn.json"),
+            ("oracle RGB + ALIKE-t, Noisy-AND, mutual NN", "studies/ablation/results/vfm-per-pixel/alike-oracle-noisy-and.json"),
+            ("oracle RGB + ALIKE-t, image branch only", "studies/ablation/results/vfm-per-pixel/alike-oracle-image.json"),
+            ("built-in shading (NOT a WFM) + ALIKE-t, Noisy-AND", "studies/ablation/results/vfm-per-pixel/alike-builtin-noisy-and.json"),
+            ("oracle RGB + DISK, Noisy-AND, mutual NN", "studies/ablation/results/vfm-per-pixel/disk-oracle-noisy-and.json"),
         ],
     ),
     "registration-lidar": (
         "success: RRE <= 15 deg and RTE <= 30 cm (the JSON's own test)",
         [
-            ("FPFH + SC2-PCR", "docs/ablation/lidar/fpfh.json"),
-            ("built-in shading (NOT a WFM) + XFeat, image only", "docs/ablation/lidar/builtin-image.json"),
-            ("built-in shading (NOT a WFM) + XFeat, Noisy-AND", "docs/ablation/lidar/builtin-noisy-and.json"),
+            ("FPFH + SC2-PCR", "studies/outdoor/results/lidar/fpfh.json"),
+            ("built-in shading (NOT a WFM) + XFeat, image only", "studies/outdoor/results/lidar/builtin-image.json"),
+            ("built-in shading (NOT a WFM) + XFeat, Noisy-AND", "studies/outdoor/results/lidar/builtin-noisy-and.json"),
         ],
     ),
     "spinnet-indoor": (
         "3DMatch success: RRE <= 15 deg and RTE <= 30 cm",
         [
-            ("FPFH + SC2-PCR (geometry only, NN)", "docs/results/spinnet/staged-fpfh.json"),
+            ("FPFH + SC2-PCR (geometry only, NN)", "studies/spinnet/results/staged-fpfh.json"),
             ("SpinNet 3DMatch, 128 keypoints + SC2-PCR (geometry only, NN)",
-             "docs/results/spinnet/staged-spinnet-128.json"),
+             "studies/spinnet/results/staged-spinnet-128.json"),
             ("SpinNet 3DMatch, 256 keypoints (the default) + SC2-PCR (geometry only, NN)",
-             "docs/results/spinnet/staged-spinnet-256.json"),
+             "studies/spinnet/results/staged-spinnet-256.json"),
         ],
     ),
     "spinnet-outdoor": (
         "success: RRE <= 5 deg and RTE <= 2 m (KITTI)",
         [
-            ("FPFH + SC2-PCR (geometry only, NN)", "docs/results/spinnet/kitti-fpfh.json"),
+            ("FPFH + SC2-PCR (geometry only, NN)", "studies/spinnet/results/kitti-fpfh.json"),
             ("SpinNet KITTI, 128 keypoints + SC2-PCR (geometry only, NN)",
-             "docs/results/spinnet/kitti-spinnet-128.json"),
+             "studies/spinnet/results/kitti-spinnet-128.json"),
             ("SpinNet KITTI, 256 keypoints (the default) + SC2-PCR (geometry only, NN)",
-             "docs/results/spinnet/kitti-spinnet-256.json"),
+             "studies/spinnet/results/kitti-spinnet-256.json"),
             ("SpinNet KITTI, 512 keypoints (a sensitivity probe, not a chosen setting)",
-             "docs/results/spinnet/kitti-spinnet-512-probe.json"),
+             "studies/spinnet/results/kitti-spinnet-512-probe.json"),
         ],
     ),
     "spinnet-fused-indoor": (
         "3DMatch success: RRE <= 15 deg and RTE <= 30 cm",
         [
-            ("staged: FPFH, oracle RGB + ALIKE-t, visibility fusion (an earlier rule)", "docs/results/spinnet/staged-fpfh-oracle.json"),
+            ("staged: FPFH, oracle RGB + ALIKE-t, visibility fusion (an earlier rule)", "studies/spinnet/results/staged-fpfh-oracle.json"),
             ("staged: SpinNet 3DMatch 128, oracle RGB + ALIKE-t, visibility fusion (an earlier rule)",
-             "docs/results/spinnet/staged-spinnet-128-oracle.json"),
+             "studies/spinnet/results/staged-spinnet-128-oracle.json"),
             ("staged: SpinNet 3DMatch 256, oracle RGB + ALIKE-t, visibility fusion (an earlier rule)",
-             "docs/results/spinnet/staged-spinnet-256-oracle.json"),
-            ("redkitchen-rgbd: FPFH + SC2-PCR (geometry only, NN)", "docs/results/spinnet/rgbd-fpfh.json"),
+             "studies/spinnet/results/staged-spinnet-256-oracle.json"),
+            ("redkitchen-rgbd: FPFH + SC2-PCR (geometry only, NN)", "studies/spinnet/results/rgbd-fpfh.json"),
             ("redkitchen-rgbd: SpinNet 3DMatch 128 + SC2-PCR (geometry only, NN)",
-             "docs/results/spinnet/rgbd-spinnet-128.json"),
+             "studies/spinnet/results/rgbd-spinnet-128.json"),
             ("redkitchen-rgbd: SpinNet 3DMatch 256 + SC2-PCR (geometry only, NN)",
-             "docs/results/spinnet/rgbd-spinnet-256.json"),
-            ("redkitchen-rgbd: FPFH, oracle RGB + ALIKE-t, visibility fusion (an earlier rule)", "docs/results/spinnet/rgbd-fpfh-oracle.json"),
+             "studies/spinnet/results/rgbd-spinnet-256.json"),
+            ("redkitchen-rgbd: FPFH, oracle RGB + ALIKE-t, visibility fusion (an earlier rule)", "studies/spinnet/results/rgbd-fpfh-oracle.json"),
             ("redkitchen-rgbd: SpinNet 3DMatch 128, oracle RGB + ALIKE-t, visibility fusion (an earlier rule)",
-             "docs/results/spinnet/rgbd-spinnet-128-oracle.json"),
+             "studies/spinnet/results/rgbd-spinnet-128-oracle.json"),
             ("redkitchen-rgbd: SpinNet 3DMatch 256, oracle RGB + ALIKE-t, visibility fusion (an earlier rule)",
-             "docs/results/spinnet/rgbd-spinnet-256-oracle.json"),
+             "studies/spinnet/results/rgbd-spinnet-256-oracle.json"),
         ],
     ),
     "spinnet-fused-outdoor": (
         "success: RRE <= 5 deg and RTE <= 2 m (KITTI)",
         [
             ("FPFH, built-in f-theta frames (NOT a WFM) + ALIKE-t, visibility fusion (an earlier rule)",
-             "docs/results/spinnet/kitti-fpfh-builtin.json"),
+             "studies/spinnet/results/kitti-fpfh-builtin.json"),
             ("SpinNet KITTI 128, built-in f-theta frames (NOT a WFM) + ALIKE-t, visibility fusion (an earlier rule)",
-             "docs/results/spinnet/kitti-spinnet-128-builtin.json"),
+             "studies/spinnet/results/kitti-spinnet-128-builtin.json"),
             ("SpinNet KITTI 256, built-in f-theta frames (NOT a WFM) + ALIKE-t, visibility fusion (an earlier rule)",
-             "docs/results/spinnet/kitti-spinnet-256-builtin.json"),
+             "studies/spinnet/results/kitti-spinnet-256-builtin.json"),
         ],
     ),
     "spinnet-builtin-indoor": (
         "3DMatch success: RRE <= 15 deg and RTE <= 30 cm",
         [
             ("staged: FPFH, built-in frames (NOT a WFM) + ALIKE-t, visibility fusion (an earlier rule)",
-             "docs/results/spinnet/staged-fpfh-builtin.json"),
+             "studies/spinnet/results/staged-fpfh-builtin.json"),
             ("staged: SpinNet 3DMatch 128, built-in frames (NOT a WFM) + ALIKE-t, visibility fusion (an earlier rule)",
-             "docs/results/spinnet/staged-spinnet-128-builtin.json"),
+             "studies/spinnet/results/staged-spinnet-128-builtin.json"),
             ("staged: SpinNet 3DMatch 256, built-in frames (NOT a WFM) + ALIKE-t, visibility fusion (an earlier rule)",
-             "docs/results/spinnet/staged-spinnet-256-builtin.json"),
+             "studies/spinnet/results/staged-spinnet-256-builtin.json"),
             ("redkitchen-rgbd: FPFH, built-in frames (NOT a WFM) + ALIKE-t, visibility fusion (an earlier rule)",
-             "docs/results/spinnet/rgbd-fpfh-builtin.json"),
+             "studies/spinnet/results/rgbd-fpfh-builtin.json"),
             ("redkitchen-rgbd: SpinNet 3DMatch 128, built-in frames (NOT a WFM) + ALIKE-t, visibility fusion (an earlier rule)",
-             "docs/results/spinnet/rgbd-spinnet-128-builtin.json"),
+             "studies/spinnet/results/rgbd-spinnet-128-builtin.json"),
             ("redkitchen-rgbd: SpinNet 3DMatch 256, built-in frames (NOT a WFM) + ALIKE-t, visibility fusion (an earlier rule)",
-             "docs/results/spinnet/rgbd-spinnet-256-builtin.json"),
+             "studies/spinnet/results/rgbd-spinnet-256-builtin.json"),
         ],
     ),
     "outdoor-dev": (
         "success: RRE <= 5 deg and RTE <= 2 m (KITTI)",
         [
-            ("PandaSet development pairs, outdoor (one voxel, 0.3 m)", "docs/results/outdoor/dev-pandaset-outdoor.json"),
+            ("PandaSet development pairs, outdoor (one voxel, 0.3 m)", "studies/outdoor/results/bench/dev-pandaset-outdoor.json"),
             ("PandaSet development pairs, outdoor-search (0.3 / 0.6 / 1.2 m, visibility)",
-             "docs/results/outdoor/dev-pandaset-outdoor-search.json"),
+             "studies/outdoor/results/bench/dev-pandaset-outdoor-search.json"),
         ],
     ),
     "spinnet-dev-all": (
         "3DMatch success: RRE <= 15 deg and RTE <= 30 cm",
         [
-            ("FPFH + SC2-PCR (geometry only, NN)", "docs/results/spinnet/dev-all-fpfh.json"),
-            ("SpinNet 3DMatch, 128 keypoints (geometry only, NN)", "docs/results/spinnet/dev-all-spinnet-128.json"),
-            ("SpinNet 3DMatch, 256 keypoints (geometry only, NN)", "docs/results/spinnet/dev-all-spinnet-256.json"),
+            ("FPFH + SC2-PCR (geometry only, NN)", "studies/spinnet/results/dev-all-fpfh.json"),
+            ("SpinNet 3DMatch, 128 keypoints (geometry only, NN)", "studies/spinnet/results/dev-all-spinnet-128.json"),
+            ("SpinNet 3DMatch, 256 keypoints (geometry only, NN)", "studies/spinnet/results/dev-all-spinnet-256.json"),
         ],
     ),
 }
@@ -136,10 +136,10 @@ TABLES = {
 # `<prefix>-seed<N>.json` (`cgenreg bench --repose-seed N`).
 REPOSE = {
     "spinnet-repose": (
-        [("FPFH + SC2-PCR (geometry only, NN)", "docs/results/spinnet/repose-fpfh"),
-         ("SpinNet 3DMatch, 128 keypoints (geometry only, NN)", "docs/results/spinnet/repose-spinnet-128"),
+        [("FPFH + SC2-PCR (geometry only, NN)", "studies/spinnet/results/repose-fpfh"),
+         ("SpinNet 3DMatch, 128 keypoints (geometry only, NN)", "studies/spinnet/results/repose-spinnet-128"),
          ("SpinNet 3DMatch, 256 keypoints, the default (geometry only, NN)",
-          "docs/results/spinnet/repose-spinnet-256")],
+          "studies/spinnet/results/repose-spinnet-256")],
         list(range(1, 4)),
     ),
 }
@@ -172,17 +172,17 @@ def render_repose(name):
 GRIDS = {
     "ablation-table4": (
         [
-            ("XFeat, oracle RGB", "docs/ablation", "oracle"),
-            ("XFeat, built-in (NOT a WFM)", "docs/ablation/vfm-cells4", "xfeat-builtin"),
-            ("ALIKE-t, oracle RGB", "docs/ablation/vfm-per-pixel", "alike-oracle"),
-            ("ALIKE-t, built-in (NOT a WFM)", "docs/ablation/vfm-per-pixel", "alike-builtin"),
-            ("DISK, oracle RGB", "docs/ablation/vfm-per-pixel", "disk-oracle"),
-            ("DISK, built-in (NOT a WFM)", "docs/ablation/vfm-per-pixel", "disk-builtin"),
+            ("XFeat, oracle RGB", "studies/ablation/results", "oracle"),
+            ("XFeat, built-in (NOT a WFM)", "studies/ablation/results/vfm-cells4", "xfeat-builtin"),
+            ("ALIKE-t, oracle RGB", "studies/ablation/results/vfm-per-pixel", "alike-oracle"),
+            ("ALIKE-t, built-in (NOT a WFM)", "studies/ablation/results/vfm-per-pixel", "alike-builtin"),
+            ("DISK, oracle RGB", "studies/ablation/results/vfm-per-pixel", "disk-oracle"),
+            ("DISK, built-in (NOT a WFM)", "studies/ablation/results/vfm-per-pixel", "disk-builtin"),
         ],
         [("image only", "image"), ("concat", "concat"), ("Noisy-OR", "noisy-or"), ("Noisy-AND", "noisy-and"),
          ("`--reference`", "reference")],
-        [("FPFH alone, NN", "docs/ablation/vfm-per-pixel/fpfh-nn.json"),
-         ("FPFH alone, mutual NN", "docs/ablation/vfm-per-pixel/fpfh-mutual.json")],
+        [("FPFH alone, NN", "studies/ablation/results/vfm-per-pixel/fpfh-nn.json"),
+         ("FPFH alone, mutual NN", "studies/ablation/results/vfm-per-pixel/fpfh-mutual.json")],
     ),
 }
 
@@ -228,9 +228,9 @@ def render_python(name):
 # pair (GT distance, RRE, RTE, both criteria, the scale search's kept voxel) and per data set.
 OUTDOOR = {
     "outdoor-pairs": (
-        [("outdoor", "docs/results/outdoor/cgenreg-{set}.json"),
-         ("outdoor-search", "docs/results/outdoor/cgenreg-{set}-search.json")],
-        "docs/results/outdoor/open3d-outdoor.json",
+        [("outdoor", "studies/outdoor/results/bench/cgenreg-{set}.json"),
+         ("outdoor-search", "studies/outdoor/results/bench/cgenreg-{set}-search.json")],
+        "studies/outdoor/results/bench/open3d-outdoor.json",
     ),
 }
 OUTDOOR_SETS = [("kitti07", "KITTI 07"), ("pandaset", "PandaSet"), ("lidar", "small_gicp LiDAR")]
@@ -313,7 +313,7 @@ def render_outdoor(name):
             t_all += s[3]
         out.append(f"| {title} | " + " | ".join(cells) + f" | {t_all / max(n_all, 1):.2f} |")
     if o3d:
-        sources.append(f"- Open3D: `{o3d_rel}` (`scripts/open3d_outdoor.sh`), {o3d.get('method', '')}, "
+        sources.append(f"- Open3D: `{o3d_rel}` (`studies/outdoor/open3d_outdoor.sh`), {o3d.get('method', '')}, "
                        f"voxel {o3d.get('voxel_m')} m, seed {o3d.get('seed')}")
     return "\n".join(out + ["", "From:"] + sources)
 

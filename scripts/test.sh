@@ -26,14 +26,14 @@ status=0
 mkdir -p target
 prep_log=target/test-prepare.log
 # At a lower priority: the build is the critical path, the download mostly waits on the network.
-(nice -n 10 bash scripts/spinnet_prepare.sh && echo "== [$(($(date +%s) - start)) s] SpinNet ready" &&
+(nice -n 10 bash models/spinnet_prepare.sh && echo "== [$(($(date +%s) - start)) s] SpinNet ready" &&
   nice -n 10 bash scripts/test_python.sh --prepare && echo "== [$(($(date +%s) - start)) s] Python venv ready") \
   >"$prep_log" 2>&1 &
 prep_pid=$!
 # Test targets only: the crate has no doc tests, the binary has no tests of its own (it is
 # built for the integration tests all the same), and the examples (built by a bare `cargo test`
 # only to see that they compile; clippy --all-targets does that) cost a link each.
-# The library's unit tests start the moment their binary is linked (scripts/cargo_messages.py
+# The library's unit tests start the moment their binary is linked (scripts/lib/cargo_messages.py
 # says when), on the core the integration tests' compile, the build's last unit, leaves free.
 step "test build"
 unit_log=target/test-unit.log
@@ -53,7 +53,7 @@ while IFS= read -r line; do
   esac
 done < <(
   cargo "${cargo_config[@]}" test --lib --tests --no-run --message-format=json-render-diagnostics 2>&1 |
-    python3 scripts/cargo_messages.py
+    python3 scripts/lib/cargo_messages.py
   echo "BUILD_STATUS ${PIPESTATUS[0]}"
 )
 if [ "$build_status" != 0 ]; then status=$build_status; fi

@@ -8,7 +8,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 export CGENREG_DATA="${CGENREG_DATA:-$(cd .. && pwd)/shared/data}"
 venv="$PWD/target/pyvenv"
-bash scripts/venv_install.sh "$venv" "maturin==1.16.0" "numpy>=1.21" "pytest>=7" pandas
+bash scripts/lib/venv_install.sh "$venv" "maturin==1.16.0" "numpy>=1.21" "pytest>=7" pandas
 # `--prepare`: only the venv (scripts/test.sh makes it in the background while the tests build).
 if [ "${1:-}" = "--prepare" ]; then exit 0; fi
 # maturin reads pyproject.toml (manifest python/Cargo.toml); `develop` installs into $VIRTUAL_ENV.

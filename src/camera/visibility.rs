@@ -159,7 +159,7 @@ mod tests {
             conflict,
             unseen: 7,
         };
-        // the study's F (scripts/fusion_study6.py) of two poses of one development pair
+        // the study's F (`r6_share` in studies/fusion/rounds.py) of two poses of one development pair
         assert!((v(2245, 461).share_lower_bound() - 0.8150076541061555).abs() < 1e-12);
         assert!((v(1876, 2563).share_lower_bound() - 0.4081589581605628).abs() < 1e-12);
         // nothing seen: no evidence; all consistent: below 1, and rising with the sample

@@ -127,7 +127,7 @@ pub struct PipelineArgs {
     #[arg(long, conflicts_with = "learned_source")]
     pub geotransformer_pkl: Option<PathBuf>,
     /// The geometric branch's features (default fpfh). SpinNet needs an ONNX export of the
-    /// authors' checkpoint (scripts/spinnet_export.sh writes target/spinnet/; research-only
+    /// authors' checkpoint (models/spinnet_export.sh writes target/spinnet/; research-only
     /// weights, not shipped) and runs at --spinnet-keypoints points per scan.
     #[arg(long, value_enum, conflicts_with_all = ["learned_source", "geotransformer_pkl"])]
     pub geo_features: Option<GeoFeatureSource>,

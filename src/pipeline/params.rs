@@ -21,7 +21,7 @@ pub enum GeoFeatureSource {
     /// C-GenReg source for 3DMatch.
     GeoTransformerPkl { path: PathBuf },
     /// SpinNet descriptors (an ONNX export of the authors' `protocol` checkpoint, made by
-    /// `scripts/spinnet_export.sh`) at `keypoints` points drawn from the voxel-downsampled
+    /// `models/spinnet_export.sh`) at `keypoints` points drawn from the voxel-downsampled
     /// cloud; cached as the `geo-spinnet` stage.
     Spinnet {
         protocol: crate::features::spinnet::Protocol,

@@ -703,13 +703,13 @@ mod tests {
 
     fn ablation(name: &str) -> std::path::PathBuf {
         Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("docs/ablation")
+            .join("studies/ablation/results")
             .join(name)
     }
 
     #[test]
     fn the_ablation_runs_rebuild_their_parameters_and_compare() {
-        // every bench JSON of docs/ablation carries the whole RegisterParams
+        // every bench JSON of studies/ablation/results carries the whole RegisterParams
         let mut n = 0;
         for e in std::fs::read_dir(ablation("")).unwrap() {
             let p = e.unwrap().path();

@@ -1,8 +1,9 @@
 //! What users read speaks about the project, not about how it was developed: README.md,
-//! BENCHMARKS.md, everything under docs/ (Markdown, text, JSON, CSV, TOML) and the `--help` text
-//! of every subcommand carry no numbered development sessions, rounds or issue numbers, no
-//! worktree names, no "the lead", and no absolute paths of development machines (their home,
-//! work and temporary folders). History belongs in CHANGELOG.md, which is not checked.
+//! BENCHMARKS.md, everything under docs/ and studies/ (Markdown, text, JSON, CSV, TOML) and
+//! the `--help` text of every subcommand carry no numbered development sessions, rounds or issue
+//! numbers, no worktree names, no "the lead", and no absolute paths of development machines
+//! (their home, work and temporary folders). History belongs in CHANGELOG.md (and the records
+//! beside it in changelog/), which is not checked.
 
 use std::path::{Path, PathBuf};
 
@@ -171,6 +172,8 @@ fn user_documents_carry_no_process_words_or_machine_paths() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let mut files = vec![root.join("README.md"), root.join("BENCHMARKS.md")];
     files_under(&root.join("docs"), &mut files);
+    // the studies' READMEs and results, which the result pages link to
+    files_under(&root.join("studies"), &mut files);
     let mut found = Vec::new();
     let mut read = 0;
     for f in &files {

@@ -1,5 +1,5 @@
 //! The Compare tab driven through the app and the pipeline worker on real bench runs
-//! (docs/ablation, redkitchen-rgbd): the comparison loads off the UI thread, its quadrant
+//! (studies/ablation/results, redkitchen-rgbd): the comparison loads off the UI thread, its quadrant
 //! counts are the library's and the files' own, and "open with B" hands run B's settings and
 //! the pair to the worker. Skipped without the real data (failing under CI=true).
 #![cfg(feature = "gui")]
@@ -19,7 +19,7 @@ use egui_kittest::Harness;
 
 fn ablation(name: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("docs/ablation")
+        .join("studies/ablation/results")
         .join(name)
 }
 

@@ -101,12 +101,12 @@ fn snapshot_stages() {
     snapshot_panel(Panel::Stages, "stages");
 }
 
-/// The Compare tab over two real bench runs of docs/ablation: FPFH NN (A) against oracle RGB
+/// The Compare tab over two real bench runs of studies/ablation/results: FPFH NN (A) against oracle RGB
 /// + XFeat with FPFH, Noisy-AND, NN (B), the first row (flipped first) selected.
 #[test]
 fn snapshot_compare() {
     use cgenreg::app::tabs::compare::load_comparison;
-    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/ablation");
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("studies/ablation/results");
     let mut l = load_comparison(
         &dir.join("fpfh-nn.json"),
         &dir.join("oracle-noisy-and-nn.json"),

@@ -1,6 +1,6 @@
 //! SpinNet's Rust patch extraction and ONNX inference against the authors' torch code on real
 //! patches (a redkitchen fragment, a KITTI 07 scan): the dumps and exports that
-//! `scripts/spinnet_export.sh` writes under `target/spinnet` (research-only weights, never in
+//! `models/spinnet_export.sh` writes under `target/spinnet` (research-only weights, never in
 //! the repository). Without them the tests skip, and fail under `CI=true`, like the data.
 #![cfg(feature = "onnx")]
 

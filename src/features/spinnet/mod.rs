@@ -10,7 +10,7 @@
 //! ([`invariant`], the authors' `var_to_invar`); [`patch`] chains them. The network after that
 //! (a 1x1 convolution, a max over each voxel's samples, four cylindrical 3D convolutions and a
 //! 2D head) runs through ONNX Runtime from an export of the authors' checkpoints
-//! (`scripts/spinnet_export.sh`) in [`model`].
+//! (`models/spinnet_export.sh`) in [`model`].
 //!
 //! The weights are research-only (the authors' repository says MIT in its LICENSE file and CC
 //! BY-NC-SA 4.0 in its README): cgenreg ships neither them nor their export.
@@ -114,14 +114,14 @@ impl Protocol {
         }
     }
 
-    /// The export's file name (`scripts/spinnet_export.sh` writes it).
+    /// The export's file name (`models/spinnet_export.sh` writes it).
     pub fn onnx_file(self) -> String {
         format!("spinnet-{}.onnx", self.name())
     }
 }
 
 /// Where the exports are looked for by default: `$CGENREG_SPINNET_DIR`, else the build
-/// folder's `target/spinnet` (what `scripts/spinnet_export.sh` writes).
+/// folder's `target/spinnet` (what `models/spinnet_export.sh` writes).
 pub fn default_model_dir() -> PathBuf {
     match std::env::var_os("CGENREG_SPINNET_DIR") {
         Some(d) if !d.is_empty() => PathBuf::from(d),

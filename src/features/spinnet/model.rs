@@ -1,5 +1,5 @@
 //! SpinNet's network through ONNX Runtime, from an export of the authors' checkpoint made by
-//! `scripts/spinnet_export.sh`, and the whole descriptor of a set of keypoints.
+//! `models/spinnet_export.sh`, and the whole descriptor of a set of keypoints.
 //!
 //! Graph contract: input `grouped` float32 (B, voxels, 30, 3) (the output of
 //! [`super::patch::grouped`]), output `descriptor` float32 (B, 32), not normalised. B is
@@ -42,7 +42,7 @@ impl SpinNet {
                 path,
                 "model",
                 format!(
-                    "a SpinNet ONNX export ({}; made by scripts/spinnet_export.sh from the \
+                    "a SpinNet ONNX export ({}; made by models/spinnet_export.sh from the \
                      authors' {} checkpoint)",
                     protocol.onnx_file(),
                     protocol.name()

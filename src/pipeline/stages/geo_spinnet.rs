@@ -38,7 +38,7 @@ pub fn model_id(memo: &Memo, input: &SpinNetInput) -> Result<String> {
             input.model,
             "model",
             format!(
-                "a SpinNet ONNX export ({}; made by scripts/spinnet_export.sh)",
+                "a SpinNet ONNX export ({}; made by models/spinnet_export.sh)",
                 input.protocol.onnx_file()
             ),
             e.to_string(),
