@@ -306,6 +306,8 @@ pub fn run_status(a: StatusArgs) -> Result<()> {
         );
     }
     let mut all: Vec<&PairRecord> = Vec::new();
+    // per shard: pairs left and the mean time of its pairs done, for the time left
+    let mut left: Vec<(usize, Option<f64>)> = vec![(0, None); count];
     for (path, f) in &files {
         let d = f.run.identity.differences(first);
         if !d.is_empty() {
@@ -323,6 +325,9 @@ pub fn run_status(a: StatusArgs) -> Result<()> {
         let n = s.positions(n_sel).len();
         let failed = f.records.iter().filter(|r| r.status == FAILED).count();
         let done = f.records.len() - failed;
+        if s.index < count {
+            left[s.index] = (n.saturating_sub(done), mean_time(&f.records));
+        }
         outln!(
             "| {s} | {} | {n} | {done} | {failed} | {} | {} | {} | {} |",
             path.display(),
@@ -342,6 +347,7 @@ pub fn run_status(a: StatusArgs) -> Result<()> {
                 "| {i}/{count} | (no output yet) | {n} | 0 | 0 | {n} | - | - | {} |",
                 rc_of(i)
             );
+            left[i] = (n, None);
         }
     }
     let failed = all.iter().filter(|r| r.status == FAILED).count();
@@ -353,11 +359,54 @@ pub fn run_status(a: StatusArgs) -> Result<()> {
     for r in all.iter().filter(|r| r.status == FAILED) {
         outln!("failed: {}: {}", r.id, r.error.as_deref().unwrap_or(""));
     }
+    if let Some(line) = time_left(&left, mean_time(all.iter().copied())) {
+        outln!("{line}");
+    }
     print_cost(&all, a.project_pairs, backend_kind(&first.params));
     if !corrupt.is_empty() {
         return Err(corrupt_error());
     }
     Ok(())
+}
+
+/// The mean time of the pairs done (failed pairs excluded: they often end early).
+fn mean_time<'a>(records: impl IntoIterator<Item = &'a PairRecord>) -> Option<f64> {
+    let t: Vec<f64> = records
+        .into_iter()
+        .filter(|r| r.status != FAILED)
+        .map(|r| r.time_s)
+        .collect();
+    (!t.is_empty()).then(|| t.iter().sum::<f64>() / t.len() as f64)
+}
+
+/// The time a run has left: each shard's pairs left (failed ones run again) at that shard's
+/// measured time per pair (the run's mean where a shard has none yet). The shards of an
+/// array run side by side, so the wall time is the slowest shard's; the work is their sum.
+fn time_left(left: &[(usize, Option<f64>)], overall: Option<f64>) -> Option<String> {
+    let pairs: usize = left.iter().map(|(n, _)| n).sum();
+    if pairs == 0 {
+        return Some("time left: none, every pair is done".into());
+    }
+    let secs: Vec<f64> = left
+        .iter()
+        .map(|&(n, t)| t.or(overall).map(|t| n as f64 * t))
+        .collect::<Option<_>>()?;
+    let work: f64 = secs.iter().sum();
+    let wall = secs.iter().copied().fold(0.0, f64::max);
+    let h = |s: f64| {
+        if s < 5400.0 {
+            format!("{:.0} min", s / 60.0)
+        } else {
+            format!("{:.1} h", s / 3600.0)
+        }
+    };
+    Some(format!(
+        "time left: {pairs} pairs at the measured time per pair: about {} with the {} shards \
+         running side by side ({} of work on one worker)",
+        h(wall),
+        left.len(),
+        h(work)
+    ))
 }
 
 /// The image branch's generator (`WfmSpec`'s `kind`) recorded in a run's parameters, if any.
@@ -448,4 +497,27 @@ fn print_cost(records: &[&PairRecord], project: usize, backend: Option<String>) 
 /// Used by `slurm` to find the shard file names.
 pub fn shard_path(out: &Path, index: usize) -> PathBuf {
     out.join("shards").join(format!("shard-{index}.json"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::time_left;
+
+    /// The wall time is the slowest shard's (its own rate, else the run's); the work their sum.
+    #[test]
+    fn time_left_takes_the_slowest_shard() {
+        let line = time_left(&[(10, Some(6.0)), (20, None)], Some(3.0)).unwrap();
+        // shard 0: 60 s, shard 1: 20 x 3 s = 60 s; work 120 s
+        assert!(line.contains("30 pairs"), "{line}");
+        assert!(line.contains("about 1 min with the 2 shards"), "{line}");
+        assert!(line.contains("(2 min of work"), "{line}");
+        let line = time_left(&[(3000, Some(6.0)), (0, Some(1.0))], None).unwrap();
+        assert!(line.contains("about 5.0 h"), "{line}");
+        assert_eq!(
+            time_left(&[(0, None), (0, Some(2.0))], None).as_deref(),
+            Some("time left: none, every pair is done")
+        );
+        // nothing measured yet: no projection
+        assert_eq!(time_left(&[(5, None)], None), None);
+    }
 }
