@@ -86,7 +86,10 @@ def with_margin(default, geometry):
     return {"pairs": out}
 
 
-def part_report(part):
+def part_report(part, details=True, out=None):
+    """The part's tables as markdown lines (appended to `out`); False when its default run is missing."""
+    out = [] if out is None else out
+    print = lambda *a: out.append(" ".join(str(x) for x in a) if a else "")  # noqa: A001
     runs = {k: load(v) for k, v in PARTS[part].items()}
     if runs[DEFAULT] is None:
         return False
@@ -94,7 +97,7 @@ def part_report(part):
     geo_all = by_id(json.load(open(GEOMETRY, encoding="utf-8")))
     geo = [geo_all[i] for i in ids]
     runs[CANDIDATE] = with_margin(runs[DEFAULT], geo_all)
-    print(f"## {part}: {len(ids)} pairs\n")
+    print(f"### {part}: {len(ids)} pairs\n")
     print("| run | benchmark | pairs | registered | RR (15°, 30 cm) | official RR (RMSE) | RE / TE mean | s/pair |")
     print("|---|---|---:|---:|---:|---:|---|---:|")
     for bench in ("3DMatch", "3DLoMatch"):
@@ -112,9 +115,11 @@ def part_report(part):
     c_gained = sum(1 for i in ids if not geo_all[i].get("success") and c[i].get("success"))
     print(f"The candidate rule: {c_lost} lost, {c_gained} gained against geometry alone "
           f"(the default: {len(lost)} lost, {len(gained)} gained).\n")
+    if not details:
+        return True
     for title, sel in (("Lost (geometry registers, the default does not)", lost),
                        ("Gained (the default registers, geometry does not)", gained)):
-        print(f"### {title}: {len(sel)}\n")
+        print(f"#### {title}: {len(sel)}\n")
         if not sel:
             continue
         print("| pair | split | kept | F union / geometry / Noisy-AND / image | default RRE, RTE | geometry RRE, RTE | image alone RRE, RTE |")
@@ -138,7 +143,9 @@ def main():
         if p not in PARTS:
             print(f"report.py: unknown part {p} ({', '.join(PARTS)})", file=sys.stderr)
             return 2
-        part_report(p)
+        lines = []
+        part_report(p, out=lines)
+        print("\n".join(lines))
     return 0
 
 
