@@ -9,16 +9,16 @@ use crate::cache::{Cache, CacheKey, Entry};
 use crate::camera::CameraModel;
 use crate::dataset::FrameSet;
 use crate::error::{Error, Result};
+use crate::pipeline::graph::StageName;
 use crate::pipeline::memo::Memo;
 use crate::pipeline::params::{ImageBranchParams, RegisterParams};
-use crate::pipeline::plan::StageName;
 use crate::vfm::lift::{lift_views, LiftView, PixelLink};
 use nalgebra::Point3;
 use rayon::prelude::*;
 use serde_json::json;
 use std::path::Path;
 
-pub const STAGE: &str = "lift";
+pub const STAGE: &str = NAME.key_name();
 pub const VERSION: u32 = 1;
 pub const NAME: StageName = StageName::Lift;
 
