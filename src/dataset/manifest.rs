@@ -61,11 +61,11 @@ use super::fragment::{build_fragment_with, fragment_frames, CropBox, FragmentOpt
 use super::fragment_cache::{build_fragment_cached, FragmentCacheStatus};
 use super::{Scan, ScanPair};
 use crate::dataset::preset::Preset;
+use crate::dataset::rgbd_sequence::RgbdSequence;
 use crate::error::{Error, Result};
 use crate::geometry::transform::isometry_from_matrix;
 use crate::io::gtlog::{read_gt_info, read_gt_log, GtEntry, GtInfo};
 use crate::io::kitti::KittiFields;
-use crate::io::rgbd_sequence::RgbdSequence;
 use nalgebra::{Isometry3, Matrix4};
 use serde::Deserialize;
 use std::collections::HashMap;
@@ -1438,7 +1438,7 @@ gt_matrix = [[1,0,0,0],[0,1,0,2],[0,0,1,0],[0,0,0,1]]
         };
         for i in 0..6 {
             write(&seq, &format!("frame-{i:06}.depth.png"), "x");
-            crate::io::camera_txt::write_pose(
+            crate::camera::camera_txt::write_pose(
                 &seq.join(format!("frame-{i:06}.pose.txt")),
                 &pose(i),
             )

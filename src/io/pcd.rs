@@ -12,7 +12,7 @@
 //! `is_dense` false, as organised clouds and ROS conversions write them) are dropped and
 //! counted ([`parse_pcd_counted`]).
 
-use super::cloud::validate_cloud;
+use super::validate::validate_cloud;
 use crate::error::{Error, Result};
 use crate::geometry::cloud::PointCloud;
 use nalgebra::{Point3, Vector3};

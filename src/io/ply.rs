@@ -10,9 +10,10 @@
 //! Write: binary little-endian, float `x y z`, then float `nx ny nz`, uchar `red green blue`
 //! and float `intensity` for the attributes the cloud has; written atomically.
 
-use super::cloud::validate_cloud;
-use crate::error::{write_atomic, Error, Result};
+use super::validate::validate_cloud;
+use crate::error::{Error, Result};
 use crate::geometry::cloud::PointCloud;
+use crate::io::output::write_atomic;
 use nalgebra::{Point3, Vector3};
 use std::path::Path;
 

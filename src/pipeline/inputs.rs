@@ -8,9 +8,9 @@ use crate::dataset::{FrameSet, ViewOrigin};
 use crate::error::{Error, Result};
 use crate::features::Features;
 use crate::fusion::cosine_similarity;
-use crate::fusion::matrix::DenseMatrix;
 use crate::geometry::PointCloud;
 use crate::io::depth_png::{read_depth_png, DepthImage};
+use crate::matrix::DenseMatrix;
 use crate::vfm::pair_similarity::PairPointDescriptors;
 use std::sync::{Arc, OnceLock};
 

@@ -11,7 +11,8 @@
 //!   Cosmos writes libx264 yuv420p (High profile, B-frames), which the OpenH264 decoder reads.
 //! - PNG folders: `frame_000000.png`, `frame_000001.png`, ... (8-bit RGB).
 
-use crate::error::{write_atomic, Error, Result};
+use crate::error::{Error, Result};
+use crate::io::output::write_atomic;
 use image::RgbImage;
 use openh264::decoder::{DecodeOptions, Decoder, DecoderConfig, Flush};
 use openh264::encoder::{
