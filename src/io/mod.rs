@@ -8,6 +8,7 @@ pub mod gtlog;
 pub mod json_diff;
 pub mod kitti;
 pub mod limits;
+pub mod lzf;
 pub mod npy;
 pub mod output;
 pub mod pcd;
