@@ -9,8 +9,9 @@
 // Benchmarks, examples and tests: a failed step is reported by the panic that ends them.
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
+use cgenreg::camera::DepthView;
 use cgenreg::io::depth_png::{read_depth_png, DepthImage};
-use cgenreg::vfm::lift::{lift_views, LiftView};
+use cgenreg::vfm::lift::lift_views;
 use nalgebra::{Isometry3, Point3};
 use std::time::Instant;
 
@@ -23,7 +24,7 @@ fn median(mut v: Vec<f64>) -> f64 {
 fn frames_960x704() -> Vec<image::RgbImage> {
     let seq = cgenreg::data_root()
         .map(|r| r.join("7scenes-redkitchen-rgbd"))
-        .and_then(|d| cgenreg::io::rgbd_sequence::RgbdSequence::open(&d).ok());
+        .and_then(|d| cgenreg::dataset::rgbd_sequence::RgbdSequence::open(&d).ok());
     (0..8)
         .map(|i| {
             let real = seq
@@ -83,7 +84,7 @@ fn lift_inputs() -> (
 ) {
     let seq = cgenreg::data_root()
         .map(|r| r.join("7scenes-redkitchen-rgbd"))
-        .and_then(|d| cgenreg::io::rgbd_sequence::RgbdSequence::open(&d).ok());
+        .and_then(|d| cgenreg::dataset::rgbd_sequence::RgbdSequence::open(&d).ok());
     if let Some(seq) = seq {
         let k = seq.intrinsics().expect("intrinsics");
         let first = seq.world_from_camera(0).expect("pose");
@@ -124,10 +125,10 @@ fn lift_inputs() -> (
 fn bench_lift() {
     let (depths, poses, k) = lift_inputs();
     let cam = cgenreg::camera::CameraModel::Pinhole(k);
-    let views: Vec<LiftView> = depths
+    let views: Vec<DepthView> = depths
         .iter()
         .zip(&poses)
-        .map(|(d, p)| LiftView {
+        .map(|(d, p)| DepthView {
             depth: d,
             scan_from_camera: *p,
             camera: &cam,
@@ -171,7 +172,7 @@ fn main() {
         if std::env::var("CGENREG_ORT_BACKEND").is_err() {
             // One child per backend: ort's backend is fixed per process.
             let exe = std::env::current_exe().expect("current exe");
-            let native = !cgenreg::vfm::runtime::native_library_candidates().is_empty();
+            let native = !cgenreg::onnx::native_library_candidates().is_empty();
             for b in ["native", "tract"] {
                 if b == "native" && !native {
                     println!("xfeat native: skipped (no ONNX Runtime library found)");

@@ -19,7 +19,7 @@ use std::time::Instant;
 fn frames(w: u32, h: u32, n: usize) -> Vec<image::RgbImage> {
     let seq = cgenreg::data_root()
         .map(|r| r.join("7scenes-redkitchen-rgbd"))
-        .and_then(|d| cgenreg::io::rgbd_sequence::RgbdSequence::open(&d).ok())
+        .and_then(|d| cgenreg::dataset::rgbd_sequence::RgbdSequence::open(&d).ok())
         .expect("redkitchen frames (set CGENREG_DATA)");
     (0..n)
         .map(|i| {

@@ -82,8 +82,8 @@ pub fn try_run(target: &str, data: &[u8]) -> cgenreg::Result<bool> {
             a || b
         }
         "depth_png" => cgenreg::io::depth_png::parse_depth_png(p, data).is_ok(),
-        "intrinsics" => cgenreg::io::camera_txt::parse_intrinsics(p, &text(), 640, 480).is_ok(),
-        "pose" => cgenreg::io::camera_txt::parse_pose(p, &text()).is_ok(),
+        "intrinsics" => cgenreg::camera::camera_txt::parse_intrinsics(p, &text(), 640, 480).is_ok(),
+        "pose" => cgenreg::camera::camera_txt::parse_pose(p, &text()).is_ok(),
         "manifest" => manifest(data),
         "cosmos_jsonl" => cgenreg::wfm::prompt::parse_reference_jsonl(p, &text()).is_ok(),
         "mp4" => cgenreg::wfm::video::decode_mp4_frames(p, data.to_vec()).is_ok(),

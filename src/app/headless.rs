@@ -389,7 +389,7 @@ pub fn render_screenshot_with(
     configure: impl FnOnce(&mut App),
 ) -> Result<(), String> {
     let png = render_screenshot_png(model, panel, size, configure)?;
-    crate::error::write_atomic(out, &png).map_err(|e| e.to_string())
+    crate::io::output::write_atomic(out, &png).map_err(|e| e.to_string())
 }
 
 /// One panel of the inspector for `model` as PNG bytes carrying cgenreg's marker

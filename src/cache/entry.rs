@@ -24,7 +24,7 @@ impl Cache {
         let tmp = stage_dir.join(format!(
             ".tmp-{}-{}",
             &key.hash[..16],
-            crate::error::unique_suffix()
+            crate::io::output::unique_suffix()
         ));
         // create_dir, not create_dir_all: a folder that exists belongs to another writer.
         std::fs::create_dir(&tmp).map_err(|e| Error::io(&tmp, e))?;

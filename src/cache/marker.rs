@@ -36,7 +36,7 @@ impl Cache {
         };
         let b = serde_json::to_vec_pretty(&m)
             .map_err(|e| Error::Encode(format!("serialising the cache marker: {e}")))?;
-        crate::error::write_atomic(&self.root.join(MARKER), &b)?;
+        crate::io::output::write_atomic(&self.root.join(MARKER), &b)?;
         Ok(true)
     }
 

@@ -294,7 +294,7 @@ impl Cache {
     /// fails (e.g. NFS keeps a file another host still has open) leaves only a dot-folder.
     fn discard(&self, dir: &Path) -> Result<()> {
         let parent = dir.parent().unwrap_or(&self.root);
-        let trash = parent.join(format!(".trash-{}", crate::error::unique_suffix()));
+        let trash = parent.join(format!(".trash-{}", crate::io::output::unique_suffix()));
         std::fs::rename(dir, &trash).map_err(|e| Error::io(dir, e))?;
         let _ = std::fs::remove_dir_all(&trash);
         Ok(())

@@ -1,11 +1,15 @@
 //! Camera models: pinhole (RGB-D sensors) and f-theta (LiDAR virtual camera), projection,
 //! back-projection and depth rendering from point clouds.
 
+pub mod camera_txt;
 pub mod ftheta;
 pub mod render;
 pub mod sensor_origin;
 pub mod trajectory;
 pub mod visibility;
+
+/// A posed depth view (camera, pose, depth image): what the lift and the visibility check read.
+pub use visibility::DepthView;
 
 use serde::{Deserialize, Serialize};
 

@@ -83,7 +83,7 @@ fn write(w: &Written, out: &OutArgs) -> Result<()> {
             "an existing file",
         ));
     }
-    crate::error::write_atomic(&out.out, w.text.as_bytes())?;
+    crate::io::output::write_atomic(&out.out, w.text.as_bytes())?;
     // the manifest as `bench` will read it: every path and entry resolved once
     let ds = Dataset::load(&out.out)?;
     outln!(

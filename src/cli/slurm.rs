@@ -225,7 +225,7 @@ pub fn run(a: SlurmArgs) -> Result<()> {
     }
     let pj = serde_json::to_vec_pretty(&plan)
         .map_err(|e| Error::Encode(format!("serialising the plan: {e}")))?;
-    crate::error::write_atomic(&plan_path, &pj)?;
+    crate::io::output::write_atomic(&plan_path, &pj)?;
 
     let mut sbatch = String::from("#!/bin/bash\n");
     let name = format!("cgenreg-{}", plan.command.argv().join("-"));
@@ -273,7 +273,7 @@ pub fn run(a: SlurmArgs) -> Result<()> {
         sh_bin = sh_quote(&bin_s),
     ));
     let array_path = out.join("array.sbatch");
-    crate::error::write_atomic(&array_path, sbatch.as_bytes())?;
+    crate::io::output::write_atomic(&array_path, sbatch.as_bytes())?;
 
     let mut merge = String::from("#!/bin/bash\n");
     merge.push_str("#SBATCH --job-name=cgenreg-merge\n");
@@ -292,7 +292,7 @@ pub fn run(a: SlurmArgs) -> Result<()> {
         sh_quote(&format!("{out_s}/merged.json"))
     ));
     let merge_path = out.join("merge.sbatch");
-    crate::error::write_atomic(&merge_path, merge.as_bytes())?;
+    crate::io::output::write_atomic(&merge_path, merge.as_bytes())?;
     outln!("wrote {} ({} tasks)", array_path.display(), a.array);
     outln!("wrote {}", merge_path.display());
 
@@ -313,7 +313,7 @@ pub fn run(a: SlurmArgs) -> Result<()> {
         merge_path.display().to_string(),
     ])?;
     outln!("submitted merge job {mid} (after the array succeeds)");
-    crate::error::write_atomic(
+    crate::io::output::write_atomic(
         &out.join("jobs.txt"),
         format!("array {jid}\nmerge {mid}\n").as_bytes(),
     )?;
@@ -401,7 +401,7 @@ pub fn run_task(a: SlurmTaskArgs) -> Result<()> {
     };
     let rc = if r.is_ok() { 0 } else { 1 };
     let rc_path = a.dir.join("logs").join(format!("task-{index}.rc"));
-    let _ = crate::error::write_atomic(&rc_path, format!("{rc}\n").as_bytes());
+    let _ = crate::io::output::write_atomic(&rc_path, format!("{rc}\n").as_bytes());
     eprintln!(
         "== task {index}/{} finished with exit status {rc} after {:.1} s",
         plan.array,

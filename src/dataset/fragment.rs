@@ -9,10 +9,10 @@
 //! z in [0.5, 3.5] m of the first frame; [`FragmentOptions::threedmatch`] reproduces that crop.
 
 use super::{FrameSet, RgbdFrame, Scan};
+use crate::dataset::rgbd_sequence::RgbdSequence;
 use crate::error::{Error, Result};
 use crate::geometry::{floor_i64, PointCloud};
 use crate::io::depth_png::read_depth_png;
-use crate::io::rgbd_sequence::RgbdSequence;
 use nalgebra::{Isometry3, Point3};
 use rayon::prelude::*;
 
@@ -84,7 +84,7 @@ pub(super) fn fragment_frame(
     idx: usize,
     first: usize,
     count: usize,
-) -> Result<&crate::io::rgbd_sequence::SequenceFrame> {
+) -> Result<&crate::dataset::rgbd_sequence::SequenceFrame> {
     seq.frame(idx).ok_or_else(|| {
         Error::Missing(format!(
             "{}: fragment frames {first}..{} need frame-{idx:06}.depth.png, which is missing",

@@ -10,9 +10,9 @@
 use super::fragment::{build_fragment_with, fragment_frames, FragmentOptions};
 use super::Scan;
 use crate::cache::{Cache, CacheKey, Entry};
+use crate::dataset::rgbd_sequence::RgbdSequence;
 use crate::error::{Error, Result};
 use crate::geometry::cloud::PointCloud;
-use crate::io::rgbd_sequence::RgbdSequence;
 use nalgebra::Point3;
 use rayon::prelude::*;
 use serde_json::json;

@@ -8,6 +8,7 @@ pub mod official;
 pub mod open;
 pub mod preset;
 pub mod repose;
+pub mod rgbd_sequence;
 pub mod threedmatch;
 
 pub use manifest::{Dataset, FragmentSource, FragmentSpec, PairSpec};
@@ -99,7 +100,7 @@ pub fn read_gt_matrix(path: &Path) -> Result<Isometry3<f64>> {
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("npy"));
     if !is_npy {
-        return crate::io::camera_txt::read_pose(path);
+        return crate::camera::camera_txt::read_pose(path);
     }
     let a = crate::io::npy::read_npy(path)?;
     let v = a.to_f64();

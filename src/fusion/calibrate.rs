@@ -11,7 +11,7 @@
 //! or column with nothing valid is all 0. Every softmax subtracts its maximum first.
 //! Everything works in place on the similarity buffer: no extra N x M matrix is allocated.
 
-use super::matrix::{check_masks, rows_per_task, DenseMatrix};
+use crate::matrix::{check_masks, rows_per_task, DenseMatrix};
 use crate::{Error, Result};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};

@@ -13,9 +13,9 @@
 //! `exact_reference` reproduces the reference's float32 formula and operation order instead:
 //! `num = Pr*Pg*(1-pi); den = num + (1-Pr)*(1-Pg)*pi; F = num / (den + 1e-8)`.
 
-use super::matrix::{check_masks, rows_per_task, DenseMatrix};
 use super::similarity::normalize_rows;
 use crate::features::Features;
+use crate::matrix::{check_masks, rows_per_task, DenseMatrix};
 use crate::{Error, Result};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};

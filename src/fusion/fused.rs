@@ -9,9 +9,9 @@
 
 use super::calibrate::{fast_exp, max_lanes, sum_lanes};
 use super::fuse::{default_prior, noisy_and_rank_key};
-use super::matrix::{rows_per_task, DenseMatrix};
 use super::select::{order, Selection};
 use super::Correspondence;
+use crate::matrix::{rows_per_task, DenseMatrix};
 use crate::simd::Isa;
 use crate::{Error, Result};
 use rayon::prelude::*;

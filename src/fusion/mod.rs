@@ -16,16 +16,15 @@ mod avx512;
 pub mod calibrate;
 pub mod fuse;
 mod fused;
-pub mod matrix;
 pub mod posterior;
 pub mod select;
 pub mod similarity;
 pub mod streaming;
 pub mod union;
 
+pub use crate::matrix::DenseMatrix;
 pub use calibrate::{calibrate, calibrate_in_place, Calibration};
 pub use fuse::{concat_features, concat_similarity, fuse, noisy_and, noisy_or, FusionMode};
-pub use matrix::DenseMatrix;
 pub use posterior::{posterior_row, PosteriorRow, PosteriorRows};
 pub use select::{select, Selection};
 pub use similarity::{cosine_similarity, max_similarity};
@@ -155,7 +154,7 @@ pub fn match_then_fuse(
         }
     }
     if let Some((_, rv, cv)) = sim_img {
-        matrix::check_masks("match-then-fuse image validity", shape.0, shape.1, rv, cv)?;
+        crate::matrix::check_masks("match-then-fuse image validity", shape.0, shape.1, rv, cv)?;
     }
     let needs_img = !matches!(params.mode, FusionMode::GeometryOnly);
     let needs_geo = !matches!(params.mode, FusionMode::ImageOnly);
@@ -295,7 +294,7 @@ pub fn match_then_fuse_select(
         check_filled("image", a)?;
         check_filled("geometric", b)?;
         if let Some((_, rv, cv)) = sim_img {
-            matrix::check_masks("match-then-fuse image validity", a.rows, a.cols, rv, cv)?;
+            crate::matrix::check_masks("match-then-fuse image validity", a.rows, a.cols, rv, cv)?;
         }
     }
     match one_pass_branches(sim_img, sim_geo, params) {
@@ -375,7 +374,7 @@ pub fn match_then_fuse_select_features(
             )));
         }
     }
-    matrix::check_masks("match-then-fuse image validity", n, m, Some(vs), Some(vt))?;
+    crate::matrix::check_masks("match-then-fuse image validity", n, m, Some(vs), Some(vt))?;
     if n == 0 || m == 0 {
         return Ok(Some(Vec::new()));
     }

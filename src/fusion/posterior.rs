@@ -13,8 +13,8 @@ use super::fuse::{
     concat_similarity, default_prior, fuse_into, noisy_and_rank_keys, rank_keys_to_posteriors,
     FusionMode,
 };
-use super::matrix::{check_masks, DenseMatrix};
 use super::{FusionParams, ImageSimilarity};
+use crate::matrix::{check_masks, DenseMatrix};
 use crate::{Error, Result};
 
 /// The posteriors of one source point over all target points.

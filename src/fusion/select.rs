@@ -5,8 +5,8 @@
 //! Entries with score <= 0 (invalid, or a vetoed pair) and NaN are never selected. The result
 //! is sorted by (score descending, source, target), so ties have a deterministic order.
 
-use super::matrix::{rows_per_task, DenseMatrix};
 use super::Correspondence;
+use crate::matrix::{rows_per_task, DenseMatrix};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::cmp::Ordering;

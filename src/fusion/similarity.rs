@@ -1,7 +1,7 @@
 //! Cosine similarity of L2-normalised features (paper eq. 2-3, reference §8.1-8.2).
 
-use super::matrix::{rows_per_task, DenseMatrix};
 use crate::features::Features;
+use crate::matrix::{rows_per_task, DenseMatrix};
 use crate::simd::Isa;
 use crate::{Error, Result};
 use rayon::prelude::*;

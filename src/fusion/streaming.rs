@@ -155,7 +155,7 @@ fn row_p_scalar(row: &[f32], mx: f32, it: f32) -> f32 {
 
 /// Each row's maximum and its first position (None: no finite maximum): what
 /// [`row_nn_from_maxima`] needs besides the matrix, for any temperature.
-pub fn row_maxima(sim: &super::matrix::DenseMatrix) -> Vec<Option<(u32, f32)>> {
+pub fn row_maxima(sim: &crate::matrix::DenseMatrix) -> Vec<Option<(u32, f32)>> {
     if sim.cols == 0 {
         return vec![None; sim.rows];
     }
@@ -168,7 +168,7 @@ pub fn row_maxima(sim: &super::matrix::DenseMatrix) -> Vec<Option<(u32, f32)>> {
 /// [`row_nn_from_similarity`] with each row's maximum found before ([`row_maxima`] of `sim`):
 /// one pass over the matrix instead of three; the same correspondences, scores and order.
 pub fn row_nn_from_maxima(
-    sim: &super::matrix::DenseMatrix,
+    sim: &crate::matrix::DenseMatrix,
     maxima: &[Option<(u32, f32)>],
     tau: f32,
 ) -> Result<Vec<Correspondence>> {
@@ -206,7 +206,7 @@ pub fn row_nn_from_maxima(
 /// [`row_nn_posterior`] from a similarity matrix computed before (the inspector keeps it): each
 /// row's best target with its row-softmax probability, in one pass, without another matrix.
 pub fn row_nn_from_similarity(
-    sim: &super::matrix::DenseMatrix,
+    sim: &crate::matrix::DenseMatrix,
     tau: f32,
 ) -> Result<Vec<Correspondence>> {
     check_tau(tau)?;
@@ -404,7 +404,7 @@ mod tests {
     fn rejects_bad_input() {
         assert!(row_nn_posterior(&feats(3, 4, 1), &feats(3, 5, 1), 0.1).is_err());
         assert!(row_nn_posterior(&feats(3, 4, 1), &feats(3, 4, 1), 0.0).is_err());
-        let sim = crate::fusion::matrix::DenseMatrix::zeros(2, 2).unwrap();
+        let sim = crate::matrix::DenseMatrix::zeros(2, 2).unwrap();
         assert!(row_nn_from_similarity(&sim, f32::NAN).is_err());
         assert!(
             row_nn_posterior(&Features::new(4, vec![]), &feats(3, 4, 1), 0.1)

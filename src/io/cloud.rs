@@ -1,4 +1,5 @@
-//! Load or save a point cloud by file extension, and the checks every cloud reader shares.
+//! Load or save a point cloud by file extension (the checks every cloud reader makes are
+//! `validate.rs`, below the readers).
 //!
 //! Extensions (case-insensitive): `.ply`, `.pcd`, `.npy` (an (N,3) float array), `.pth`
 //! (legacy PyTorch pickle of an (N,3) NumPy array), `.bin` (KITTI x,y,z,intensity f32, or
@@ -6,49 +7,11 @@
 //! `.xyz` / `.txt` / `.pts` (whitespace text, x y z per line). Coordinates are taken as stored
 //! (metres for all staged data); no frame change is applied.
 
+pub use super::validate::validate_cloud;
+
 use crate::error::{Error, Result};
 use crate::geometry::cloud::PointCloud;
 use std::path::Path;
-
-/// Checks shared by every reader: at least one point, finite coordinates, and attribute
-/// arrays as long as the point array.
-pub fn validate_cloud(path: &Path, cloud: &PointCloud) -> Result<()> {
-    if cloud.points.is_empty() {
-        return Err(Error::format(
-            path,
-            "points",
-            "at least one point",
-            "an empty cloud",
-        ));
-    }
-    if let Some(i) = cloud
-        .points
-        .iter()
-        .position(|p| !(p.x.is_finite() && p.y.is_finite() && p.z.is_finite()))
-    {
-        let p = cloud.points[i];
-        return Err(Error::format(
-            path,
-            format!("point {i}"),
-            "finite x, y, z",
-            format!("({}, {}, {})", p.x, p.y, p.z),
-        ));
-    }
-    let n = cloud.points.len();
-    let check = |name: &str, len: Option<usize>| match len {
-        Some(l) if l != n => Err(Error::format(
-            path,
-            name,
-            format!("{n} entries (one per point)"),
-            format!("{l}"),
-        )),
-        _ => Ok(()),
-    };
-    check("colors", cloud.colors.as_ref().map(Vec::len))?;
-    check("normals", cloud.normals.as_ref().map(Vec::len))?;
-    check("intensity", cloud.intensity.as_ref().map(Vec::len))?;
-    Ok(())
-}
 
 fn extension(path: &Path) -> String {
     path.extension()

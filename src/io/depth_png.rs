@@ -89,7 +89,7 @@ pub fn decode_image(
 
 /// Write a 16-bit depth PNG (millimetres, 0 = invalid).
 pub fn write_depth_png(path: &Path, depth: &DepthImage) -> Result<()> {
-    crate::error::write_atomic(path, &encode_depth_png(path, depth)?)
+    crate::io::output::write_atomic(path, &encode_depth_png(path, depth)?)
 }
 
 /// The bytes [`write_depth_png`] writes; `path` names the image in errors.

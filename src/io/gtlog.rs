@@ -185,7 +185,7 @@ pub fn format_gt_log(entries: &[GtEntry]) -> String {
 }
 
 pub fn write_gt_log(path: &Path, entries: &[GtEntry]) -> Result<()> {
-    crate::error::write_atomic(path, format_gt_log(entries).as_bytes())
+    crate::io::output::write_atomic(path, format_gt_log(entries).as_bytes())
 }
 
 #[cfg(test)]

@@ -9,7 +9,7 @@
 //! (finite and not negative); otherwise the file is refused with an error that says how to
 //! choose, rather than guessed.
 
-use super::cloud::validate_cloud;
+use super::validate::validate_cloud;
 use crate::error::{Error, Result};
 use crate::geometry::cloud::PointCloud;
 use nalgebra::Point3;
@@ -187,7 +187,7 @@ pub fn write_kitti_bin(path: &Path, cloud: &PointCloud) -> Result<()> {
             out.extend_from_slice(&v.to_le_bytes());
         }
     }
-    crate::error::write_atomic(path, &out)
+    crate::io::output::write_atomic(path, &out)
 }
 
 #[cfg(test)]

@@ -6,10 +6,11 @@
 //! deflated). Clouds are (N,3) arrays of x,y,z in metres; poses are (4,4) homogeneous
 //! matrices, applied as `p' = M * p` (GeoTransformer's `gt.npy` is `ref_from_src`).
 
-use super::cloud::validate_cloud;
-use crate::error::{write_atomic, Error, Result};
+use super::validate::validate_cloud;
+use crate::error::{Error, Result};
 use crate::geometry::cloud::PointCloud;
 use crate::geometry::transform::isometry_from_matrix;
+use crate::io::output::write_atomic;
 use nalgebra::{Isometry3, Matrix4, Point3};
 use std::collections::BTreeMap;
 use std::path::Path;

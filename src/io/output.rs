@@ -316,7 +316,7 @@ pub fn write(path: &Path, kind: OutputKind, force: bool, bytes: &[u8]) -> Result
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default();
-    let tmp = dir.join(format!(".{name}.{}.tmp", crate::error::unique_suffix()));
+    let tmp = dir.join(format!(".{name}.{}.tmp", unique_suffix()));
     let written = (|| -> Result<()> {
         let mut f = std::fs::File::options()
             .write(true)
@@ -471,6 +471,73 @@ pub fn read_json<T: DeserializeOwned>(path: &Path, what: &str) -> Result<T> {
         };
         Error::format(path, what, "JSON written by cgenreg", why)
     })
+}
+
+/// Write `bytes` to `path` atomically: a temporary file in the same directory, then rename.
+/// A reader never sees a half-written file, and a crash leaves the old content in place.
+pub fn write_atomic(path: &std::path::Path, bytes: &[u8]) -> Result<()> {
+    use std::io::Write;
+    let dir = path
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(std::path::Path::new("."));
+    std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let tmp = dir.join(format!(".{name}.{}.tmp", unique_suffix()));
+    {
+        // create_new: a name another writer happens to use is an error, never shared.
+        let mut f = std::fs::File::options()
+            .write(true)
+            .create_new(true)
+            .open(&tmp)
+            .map_err(|e| Error::io(&tmp, e))?;
+        // A full disk fails here: the partial temporary file must not stay behind.
+        if let Err(e) = f.write_all(bytes).and_then(|()| f.sync_all()) {
+            drop(f);
+            let _ = std::fs::remove_file(&tmp);
+            return Err(Error::io(path, e));
+        }
+    }
+    std::fs::rename(&tmp, path).map_err(|e| {
+        let _ = std::fs::remove_file(&tmp);
+        Error::io(path, e)
+    })?;
+    Ok(())
+}
+
+/// A name part no other writer uses at the same time, on this host or another one sharing
+/// the file system: host name, process id, a per-process counter and the clock's nanoseconds
+/// (process ids repeat across hosts and containers).
+pub fn unique_suffix() -> String {
+    use std::sync::atomic::{AtomicU64, Ordering};
+    static N: AtomicU64 = AtomicU64::new(0);
+    static HOST: std::sync::OnceLock<String> = std::sync::OnceLock::new();
+    let host = HOST.get_or_init(|| {
+        let h = std::fs::read_to_string("/proc/sys/kernel/hostname").unwrap_or_default();
+        let h: String = h
+            .trim()
+            .chars()
+            .filter(|c| c.is_ascii_alphanumeric() || *c == '-')
+            .take(32)
+            .collect();
+        if h.is_empty() {
+            "host".into()
+        } else {
+            h
+        }
+    });
+    let nanos = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.subsec_nanos())
+        .unwrap_or(0);
+    format!(
+        "{host}-{}-{}-{nanos:09}",
+        std::process::id(),
+        N.fetch_add(1, Ordering::Relaxed)
+    )
 }
 
 #[cfg(all(test, unix))]

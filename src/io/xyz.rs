@@ -6,9 +6,10 @@
 //! run together on one line far more often than a one-point cloud with attributes, and reading
 //! it as one point would be silently wrong. Coordinates are taken as stored.
 
-use super::cloud::validate_cloud;
-use crate::error::{write_atomic, Error, Result};
+use super::validate::validate_cloud;
+use crate::error::{Error, Result};
 use crate::geometry::cloud::PointCloud;
+use crate::io::output::write_atomic;
 use nalgebra::Point3;
 use std::path::Path;
 

@@ -1,6 +1,9 @@
 //! The geometric branch of one scan: keypoints and features (FPFH computed here, or learned
 //! features read from files). The cached FPFH stage is `stages::geo`.
 
+pub use super::inputs::GeoBranch;
+pub use super::stages::geo::fpfh_branch;
+
 use super::params::{GeoFeatureSource, RegisterParams};
 use super::result::Timer;
 use super::stages::geo_spinnet::{self, SpinNetInput};
@@ -8,48 +11,6 @@ use super::stages::{geo, Ctx};
 use crate::cache::CacheKey;
 use crate::dataset::{Scan, ScanPair};
 use crate::error::{Error, Result};
-use crate::features::fpfh::{compute_fpfh, FpfhParams};
-use crate::features::Features;
-use crate::geometry::knn::KdIndex;
-use crate::geometry::normals::{estimate_normals, orient_towards_viewpoint};
-use crate::geometry::voxel::voxel_downsample;
-use crate::geometry::PointCloud;
-use nalgebra::Point3;
-
-/// Keypoints and their geometric features for one scan.
-#[derive(Clone, Debug)]
-pub struct GeoBranch {
-    pub keypoints: PointCloud,
-    pub features: Features,
-    pub label: String,
-}
-
-/// FPFH on the voxel-downsampled cloud: normals from local PCA (radius 2v, 30 neighbours)
-/// oriented towards the scan origin (the first camera of a fragment), features radius 5v.
-pub fn fpfh_branch(cloud: &PointCloud, voxel: f64) -> Result<GeoBranch> {
-    if cloud.is_empty() {
-        return Err(Error::Invalid(
-            "cannot compute FPFH of an empty cloud".into(),
-        ));
-    }
-    let mut kp = voxel_downsample(cloud, voxel);
-    let index = KdIndex::new(&kp.points);
-    let params = FpfhParams::for_voxel(voxel);
-    let mut normals = estimate_normals(
-        &kp.points,
-        &index,
-        params.normal_radius,
-        params.normal_max_nn,
-    );
-    orient_towards_viewpoint(&kp.points, &mut normals, Point3::origin());
-    let features = compute_fpfh(&kp.points, &normals, &index, &params);
-    kp.normals = Some(normals);
-    Ok(GeoBranch {
-        keypoints: kp,
-        features,
-        label: format!("fpfh(v={voxel:.3})"),
-    })
-}
 
 /// What the `geo-spinnet` stage reads for `params` (its settings), when SpinNet is the
 /// geometric branch.

@@ -11,10 +11,11 @@
 pub use super::stages::depth_video::depth_video_clip;
 
 use super::geo::cached_branch;
+use super::graph::{Plan, StageName};
+use super::inputs::PairViews;
 use super::memo::Memo;
 use super::params::ImageBranchParams;
-use super::plan::{Plan, StageName};
-use super::register::Registration;
+use super::registration::Registration;
 use super::result::{ImageBranchOutput, RegistrationResult, ViewInfo};
 use super::stages::depth_video::frames_of;
 use super::stages::generation::{short_prompt, Generated};
@@ -24,7 +25,6 @@ use super::stages::vfm::SideViews;
 use super::stages::virtual_frames::{camera_coverage_warnings, framed_pair, FrameStore};
 use super::stages::{depth_video, generation, image_points, lift, pair_vfm, vfm, view_select, Ctx};
 use super::tail::{fuse_and_finish, FusionInputs, ImageInputs};
-use super::visibility::PairViews;
 use crate::cache::{Cache, CacheKey};
 use crate::dataset::{FrameSet, ScanPair};
 use crate::error::Result;

@@ -272,6 +272,12 @@ pub enum WfmSpec {
 }
 
 impl WfmSpec {
+    /// Whether each frame is a function of its own depth (or colour) frame (the built-in
+    /// shading, the oracle): no depth video, only the selected views are drawn.
+    pub fn frame_by_frame(&self) -> bool {
+        matches!(self, WfmSpec::Builtin | WfmSpec::Oracle)
+    }
+
     /// Every backend, the ones with files or a command with empty ones (the user fills them).
     pub fn all() -> [WfmSpec; 4] {
         [

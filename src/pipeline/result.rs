@@ -1,7 +1,9 @@
 //! What a registration produces (result, views, stage timings) and the timer that records
 //! the stages. A leaf module: the stages and the registration entry points all use it.
 
-use super::plan::StageName;
+use super::arbitration::{ScaleReport, VisibilityReport};
+use super::graph::{Plan, StageName};
+use super::inputs::FusionInputs;
 use crate::error::Result;
 use crate::fusion::Correspondence;
 use crate::metrics::PairMetrics;
@@ -98,20 +100,20 @@ pub struct RegistrationResult {
     pub union: Option<crate::fusion::union::UnionReport>,
     /// The `visibility` fusion's report: every candidate pose's score and the one kept.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub visibility: Option<super::visibility::VisibilityReport>,
+    pub visibility: Option<VisibilityReport>,
     /// The scale search's report: every hypothesis's voxel and visibility, and the one kept.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub scales: Option<super::scales::ScaleReport>,
+    pub scales: Option<ScaleReport>,
     /// The in-memory tail's inputs, when the registration kept them
     /// ([`super::Registration::keep`]): what a re-fusion, the correspondence export and the
     /// posterior inspector recompute from.
     #[serde(skip)]
-    pub inputs: Option<std::sync::Arc<super::tail::FusionInputs>>,
+    pub inputs: Option<std::sync::Arc<FusionInputs>>,
     /// The plan this registration ran, every key filled as its step ran (None for a re-fusion
     /// from memory, whose caller keeps the plan): what a later settings change is compared
-    /// with ([`super::plan::Plan::invalidated_by`]).
+    /// with ([`Plan::invalidated_by`]).
     #[serde(skip)]
-    pub plan: Option<super::plan::Plan>,
+    pub plan: Option<Plan>,
 }
 
 impl RegistrationResult {

@@ -12,74 +12,23 @@
 //! a tie goes to the finest voxel (the preset's own). The protocol that fixed all of this is
 //! in docs/outdoor.md, "Scale hypotheses".
 
+pub use super::arbitration::{ScaleHypothesis, ScaleReport};
+
+use super::graph::{Plan, StageName};
+use super::inputs::PairViews;
 use super::params::{LidarOrigin, RegisterParams, VirtualCamera};
-use super::register::Registration;
-use super::result::{RegistrationResult, StageTiming};
+use super::registration::Registration;
+use super::result::{status_word, RegistrationResult, StageTiming};
 use super::stages::virtual_frames::{virtual_frames, FrameStore};
-use super::visibility::{choose, PairViews};
+use super::tail::visibility::choose;
 use crate::camera::visibility::both_ways;
 use crate::dataset::{FrameSet, Scan, ScanPair};
 use crate::error::{Error, Result};
 use crate::estimate::scale::Scaled;
-use serde::{Deserialize, Serialize};
 use std::time::Instant;
 
 /// f-theta cameras per scan for the views (90° apart: 360° with the 180° camera).
 pub const VIEW_CAMERAS: usize = 4;
-
-/// One hypothesis's voxel and visibility.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct ScaleHypothesis {
-    pub voxel: f64,
-    pub consistent: usize,
-    pub conflict: usize,
-    /// consistent - conflict.
-    pub score: i64,
-    /// The estimator's inliers at this hypothesis's own threshold.
-    pub inliers: usize,
-}
-
-/// What the scale search compared and kept: the result's provenance.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct ScaleReport {
-    pub chosen_voxel: f64,
-    /// Every hypothesis, finest first.
-    pub hypotheses: Vec<ScaleHypothesis>,
-    /// The points scored (the finest hypothesis's keypoints) and the distance (its inlier
-    /// threshold, m).
-    pub scored_voxel: f64,
-    pub theta: f64,
-    pub source_views: usize,
-    pub target_views: usize,
-}
-
-impl ScaleReport {
-    /// "scales: kept voxel 1.2 m of 0.3, 0.6, 1.2 m (V = consistent - conflicting keypoints
-    /// of voxel 0.3 m within 0.6 m, in 4 + 4 depth views: 0.3 m -1210, 0.6 m -800, 1.2 m 2310)".
-    pub fn provenance(&self) -> String {
-        let voxels: Vec<String> = self
-            .hypotheses
-            .iter()
-            .map(|h| format!("{}", h.voxel))
-            .collect();
-        let scores: Vec<String> = self
-            .hypotheses
-            .iter()
-            .map(|h| format!("{} m {}", h.voxel, h.score))
-            .collect();
-        format!(
-            "scales: kept voxel {} m of {} m (V = consistent - conflicting keypoints of voxel \
-             {} m within {} m, in {} + {} depth views: {})",
-            self.chosen_voxel,
-            voxels.join(", "),
-            self.scored_voxel,
-            self.theta,
-            self.source_views,
-            self.target_views,
-            scores.join(", ")
-        )
-    }
-}
 
 /// The voxels of the hypotheses: `params.voxel` times 1, 2, 4, ... (`params.scales` of them,
 /// at least one).
@@ -132,7 +81,7 @@ fn scan_views(store: &mut FrameStore, scan: &Scan, warnings: &mut Vec<String>) -
 }
 
 /// The scale search of `pair` under `reg` (`reg.params.scales` > 1): every hypothesis
-/// registered through [`Registration::run`], the one with the largest visibility kept.
+/// registered by the single run (`run.rs`), the one with the largest visibility kept.
 pub(crate) fn register(reg: &Registration, pair: &ScanPair) -> Result<RegistrationResult> {
     let t0 = Instant::now();
     let voxels = voxels(reg.params);
@@ -147,7 +96,7 @@ pub(crate) fn register(reg: &Registration, pair: &ScanPair) -> Result<Registrati
             keep: reg.keep,
             generate: reg.generate,
         };
-        results.push(one.run(pair)?);
+        results.push(one.run_plan(Plan::skeleton(pair, &p), pair)?);
     }
 
     let t = Instant::now();
@@ -217,9 +166,9 @@ pub(crate) fn register(reg: &Registration, pair: &ScanPair) -> Result<Registrati
     }
     timings.push(StageTiming {
         stage: "scales: visibility".into(),
-        name: Some(super::plan::StageName::Fusion),
+        name: Some(StageName::Fusion),
         ms: arbitration_ms,
-        status: super::result::status_word(false).into(),
+        status: status_word(false).into(),
     });
     let mut res = results.swap_remove(k);
     res.timings = timings;

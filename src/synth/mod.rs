@@ -168,7 +168,7 @@ fn write_color_png(path: &Path, w: u32, h: u32, rgb: Vec<u8>) -> Result<()> {
             what: format!("png encoder for {}", path.display()),
             message: e.to_string(),
         })?;
-    crate::error::write_atomic(path, &out)
+    crate::io::output::write_atomic(path, &out)
 }
 
 /// Render the demo into `dir` (`target/`, `source/`, `demo.toml`) and return the manifest path.
@@ -192,7 +192,7 @@ pub fn write_demo(dir: &Path, params: &DemoParams) -> Result<PathBuf> {
     for (s, name) in names.iter().enumerate() {
         let sd = dir.join(name);
         std::fs::create_dir_all(&sd).map_err(|e| Error::io(&sd, e))?;
-        crate::error::write_atomic(&sd.join("camera-intrinsics.txt"), kfile.as_bytes())?;
+        crate::io::output::write_atomic(&sd.join("camera-intrinsics.txt"), kfile.as_bytes())?;
         // Frames in sequence; each render is parallel over rows.
         for i in 0..params.frames {
             let pose = camera_path(frame_param(s, i, params.frames));
@@ -203,7 +203,7 @@ pub fn write_demo(dir: &Path, params: &DemoParams) -> Result<PathBuf> {
             let stem = sd.join(format!("frame-{i:06}"));
             write_depth_png(&stem.with_extension("depth.png"), &depth)?;
             write_color_png(&stem.with_extension("color.png"), k.width, k.height, rgb)?;
-            crate::io::camera_txt::write_pose(&stem.with_extension("pose.txt"), &pose)?;
+            crate::camera::camera_txt::write_pose(&stem.with_extension("pose.txt"), &pose)?;
         }
     }
     let gt = camera_path(frame_param(0, 0, params.frames)).inverse()
@@ -246,7 +246,7 @@ gt_matrix = {gt}
         gt = crate::dataset::manifest::gt_matrix_toml(&gt),
     );
     let path = dir.join("demo.toml");
-    crate::error::write_atomic(&path, manifest.as_bytes())?;
+    crate::io::output::write_atomic(&path, manifest.as_bytes())?;
     Ok(path)
 }
 

@@ -14,9 +14,9 @@
 //! grid the pipeline caches per view) samples the map at the centres of `grid_stride`-pixel cells
 //! ([`DEFAULT_GRID_STRIDE`]) before dropping it; [`DenseModel::describe_full`] keeps every pixel.
 
-use super::runtime::{file_id, OnnxModel};
 use super::{axis, normalize, DenseDescriptors, PerImageModel, PointDescriptors};
 use crate::error::{Error, Result};
+use crate::onnx::{file_id, OnnxModel};
 use image::RgbImage;
 use std::path::Path;
 
@@ -103,7 +103,7 @@ impl DenseModel {
     /// [`Error::NeedsNativeRuntime`].
     pub fn load(path: &Path, kind: DenseKind) -> Result<DenseModel> {
         let expected = kind.expected();
-        let on_tract = super::runtime::backend_info()?.kind == "tract";
+        let on_tract = crate::onnx::backend_info()?.kind == "tract";
         // an input like any other: a FIFO or device would block or never end the read
         crate::io::limits::check_regular(path)?;
         let model = match OnnxModel::load(path, &[INPUT], &[OUTPUT], &expected) {

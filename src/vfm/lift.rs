@@ -14,22 +14,11 @@
 //! distinct depth pixel once, linked to the first (smallest row, then column) image pixel that
 //! copies it; the reference leaves that tie to cKDTree's internals.
 
-use crate::camera::CameraModel;
+use crate::camera::DepthView;
 use crate::error::{Error, Result};
-use crate::io::depth_png::DepthImage;
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
-use nalgebra::{Isometry3, Point3};
+use nalgebra::Point3;
 use rayon::prelude::*;
-
-/// One view to lift: sensor depth, its camera, and its pose in the fragment's frame.
-#[derive(Clone, Copy, Debug)]
-pub struct LiftView<'a> {
-    pub depth: &'a DepthImage,
-    /// p_scan = scan_from_camera · p_camera.
-    pub scan_from_camera: Isometry3<f64>,
-    /// Pinhole (depth = z) or f-theta (depth = range along the ray).
-    pub camera: &'a CameraModel,
-}
 
 /// A pixel of the generated image of view `view` (column u, row v).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -56,7 +45,7 @@ fn nearest_first(src: u32, dst: u32) -> Vec<(u32, u32)> {
 
 /// Back-projected, nearest-resized valid pixels of all views: (point, link).
 pub fn lifted_pixels(
-    views: &[LiftView],
+    views: &[DepthView],
     image_size: (u32, u32),
     max_depth: f32,
 ) -> Result<Vec<([f32; 3], PixelLink)>> {
@@ -121,7 +110,7 @@ pub fn lifted_pixels(
 
 /// For every geometric point, the nearest lifted pixel over all views within `radius` (m).
 pub fn lift_views(
-    views: &[LiftView],
+    views: &[DepthView],
     geo_points: &[Point3<f32>],
     radius: f32,
     image_size: (u32, u32),
@@ -153,8 +142,9 @@ pub fn lift_views(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::camera::Intrinsics;
-    use nalgebra::{Translation3, UnitQuaternion, Vector3};
+    use crate::camera::{CameraModel, Intrinsics};
+    use crate::io::depth_png::DepthImage;
+    use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 
     fn intr() -> Intrinsics {
         Intrinsics {
@@ -221,10 +211,10 @@ mod tests {
     fn lift_matches_brute_force() {
         let depths: Vec<DepthImage> = (0..4).map(depth).collect();
         let cam = CameraModel::Pinhole(intr());
-        let views: Vec<LiftView> = depths
+        let views: Vec<DepthView> = depths
             .iter()
             .enumerate()
-            .map(|(i, d)| LiftView {
+            .map(|(i, d)| DepthView {
                 depth: d,
                 scan_from_camera: pose(i),
                 camera: &cam,
@@ -279,13 +269,13 @@ mod tests {
             UnitQuaternion::from_axis_angle(&Vector3::y_axis(), std::f64::consts::PI),
         );
         let views = [
-            LiftView {
+            DepthView {
                 depth: &d,
                 scan_from_camera: Isometry3::identity(),
                 camera: &k,
             },
             // looks the other way: its wall is at z = -2 in the fragment
-            LiftView {
+            DepthView {
                 depth: &d,
                 scan_from_camera: second,
                 camera: &k,
@@ -343,7 +333,7 @@ mod tests {
             height: 480,
             data,
         };
-        let v = [LiftView {
+        let v = [DepthView {
             depth: &d,
             scan_from_camera: Isometry3::identity(),
             camera: &k,
@@ -357,7 +347,7 @@ mod tests {
             height: 480,
             data: vec![0; 640 * 480],
         };
-        let v = [LiftView {
+        let v = [DepthView {
             depth: &empty,
             scan_from_camera: Isometry3::identity(),
             camera: &k,
@@ -388,7 +378,7 @@ mod tests {
         let cam = CameraModel::FTheta(FThetaCamera::equidistant(320, 160, 180.0));
         let camera_from_scan = lidar_front_camera_from_scan(0.0);
         let d = cam.render_depth(&pts, &camera_from_scan);
-        let views = [LiftView {
+        let views = [DepthView {
             depth: &d,
             scan_from_camera: camera_from_scan.inverse(),
             camera: &cam,

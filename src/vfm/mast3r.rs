@@ -17,9 +17,9 @@
 //! The image crate's Lanczos3 is separable with an f32 intermediate; PIL rounds to u8 between
 //! its two passes, so inputs can differ from the reference by about one grey level.
 
-use super::runtime::{file_id, OnnxModel};
 use super::{preprocess, DenseDescriptors, PairModel};
 use crate::error::{Error, Result};
+use crate::onnx::{file_id, OnnxModel};
 use image::RgbImage;
 use std::path::Path;
 

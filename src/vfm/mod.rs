@@ -25,7 +25,6 @@ pub mod lift;
 pub mod mast3r;
 pub mod pair_similarity;
 #[cfg(feature = "onnx")]
-pub mod runtime;
 #[cfg(feature = "onnx")]
 pub mod xfeat;
 
@@ -258,7 +257,7 @@ pub fn describe_all_pairs(
 pub fn backend_name() -> String {
     #[cfg(feature = "onnx")]
     {
-        runtime::backend_name()
+        crate::onnx::backend_name()
     }
     #[cfg(not(feature = "onnx"))]
     {

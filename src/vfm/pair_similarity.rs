@@ -9,7 +9,7 @@
 use super::lift::PixelLink;
 use super::DenseDescriptors;
 use crate::error::{Error, Result};
-use crate::fusion::matrix::DenseMatrix;
+use crate::matrix::DenseMatrix;
 use rayon::prelude::*;
 
 /// Unit descriptors at the linked pixels, for every partner view.

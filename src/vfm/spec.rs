@@ -46,6 +46,11 @@ pub enum VfmSpec {
 }
 
 impl VfmSpec {
+    /// Whether the model describes both scans' views jointly (MASt3R), not one image at a time.
+    pub fn is_pair_conditioned(&self) -> bool {
+        matches!(self, VfmSpec::Mast3r { .. })
+    }
+
     /// Whether this VFM has a descriptor at every pixel (DISK, ALIKE): the one kind that reads
     /// the image branch's `dense_stride` (`pipeline::ImageBranchParams`).
     pub fn is_dense(&self) -> bool {

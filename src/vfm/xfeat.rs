@@ -9,9 +9,9 @@
 //! half-pixel centres, as XFeat's own `preprocess_tensor`); the descriptor grid's strides record
 //! the mapping back to the original pixels (exactly 8 when no resize was needed).
 
-use super::runtime::{file_id, OnnxModel};
 use super::{preprocess, DenseDescriptors, PerImageModel};
 use crate::error::{Error, Result};
+use crate::onnx::{file_id, OnnxModel};
 use image::RgbImage;
 use std::path::Path;
 

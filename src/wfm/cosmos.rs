@@ -23,7 +23,8 @@
 use super::backend::{now_unix, sanitize, GenerateRequest, Generation, Provenance, WfmBackend};
 use super::prompt::{to_ascii_json, BatchLine};
 use super::video::{read_mp4_frames, write_mp4_h264};
-use crate::error::{write_atomic, Error, Result};
+use crate::error::{Error, Result};
+use crate::io::output::write_atomic;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::sync::atomic::{AtomicUsize, Ordering};

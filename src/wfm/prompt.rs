@@ -364,7 +364,7 @@ pub fn write_batch_jsonl(
         text.push_str(&line.to_json_line());
         text.push('\n');
     }
-    crate::error::write_atomic(path, text.as_bytes())
+    crate::io::output::write_atomic(path, text.as_bytes())
 }
 
 #[cfg(test)]

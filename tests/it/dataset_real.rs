@@ -1,9 +1,9 @@
 //! Dataset tests on the staged real data (skipped when it is missing, failing under CI=true).
 
+use cgenreg::camera::camera_txt::read_numbers;
 use cgenreg::dataset::fragment::{build_fragment, CropBox, FRAGMENT_LEN};
+use cgenreg::dataset::rgbd_sequence::RgbdSequence;
 use cgenreg::dataset::{pair_from_files, Dataset};
-use cgenreg::io::camera_txt::read_numbers;
-use cgenreg::io::rgbd_sequence::RgbdSequence;
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use nalgebra::{Matrix4, Point3};
 use rayon::prelude::*;

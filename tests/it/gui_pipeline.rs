@@ -491,7 +491,7 @@ fn write_two_clouds(dir: &Path) -> nalgebra::Isometry3<f64> {
     source.normals = None;
     cgenreg::io::cloud::save_cloud(&dir.join("tgt.ply"), &target).unwrap();
     cgenreg::io::cloud::save_cloud(&dir.join("src.ply"), &source).unwrap();
-    cgenreg::io::camera_txt::write_pose(&dir.join("gt.txt"), &t).unwrap();
+    cgenreg::camera::camera_txt::write_pose(&dir.join("gt.txt"), &t).unwrap();
     t
 }
 

@@ -201,7 +201,7 @@ fn read_app() -> AppSource {
 }
 
 /// A cycle of the unit graph, if there is one.
-fn find_cycle(deps: &BTreeMap<String, BTreeSet<String>>) -> Option<Vec<String>> {
+pub(crate) fn find_cycle(deps: &BTreeMap<String, BTreeSet<String>>) -> Option<Vec<String>> {
     fn visit(
         u: &str,
         deps: &BTreeMap<String, BTreeSet<String>>,

@@ -10,9 +10,9 @@
 //!   see the data's MANIFEST), as in the Python check.
 #![cfg(feature = "onnx")]
 
+use cgenreg::dataset::rgbd_sequence::RgbdSequence;
 use cgenreg::io::depth_png::read_depth_png;
 use cgenreg::io::npy::{read_npy, NpyData};
-use cgenreg::io::rgbd_sequence::RgbdSequence;
 use cgenreg::vfm::dense::{DenseKind, DenseModel};
 use cgenreg::vfm::{default_model_path, PerImageModel};
 use std::path::PathBuf;

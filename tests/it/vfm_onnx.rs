@@ -185,7 +185,7 @@ fn xfeat_matches_agree_with_depth_and_poses_on_real_frames() {
         return;
     };
     let dir = root.join("7scenes-redkitchen-rgbd");
-    let seq = cgenreg::io::rgbd_sequence::RgbdSequence::open(&dir).unwrap();
+    let seq = cgenreg::dataset::rgbd_sequence::RgbdSequence::open(&dir).unwrap();
     let k = seq.intrinsics().unwrap();
     let model = XFeat::load_default().unwrap();
     let load = |i: usize| {

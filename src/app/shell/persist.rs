@@ -101,7 +101,7 @@ fn is_old_settings_file(bytes: &[u8]) -> bool {
 
 pub fn save_persisted(path: &Path, p: &Persisted) -> Result<(), String> {
     let bytes = serde_json::to_vec_pretty(p).map_err(|e| e.to_string())?;
-    crate::error::write_atomic(path, &bytes).map_err(|e| e.to_string())
+    crate::io::output::write_atomic(path, &bytes).map_err(|e| e.to_string())
 }
 
 #[cfg(test)]

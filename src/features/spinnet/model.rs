@@ -14,7 +14,7 @@ use super::neighbourhood::PatchSource;
 use super::{grid, patch, Protocol, DIM};
 use crate::error::{Error, Result};
 use crate::features::Features;
-use crate::vfm::runtime::{file_id, OnnxModel};
+use crate::onnx::{file_id, OnnxModel};
 use nalgebra::Point3;
 use rayon::prelude::*;
 use std::path::Path;

@@ -16,9 +16,9 @@ use serde_json::json;
 use std::path::PathBuf;
 use std::time::Instant;
 
-pub const STAGE: &str = "depth-video";
+pub const STAGE: &str = NAME.key_name();
 pub const VERSION: u32 = 1;
-pub const NAME: crate::pipeline::plan::StageName = crate::pipeline::plan::StageName::DepthVideo;
+pub const NAME: crate::pipeline::graph::StageName = crate::pipeline::graph::StageName::DepthVideo;
 
 /// What the stage reads of the settings: L, the frames per fragment.
 pub fn settings(ib: &crate::pipeline::params::ImageBranchParams) -> usize {

@@ -27,9 +27,9 @@ use serde_json::json;
 use std::path::PathBuf;
 use std::time::Instant;
 
-pub const STAGE: &str = "generation";
+pub const STAGE: &str = NAME.key_name();
 pub const VERSION: u32 = 1;
-pub const NAME: crate::pipeline::plan::StageName = crate::pipeline::plan::StageName::Generation;
+pub const NAME: crate::pipeline::graph::StageName = crate::pipeline::graph::StageName::Generation;
 
 #[derive(Serialize, Deserialize)]
 pub(crate) struct GenMeta {
@@ -395,7 +395,7 @@ pub(crate) fn run(
 /// that only the selected views need drawing ([`run_views`]): the built-in shading and the
 /// oracle's real RGB. A real world model (Cosmos, its cached outputs) generates the whole video.
 pub(crate) fn frame_by_frame(spec: &WfmSpec) -> bool {
-    matches!(spec, WfmSpec::Builtin | WfmSpec::Oracle)
+    spec.frame_by_frame()
 }
 
 /// The sides in the order of a frame-by-frame generation's keys.

@@ -1,19 +1,23 @@
 //! Stage `geo-fpfh`: keypoints, normals and FPFH of one scan
-//! ([`crate::pipeline::geo::fpfh_branch`]). Key: the cloud's content hash; parameters: the
+//! ([`fpfh_branch`]). Key: the cloud's content hash; parameters: the
 //! voxel size and the point count.
 
 use super::{cloud_hash, points_flat, points_from, Ctx};
 use crate::cache::{Cache, CacheKey, Entry};
 use crate::dataset::Scan;
 use crate::error::{Error, Result};
+use crate::features::fpfh::{compute_fpfh, FpfhParams};
+use crate::geometry::knn::KdIndex;
+use crate::geometry::normals::{estimate_normals, orient_towards_viewpoint};
+use crate::geometry::voxel::voxel_downsample;
 use crate::geometry::PointCloud;
-use crate::pipeline::geo::{fpfh_branch, GeoBranch};
+use crate::pipeline::graph::StageName;
+use crate::pipeline::inputs::GeoBranch;
 use crate::pipeline::params::RegisterParams;
-use crate::pipeline::plan::StageName;
 use nalgebra::Point3;
 use serde_json::json;
 
-pub const STAGE: &str = "geo-fpfh";
+pub const STAGE: &str = NAME.key_name();
 pub const VERSION: u32 = 1;
 pub const NAME: StageName = StageName::Geo;
 
@@ -105,4 +109,31 @@ pub(crate) fn run(
         |g, c, k| store(g, scan, c, k),
     )?;
     Ok((g, key))
+}
+
+/// FPFH on the voxel-downsampled cloud: normals from local PCA (radius 2v, 30 neighbours)
+/// oriented towards the scan origin (the first camera of a fragment), features radius 5v.
+pub fn fpfh_branch(cloud: &PointCloud, voxel: f64) -> Result<GeoBranch> {
+    if cloud.is_empty() {
+        return Err(Error::Invalid(
+            "cannot compute FPFH of an empty cloud".into(),
+        ));
+    }
+    let mut kp = voxel_downsample(cloud, voxel);
+    let index = KdIndex::new(&kp.points);
+    let params = FpfhParams::for_voxel(voxel);
+    let mut normals = estimate_normals(
+        &kp.points,
+        &index,
+        params.normal_radius,
+        params.normal_max_nn,
+    );
+    orient_towards_viewpoint(&kp.points, &mut normals, Point3::origin());
+    let features = compute_fpfh(&kp.points, &normals, &index, &params);
+    kp.normals = Some(normals);
+    Ok(GeoBranch {
+        keypoints: kp,
+        features,
+        label: format!("fpfh(v={voxel:.3})"),
+    })
 }

@@ -9,7 +9,7 @@ use crate::dataset::Scan;
 use crate::error::{Error, Result};
 use crate::features::spinnet::{keypoints, Protocol};
 use crate::geometry::PointCloud;
-use crate::pipeline::geo::GeoBranch;
+use crate::pipeline::inputs::GeoBranch;
 use crate::pipeline::memo::Memo;
 use serde_json::json;
 use std::path::Path;
@@ -17,7 +17,7 @@ use std::path::Path;
 pub const STAGE: &str = "geo-spinnet";
 pub const VERSION: u32 = 1;
 /// Instead of `geo-fpfh`: the same stage of the graph.
-pub const NAME: crate::pipeline::plan::StageName = crate::pipeline::plan::StageName::Geo;
+pub const NAME: crate::pipeline::graph::StageName = crate::pipeline::graph::StageName::Geo;
 /// The seed of the keypoint subset and of the patch draws.
 pub const SEED: u64 = 0;
 

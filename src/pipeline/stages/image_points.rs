@@ -12,9 +12,9 @@ use crate::vfm::lift::PixelLink;
 use rayon::prelude::*;
 use serde_json::json;
 
-pub const STAGE: &str = "image-points";
+pub const STAGE: &str = NAME.key_name();
 pub const VERSION: u32 = 2;
-pub const NAME: crate::pipeline::plan::StageName = crate::pipeline::plan::StageName::ImagePoints;
+pub const NAME: crate::pipeline::graph::StageName = crate::pipeline::graph::StageName::ImagePoints;
 
 /// (source descriptors, valid, target descriptors, valid).
 pub(crate) type Pts = (Features, Vec<bool>, Features, Vec<bool>);

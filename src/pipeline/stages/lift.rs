@@ -7,18 +7,19 @@ use super::depth_video::LIDAR_MAX_RANGE;
 use super::Ctx;
 use crate::cache::{Cache, CacheKey, Entry};
 use crate::camera::CameraModel;
+use crate::camera::DepthView;
 use crate::dataset::FrameSet;
 use crate::error::{Error, Result};
+use crate::pipeline::graph::StageName;
 use crate::pipeline::memo::Memo;
 use crate::pipeline::params::{ImageBranchParams, RegisterParams};
-use crate::pipeline::plan::StageName;
-use crate::vfm::lift::{lift_views, LiftView, PixelLink};
+use crate::vfm::lift::{lift_views, PixelLink};
 use nalgebra::Point3;
 use rayon::prelude::*;
 use serde_json::json;
 use std::path::Path;
 
-pub const STAGE: &str = "lift";
+pub const STAGE: &str = NAME.key_name();
 pub const VERSION: u32 = 1;
 pub const NAME: StageName = StageName::Lift;
 
@@ -161,10 +162,10 @@ fn compute(
         .map(|&j| crate::io::depth_png::read_depth_png(paths[j]))
         .collect::<Result<_>>()?;
     let fs = inp.frames;
-    let views: Vec<LiftView> = depths
+    let views: Vec<DepthView> = depths
         .iter()
         .zip(&unique)
-        .map(|(d, &j)| LiftView {
+        .map(|(d, &j)| DepthView {
             depth: d,
             scan_from_camera: fs.frames[inp.depth_idx[j]].scan_from_camera,
             camera: &fs.camera,

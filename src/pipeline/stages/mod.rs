@@ -37,7 +37,7 @@ pub mod vfm;
 pub mod view_select;
 pub mod virtual_frames;
 
-pub use super::plan::{invalidated, StageName};
+pub use super::graph::StageName;
 
 use super::memo::Memo;
 use super::result::Timer;

@@ -14,9 +14,9 @@ use crate::wfm::ViewSelection;
 use image::RgbImage;
 use serde_json::json;
 
-pub const STAGE: &str = "image-points-pair";
+pub const STAGE: &str = NAME.key_name();
 pub const VERSION: u32 = 1;
-pub const NAME: crate::pipeline::plan::StageName = crate::pipeline::plan::StageName::PairVfm;
+pub const NAME: crate::pipeline::graph::StageName = crate::pipeline::graph::StageName::PairVfm;
 
 pub fn key(
     lift_keys: (&CacheKey, &CacheKey),

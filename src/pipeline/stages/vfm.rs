@@ -21,14 +21,14 @@ use std::path::Path;
 use std::sync::Arc;
 use std::time::Instant;
 
-pub const STAGE: &str = "vfm-view";
+pub const STAGE: &str = NAME.key_name();
 pub const VERSION: u32 = 2;
-pub const NAME: crate::pipeline::plan::StageName = crate::pipeline::plan::StageName::Vfm;
+pub const NAME: crate::pipeline::graph::StageName = crate::pipeline::graph::StageName::Vfm;
 
 /// Whether `spec` describes views jointly (pair-conditioned: the `pair_vfm` stage) rather
 /// than one at a time (this stage).
 pub fn is_pair_conditioned(spec: &VfmSpec) -> bool {
-    matches!(spec, VfmSpec::Mast3r { .. })
+    spec.is_pair_conditioned()
 }
 
 /// The per-image model of `spec` (cache id `vfm_id`), loaded once per `memo` (bench

@@ -11,9 +11,9 @@ use serde_json::json;
 use std::time::Instant;
 
 /// The stage's name in key comparisons (it is not cached: no folder of that name).
-pub const STAGE: &str = "view-selection";
+pub const STAGE: &str = NAME.key_name();
 pub const VERSION: u32 = 1;
-pub const NAME: crate::pipeline::plan::StageName = crate::pipeline::plan::StageName::ViewSelect;
+pub const NAME: crate::pipeline::graph::StageName = crate::pipeline::graph::StageName::ViewSelect;
 
 /// The selection's key: L, m and K, and the generated video's length.
 pub fn key(ib: &ImageBranchParams, n_generated: usize) -> Result<CacheKey> {

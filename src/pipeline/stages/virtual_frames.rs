@@ -31,10 +31,11 @@ use serde::{Deserialize, Serialize};
 use serde_json::{json, Value};
 use std::path::Path;
 
-pub const STAGE: &str = "virtual-frames";
+pub const STAGE: &str = NAME.key_name();
 /// 2: a cache entry with a manifest (1 was a bare folder).
 pub const VERSION: u32 = 2;
-pub const NAME: crate::pipeline::plan::StageName = crate::pipeline::plan::StageName::VirtualFrames;
+pub const NAME: crate::pipeline::graph::StageName =
+    crate::pipeline::graph::StageName::VirtualFrames;
 
 /// What the stage reads of the settings for `scan`: L, the camera (resolved for this scan),
 /// the number of f-theta cameras and where their rig stands.

@@ -130,7 +130,7 @@ pub fn save_plot_csvs(dir: &Path, model: &InspectorModel) -> crate::Result<Vec<P
         .into_iter()
         .map(|(name, text)| {
             let p = dir.join(format!("{name}.csv"));
-            crate::error::write_atomic(&p, text.as_bytes()).map(|_| p)
+            crate::io::output::write_atomic(&p, text.as_bytes()).map(|_| p)
         })
         .collect()
 }
@@ -158,7 +158,7 @@ pub fn save_plot_pngs(
         img.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
             .map_err(|e| crate::Error::Encode(format!("encoding {name}.png: {e}")))?;
         let p = dir.join(format!("{name}.png"));
-        crate::error::write_atomic(&p, &png)?;
+        crate::io::output::write_atomic(&p, &png)?;
         out.push(p);
     }
     Ok(out)

@@ -2,9 +2,7 @@
 //! geometric branch's own (row NN) correspondences from the same inputs, merged
 //! ([`crate::fusion::union::merge`]), one estimate, and the result with its provenance.
 
-use super::params::RegisterParams;
-use super::result::{RegistrationResult, Timer};
-use super::tail::{
+use super::common::{
     finish, geometry_correspondences, image_correspondences, similarities, EstimateMemo,
     FusionInputs, ImageInputs, Similarities, STREAM_ENTRIES,
 };
@@ -12,6 +10,8 @@ use crate::dataset::ScanPair;
 use crate::error::{Error, Result};
 use crate::fusion::union::{merge, UnionReport};
 use crate::fusion::{Correspondence, FusionMode, FusionParams, Selection};
+use crate::pipeline::params::RegisterParams;
+use crate::pipeline::result::{RegistrationResult, Timer};
 use std::time::Instant;
 
 /// The geometric set of the union: the geometric branch alone with row nearest neighbours

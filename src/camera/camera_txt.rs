@@ -178,7 +178,7 @@ pub fn write_pose(path: &Path, t: &Isometry3<f64>) -> Result<()> {
         s.push_str(&row.join(" "));
         s.push('\n');
     }
-    crate::error::write_atomic(path, s.as_bytes())
+    crate::io::output::write_atomic(path, s.as_bytes())
 }
 
 #[cfg(test)]

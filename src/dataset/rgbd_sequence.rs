@@ -86,8 +86,8 @@ impl RgbdSequence {
 
     /// Intrinsics; the image size is taken from the first depth frame.
     pub fn intrinsics(&self) -> Result<Intrinsics> {
-        let d = super::depth_png::read_depth_png(&self.frames[0].depth)?;
-        super::camera_txt::read_intrinsics(&self.intrinsics_path, d.width, d.height)
+        let d = crate::io::depth_png::read_depth_png(&self.frames[0].depth)?;
+        crate::camera::camera_txt::read_intrinsics(&self.intrinsics_path, d.width, d.height)
     }
 
     /// Camera-to-world pose of a frame.
@@ -103,6 +103,6 @@ impl RgbdSequence {
                 "missing",
             )
         })?;
-        super::camera_txt::read_pose(p)
+        crate::camera::camera_txt::read_pose(p)
     }
 }

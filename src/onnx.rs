@@ -1,4 +1,5 @@
-//! ONNX Runtime backend selection and session loading.
+//! ONNX Runtime backend selection and session loading: the one ONNX module, shared by the
+//! geometric branch (SpinNet) and the image branch (the VFMs).
 //!
 //! One `ort` build (2.0.0-rc.14, `alternative-backend`) serves up to two backends, chosen once
 //! per process on first use:

@@ -13,139 +13,20 @@
 //! win by it. The share is compared in every depth view the image branch has, the sensor's
 //! frames or the virtual frames rendered around a cloud; the report says which.
 
-use super::params::RegisterParams;
-use super::result::{RegistrationResult, StageTiming, Timer};
-use super::tail::{finish, EstimateMemo, FusionInputs, Similarities};
+pub use crate::pipeline::arbitration::{
+    Candidate, CandidateScore, SkippedCandidate, VisibilityReport,
+};
+pub use crate::pipeline::inputs::{pair_view_origin, PairViews};
+
+use super::common::{finish, EstimateMemo, FusionInputs, Similarities};
 use super::union::{branch_sets, from_sets, geometry_params, image_params, noisy_and_params};
-use crate::camera::visibility::{both_ways, DepthView};
-use crate::dataset::{FrameSet, ScanPair, ViewOrigin};
+use crate::camera::visibility::both_ways;
+use crate::dataset::ScanPair;
 use crate::error::{Error, Result};
-use crate::io::depth_png::{read_depth_png, DepthImage};
-use serde::{Deserialize, Serialize};
-use std::sync::OnceLock;
+use crate::pipeline::graph::StageName;
+use crate::pipeline::params::RegisterParams;
+use crate::pipeline::result::{status_word, RegistrationResult, StageTiming, Timer};
 use std::time::Instant;
-
-/// A pose the visibility mode chooses among.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum Candidate {
-    Union,
-    Geometry,
-    NoisyAnd,
-    Image,
-}
-
-impl Candidate {
-    /// The tie order.
-    pub const ALL: [Candidate; 4] = [
-        Candidate::Union,
-        Candidate::Geometry,
-        Candidate::NoisyAnd,
-        Candidate::Image,
-    ];
-
-    pub fn label(self) -> &'static str {
-        match self {
-            Candidate::Union => "union",
-            Candidate::Geometry => "geometry",
-            Candidate::NoisyAnd => "Noisy-AND",
-            Candidate::Image => "image",
-        }
-    }
-}
-
-/// One candidate pose's visibility (source keypoints in the target's views plus target
-/// keypoints in the source's views).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct CandidateScore {
-    pub pose: Candidate,
-    pub consistent: usize,
-    pub conflict: usize,
-    /// V = consistent - conflict (shown; not what decides).
-    pub score: i64,
-    /// F: the 95 % lower bound of consistent / (consistent + conflict), what decides (0 in a
-    /// report written before the share decided).
-    #[serde(default)]
-    pub share: f64,
-    /// The estimator's inliers of this pose on its own correspondences.
-    pub inliers: usize,
-}
-
-/// What the visibility mode compared and kept: the result's provenance.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct VisibilityReport {
-    pub chosen: Candidate,
-    /// Every candidate, in the tie order (none in a report of a version that kept the union's
-    /// pose with virtual views without comparing).
-    pub candidates: Vec<CandidateScore>,
-    /// The depth views each side was checked against.
-    pub source_views: usize,
-    pub target_views: usize,
-    /// Where the views' cameras stand (the weaker side's): the sensor's frames, or a virtual
-    /// trajectory around a cloud. Results written before this field existed had sensor views.
-    #[serde(default = "sensor_views")]
-    pub views: ViewOrigin,
-    /// The candidates whose pose could not be estimated (too few correspondences, a degenerate
-    /// set), with the reason: left out of the comparison, never fatal while another pose is.
-    #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub skipped: Vec<SkippedCandidate>,
-}
-
-/// A candidate the visibility mode could not estimate, and why.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct SkippedCandidate {
-    pub pose: Candidate,
-    pub reason: String,
-}
-
-fn sensor_views() -> ViewOrigin {
-    ViewOrigin::Sensor
-}
-
-/// The views of a pair as the visibility rule sees them: virtual when either side's are.
-pub fn pair_view_origin(source: ViewOrigin, target: ViewOrigin) -> ViewOrigin {
-    match (source, target) {
-        (ViewOrigin::Virtual, _) | (_, ViewOrigin::Virtual) => ViewOrigin::Virtual,
-        (ViewOrigin::SensorPosition, _) | (_, ViewOrigin::SensorPosition) => {
-            ViewOrigin::SensorPosition
-        }
-        _ => ViewOrigin::Sensor,
-    }
-}
-
-impl VisibilityReport {
-    /// "fusion: visibility (kept the image pose; F = 95 % lower bound of the share of seen
-    /// keypoints consistent with 50 + 50 sensor depth views: union 0.409, geometry 0.408,
-    /// Noisy-AND 0.437, image 0.815)".
-    pub fn provenance(&self) -> String {
-        if self.candidates.is_empty() {
-            return format!(
-                "fusion: visibility ({}: kept the {} pose; poses not compared)",
-                self.views.label(),
-                self.chosen.label()
-            );
-        }
-        let f: Vec<String> = self
-            .candidates
-            .iter()
-            .map(|c| format!("{} {:.3}", c.pose.label(), c.share))
-            .collect();
-        let skipped: String = self
-            .skipped
-            .iter()
-            .map(|c| format!("; {} pose not estimated: {}", c.pose.label(), c.reason))
-            .collect();
-        format!(
-            "fusion: visibility (kept the {} pose; F = 95 % lower bound of the share of seen \
-             keypoints consistent with {} + {} depth views ({}): {}{skipped})",
-            self.chosen.label(),
-            self.source_views,
-            self.target_views,
-            self.views.label(),
-            f.join(", ")
-        )
-    }
-}
 
 /// Whether a candidate's failure leaves it out of the comparison (an estimate that cannot be
 /// made from its correspondences) rather than ending the run (a cancelled run).
@@ -164,75 +45,6 @@ pub fn choose<T: PartialOrd + Copy>(scores: &[T]) -> Option<usize> {
         }
     }
     best.map(|(i, _)| i)
-}
-
-/// The depth frames of both scans of a pair (every frame the image branch has: the sensor's, or
-/// the virtual frames rendered for a cloud-only scan), read once, on first use.
-#[derive(Debug)]
-pub struct PairViews {
-    source: FrameSet,
-    target: FrameSet,
-    loaded: OnceLock<std::result::Result<[Vec<DepthImage>; 2], String>>,
-}
-
-impl PairViews {
-    pub fn new(source: FrameSet, target: FrameSet) -> Self {
-        PairViews {
-            source,
-            target,
-            loaded: OnceLock::new(),
-        }
-    }
-
-    /// Read every depth frame now (the virtual frames of a run without a cache live in a
-    /// scratch folder only until the run ends).
-    pub fn load(&self) -> Result<()> {
-        self.depths().map(|_| ())
-    }
-
-    fn depths(&self) -> Result<&[Vec<DepthImage>; 2]> {
-        // 2 x L PNG decodes per pair, in parallel (the same images in the same order)
-        let read = |fs: &FrameSet| -> Result<Vec<DepthImage>> {
-            use rayon::prelude::*;
-            fs.frames
-                .par_iter()
-                .map(|f| read_depth_png(&f.depth_path))
-                .collect()
-        };
-        self.loaded
-            .get_or_init(|| {
-                let both = || -> Result<[Vec<DepthImage>; 2]> {
-                    let (s, t) = rayon::join(|| read(&self.source), || read(&self.target));
-                    Ok([s?, t?])
-                };
-                both().map_err(|e| e.to_string())
-            })
-            .as_ref()
-            .map_err(|m| Error::Invalid(format!("fusion visibility: {m}")))
-    }
-
-    /// Where the pair's cameras stand ([`pair_view_origin`] of both sides).
-    pub fn origin(&self) -> ViewOrigin {
-        pair_view_origin(self.source.origin, self.target.origin)
-    }
-
-    /// (source views, target views).
-    pub fn views(&self) -> Result<[Vec<DepthView<'_>>; 2]> {
-        let [sd, td] = self.depths()?;
-        Ok([side(&self.source, sd), side(&self.target, td)])
-    }
-}
-
-fn side<'a>(fs: &'a FrameSet, depths: &'a [DepthImage]) -> Vec<DepthView<'a>> {
-    fs.frames
-        .iter()
-        .zip(depths)
-        .map(|(f, depth)| DepthView {
-            camera: &fs.camera,
-            scan_from_camera: f.scan_from_camera,
-            depth,
-        })
-        .collect()
 }
 
 /// The `visibility` registration of `pair` from `inputs` (image descriptors and depth views
@@ -352,9 +164,9 @@ pub(crate) fn register(
     }
     timings.push(StageTiming {
         stage: "visibility".into(),
-        name: Some(super::plan::StageName::Fusion),
+        name: Some(StageName::Fusion),
         ms: vis_elapsed.as_secs_f64() * 1e3,
-        status: super::result::status_word(false).into(),
+        status: status_word(false).into(),
     });
     let mut res = kept.swap_remove(k).1;
     res.warnings.extend(warnings);
@@ -381,6 +193,7 @@ fn with_report(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::dataset::ViewOrigin;
 
     #[test]
     fn the_largest_score_wins_and_ties_go_to_the_earliest() {

@@ -1,28 +1,28 @@
-//! The in-memory tail of every registration: similarity, calibration, Match-then-Fuse,
-//! selection, estimation and evaluation. Cheap next to the cached stages, so a change of
-//! temperature, fusion mode, selection or estimator re-runs only `fuse_and_finish`.
+//! What every fusion mode of the in-memory tail shares: its key, the similarity matrices, the
+//! estimate memo, the correspondences of the matrix modes and `finish` (estimation and
+//! evaluation); and the tail of the matrix modes and of geometry alone.
 
-use super::geo::GeoBranch;
-use super::params::RegisterParams;
-use super::result::{matrix_rows, RegistrationResult, Timer};
+pub use crate::pipeline::inputs::{FusionInputs, ImageInputs};
+
 use crate::dataset::ScanPair;
 use crate::error::{Error, Result};
 use crate::estimate::{estimate_pose, Estimate};
-use crate::features::Features;
-use crate::fusion::matrix::DenseMatrix;
 use crate::fusion::{cosine_similarity, match_then_fuse_select, Calibration, Correspondence};
 use crate::fusion::{FusionMode, Selection};
-use std::sync::Arc;
+use crate::matrix::DenseMatrix;
+use crate::pipeline::graph::StageName;
+use crate::pipeline::inputs::GeoBranch;
+use crate::pipeline::params::RegisterParams;
+use crate::pipeline::result::{matrix_rows, RegistrationResult, Timer};
 
 use crate::metrics::PairMetrics;
-use crate::vfm::pair_similarity::PairPointDescriptors;
 use nalgebra::Point3;
 use std::time::{Duration, Instant};
 
 /// The in-memory tail's name in key comparisons (not cached: no folder of that name).
-pub const STAGE: &str = "fusion";
+pub const STAGE: &str = NAME.key_name();
 pub const VERSION: u32 = 1;
-pub const NAME: super::plan::StageName = super::plan::StageName::Fusion;
+pub const NAME: StageName = StageName::Fusion;
 
 /// The tail's key: the keys of its inputs (both scans' geometric branch, then the image
 /// descriptors' stage) and every parameter `fuse_and_finish` reads: the fusion (similarity,
@@ -52,74 +52,6 @@ pub fn key(params: &RegisterParams, inputs: &[&str]) -> Result<crate::cache::Cac
         o.insert("scales".into(), (*scales).into());
     }
     crate::cache::CacheKey::new(STAGE, VERSION, inputs, &settings)
-}
-
-/// Inputs of the in-memory stages (similarity onward): with them, a change of temperature,
-/// fusion mode, selection or estimator re-runs only `fuse_and_finish` (the GUI keeps them).
-#[derive(Clone, Debug)]
-pub struct FusionInputs {
-    pub source_geo: GeoBranch,
-    pub target_geo: GeoBranch,
-    /// The image branch's per-point descriptors; None: geometry only.
-    pub image: Option<ImageInputs>,
-    /// Label of the image branch, as in `RegistrationResult::image_branch` (fusion mode aside).
-    pub image_label: Option<String>,
-    /// Both scans' depth frames, for the `visibility` fusion mode (None: geometry only).
-    pub views: Option<Arc<super::visibility::PairViews>>,
-}
-
-/// Per-point image descriptors, as the image similarity needs them.
-#[derive(Clone, Debug)]
-pub enum ImageInputs {
-    /// One unit descriptor per keypoint and its validity: (source, valid, target, valid).
-    PerImage(Features, Vec<bool>, Features, Vec<bool>),
-    /// Pair-conditioned descriptors (MASt3R): one per keypoint and partner view.
-    PairConditioned(PairPointDescriptors),
-}
-
-impl ImageInputs {
-    /// Which source / target keypoints have an image descriptor.
-    pub fn validity(&self) -> (Vec<bool>, Vec<bool>) {
-        match self {
-            ImageInputs::PerImage(_, vs, _, vt) => (vs.clone(), vt.clone()),
-            ImageInputs::PairConditioned(d) => (
-                d.src_view.iter().map(Option::is_some).collect(),
-                d.tgt_view.iter().map(Option::is_some).collect(),
-            ),
-        }
-    }
-
-    /// The N x M image similarity with its row / column validity.
-    pub fn similarity(&self) -> Result<(DenseMatrix, Vec<bool>, Vec<bool>)> {
-        match self {
-            ImageInputs::PerImage(fs, vs, ft, vt) => {
-                Ok((cosine_similarity(fs, ft)?, vs.clone(), vt.clone()))
-            }
-            ImageInputs::PairConditioned(d) => d.similarity(),
-        }
-    }
-
-    /// Row `i` of [`Self::similarity`] (the GUI's posterior inspector), without the matrix.
-    pub fn similarity_row(&self, i: usize) -> Vec<f32> {
-        match self {
-            ImageInputs::PerImage(fs, _, ft, _) => {
-                let norm = |v: &[f32]| dot(v, v).sqrt().max(1e-12);
-                let a = fs.row(i);
-                let na = norm(a);
-                (0..ft.len())
-                    .map(|j| {
-                        let b = ft.row(j);
-                        dot(a, b) / (na * norm(b))
-                    })
-                    .collect()
-            }
-            ImageInputs::PairConditioned(d) => d.similarity_row(i),
-        }
-    }
-}
-
-fn dot(a: &[f32], b: &[f32]) -> f32 {
-    a.iter().zip(b).map(|(x, y)| x * y).sum()
 }
 
 /// The similarity matrices of [`FusionInputs`]: they do not depend on temperature, fusion
@@ -277,29 +209,17 @@ pub fn similarities(inputs: &FusionInputs) -> Result<Similarities> {
     Ok(Similarities::new(image, geo))
 }
 
-/// Similarity, calibration, fusion, selection and estimation from [`FusionInputs`]: the tail
-/// of the image branch (image descriptors present) and of the geometric-only registration
-/// (image None: geometry-only fusion, streaming row-NN when the calibration allows it).
-/// `sims`: the similarity matrices computed before ([`similarities`]; the GUI keeps them),
-/// None computes them here; the result is the same. `res.image` is left None: the caller
-/// attaches the views. The estimate is taken from `memo` when the correspondences and the
-/// estimator are those of its last call (the result is the same; the estimate's timing row
-/// then says "cached"). [`super::Registration`] is the way in.
-pub(crate) fn fuse_and_finish(
+/// The tail of a matrix fusion mode (or geometry alone: image None, streaming row-NN when the
+/// calibration allows it) from [`FusionInputs`]; `super::fuse_and_finish` chooses it.
+pub(crate) fn fuse_matrix_mode(
     pair: &ScanPair,
     params: &RegisterParams,
     inputs: &FusionInputs,
     sims: Option<&Similarities>,
+    mut timer: Timer,
     memo: Option<&EstimateMemo>,
 ) -> Result<RegistrationResult> {
-    let mut timer = Timer::new();
     let (src, tgt) = (&inputs.source_geo, &inputs.target_geo);
-    if inputs.image.is_some() && params.fusion.mode == FusionMode::Union {
-        return super::union::register(pair, params, inputs, sims, timer, memo);
-    }
-    if inputs.image.is_some() && params.fusion.mode == FusionMode::Visibility {
-        return super::visibility::register(pair, params, inputs, sims, timer, memo);
-    }
     let corr = match &inputs.image {
         Some(_) => image_correspondences(inputs, sims, &params.fusion, &mut timer)?,
         None => {
