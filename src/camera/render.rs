@@ -102,32 +102,31 @@ pub(crate) fn splat_zbuffer(width: u32, height: u32, splats: &[Option<Splat>]) -
     if w == 0 || h == 0 {
         return zbuf;
     }
-    // OpenCV convention: integer coordinates are pixel centres. The squares that reach the
-    // image, as (u, v, r, mm), rounded once.
-    let squares: Vec<(i64, i64, i64, u32)> = splats
-        .par_iter()
-        .flatten()
-        .filter_map(|s| {
-            let (pu, pv) = (s.u.round() as i64, s.v.round() as i64);
-            let outside = pu + s.r < 0 || pv + s.r < 0 || pu - s.r >= w || pv - s.r >= h;
-            (!outside).then_some((pu, pv, s.r, s.mm))
-        })
-        .collect();
-    // Bands of rows in parallel, each drawing the part of every square inside it with a plain
-    // minimum: a pixel's value is the least depth drawn on it whatever the order, so the image
-    // is the one per-pixel atomic minima over all squares gave, without their contention.
+    // Bands of rows in parallel, each drawing the squares that reach it (binned once, in one
+    // pass) with a plain minimum: a pixel's value is the least depth drawn on it whatever the
+    // order, so the image is the one per-pixel atomic minima gave, without their contention.
     let bands = (rayon::current_num_threads() * 4).clamp(1, h as usize) as i64;
     let rows = (h + bands - 1) / bands;
+    let mut bins: Vec<Vec<(i64, i64, i64, u32)>> = vec![Vec::new(); bands as usize];
+    for s in splats.iter().flatten() {
+        // OpenCV convention: integer coordinates are pixel centres.
+        let (pu, pv) = (s.u.round() as i64, s.v.round() as i64);
+        if s.r < 0 || pu + s.r < 0 || pv + s.r < 0 || pu - s.r >= w || pv - s.r >= h {
+            continue;
+        }
+        let (first, last) = ((pv - s.r).max(0) / rows, (pv + s.r).min(h - 1) / rows);
+        for b in &mut bins[first as usize..=last as usize] {
+            b.push((pu, pv, s.r, s.mm));
+        }
+    }
     zbuf.par_chunks_mut((rows * w) as usize)
+        .zip(bins.par_iter())
         .enumerate()
-        .for_each(|(t, band)| {
+        .for_each(|(t, (band, squares))| {
             let y0 = t as i64 * rows;
             let y1 = (y0 + rows).min(h) - 1;
-            for &(pu, pv, r, mm) in &squares {
+            for &(pu, pv, r, mm) in squares {
                 let (ya, yb) = ((pv - r).max(y0), (pv + r).min(y1));
-                if ya > yb {
-                    continue;
-                }
                 let (xa, xb) = ((pu - r).max(0) as usize, (pu + r).min(w - 1) as usize);
                 for y in ya..=yb {
                     let row = ((y - y0) * w) as usize;
