@@ -8,7 +8,8 @@
 #
 # Env: CGENREG_BIN (default target/release/cgenreg), METHOD (the method's bench options,
 # default "--wfm builtin --vfm alike"), CGENREG_DATA. OUT_DIR (default target/speed-bench) gets
-# the caches and the four run files; it is emptied first.
+# the caches and the four run files; it is emptied first. REPORT_ONLY=1 prints the tables of
+# the run already in OUT_DIR (an earlier build's, say) without running anything.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 M="${1:-assets/manifests/redkitchen-staged-clouds.toml}"
@@ -16,6 +17,7 @@ OUT="${2:-target/speed-bench}"
 BIN="${CGENREG_BIN:-target/release/cgenreg}"
 read -r -a METHOD <<< "${METHOD:---wfm builtin --vfm alike}"
 export CGENREG_DATA="${CGENREG_DATA:-$(cd .. && pwd)/shared/data}"
+if [ "${REPORT_ONLY:-0}" != 1 ]; then
 rm -rf "$OUT"
 mkdir -p "$OUT"
 run() { # name, cache folder, then bench options
@@ -30,6 +32,7 @@ run geometry-cold cache-geometry
 run method-cold cache-method "${METHOD[@]}"
 run geometry-warm cache-geometry
 run method-warm cache-method "${METHOD[@]}"
+fi
 python3 - "$OUT" "$M" "${METHOD[*]}" <<'PY'
 import json, statistics, sys
 out, manifest, method = sys.argv[1:4]
@@ -58,4 +61,25 @@ for temp in ["cold", "warm"]:
     m = load(f"method-{temp}")
     top = sorted(m[4].items(), key=lambda kv: -kv[1])[:8]
     print(f"method {temp}, stage totals (s): " + ", ".join(f"{k} {v:.1f}" for k, v in top))
+# Where the method's pair goes: per stage, the mean over all pairs and how many computed it
+# (the others read the stage cache or the run's memo)
+def per_stage(name):
+    recs = json.load(open(f"{out}/{name}.json"))["records"]
+    total, computed, order = {}, {}, []
+    for r in recs:
+        for s in r.get("stages", []):
+            k = s["stage"]
+            if k not in total:
+                order.append(k)
+            total[k] = total.get(k, 0.0) + s["ms"] / 1e3
+            computed[k] = computed.get(k, 0) + (s.get("status") == "computed")
+    return len(recs), total, computed, order
+print()
+print("| stage, mean per pair (s) | cold | pairs that computed it, cold | warm |")
+print("|---|---:|---:|---:|")
+nc, tc, cc, order = per_stage("method-cold")
+nw, tw, _, order_w = per_stage("method-warm")
+for k in order + [k for k in order_w if k not in order]:
+    print(f"| {k} | {tc.get(k, 0) / nc:.2f} | {cc.get(k, 0)} | {tw.get(k, 0) / nw:.2f} |")
+print(f"| whole pair | {load('method-cold')[2] / nc:.2f} | | {load('method-warm')[2] / nw:.2f} |")
 PY

@@ -81,11 +81,26 @@ pub fn visibility(
         .filter(|v| v.camera.size() == (v.depth.width, v.depth.height))
         .map(|v| (v.scan_from_camera.inverse(), v))
         .collect();
+    // Chunks of points in parallel: counts, so the sum is the same whatever the split.
+    use rayon::prelude::*;
+    points
+        .par_chunks(512)
+        .map(|chunk| classify(chunk, target_from_source, &usable, theta))
+        .reduce(Visibility::default, |a, b| a + b)
+}
+
+/// [`visibility`] of `points` against the usable views (`camera_from_scan` with each view).
+fn classify(
+    points: &[Point3<f32>],
+    target_from_source: &Isometry3<f64>,
+    usable: &[(Isometry3<f64>, &DepthView<'_>)],
+    theta: f64,
+) -> Visibility {
     let mut out = Visibility::default();
     for p in points {
         let q = target_from_source * p.cast::<f64>();
         let (mut on, mut free) = (0usize, 0usize);
-        for (camera_from_scan, v) in &usable {
+        for (camera_from_scan, v) in usable {
             let c = camera_from_scan * q;
             let Some((u, w)) = v.camera.project(&c) else {
                 continue;

@@ -297,6 +297,9 @@ pub fn match_then_fuse_select(
             crate::matrix::check_masks("match-then-fuse image validity", a.rows, a.cols, rv, cv)?;
         }
     }
+    if let Some(a) = image_only_branch(sim_img, sim_geo, params)? {
+        return Ok(fused::row_softmax_image_only(&a, params.selection)?.correspondences);
+    }
     match one_pass_branches(sim_img, sim_geo, params) {
         Some((a, b)) => {
             Ok(
@@ -306,6 +309,49 @@ pub fn match_then_fuse_select(
         }
         None => Ok(match_then_fuse(sim_img, sim_geo, params)?.correspondences),
     }
+}
+
+/// The image branch of the image-only configuration [`fused`] handles in one pass (row
+/// softmax, mutual or row nearest neighbours), its inputs checked as [`match_then_fuse`]
+/// checks them; None for any other configuration. The general path would calibrate both
+/// branches and copy the image posterior before selecting from it (same correspondences).
+fn image_only_branch<'a>(
+    sim_img: Option<ImageSimilarity<'a>>,
+    sim_geo: Option<&DenseMatrix>,
+    params: &FusionParams,
+) -> Result<Option<fused::Branch<'a>>> {
+    let (
+        FusionMode::ImageOnly,
+        Calibration::RowSoftmax { tau },
+        Selection::MutualNn | Selection::RowNn,
+        false,
+        Some((si, rv, cv)),
+    ) = (
+        params.mode,
+        params.calibration_img,
+        params.selection,
+        params.exact_reference,
+        sim_img,
+    )
+    else {
+        return Ok(None);
+    };
+    if let Some(g) = sim_geo {
+        let geo_tau = params.calibration_geo.tau();
+        if g.shape() != si.shape() || !(geo_tau.is_finite() && geo_tau > 0.0) {
+            // the general path's error (it calibrates the geometric branch too)
+            return Ok(None);
+        }
+        check_filled("geometric", g)?;
+    }
+    check_filled("image", si)?;
+    crate::matrix::check_masks("match-then-fuse image validity", si.rows, si.cols, rv, cv)?;
+    Ok(Some(fused::Branch {
+        sim: fused::Sim::Dense(si),
+        row_valid: rv,
+        col_valid: cv,
+        tau,
+    }))
 }
 
 /// Whether [`match_then_fuse_select_features`] handles `params` without N x M matrices: the

@@ -203,6 +203,56 @@ fn one_pass_default_equals_general_path() {
     }
 }
 
+/// The one-pass image-only path gives exactly what the general path (row softmax of the image
+/// similarity, then selection) gives, with masks, ties and invalid rows, with or without the
+/// geometric similarity beside it; other selections still go the general way.
+#[test]
+fn one_pass_image_only_equals_general_path() {
+    let (n, m) = (157, 211);
+    let mut rng = Rng(11);
+    let mut s_img = DenseMatrix::from_fn(n, m, |_, _| normal(&mut rng) * 0.3).unwrap();
+    let s_geo = DenseMatrix::from_fn(n, m, |_, _| normal(&mut rng) * 0.3).unwrap();
+    s_img.data[5 * m + 3] = 3.0;
+    s_img.data[5 * m + 9] = 3.0;
+    s_img.data[8 * m + 3] = 3.0;
+    let rv: Vec<bool> = (0..n).map(|i| i % 7 != 2).collect();
+    let cv: Vec<bool> = (0..m).map(|j| j % 5 != 1).collect();
+    for sel in [Selection::MutualNn, Selection::RowNn, Selection::TopK(300)] {
+        for (rvo, cvo) in [(None, None), (Some(&rv[..]), Some(&cv[..]))] {
+            let p = FusionParams {
+                mode: FusionMode::ImageOnly,
+                selection: sel,
+                calibration_img: Calibration::RowSoftmax { tau: 0.07 },
+                ..FusionParams::default()
+            };
+            let want = select(
+                &calibrate(&s_img, rvo, cvo, p.calibration_img).unwrap(),
+                sel,
+            );
+            assert!(!want.is_empty());
+            for geo in [None, Some(&s_geo)] {
+                let got = match_then_fuse_select(Some((&s_img, rvo, cvo)), geo, &p).unwrap();
+                assert_eq!(got.len(), want.len(), "{sel:?}");
+                for (a, b) in got.iter().zip(&want) {
+                    assert_eq!(
+                        (a.src, a.tgt, a.score.to_bits()),
+                        (b.src, b.tgt, b.score.to_bits()),
+                        "{sel:?} masks {}",
+                        rvo.is_some()
+                    );
+                }
+            }
+        }
+    }
+    // the general path's errors stay: a geometric similarity of another shape
+    let p = FusionParams {
+        mode: FusionMode::ImageOnly,
+        ..FusionParams::default()
+    };
+    let small = DenseMatrix::from_fn(n, m - 1, |_, _| 0.0).unwrap();
+    assert!(match_then_fuse_select(Some((&s_img, None, None)), Some(&small), &p).is_err());
+}
+
 /// The feature-backed one-pass path (Noisy-AND and image only) gives exactly the correspondences (same order, same
 /// scores, bit for bit) of the matrices `cosine_similarity` forms, for both selections and
 /// with invalid rows and columns, also when the bands do not divide the rows.

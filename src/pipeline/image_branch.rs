@@ -266,7 +266,7 @@ fn register_with_frames(
     let scratch = reg.cache.is_none() && !views.origin().is_sensor();
     if params.fusion.mode == FusionMode::Visibility || scratch {
         let t = std::time::Instant::now();
-        views.load()?;
+        views.load_with(memo)?;
         ctx.timer
             .record("visibility: read depth views", t.elapsed(), false);
     }

@@ -12,6 +12,8 @@ use crate::geometry::PointCloud;
 use crate::io::depth_png::{read_depth_png, DepthImage};
 use crate::matrix::DenseMatrix;
 use crate::vfm::pair_similarity::PairPointDescriptors;
+use crate::pipeline::memo::Memo;
+use std::path::PathBuf;
 use std::sync::{Arc, OnceLock};
 
 /// Keypoints and their geometric features for one scan.
@@ -96,7 +98,7 @@ fn dot(a: &[f32], b: &[f32]) -> f32 {
 pub struct PairViews {
     source: FrameSet,
     target: FrameSet,
-    loaded: OnceLock<std::result::Result<[Vec<DepthImage>; 2], String>>,
+    loaded: OnceLock<std::result::Result<[Arc<Vec<DepthImage>>; 2], String>>,
 }
 
 impl PairViews {
@@ -111,21 +113,37 @@ impl PairViews {
     /// Read every depth frame now (the virtual frames of a run without a cache live in a
     /// scratch folder only until the run ends).
     pub fn load(&self) -> Result<()> {
-        self.depths().map(|_| ())
+        self.depths(None).map(|_| ())
     }
 
-    fn depths(&self) -> Result<&[Vec<DepthImage>; 2]> {
-        // 2 x L PNG decodes per pair, in parallel (the same images in the same order)
-        let read = |fs: &FrameSet| -> Result<Vec<DepthImage>> {
+    /// [`Self::load`], each side's frames taken from `memo` when an earlier pair of the same
+    /// scan read them (the same files, unchanged), and kept there for the next.
+    pub fn load_with(&self, memo: &Memo) -> Result<()> {
+        self.depths(Some(memo)).map(|_| ())
+    }
+
+    fn depths(&self, memo: Option<&Memo>) -> Result<&[Arc<Vec<DepthImage>>; 2]> {
+        // L PNG decodes per side, in parallel (the same images in the same order)
+        let decode = |fs: &FrameSet| -> Result<Vec<DepthImage>> {
             use rayon::prelude::*;
             fs.frames
                 .par_iter()
                 .map(|f| read_depth_png(&f.depth_path))
                 .collect()
         };
+        let read = |fs: &FrameSet| -> Result<Arc<Vec<DepthImage>>> {
+            match memo {
+                Some(m) => {
+                    let paths: Vec<PathBuf> =
+                        fs.frames.iter().map(|f| f.depth_path.clone()).collect();
+                    m.depth_views(&paths, || decode(fs))
+                }
+                None => decode(fs).map(Arc::new),
+            }
+        };
         self.loaded
             .get_or_init(|| {
-                let both = || -> Result<[Vec<DepthImage>; 2]> {
+                let both = || -> Result<[Arc<Vec<DepthImage>>; 2]> {
                     let (s, t) = rayon::join(|| read(&self.source), || read(&self.target));
                     Ok([s?, t?])
                 };
@@ -142,7 +160,7 @@ impl PairViews {
 
     /// (source views, target views).
     pub fn views(&self) -> Result<[Vec<DepthView<'_>>; 2]> {
-        let [sd, td] = self.depths()?;
+        let [sd, td] = self.depths(None)?;
         Ok([side(&self.source, sd), side(&self.target, td)])
     }
 }

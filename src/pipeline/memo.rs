@@ -110,8 +110,16 @@ pub const MODELS: usize = 4;
 /// Pair-conditioned VFM models a [`Memo`] keeps loaded (MASt3R is large: one, and a spare).
 pub const PAIR_MODELS: usize = 2;
 
+/// One scan's depth views a [`Memo`] keeps decoded for the `visibility` fusion (every pair of a
+/// scan compares poses in the same 2 x L frames): a few scans, each L frames (50 frames at
+/// 960x704 are 68 MB).
+pub const DEPTH_VIEW_SETS: usize = 4;
+
 /// (length, modification time): a file rewritten in place changes one of them.
 type Stamp = (u64, std::time::SystemTime);
+
+/// A scan's depth frames, decoded, with the stamps of the files they were read from.
+type DepthSet = (Vec<Stamp>, Arc<Vec<crate::io::depth_png::DepthImage>>);
 
 /// The in-memory state of one caller; see the module doc. Shared by reference (the stages
 /// run on rayon threads), so each part sits behind its own lock.
@@ -119,6 +127,8 @@ pub struct Memo {
     files: Mutex<Lru<PathBuf, (Stamp, String)>>,
     models: Mutex<Lru<String, Arc<dyn PerImageModel>>>,
     pair_models: Mutex<Lru<String, Arc<dyn PairModel>>>,
+    /// Keyed by the frames' paths, in order.
+    depth_views: Mutex<Lru<Vec<PathBuf>, DepthSet>>,
 }
 
 impl Default for Memo {
@@ -133,6 +143,7 @@ pub struct MemoSizes {
     pub file_hashes: usize,
     pub models: usize,
     pub pair_models: usize,
+    pub depth_view_sets: usize,
 }
 
 impl Memo {
@@ -141,7 +152,40 @@ impl Memo {
             files: Mutex::new(Lru::new(file_hashes)),
             models: Mutex::new(Lru::new(models)),
             pair_models: Mutex::new(Lru::new(pair_models)),
+            depth_views: Mutex::new(Lru::new(DEPTH_VIEW_SETS)),
         }
+    }
+
+    /// The depth frames at `paths` (in that order), decoded by `read` or taken from the memo
+    /// when every file still has the length and modification time it was read with. Files
+    /// without a modification time are read every time.
+    pub fn depth_views(
+        &self,
+        paths: &[PathBuf],
+        read: impl FnOnce() -> Result<Vec<crate::io::depth_png::DepthImage>>,
+    ) -> Result<Arc<Vec<crate::io::depth_png::DepthImage>>> {
+        let stamps: Option<Vec<Stamp>> = paths
+            .iter()
+            .map(|p| {
+                let m = std::fs::metadata(p).ok()?;
+                Some((m.len(), m.modified().ok()?))
+            })
+            .collect();
+        let Some(stamps) = stamps else {
+            return read().map(Arc::new);
+        };
+        if let Ok(mut m) = self.depth_views.lock() {
+            if let Some((s, views)) = m.get(paths) {
+                if *s == stamps {
+                    return Ok(views.clone());
+                }
+            }
+        }
+        let views = Arc::new(read()?);
+        if let Ok(mut m) = self.depth_views.lock() {
+            m.insert(paths.to_vec(), (stamps, views.clone()));
+        }
+        Ok(views)
     }
 
     pub fn sizes(&self) -> MemoSizes {
@@ -149,6 +193,7 @@ impl Memo {
             file_hashes: self.files.lock().map(|g| g.len()).unwrap_or(0),
             models: self.models.lock().map(|g| g.len()).unwrap_or(0),
             pair_models: self.pair_models.lock().map(|g| g.len()).unwrap_or(0),
+            depth_view_sets: self.depth_views.lock().map(|g| g.len()).unwrap_or(0),
         }
     }
 

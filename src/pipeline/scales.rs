@@ -107,7 +107,10 @@ pub(crate) fn register(reg: &Registration, pair: &ScanPair) -> Result<Registrati
         scan_views(&mut store, &pair.target, &mut warnings)?,
     );
     // read now: without a cache the rendered views live in a scratch folder dropped below
-    views.load()?;
+    match reg.memo {
+        Some(m) => views.load_with(m)?,
+        None => views.load()?,
+    }
     warnings.append(&mut store.warnings);
     drop(store);
     let [src_views, tgt_views] = views.views()?;

@@ -4,7 +4,7 @@
 
 use super::common::{
     finish, geometry_correspondences, image_correspondences, similarities, EstimateMemo,
-    FusionInputs, ImageInputs, Similarities, STREAM_ENTRIES,
+    FusionInputs, ImageInputs, Similarities,
 };
 use crate::dataset::ScanPair;
 use crate::error::{Error, Result};
@@ -80,12 +80,12 @@ pub(crate) fn branch_sets<const N: usize>(
             "fusion: the image branch's descriptors are missing (the union and visibility modes need them)".into(),
         ));
     }
-    let (n, m) = (
-        inputs.source_geo.features.len(),
-        inputs.target_geo.features.len(),
-    );
+    // Without kept matrices, sets the features can give band by band (the default
+    // configuration's Noisy-AND, image and geometry sets) are formed that way at any size: each
+    // band of similarity rows as `cosine_similarity` forms it, so the same correspondences,
+    // without allocating, zeroing and re-reading two N x M matrices per pair (at 3DMatch sizes
+    // that cost more than forming the rows again for each set).
     let streams = matches!(inputs.image, Some(ImageInputs::PerImage(..)))
-        && n.saturating_mul(m) > STREAM_ENTRIES
         && named.iter().all(|(_, f)| {
             f.mode == FusionMode::GeometryOnly || crate::fusion::streams_from_features(f)
         });
@@ -103,11 +103,39 @@ pub(crate) fn branch_sets<const N: usize>(
     let mut sets = Vec::with_capacity(N);
     for (name, fusion) in &named {
         let t = Instant::now();
-        sets.push(mode_correspondences(inputs, sims, fusion)?);
+        let set = match sims {
+            Some(_) => mode_correspondences(inputs, sims, fusion)?,
+            None => streamed_set(inputs, fusion)?,
+        };
+        sets.push(set);
         timer.record(&format!("fusion: {name}"), t.elapsed(), false);
     }
     sets.try_into()
         .map_err(|_| Error::Shape("fusion: a branch set is missing".into()))
+}
+
+/// The set `fusion` selects, formed from the features band by band (no N x M matrix): the
+/// geometric branch's row NN ([`crate::fusion::streaming`]) or a configuration
+/// [`crate::fusion::streams_from_features`] accepts.
+fn streamed_set(inputs: &FusionInputs, fusion: &FusionParams) -> Result<Vec<Correspondence>> {
+    let (src, tgt) = (&inputs.source_geo, &inputs.target_geo);
+    if fusion.mode == FusionMode::GeometryOnly {
+        return geometry_correspondences(inputs, None, fusion, &mut Timer::new());
+    }
+    let Some(ImageInputs::PerImage(fs, vs, ft, vt)) = &inputs.image else {
+        return Err(Error::Missing(
+            "fusion: the image branch's per-point descriptors are missing".into(),
+        ));
+    };
+    let feats = (&src.features, &tgt.features);
+    crate::fusion::match_then_fuse_select_features((fs, vs, ft, vt), feats, fusion)?.ok_or_else(
+        || {
+            Error::Invalid(format!(
+                "fusion: {:?} is not formed from features",
+                fusion.mode
+            ))
+        },
+    )
 }
 
 /// The `union` registration of `pair` from `inputs` (image descriptors present).
