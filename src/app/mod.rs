@@ -6,7 +6,7 @@
 //!
 //! Modules import only those below them, never upwards (a test in `tests/it` checks it):
 //! `model` (plain data); `channel` (commands, events, the worker handle); the leaves
-//! `colormap`, `path_display`, `pair_order`, `file_browser`, `render3d`; `state` (what the
+//! `colormap`, `path_display`, `pair_order`, `triage`, `file_browser`, `render3d`; `state` (what the
 //! panels share); `controls` and `view3d` (widgets); `tabs` (one file per tab behind
 //! [`tabs::Tab`]); `shell` (the [`App`]: side panel, tab bar, log, files) and `headless`.
 //! The pipeline side, `worker`, imports only `model` and `channel`.
@@ -23,6 +23,7 @@ pub mod render3d;
 pub mod shell;
 pub mod state;
 pub mod tabs;
+pub mod triage;
 pub mod view3d;
 pub mod worker;
 

@@ -197,26 +197,53 @@ impl OutcomeFilter {
     }
 }
 
-/// The rows shown: a split (None: every split), an outcome, and text in the id.
+/// The rows shown: a split and a scene (None: every one), an outcome, and text in the id; and
+/// whether failures (registered outside the criterion, or errors) come first.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct PairFilter {
     pub split: Option<String>,
+    pub scene: Option<String>,
     pub outcome: OutcomeFilter,
     pub text: String,
+    /// Failures and errors above every other row, each part in the sort's order (an order,
+    /// not a filter: it hides nothing).
+    pub failures_first: bool,
 }
 
 impl PairFilter {
     pub fn keeps(&self, p: &PairEntry) -> bool {
         self.split.as_ref().is_none_or(|s| p.split == *s)
+            && self
+                .scene
+                .as_ref()
+                .is_none_or(|s| p.scene.as_deref() == Some(s.as_str()))
             && self.outcome.keeps(p.outcome())
             && (self.text.trim().is_empty()
                 || p.id
                     .to_lowercase()
                     .contains(&self.text.trim().to_lowercase()))
     }
+    /// Whether it hides rows (the failures-first order hides none).
     pub fn is_active(&self) -> bool {
-        *self != PairFilter::default()
+        *self
+            != PairFilter {
+                failures_first: self.failures_first,
+                ..PairFilter::default()
+            }
     }
+
+    /// No row hidden; the order kept.
+    pub fn cleared(&self) -> PairFilter {
+        PairFilter {
+            failures_first: self.failures_first,
+            ..PairFilter::default()
+        }
+    }
+}
+
+/// A row the failures-first order puts on top.
+fn is_failure(p: &PairEntry) -> bool {
+    matches!(p.outcome(), PairOutcome::Failure | PairOutcome::Error)
 }
 
 /// Row order under a sort. RRE and RTE of a pair that could not be registered count as the
@@ -227,12 +254,17 @@ pub fn sorted_pairs(pairs: &[PairEntry], sort: PairSort) -> Vec<usize> {
     idx
 }
 
-/// The rows `filter` keeps, in `sort` order.
+/// The rows `filter` keeps, in `sort` order (failures first when it asks for it).
 pub fn visible_pairs(pairs: &[PairEntry], filter: &PairFilter, sort: PairSort) -> Vec<usize> {
-    sorted_pairs(pairs, sort)
+    let mut rows: Vec<usize> = sorted_pairs(pairs, sort)
         .into_iter()
         .filter(|&i| filter.keeps(&pairs[i]))
-        .collect()
+        .collect();
+    if filter.failures_first {
+        // stable: each part keeps the sort's order
+        rows.sort_by_key(|&i| !is_failure(&pairs[i]));
+    }
+    rows
 }
 
 fn outcome_rank(o: PairOutcome) -> u8 {
@@ -396,5 +428,53 @@ mod tests {
         let rows = visible_pairs(&m.pairs, &text, PairSort::BY_NAME);
         assert_eq!(rows.len(), 1);
         assert!(m.pairs[rows[0]].id.contains("pair-3"));
+    }
+
+    #[test]
+    fn scene_filter_and_failures_first() {
+        let mut m = InspectorModel::demo();
+        for (k, p) in m.pairs.iter_mut().enumerate() {
+            p.scene = Some(if k % 2 == 0 { "kitchen" } else { "office" }.into());
+        }
+        let kitchen = PairFilter {
+            scene: Some("kitchen".into()),
+            ..Default::default()
+        };
+        let rows = visible_pairs(&m.pairs, &kitchen, PairSort::BY_NAME);
+        assert_eq!(rows.len(), m.pairs.len().div_ceil(2));
+        assert!(rows
+            .iter()
+            .all(|&i| m.pairs[i].scene.as_deref() == Some("kitchen")));
+        assert!(kitchen.is_active());
+        // failures first: an order, not a filter; each part keeps the sort's order
+        let first = PairFilter {
+            failures_first: true,
+            ..Default::default()
+        };
+        assert!(!first.is_active());
+        let plain = visible_pairs(&m.pairs, &PairFilter::default(), PairSort::BY_NAME);
+        let rows = visible_pairs(&m.pairs, &first, PairSort::BY_NAME);
+        assert_eq!(rows.len(), plain.len());
+        let fails = rows
+            .iter()
+            .take_while(|&&i| is_failure(&m.pairs[i]))
+            .count();
+        assert!(fails >= 2, "{rows:?}");
+        assert!(rows[fails..].iter().all(|&i| !is_failure(&m.pairs[i])));
+        let part = |f: bool| -> Vec<usize> {
+            plain
+                .iter()
+                .copied()
+                .filter(|&i| is_failure(&m.pairs[i]) == f)
+                .collect()
+        };
+        assert_eq!(rows[..fails], part(true)[..]);
+        assert_eq!(rows[fails..], part(false)[..]);
+        // clearing keeps the order
+        let both = PairFilter {
+            failures_first: true,
+            ..kitchen
+        };
+        assert_eq!(both.cleared(), first);
     }
 }

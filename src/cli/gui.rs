@@ -298,6 +298,9 @@ pub struct ScreenshotArgs {
     /// rte, inliers, corr, time (e.g. rre:desc, worst RRE first; the default).
     #[arg(long, value_parser = PairSort::parse)]
     pub sort: Option<PairSort>,
+    /// The pair browser shows failures and errors above the other rows.
+    #[arg(long)]
+    pub failures_first: bool,
     /// Run the K sweep over the manifest's pairs first (e.g. 1,2,4,8), as the plots panel's
     /// "Run K sweep" button does.
     #[arg(long)]
@@ -665,6 +668,10 @@ pub fn run_screenshot(a: ScreenshotArgs) -> Result<()> {
             s.failure,
             s.errors
         );
+        // the pair browser's summary rows, as `bench` prints them (the same function)
+        let current = crate::app::model::SettingsTag::of(worker.params()).id;
+        let (rows, _) = crate::app::triage::summary_rows(worker.pair_rows(), Some(&current));
+        crate::cli::bench::print_field_table(&rows);
         worker.set_params(asked);
     }
     let mut studies = Vec::new();
@@ -735,6 +742,7 @@ pub fn run_screenshot(a: ScreenshotArgs) -> Result<()> {
     let (mode, count, only, align) = (a.match_colors, a.matches, a.only_survivors, a.alignment);
     let (cloud_mode, depth_frames, side) = (a.cloud_colors, a.depth_frames, a.side_by_side);
     let (view_pair, depth_cue, sort) = (a.view_pair, a.depth_cue, a.sort);
+    let failures_first = a.failures_first;
     let rasterizer = a.rasterizer;
     if let Some((i, j)) = view_pair {
         let (ks, kt) = (model.source_views.len(), model.target_views.len());
@@ -770,6 +778,7 @@ pub fn run_screenshot(a: ScreenshotArgs) -> Result<()> {
             if let Some(s) = sort {
                 app.ui_state.pair_sort = s;
             }
+            app.tabs.pairs.filter.failures_first = failures_first;
         })
         .map_err(|e| Error::Invalid(format!("cannot render the screenshot headless: {e}")))?;
     // checked again and written atomically: a link planted while the pair ran is refused

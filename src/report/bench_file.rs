@@ -303,6 +303,7 @@ mod tests {
                 updated_unix: 0,
                 machine: None,
                 commit: None,
+                shard_runs: Vec::new(),
             },
             records: rows
                 .iter()

@@ -225,7 +225,7 @@ fn snapshot_pairs() {
 }
 
 /// The pair browser after a run (the demo's filled rows): "Run all" and "Run failed/pending"
-/// send their commands, a header click sorts by its column (again: reversed), j opens the
+/// (in the side panel and the tab) send their commands, a header click sorts by its column (again: reversed), j opens the
 /// next pair of the order, and during a run the progress bar and Cancel are shown (snapshot)
 /// and Cancel reaches the worker.
 #[test]
@@ -249,10 +249,11 @@ fn pairs_tab_runs_all_sorts_navigates_and_cancels() {
             std::thread::sleep(std::time::Duration::from_millis(5));
         }
     };
-    h.get_by_label("Run all").click();
+    // the side panel's and the tab's: the same command
+    h.get_all_by_label("Run all").next().unwrap().click();
     h.run_steps(2);
     wait_for(&seen, &Command::RunAll(RunSelection::All));
-    h.get_by_label("Run failed/pending").click();
+    h.get_all_by_label("Run failed/pending").next().unwrap().click();
     h.run_steps(2);
     wait_for(&seen, &Command::RunAll(RunSelection::FailedOrPending));
     // header clicks: a metric starts worst (largest) first, a second click reverses
@@ -280,7 +281,13 @@ fn pairs_tab_runs_all_sorts_navigates_and_cancels() {
     let next = m.pairs[order[at + 1]].id.clone();
     h.key_press(egui::Key::J);
     h.run_steps(2);
-    wait_for(&seen, &Command::SelectPair(next));
+    wait_for(&seen, &Command::SelectPair(next.clone()));
+    // n: the next failure of this order after the pair just asked for
+    let from = m.pairs.iter().position(|p| p.id == next);
+    let failure = cgenreg::app::triage::next_failure(&m.pairs, &order, from, true, None).unwrap();
+    h.key_press(egui::Key::N);
+    h.run_steps(2);
+    wait_for(&seen, &Command::SelectPair(m.pairs[failure].id.clone()));
     // a run in progress: bar, Cancel, the running row
     h.state_mut().ui_state.pair_sort = PairSort::WORST_RRE;
     let pair = m.pairs[8].id.clone();
@@ -295,7 +302,7 @@ fn pairs_tab_runs_all_sorts_navigates_and_cancels() {
     h.state_mut().set_model(m);
     h.run_steps(4);
     h.snapshot("pairs-running");
-    h.get_by_label("Cancel").click();
+    h.get_all_by_label("Cancel").next().unwrap().click();
     h.run_steps(2);
     wait_for(&seen, &Command::Cancel);
 }

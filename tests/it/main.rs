@@ -31,6 +31,7 @@ mod gui_snapshots;
 mod gui_structure;
 mod gui_stuck;
 mod gui_study;
+mod gui_triage;
 mod headless_no_egl;
 mod headline;
 mod hostile_outputs;

@@ -106,6 +106,49 @@ fn three_shards_merged_equal_one_run_and_a_rerun_resumes() {
     }
     assert_eq!(merged["run"]["complete"], true);
     assert_eq!(all["pairs"].as_array().unwrap().len(), 5);
+    // provenance: the commit, the binary's hash, the date and the machine of the run, and of
+    // each shard a merged file was made from
+    let binary = cgenreg::cache::hash_file(Path::new(env!("CARGO_BIN_EXE_cgenreg"))).unwrap();
+    let now = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap()
+        .as_secs();
+    let provenance = |r: &Value, what: &str| {
+        let commit = r["commit"].as_str().unwrap_or_default();
+        let hex = commit.trim_end_matches("+dirty");
+        assert!(
+            hex.len() == 40 && hex.bytes().all(|b| b.is_ascii_hexdigit()),
+            "{what}: commit {commit:?}"
+        );
+        assert!(
+            r["machine"]
+                .as_str()
+                .is_some_and(|m| m.contains("logical cores")),
+            "{what}: machine {}",
+            r["machine"]
+        );
+        assert!(!r["host"].as_str().unwrap_or_default().is_empty(), "{what}");
+        let t = r["updated_unix"].as_u64().unwrap();
+        assert!(t <= now && now - t < 3600, "{what}: date {t}, now {now}");
+    };
+    for (what, v) in [("bench", &all), ("merge", &merged)] {
+        provenance(&v["run"], what);
+        assert_eq!(
+            v["run"]["identity"]["binary_blake3"],
+            binary.as_str(),
+            "{what}"
+        );
+    }
+    let runs = merged["run"]["shard_runs"].as_array().unwrap();
+    assert_eq!(runs.len(), 3);
+    for (r, p) in runs.iter().zip(&shards) {
+        provenance(r, "a merged shard");
+        assert_eq!(
+            r["file"].as_str().unwrap(),
+            p.display().to_string(),
+            "{runs:?}"
+        );
+    }
 
     // Re-running shard 1 resumes: both of its pairs are done, nothing runs.
     let mut c = bin();

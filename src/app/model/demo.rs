@@ -313,6 +313,7 @@ fn pair_rows(rre: f64, rte: f64, correspondences: usize) -> Vec<PairEntry> {
         correspondences: Some(correspondences),
         time_ms: Some(64.0),
         settings: None,
+        ..Default::default()
     }];
     for i in 1..8 {
         let e = ((i * 37) % 11) as f64;
@@ -331,6 +332,7 @@ fn pair_rows(rre: f64, rte: f64, correspondences: usize) -> Vec<PairEntry> {
             correspondences: (i != 5).then_some(900 + 37 * i),
             time_ms: Some(40.0 + 11.0 * i as f64),
             settings: None,
+            ..Default::default()
         });
     }
     pairs.push(PairEntry::pending(

@@ -49,6 +49,25 @@ pub struct PairEntry {
     pub time_ms: Option<f64>,
     /// The settings the row was computed with (None: not run yet).
     pub settings: Option<SettingsTag>,
+    /// The scene the manifest names for it (per-scene summary rows; None: it names none).
+    pub scene: Option<String>,
+    /// What the official 3DMatch recall needs of a pair it counts (a gt.info entry of
+    /// fragments that are not consecutive); None: the recall does not count the pair.
+    pub rmse_ref: Option<Box<RmseReference>>,
+    /// The RMSE of the estimate under [`crate::metrics::rmse_3dmatch`] (m), for a pair the
+    /// official recall counts that was registered.
+    pub rmse_m: Option<f64>,
+    /// The criterion `success` was judged by, and the run's second one with its verdict.
+    pub criterion: Option<crate::metrics::SuccessCriterion>,
+    pub also: Option<crate::metrics::Judged>,
+}
+
+/// The ground truth and gt.info information matrix of a pair the official 3DMatch recall
+/// counts, as the manifest gives them (what `bench` computes the RMSE from).
+#[derive(Clone, Debug, PartialEq)]
+pub struct RmseReference {
+    pub gt_target_from_source: Isometry3<f64>,
+    pub information: nalgebra::Matrix6<f64>,
 }
 
 /// Which settings produced a result: a short id (blake3 of the parameters' canonical JSON) and
@@ -141,6 +160,27 @@ impl PairEntry {
         }
     }
 
+    /// A row not run yet of a manifest's pair: its split, scene and, when the official
+    /// 3DMatch recall counts it, the reference its RMSE is computed against (as `bench` does).
+    pub fn of_spec(spec: &crate::dataset::manifest::PairSpec) -> Self {
+        let rmse_ref = match (&spec.gt_info, &spec.gt_target_from_source) {
+            (Some(info), Some(gt))
+                if crate::metrics::field::rmse_counts(info.target, info.source) =>
+            {
+                Some(Box::new(RmseReference {
+                    gt_target_from_source: *gt,
+                    information: info.information,
+                }))
+            }
+            _ => None,
+        };
+        Self {
+            scene: spec.scene.clone(),
+            rmse_ref,
+            ..Self::pending(spec.id.clone(), spec.split.clone())
+        }
+    }
+
     pub fn outcome(&self) -> PairOutcome {
         match (&self.status, self.success) {
             (PairStatus::Pending, _) => PairOutcome::Pending,
@@ -157,6 +197,8 @@ impl PairEntry {
         *self = Self {
             id: std::mem::take(&mut self.id),
             split: std::mem::take(&mut self.split),
+            scene: self.scene.take(),
+            rmse_ref: self.rmse_ref.take(),
             status,
             ..Default::default()
         };

@@ -208,11 +208,7 @@ impl PipelineWorker {
         cache: Option<Arc<Cache>>,
         cache_note: Option<String>,
     ) -> Self {
-        let pairs = dataset
-            .pairs()
-            .iter()
-            .map(|p| PairEntry::pending(p.id.clone(), p.split.clone()))
-            .collect();
+        let pairs = dataset.pairs().iter().map(PairEntry::of_spec).collect();
         let mut params = base;
         if params.image.is_none() {
             // without the image branch only geometry-only fusion runs: show what ran

@@ -377,7 +377,7 @@ fn view_images(
 }
 
 /// The pair browser's row of a registered pair: status, RRE, RTE, success, inlier ratio,
-/// correspondences and time from `result`.
+/// correspondences, time, criteria and the official recall's RMSE from `result`.
 pub fn fill_row(row: &mut PairEntry, result: &RegistrationResult) {
     row.status = PairStatus::Done;
     row.rre_deg = result.metrics.as_ref().map(|m| m.rre_deg);
@@ -386,6 +386,12 @@ pub fn fill_row(row: &mut PairEntry, result: &RegistrationResult) {
     row.inlier_ratio = result.metrics.as_ref().map(|m| m.inlier_ratio);
     row.correspondences = Some(result.n_correspondences);
     row.time_ms = Some(result.total_ms);
+    row.criterion = result.metrics.as_ref().map(|m| m.criterion);
+    row.also = result.metrics.as_ref().and_then(|m| m.also);
+    // the official recall's RMSE, as `bench` computes it (the manifest's GT and gt.info)
+    row.rmse_m = row.rmse_ref.as_ref().map(|r| {
+        crate::metrics::rmse_3dmatch(&result.estimate, &r.gt_target_from_source, &r.information)
+    });
 }
 
 fn top_indices(v: &[f32], n: usize) -> Vec<usize> {

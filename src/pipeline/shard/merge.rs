@@ -2,7 +2,7 @@
 
 use super::{
     host_name, machine_description, now_unix, source_commit, PairRecord, RunFile, RunHeader, Shard,
-    DONE, FAILED,
+    ShardRun, DONE, FAILED,
 };
 use crate::error::{Error, Result};
 
@@ -92,6 +92,19 @@ pub fn merge(inputs: &[(String, RunFile)]) -> Result<Merged> {
         updated_unix: now_unix(),
         machine: machine_description(),
         commit: source_commit(),
+        // each shard's own machine and commit: a merge on a login node must not stand for
+        // the compute nodes that ran the pairs
+        shard_runs: inputs
+            .iter()
+            .map(|(name, f)| ShardRun {
+                file: name.clone(),
+                shard: f.run.shard,
+                host: f.run.host.clone(),
+                updated_unix: f.run.updated_unix,
+                machine: f.run.machine.clone(),
+                commit: f.run.commit.clone(),
+            })
+            .collect(),
     };
     Ok(Merged {
         file: RunFile {

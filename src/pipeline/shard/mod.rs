@@ -29,8 +29,8 @@ mod tests;
 pub use merge::{merge, Merged};
 pub use progress::{run_pending, Progress, ResumeMode};
 pub use run_file::{
-    read_run_file, stage_totals, strip_times, PairRecord, RunFile, RunHeader, StageTime, DONE,
-    FAILED,
+    read_run_file, stage_totals, strip_times, PairRecord, RunFile, RunHeader, ShardRun, StageTime,
+    DONE, FAILED,
 };
 
 use crate::error::{Error, Result};

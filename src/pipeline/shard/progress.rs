@@ -112,6 +112,7 @@ impl Progress {
             updated_unix: now_unix(),
             machine: machine_description(),
             commit: source_commit(),
+            shard_runs: Vec::new(),
         };
         Ok((
             Progress {

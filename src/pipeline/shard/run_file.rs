@@ -29,6 +29,24 @@ pub struct RunHeader {
     /// binary itself.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub commit: Option<String>,
+    /// A merged output: where, when and from which commit each shard ran, in `merged_from`'s
+    /// order (the fields above are the merge's own). Empty for a shard's own output.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub shard_runs: Vec<ShardRun>,
+}
+
+/// The provenance of one shard a merged output was made from.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ShardRun {
+    /// The shard output, as named to `merge`.
+    pub file: String,
+    pub shard: Shard,
+    pub host: String,
+    pub updated_unix: u64,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub machine: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub commit: Option<String>,
 }
 
 /// One pair's outcome in a run file. `result` is the command's own per-pair JSON.

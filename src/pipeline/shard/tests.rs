@@ -84,6 +84,7 @@ fn shard_file(id: &RunIdentity, index: usize, recs: Vec<PairRecord>) -> RunFile 
             updated_unix: 0,
             machine: None,
             commit: None,
+            shard_runs: Vec::new(),
         },
         records: recs,
     }

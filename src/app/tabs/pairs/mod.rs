@@ -1,8 +1,11 @@
 //! Pair browser: every pair of the dataset with its status and metrics. "Run all" (or only
-//! the failed and pending pairs) registers the dataset on the worker with a progress bar and
-//! Cancel; filters (split, outcome, id text) and a sort on any column (click its header) pick
-//! and order the rows; Up/Down and j/k open the previous / next pair of that order, and the
-//! current pair's row is kept in view.
+//! the failed and pending pairs) registers the dataset on the worker with a progress bar, the
+//! time left and Cancel, each result filling its row as it comes in; filters (split, scene,
+//! outcome, id text), failures first and a sort on any column (click its header) pick and
+//! order the rows; Up/Down and j/k open the previous / next pair of that order, n / N the next /
+//! previous failure, and the current pair's row is kept in view. Above the rows, the
+//! paper-style summary of the pairs run (per benchmark and scene, the numbers `cgenreg bench`
+//! prints, by the same function).
 //!
 //! The side panel holds a compact list (pair, status, RRE, RTE) with the run controls; the
 //! "Pairs" tab holds the filters and every column.
@@ -13,6 +16,7 @@ use super::{Tab, TabContext};
 use crate::app::channel::{Command, RunProgress, RunSelection};
 use crate::app::model::{InspectorModel, PairEntry, PairOutcome, PairStatus};
 use crate::app::state::Panel;
+use crate::app::triage;
 
 mod table;
 
@@ -20,7 +24,7 @@ pub use crate::app::pair_order::{
     sorted_pairs, visible_pairs, OutcomeFilter, PairColumn, PairFilter, PairSort,
 };
 pub use table::common_id_prefix;
-use table::{table, TableView};
+use table::{table, ScrollMemo, TableView};
 
 /// The browser's state besides the (persisted) sort.
 #[derive(Debug, Default)]
@@ -28,10 +32,12 @@ pub struct PairsTab {
     pub filter: PairFilter,
     /// The run in progress (None when none runs).
     pub progress: Option<RunProgress>,
+    /// When the run in progress started (its time left is at its mean pace so far).
+    run_started: Option<std::time::Instant>,
     /// A pair asked for by the keyboard and not shown yet (the next key moves from it).
     requested: Option<String>,
-    /// The current pair each list last scrolled to (side panel, tab).
-    scrolled: [Option<String>; 2],
+    /// What each list (side panel, tab) last scrolled to and drew.
+    scrolled: [ScrollMemo; 2],
     /// The id of the settings in force ([`crate::app::model::SettingsTag`]): rows computed with
     /// others are marked stale and left out of the counts (None: every row counts).
     pub current_settings: Option<String>,
@@ -93,7 +99,74 @@ pub fn apply_progress(model: &mut InspectorModel, state: &mut PairsTab, p: RunPr
             None => row.status = PairStatus::Running,
         }
     }
+    if p.finished {
+        state.run_started = None;
+    } else if state.progress.is_none() || state.run_started.is_none() {
+        state.run_started = Some(std::time::Instant::now());
+    }
     state.progress = (!p.finished).then_some(p);
+}
+
+/// "2 / 10 · 1 min 20 s left" of a run in progress (the time left once a pair has ended).
+pub fn progress_text(p: &RunProgress, started: Option<std::time::Instant>) -> String {
+    let left = started
+        .and_then(|t| triage::eta(t.elapsed(), p.done, p.total))
+        .map(|d| format!(" · {} left", triage::human_duration(d)))
+        .unwrap_or_default();
+    format!("{} / {}{left}", p.done, p.total)
+}
+
+/// Opens the next (or previous) failure of the shown order after the current pair.
+fn go_to_failure(
+    model: &InspectorModel,
+    state: &mut PairsTab,
+    sort: PairSort,
+    forward: bool,
+    out: &mut Vec<Command>,
+) -> bool {
+    let order = visible_pairs(&model.pairs, &state.filter, sort);
+    let from = state
+        .requested
+        .as_ref()
+        .and_then(|id| model.pairs.iter().position(|p| &p.id == id))
+        .or(model.current_pair);
+    let current = state.current_settings.as_deref();
+    match triage::next_failure(&model.pairs, &order, from, forward, current) {
+        Some(i) if Some(i) != from => {
+            let id = model.pairs[i].id.clone();
+            out.push(Command::SelectPair(id.clone()));
+            state.requested = Some(id);
+            true
+        }
+        _ => false,
+    }
+}
+
+/// "previous / next failure" buttons (n / N).
+pub fn failure_buttons(
+    ui: &mut egui::Ui,
+    model: &InspectorModel,
+    state: &mut PairsTab,
+    sort: PairSort,
+    out: &mut Vec<Command>,
+) {
+    let running = state.progress.is_some();
+    ui.horizontal(|ui| {
+        let prev = ui
+            .add_enabled(!running, egui::Button::new("< failure"))
+            .on_hover_text("open the previous failure or error of the shown order (N)");
+        let next = ui
+            .add_enabled(!running, egui::Button::new("next failure >"))
+            .on_hover_text("open the next failure or error of the shown order (n)");
+        if prev.clicked() {
+            go_to_failure(model, state, sort, false, out);
+        }
+        if next.clicked() {
+            go_to_failure(model, state, sort, true, out);
+        }
+        ui.checkbox(&mut state.filter.failures_first, "failures first")
+            .on_hover_text("failures and errors above the other rows, each in the sort's order");
+    });
 }
 
 /// Up/Down or k/j: open the previous / next pair of the browser's order (not while a text
@@ -121,13 +194,27 @@ pub fn keyboard_nav(
     if ctx.text_edit_focused() {
         return;
     }
-    let (up, down) = ctx.input(|i| {
+    let (up, down, failure) = ctx.input(|i| {
         let plain = !i.modifiers.any();
+        let n = i.key_pressed(egui::Key::N);
         (
             plain && (i.key_pressed(egui::Key::ArrowUp) || i.key_pressed(egui::Key::K)),
             plain && (i.key_pressed(egui::Key::ArrowDown) || i.key_pressed(egui::Key::J)),
+            match (n, plain, i.modifiers.shift_only()) {
+                (true, true, _) => Some(true),
+                (true, false, true) => Some(false),
+                _ => None,
+            },
         )
     });
+    if let Some(forward) = failure {
+        if go_to_failure(model, state, sort, forward, out) {
+            if let Some(id) = ctx.memory(|m| m.focused()) {
+                ctx.memory_mut(|m| m.surrender_focus(id));
+            }
+        }
+        return;
+    }
     if up == down {
         return;
     }
@@ -152,7 +239,8 @@ pub fn keyboard_nav(
     }
 }
 
-/// "Run all" and "Run failed/pending", or the running run's progress bar and Cancel.
+/// "Run all" and "Run failed/pending", or the running run's progress bar, time left and
+/// Cancel.
 pub fn run_controls(ui: &mut egui::Ui, state: &PairsTab, out: &mut Vec<Command>) {
     match &state.progress {
         Some(p) => {
@@ -164,9 +252,10 @@ pub fn run_controls(ui: &mut egui::Ui, state: &PairsTab, out: &mut Vec<Command>)
                 };
                 ui.add(
                     egui::ProgressBar::new(f)
-                        .desired_width(180.0)
-                        .text(format!("{} / {} · {}", p.done, p.total, p.pair)),
-                );
+                        .desired_width(220.0)
+                        .text(progress_text(p, state.run_started)),
+                )
+                .on_hover_text(format!("now: {}", p.pair));
                 if ui
                     .button("Cancel")
                     .on_hover_text("stop before the next pair (Esc)")
@@ -199,7 +288,7 @@ pub fn run_controls(ui: &mut egui::Ui, state: &PairsTab, out: &mut Vec<Command>)
     }
 }
 
-/// The split, outcome and text filters.
+/// The split, scene, outcome and text filters.
 pub fn filter_controls(ui: &mut egui::Ui, model: &InspectorModel, filter: &mut PairFilter) {
     let mut splits: Vec<&str> = model
         .pairs
@@ -209,6 +298,13 @@ pub fn filter_controls(ui: &mut egui::Ui, model: &InspectorModel, filter: &mut P
         .collect();
     splits.sort_unstable();
     splits.dedup();
+    let mut scenes: Vec<&str> = model
+        .pairs
+        .iter()
+        .filter_map(|p| p.scene.as_deref())
+        .collect();
+    scenes.sort_unstable();
+    scenes.dedup();
     ui.horizontal(|ui| {
         if !splits.is_empty() {
             egui::ComboBox::new("pairs_split", "split")
@@ -217,6 +313,16 @@ pub fn filter_controls(ui: &mut egui::Ui, model: &InspectorModel, filter: &mut P
                     ui.selectable_value(&mut filter.split, None, "every split");
                     for s in splits {
                         ui.selectable_value(&mut filter.split, Some(s.to_string()), s);
+                    }
+                });
+        }
+        if !scenes.is_empty() {
+            egui::ComboBox::new("pairs_scene", "scene")
+                .selected_text(filter.scene.as_deref().unwrap_or("every scene"))
+                .show_ui(ui, |ui| {
+                    ui.selectable_value(&mut filter.scene, None, "every scene");
+                    for s in scenes {
+                        ui.selectable_value(&mut filter.scene, Some(s.to_string()), s);
                     }
                 });
         }
@@ -233,7 +339,7 @@ pub fn filter_controls(ui: &mut egui::Ui, model: &InspectorModel, filter: &mut P
                 .desired_width(160.0),
         );
         if filter.is_active() && ui.small_button("clear").clicked() {
-            *filter = PairFilter::default();
+            *filter = filter.cleared();
         }
     });
 }
@@ -337,18 +443,118 @@ pub fn summary(model: &InspectorModel, rows: &[usize], current: Option<&str>) ->
     s
 }
 
-/// The "Pairs" tab: filters, a summary, and every column.
+/// A summary number as `cgenreg bench` prints it ("–" when no registered pair gives one).
+fn num(v: f64, scale: f64) -> String {
+    if v.is_finite() {
+        format!("{:.2}", scale * v)
+    } else {
+        "–".to_string()
+    }
+}
+
+/// The paper-style rows of the pairs run with the settings in force: per benchmark and scene,
+/// then each benchmark pooled, with the criterion they count by; clicking a row's benchmark or
+/// scene shows only its pairs.
+pub fn summary_table(ui: &mut egui::Ui, model: &InspectorModel, state: &mut PairsTab) {
+    let (rows, n) = triage::summary_rows(&model.pairs, state.current_settings.as_deref());
+    let Some(first) = rows.first() else {
+        return;
+    };
+    let rmse = rows.iter().any(|r| r.rmse_recall.is_some());
+    let also = rows.iter().find_map(|r| r.also.map(|(c, _)| c));
+    ui.label(format!(
+        "Summary of the {n} of {} pairs run with the current settings (as `cgenreg bench` \
+         prints it): RR = registration recall at {}{}; RE / TE over the registered pairs",
+        model.pairs.len(),
+        first.criterion.label(),
+        also.map_or(String::new(), |c| format!(
+            ", RR {} at {}",
+            c.short(),
+            c.label()
+        )),
+    ));
+    if rmse {
+        ui.weak(
+            "RR RMSE = the official 3DMatch recall: RMSE < 0.2 m over gt.info, on the pairs of \
+             non-consecutive fragments",
+        );
+    }
+    egui::Grid::new("pairs_field_summary")
+        .striped(true)
+        .min_col_width(40.0)
+        .show(ui, |ui| {
+            let mut head: Vec<String> = ["benchmark", "scene", "pairs", "RR %"]
+                .map(String::from)
+                .to_vec();
+            if let Some(c) = also {
+                head.push(format!("RR {} %", c.short()));
+            }
+            if rmse {
+                head.push("RR RMSE % (pairs)".into());
+            }
+            head.extend(["RE mean °", "RE med °", "TE mean cm", "TE med cm"].map(String::from));
+            for h in head {
+                ui.strong(h);
+            }
+            ui.end_row();
+            for r in &rows {
+                let scene = r.scene.as_deref().unwrap_or("all");
+                let picked = state.filter.split.as_deref() == Some(r.benchmark.as_str())
+                    && state.filter.scene.as_deref() == r.scene.as_deref();
+                if ui
+                    .selectable_label(picked, &r.benchmark)
+                    .on_hover_text("show only these pairs")
+                    .clicked()
+                {
+                    state.filter.split = Some(r.benchmark.clone());
+                    state.filter.scene = r.scene.clone();
+                }
+                if r.scene.is_some() {
+                    ui.label(scene);
+                } else {
+                    ui.strong(scene);
+                }
+                ui.label(r.pairs.to_string());
+                ui.label(format!("{:.1}", 100.0 * r.rr));
+                if also.is_some() {
+                    ui.label(
+                        r.also
+                            .map_or("-".into(), |(_, f)| format!("{:.1}", 100.0 * f)),
+                    );
+                }
+                if rmse {
+                    ui.label(r.rmse_recall.map_or("-".into(), |f| {
+                        format!("{:.1} ({})", 100.0 * f, r.rmse_pairs)
+                    }));
+                }
+                ui.label(num(r.re_mean_deg, 1.0));
+                ui.label(num(r.re_median_deg, 1.0));
+                ui.label(num(r.te_mean_m, 100.0));
+                ui.label(num(r.te_median_m, 100.0));
+                ui.end_row();
+            }
+        });
+}
+
+/// The "Pairs" tab: the run controls, the summary rows, filters, and every column.
 impl Tab for PairsTab {
     fn panel(&self) -> Panel {
         Panel::Pairs
     }
     fn ui(&mut self, ui: &mut egui::Ui, cx: &mut TabContext<'_>) {
         let model = cx.shared.model;
+        run_controls(ui, self, cx.shared.commands);
+        summary_table(ui, model, self);
+        ui.separator();
         filter_controls(ui, model, &mut self.filter);
         let sort = &mut cx.shared.ui.pair_sort;
+        failure_buttons(ui, model, self, *sort, cx.shared.commands);
         let rows = self.rows(model, *sort);
         ui.label(summary(model, &rows, self.current_settings.as_deref()));
-        ui.weak("click a header to sort (again: reverse) · Up/Down or j/k: previous / next pair");
+        ui.weak(
+            "click a header to sort (again: reverse) · Up/Down or j/k: previous / next pair · \
+             n / N: next / previous failure",
+        );
         ui.separator();
         let view = TableView {
             id: "pairs_tab_grid",

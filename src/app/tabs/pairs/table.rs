@@ -166,6 +166,17 @@ fn is_number(c: PairColumn) -> bool {
     !matches!(c, PairColumn::Pair | PairColumn::Split | PairColumn::Status)
 }
 
+/// What a list remembers between frames: the current pair it last scrolled to, and the part
+/// of the rows it showed (only the rows in view are laid out, so a hidden current row is
+/// scrolled to by its position).
+#[derive(Debug, Default)]
+pub struct ScrollMemo {
+    pub current: Option<String>,
+    /// The rows' area in view, in points from the first row's top (None before the first
+    /// frame: the top of the list).
+    pub viewport: Option<egui::Rangef>,
+}
+
 /// What a table shows: the rows (indices into the model's pairs, in order) and the columns
 /// (the first is the pair id).
 pub struct TableView<'a> {
@@ -182,14 +193,14 @@ pub struct TableView<'a> {
 }
 
 /// The table: the header stays in view above the rows, which scroll under it; the two
-/// scroll sideways together when the columns are wider than the panel. Clicking an id opens
-/// that pair; the current pair's row is scrolled into view when it becomes current (only when
-/// hidden: a visible row stays where it is).
+/// scroll sideways together when the columns are wider than the panel. Only the rows in view
+/// are laid out. Clicking an id opens that pair; the current pair's row is scrolled into view
+/// when it becomes current (only when hidden: a visible row stays where it is).
 pub fn table(
     ui: &mut egui::Ui,
     v: TableView,
     sort: &mut PairSort,
-    scrolled: &mut Option<String>,
+    scrolled: &mut ScrollMemo,
     current_settings: Option<&str>,
     out: &mut Vec<Command>,
 ) {
@@ -231,23 +242,58 @@ pub fn table(
             .max_height
             .unwrap_or_else(|| ui.available_height() - bar)
             .max(row_h);
+        // the current pair's row scrolled into view when it becomes current, only when it was
+        // not wholly among the rows drawn last frame (a visible row stays where it is)
+        let stride = row_h + ui.spacing().item_spacing.y;
+        let mut offset = None;
+        let at = v
+            .model
+            .current_pair
+            .and_then(|c| v.rows.iter().position(|&i| i == c));
+        if let Some(k) = at {
+            let id = &v.model.pairs[v.rows[k]].id;
+            if scrolled.current.as_deref() != Some(id.as_str()) {
+                let seen = scrolled.viewport.unwrap_or(egui::Rangef::new(0.0, h));
+                let top = k as f32 * stride;
+                if top < seen.min || top + row_h > seen.max {
+                    offset = Some((top - 0.5 * (h - row_h)).max(0.0));
+                }
+                scrolled.current = Some(id.clone());
+            }
+        }
         ui.allocate_ui_with_layout(
             egui::vec2(total, h),
             egui::Layout::top_down(egui::Align::Min),
             |ui| {
                 ui.set_width(total);
-                egui::ScrollArea::vertical()
+                let mut area = egui::ScrollArea::vertical()
                     .id_salt((v.id, "rows"))
                     .max_height(h)
-                    .auto_shrink([false, v.max_height.is_some()])
-                    .show(ui, |ui| {
+                    .auto_shrink([false, v.max_height.is_some()]);
+                if let Some(o) = offset {
+                    area = area.vertical_scroll_offset(o);
+                }
+                // only the rows in view are laid out: a frame costs the same at 10 or 10,000
+                area.show_viewport(ui, |ui, viewport| {
+                    scrolled.viewport = Some(viewport.y_range());
+                    // as `ScrollArea::show_rows` lays them out
+                    let n = v.rows.len();
+                    let gap = ui.spacing().item_spacing.y;
+                    ui.set_height((stride * n as f32 - gap).max(0.0));
+                    let first = ((viewport.min.y / stride).floor().max(0.0) as usize).min(n);
+                    let end = ((viewport.max.y / stride).ceil() as usize + 1).min(n);
+                    let y0 = ui.max_rect().top() + first as f32 * stride;
+                    let y1 = ui.max_rect().top() + end as f32 * stride;
+                    let rect = egui::Rect::from_x_y_ranges(ui.max_rect().x_range(), y0..=y1);
+                    ui.scope_builder(egui::UiBuilder::new().max_rect(rect), |ui| {
+                        ui.skip_ahead_auto_ids(first);
                         let ctx = RowCtx {
-                            scrolled,
                             current_settings,
                             id_prefix: &id_prefix,
                         };
-                        rows(ui, &v, &widths, row_h, ctx, out)
+                        rows(ui, &v, first..end.max(first), &widths, row_h, ctx, out)
                     });
+                });
             },
         );
     };
@@ -297,25 +343,24 @@ fn keep_end(ui: &egui::Ui, text: &str, w: f32) -> String {
 /// The narrowest the pair column gets in a table that does not scroll sideways.
 const MIN_ID_WIDTH: f32 = 80.0;
 
-/// What the rows need besides the view: the scroll memory, the settings in force and the
-/// ids' shared prefix (left out).
+/// What the rows need besides the view: the settings in force and the ids' shared prefix
+/// (left out).
 struct RowCtx<'a> {
-    scrolled: &'a mut Option<String>,
     current_settings: Option<&'a str>,
     id_prefix: &'a str,
 }
 
-/// The rows of [`table`], striped.
+/// The rows `range` of [`table`] (positions in the view's order), striped.
 fn rows(
     ui: &mut egui::Ui,
     v: &TableView,
+    range: std::ops::Range<usize>,
     widths: &[f32],
     row_h: f32,
     ctx: RowCtx<'_>,
     out: &mut Vec<Command>,
 ) {
     let RowCtx {
-        scrolled,
         current_settings,
         id_prefix,
     } = ctx;
@@ -337,7 +382,13 @@ fn rows(
         });
         v.rows.len() > 1 && common >= 4
     };
-    for (k, &i) in v.rows.iter().enumerate() {
+    for (k, &i) in v
+        .rows
+        .iter()
+        .enumerate()
+        .skip(range.start)
+        .take(range.len())
+    {
         let p = &v.model.pairs[i];
         let stale = super::is_stale(p, current_settings);
         let shown_id = &p.id[id_prefix.len()..];
@@ -379,15 +430,6 @@ fn rows(
         // the current row runs again when it is an error row (after a settings change)
         if r.clicked() && (!current || matches!(p.status, PairStatus::Failed(_))) {
             out.push(Command::SelectPair(p.id.clone()));
-        }
-        if current && scrolled.as_deref() != Some(p.id.as_str()) {
-            if !ui.clip_rect().contains_rect(r.rect) {
-                r.scroll_to_me_animation(
-                    Some(egui::Align::Center),
-                    egui::style::ScrollAnimation::none(),
-                );
-            }
-            *scrolled = Some(p.id.clone());
         }
     }
 }
