@@ -11,8 +11,8 @@ use crate::fusion::cosine_similarity;
 use crate::geometry::PointCloud;
 use crate::io::depth_png::{read_depth_png, DepthImage};
 use crate::matrix::DenseMatrix;
-use crate::vfm::pair_similarity::PairPointDescriptors;
 use crate::pipeline::memo::Memo;
+use crate::vfm::pair_similarity::PairPointDescriptors;
 use std::path::PathBuf;
 use std::sync::{Arc, OnceLock};
 
