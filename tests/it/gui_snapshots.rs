@@ -253,7 +253,10 @@ fn pairs_tab_runs_all_sorts_navigates_and_cancels() {
     h.get_all_by_label("Run all").next().unwrap().click();
     h.run_steps(2);
     wait_for(&seen, &Command::RunAll(RunSelection::All));
-    h.get_all_by_label("Run failed/pending").next().unwrap().click();
+    h.get_all_by_label("Run failed/pending")
+        .next()
+        .unwrap()
+        .click();
     h.run_steps(2);
     wait_for(&seen, &Command::RunAll(RunSelection::FailedOrPending));
     // header clicks: a metric starts worst (largest) first, a second click reverses
