@@ -127,6 +127,9 @@ pub enum LogLevel {
 }
 
 /// What the worker reports back.
+// A run's progress (one row, a few hundred bytes) is sent twice per pair: a move of that size
+// costs less than boxing it; the model, megabytes, is boxed.
+#[allow(clippy::large_enum_variant)]
 #[derive(Clone, Debug)]
 pub enum WorkerEvent {
     /// A new model replaces the shown one.

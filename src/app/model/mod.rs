@@ -12,9 +12,11 @@ use crate::camera::CameraModel;
 
 mod compare;
 mod hypotheses;
+mod pair_entry;
 
 pub use compare::{CompareEvent, SettingsCompareRequest, SettingsRuns, Side};
 pub use hypotheses::{HypothesisList, HypothesisRow};
+pub use pair_entry::{PairOutcome, RmseReference};
 
 /// State of one scan pair in the pair browser.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -60,14 +62,6 @@ pub struct PairEntry {
     /// The criterion `success` was judged by, and the run's second one with its verdict.
     pub criterion: Option<crate::metrics::SuccessCriterion>,
     pub also: Option<crate::metrics::Judged>,
-}
-
-/// The ground truth and gt.info information matrix of a pair the official 3DMatch recall
-/// counts, as the manifest gives them (what `bench` computes the RMSE from).
-#[derive(Clone, Debug, PartialEq)]
-pub struct RmseReference {
-    pub gt_target_from_source: Isometry3<f64>,
-    pub information: nalgebra::Matrix6<f64>,
 }
 
 /// Which settings produced a result: a short id (blake3 of the parameters' canonical JSON) and
@@ -122,34 +116,6 @@ fn fmt_num(x: f64) -> String {
     s.trim_end_matches('0').trim_end_matches('.').to_string()
 }
 
-/// What the pair browser's status column and its filter say of a row.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum PairOutcome {
-    Pending,
-    Running,
-    /// Registered and within the recall thresholds.
-    Success,
-    /// Registered, outside the thresholds.
-    Failure,
-    /// Registered without ground truth.
-    Done,
-    /// Not registered (an error).
-    Error,
-}
-
-impl PairOutcome {
-    pub fn label(self) -> &'static str {
-        match self {
-            Self::Pending => "pending",
-            Self::Running => "running",
-            Self::Success => "success",
-            Self::Failure => "failure",
-            Self::Done => "done (no GT)",
-            Self::Error => "error",
-        }
-    }
-}
-
 impl PairEntry {
     /// A row not run yet.
     pub fn pending(id: impl Into<String>, split: impl Into<String>) -> Self {
@@ -157,27 +123,6 @@ impl PairEntry {
             id: id.into(),
             split: split.into(),
             ..Default::default()
-        }
-    }
-
-    /// A row not run yet of a manifest's pair: its split, scene and, when the official
-    /// 3DMatch recall counts it, the reference its RMSE is computed against (as `bench` does).
-    pub fn of_spec(spec: &crate::dataset::manifest::PairSpec) -> Self {
-        let rmse_ref = match (&spec.gt_info, &spec.gt_target_from_source) {
-            (Some(info), Some(gt))
-                if crate::metrics::field::rmse_counts(info.target, info.source) =>
-            {
-                Some(Box::new(RmseReference {
-                    gt_target_from_source: *gt,
-                    information: info.information,
-                }))
-            }
-            _ => None,
-        };
-        Self {
-            scene: spec.scene.clone(),
-            rmse_ref,
-            ..Self::pending(spec.id.clone(), spec.split.clone())
         }
     }
 
