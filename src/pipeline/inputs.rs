@@ -11,7 +11,6 @@ use crate::fusion::cosine_similarity;
 use crate::geometry::PointCloud;
 use crate::io::depth_png::{read_depth_png, DepthImage};
 use crate::matrix::DenseMatrix;
-use crate::pipeline::memo::Memo;
 use crate::vfm::pair_similarity::PairPointDescriptors;
 use std::path::PathBuf;
 use std::sync::{Arc, OnceLock};
@@ -92,6 +91,17 @@ fn dot(a: &[f32], b: &[f32]) -> f32 {
     a.iter().zip(b).map(|(x, y)| x * y).sum()
 }
 
+/// Where a run keeps decoded depth views between its pairs (the run's memo, which implements
+/// it above this file): a scan's views are decoded once per run.
+pub trait DepthViewStore: Sync {
+    /// The views of `paths`, from the store when they are there and unchanged, else `read`.
+    fn depth_views(
+        &self,
+        paths: &[PathBuf],
+        read: &dyn Fn() -> Result<Vec<DepthImage>>,
+    ) -> Result<Arc<Vec<DepthImage>>>;
+}
+
 /// The depth frames of both scans of a pair (every frame the image branch has: the sensor's, or
 /// the virtual frames rendered for a cloud-only scan), read once, on first use.
 #[derive(Debug)]
@@ -116,13 +126,13 @@ impl PairViews {
         self.depths(None).map(|_| ())
     }
 
-    /// [`Self::load`], each side's frames taken from `memo` when an earlier pair of the same
-    /// scan read them (the same files, unchanged), and kept there for the next.
-    pub fn load_with(&self, memo: &Memo) -> Result<()> {
-        self.depths(Some(memo)).map(|_| ())
+    /// [`Self::load`], each side's frames taken from `store` (the run's memo) when an earlier
+    /// pair of the same scan read them (the same files, unchanged), and kept there for the next.
+    pub fn load_with(&self, store: &dyn DepthViewStore) -> Result<()> {
+        self.depths(Some(store)).map(|_| ())
     }
 
-    fn depths(&self, memo: Option<&Memo>) -> Result<&[Arc<Vec<DepthImage>>; 2]> {
+    fn depths(&self, memo: Option<&dyn DepthViewStore>) -> Result<&[Arc<Vec<DepthImage>>; 2]> {
         // L PNG decodes per side, in parallel (the same images in the same order)
         let decode = |fs: &FrameSet| -> Result<Vec<DepthImage>> {
             use rayon::prelude::*;
@@ -136,7 +146,7 @@ impl PairViews {
                 Some(m) => {
                     let paths: Vec<PathBuf> =
                         fs.frames.iter().map(|f| f.depth_path.clone()).collect();
-                    m.depth_views(&paths, || decode(fs))
+                    m.depth_views(&paths, &|| decode(fs))
                 }
                 None => decode(fs).map(Arc::new),
             }

@@ -260,6 +260,16 @@ fn memoized<T: ?Sized>(
     Ok(m)
 }
 
+impl super::inputs::DepthViewStore for Memo {
+    fn depth_views(
+        &self,
+        paths: &[PathBuf],
+        read: &dyn Fn() -> Result<Vec<crate::io::depth_png::DepthImage>>,
+    ) -> Result<Arc<Vec<crate::io::depth_png::DepthImage>>> {
+        Memo::depth_views(self, paths, read)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
