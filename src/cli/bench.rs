@@ -324,7 +324,7 @@ pub fn selection<'a>(
 
 /// Whether the official 3DMatch recall counts a pair: a gt.info entry of fragments that are not
 /// consecutive, in the data's own frame (gt.info does not hold for a re-posed source).
-fn rmse_counted(spec: &PairSpec, reposed: bool) -> bool {
+pub(super) fn rmse_counted(spec: &PairSpec, reposed: bool) -> bool {
     !reposed
         && spec
             .gt_info

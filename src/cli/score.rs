@@ -8,10 +8,11 @@
 //! or a file of several runs, `{"runs": [{"method": .., "pairs": [..]}]}` (what
 //! `scripts/peers.sh --json` writes), one of which `--run` picks.
 
-use super::bench::{log_line, print_field_table, print_table, progress_bar, selection};
+use super::bench::{
+    log_line, print_field_table, print_table, progress_bar, rmse_counted, selection,
+};
 use crate::dataset::manifest::{Dataset, PairSpec};
 use crate::error::{Error, Result};
-use crate::metrics::field::rmse_counts;
 use crate::metrics::{rmse_3dmatch, PairMetrics, SuccessCriteria};
 use crate::pipeline::shard::{
     run_pending, PairRecord, Progress, ResumeMode, RunIdentity, Shard, DONE, FAILED,
@@ -181,10 +182,7 @@ fn isometry(m: &Value) -> std::result::Result<Isometry3<f64>, String> {
 
 /// One pair scored: the row `bench` would write for this pose.
 pub fn score_pair(ds: &Dataset, spec: &PairSpec, given: Option<&GivenPose>) -> PairRow {
-    let rmse_counted = spec
-        .gt_info
-        .as_ref()
-        .is_some_and(|i| rmse_counts(i.target, i.source));
+    let rmse_counted = rmse_counted(spec, false);
     let time_s = given.and_then(|g| g.time_s).unwrap_or(0.0);
     let failed = |why: &str| PairRow {
         scene: spec.scene.clone(),
@@ -283,9 +281,15 @@ pub fn run(a: ScoreArgs) -> Result<()> {
                 .map_err(|e| Error::Encode(format!("serialising a row: {e}")))?,
         })
     };
+    // as bench records a pair that failed: with its scene and whether the official recall counts it
     let failed_result = |pos: usize, why: &str| {
-        serde_json::to_value(PairRow::failed(&specs[pos].id, &specs[pos].split, why, 0.0))
-            .unwrap_or_default()
+        let spec = specs[pos];
+        serde_json::to_value(PairRow {
+            scene: spec.scene.clone(),
+            rmse_counted: rmse_counted(spec, false),
+            ..PairRow::failed(&spec.id, &spec.split, why, 0.0)
+        })
+        .unwrap_or_default()
     };
     let written = run_pending(
         &mut progress,
